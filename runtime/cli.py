@@ -1,0 +1,74 @@
+"""`tensortouch` console entry point.
+
+Deploy subcommands (run, listen, ...) live here. Train-side, twin and workbench subcommands are
+contributed by `tools/` through the `tensortouch.commands` entry-point group: each entry point is
+a function `register(subparsers)` that adds its parsers. The runtime never imports `tools/`; it only
+asks the installed package metadata which commands exist, so a deploy install without the `train`
+extra still works and simply lacks those commands.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from importlib import metadata
+
+log = logging.getLogger(__name__)
+
+ENTRY_POINT_GROUP = "tensortouch.commands"
+
+
+from runtime.errors import TensorTouchError
+
+
+class CommandError(TensorTouchError):
+    """A user-facing CLI error: printed as one clear line, exit status 2, no traceback."""
+
+
+def _register_deploy_commands(sub) -> None:
+    from runtime import commands
+
+    commands.register(sub)
+
+
+def _register_plugins(sub) -> list[str]:
+    problems = []
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            register = ep.load()
+            register(sub)
+        except ImportError as exc:  # a tools/ extra is not installed
+            problems.append(f"{ep.name}: unavailable ({exc}); install the train extra: pip install -e '.[train]'")
+    return problems
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
+    parser = argparse.ArgumentParser(prog="tensortouch", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _register_deploy_commands(sub)
+    problems = _register_plugins(sub)
+    return parser, problems
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, problems = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        for line in problems:
+            print("note:", line, file=sys.stderr)
+        return 0 if args.command is None else 2
+    try:
+        return int(args.func(args) or 0)
+    except TensorTouchError as exc:
+        print(f"tensortouch {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

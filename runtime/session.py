@@ -1,0 +1,197 @@
+"""The session contract: one recording (real rig or digital twin) as a directory.
+
+```
+<session>/
+  session.json          manifest (schema, schema_version, sensor_id, units, clock, streams, provenance)
+  poses.csv             t,indenter,x,y,z,qw,qx,qy,qz        (s, -, mm, unit quaternion)
+  wrench.csv            t,indenter,fx,fy,fz,tx,ty,tz        (s, -, N in the F/T frame, N*mm)
+  frames.csv            t,index                              (s, frame number in the image stream)
+  frames.avi | frames/  image stream: a video file or a folder of numbered PNG files
+  temperature.csv       t,celsius
+  truth/                twin-only ground truth; no deploy or workbench stage reads it
+```
+
+Only `frames` is required; the other streams are listed in the manifest when present. This module
+is pure (json + numpy + csv) so both the runtime (replay) and `tools/` (twin, training, workbench)
+read sessions through the same code. See docs/session.md.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from runtime.errors import SessionError
+
+SCHEMA = "tensortouch.session"
+SCHEMA_VERSION = 1
+UNITS = {"length": "mm", "force": "N", "torque": "N*mm", "time": "s", "temperature": "degC",
+         "stress": "MPa", "angle": "rad"}
+
+STREAM_COLUMNS = {
+    "poses": ["t", "indenter", "x", "y", "z", "qw", "qx", "qy", "qz"],
+    "wrench": ["t", "indenter", "fx", "fy", "fz", "tx", "ty", "tz"],
+    "frames": ["t", "index"],
+    "temperature": ["t", "celsius"],
+}
+STREAM_FILES = {"poses": "poses.csv", "wrench": "wrench.csv", "frames": "frames.csv",
+                "temperature": "temperature.csv"}
+
+
+@dataclass
+class Session:
+    """A validated session: manifest plus lazily loaded streams."""
+
+    path: Path
+    manifest: dict
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def sensor_id(self) -> str:
+        return self.manifest["sensor_id"]
+
+    @property
+    def streams(self) -> dict:
+        return self.manifest["streams"]
+
+    def has(self, stream: str) -> bool:
+        return stream in self.streams
+
+    def table(self, stream: str) -> np.ndarray:
+        """A stream as a float64 array with the columns of STREAM_COLUMNS[stream]."""
+        if stream not in self._cache:
+            if stream not in self.streams:
+                raise SessionError(f"{self.path / 'session.json'}: no stream '{stream}' "
+                                   f"(present: {sorted(self.streams)})")
+            info = self.streams[stream]
+            self._cache[stream] = read_table(self.path / info.get("file", STREAM_FILES[stream]),
+                                             STREAM_COLUMNS[stream])
+        return self._cache[stream]
+
+    def image_source(self) -> tuple[str, Path]:
+        """('video', file) or ('images', folder) holding the camera frames."""
+        info = self.streams["frames"]
+        if "video" in info:
+            return "video", self.path / info["video"]
+        if "images" in info:
+            return "images", self.path / info["images"]
+        raise SessionError(f"{self.path / 'session.json'}: streams.frames needs 'video' or 'images'")
+
+
+def read_table(path: Path, columns: list[str]) -> np.ndarray:
+    """Read a CSV stream; the header must name exactly `columns` in order."""
+    path = Path(path)
+    if not path.is_file():
+        raise SessionError(f"{path}: stream file missing (expected columns {','.join(columns)})")
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header != columns:
+            raise SessionError(f"{path}: header {header} does not match expected {columns}")
+        rows = []
+        for lineno, row in enumerate(reader, start=2):
+            if len(row) != len(columns):
+                raise SessionError(f"{path}:{lineno}: {len(row)} values, expected {len(columns)} (truncated file?)")
+            try:
+                rows.append([float(v) for v in row])
+            except ValueError:
+                raise SessionError(f"{path}:{lineno}: non-numeric value in {row}") from None
+    data = np.asarray(rows, dtype=np.float64).reshape(-1, len(columns))
+    return data
+
+
+def write_table(path: Path, columns: list[str], data: np.ndarray) -> None:
+    """Write a CSV stream atomically (write to a temp file, then rename)."""
+    path = Path(path)
+    data = np.asarray(data, dtype=np.float64).reshape(-1, len(columns))
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with open(tmp, "w", newline="") as fh:
+        fh.write(",".join(columns) + "\n")
+        np.savetxt(fh, data, delimiter=",", fmt="%.9g")
+    tmp.replace(path)
+
+
+def validate_manifest(manifest: dict, where: str = "session.json") -> None:
+    """Raise SessionError naming the first field that breaks the contract."""
+    if manifest.get("schema") != SCHEMA:
+        raise SessionError(f"{where}: schema is {manifest.get('schema')!r}, expected {SCHEMA!r}")
+    version = manifest.get("schema_version")
+    if not isinstance(version, int) or version > SCHEMA_VERSION:
+        raise SessionError(f"{where}: schema_version {version!r} not supported (this runtime reads <= {SCHEMA_VERSION})")
+    if not isinstance(manifest.get("sensor_id"), str) or not manifest["sensor_id"]:
+        raise SessionError(f"{where}: sensor_id must be a non-empty string")
+    units = manifest.get("units", {})
+    for key, unit in units.items():
+        if key in UNITS and unit != UNITS[key]:
+            raise SessionError(f"{where}: units.{key} is {unit!r}, expected {UNITS[key]!r} "
+                               "(convert the recording to mm, N, N*mm, s, degC)")
+    streams = manifest.get("streams")
+    if not isinstance(streams, dict) or "frames" not in streams:
+        raise SessionError(f"{where}: streams must be an object with at least 'frames'")
+    unknown = set(streams) - set(STREAM_COLUMNS)
+    if unknown:
+        raise SessionError(f"{where}: unknown streams {sorted(unknown)} (known: {sorted(STREAM_COLUMNS)})")
+
+
+def _check_clock(name: str, t: np.ndarray, per_indenter: np.ndarray | None, where: Path) -> None:
+    groups = [t] if per_indenter is None else [t[per_indenter == k] for k in np.unique(per_indenter)]
+    for g in groups:
+        if g.size > 1 and np.any(np.diff(g) <= 0):
+            bad = int(np.argmax(np.diff(g) <= 0)) + 1
+            raise SessionError(f"{where}: stream '{name}' clock not strictly increasing at row {bad + 1} "
+                               f"(t={g[bad]:.6f} s after {g[bad - 1]:.6f} s)")
+
+
+def load_session(path: str | Path, check_frames: bool = True) -> Session:
+    """Open and validate a session directory. Raises SessionError naming the problem."""
+    path = Path(path)
+    manifest_path = path / "session.json"
+    if not manifest_path.is_file():
+        raise SessionError(f"{path}: not a session (no session.json)")
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise SessionError(f"{manifest_path}: not valid JSON ({exc})") from None
+    validate_manifest(manifest, str(manifest_path))
+    session = Session(path, manifest)
+    for name in session.streams:
+        table = session.table(name)
+        ind = table[:, 1] if name in ("poses", "wrench") else None
+        _check_clock(name, table[:, 0], ind, path / session.streams[name].get("file", STREAM_FILES[name]))
+    if check_frames:
+        kind, src = session.image_source()
+        n = len(session.table("frames"))
+        if kind == "images":
+            if not src.is_dir():
+                raise SessionError(f"{src}: frame folder missing")
+            count = len(list(src.glob("*.png")))
+            if count < n:
+                raise SessionError(f"{src}: {count} images but frames.csv lists {n} (truncated frames)")
+        elif not src.is_file():
+            raise SessionError(f"{src}: frame video missing")
+    return session
+
+
+def write_manifest(path: str | Path, manifest: dict) -> None:
+    """Validate and atomically write session.json."""
+    path = Path(path)
+    validate_manifest(manifest, str(path / "session.json"))
+    tmp = path / "session.json.tmp"
+    tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
+    tmp.replace(path / "session.json")
+
+
+def new_manifest(sensor_id: str, streams: dict, provenance: dict | None = None, clock: dict | None = None) -> dict:
+    """A manifest with the house units; `streams` maps stream name -> info dict."""
+    return {
+        "schema": SCHEMA,
+        "schema_version": SCHEMA_VERSION,
+        "sensor_id": sensor_id,
+        "units": dict(UNITS),
+        "clock": clock or {"source": "monotonic", "t0": 0.0},
+        "streams": streams,
+        "provenance": provenance or {},
+    }
