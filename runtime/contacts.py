@@ -1,0 +1,157 @@
+"""Contact clustering (seed §III.M): contact-force field → ranked, tracked contact clusters.
+
+|f_n + f_s| per pixel (N, = traction × pixel area) above a threshold (seed: 0.005 N) → binary mask →
+8-connected components (the cluster cores) → each core grown onto weaker pixels nearby, so its total
+force includes the tails the threshold cuts off → per cluster: 2D centroid, 3D centroid (deformed surface, mm), mean normal,
+area (mm²), total force vector (N), perimeter (px), circularity 4πA/P², priority from force and
+stability. Ids stay stable across frames by matching 3D centroids (Hungarian assignment with a gate).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    threshold_n: float = 0.005      # seed §III.M: per-pixel contact force threshold, N
+    support_floor_n: float = 0.0005  # weaker pixels near a cluster still add their force ...
+    support_radius_px: float = 6.0  # ... if within this distance of the cluster's core mask
+    min_pixels: int = 3             # drop specks smaller than this (noise)
+    match_gate_mm: float = 4.0      # max centroid jump to keep a cluster's id between frames
+    stable_frames: int = 5          # frames until a cluster counts as fully stable for priority
+    max_contacts: int = 16          # cap published clusters (highest priority first)
+
+
+@dataclass
+class Cluster:
+    id: int
+    centroid_px: tuple[float, float]       # (u = column, v = row) on the model grid, force-weighted
+    centroid_mm: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    area_mm2: float
+    force_n: tuple[float, float, float]
+    force_mag_n: float
+    pixels: int
+    perimeter_px: float
+    circularity: float
+    priority: float = 0.0
+    age: int = 0                           # frames this id has been tracked
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def pixel_forces(fields: np.ndarray, pixel_area: np.ndarray) -> np.ndarray:
+    """(15, H, W) fields (tractions in MPa) → (3, H, W) contact force per pixel in N."""
+    return (fields[9:12] + fields[12:15]) * pixel_area[None]
+
+
+def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.ndarray,
+                  pixel_area: np.ndarray, mask: np.ndarray, disp: np.ndarray | None = None,
+                  cfg: ContactConfig = ContactConfig()) -> list[Cluster]:
+    """Untracked clusters (id = -1) of one frame, in label order."""
+    mag = np.sqrt((force_px ** 2).sum(axis=0))
+    binary = ((mag > cfg.threshold_n) & mask).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    if n <= 1:
+        return []
+    k = n
+    support = _support_labels(labels, mag, cfg)
+    lab = support.ravel()
+    w = mag.ravel()
+    wsum = np.bincount(lab, weights=w, minlength=k)
+    safe = np.where(wsum > 0, wsum, 1.0)
+    h, wd = mag.shape
+    vv, uu = np.divmod(np.arange(h * wd), wd)
+    u_c = np.bincount(lab, weights=w * (uu + 0.5), minlength=k) / safe
+    v_c = np.bincount(lab, weights=w * (vv + 0.5), minlength=k) / safe
+    pos = surface_xyz.reshape(-1, 3) if disp is None else (surface_xyz + np.moveaxis(disp, 0, -1)).reshape(-1, 3)
+    centroid = np.stack([np.bincount(lab, weights=w * pos[:, i], minlength=k) for i in range(3)], 1) / safe[:, None]
+    nrm = normals.reshape(-1, 3)
+    nsum = np.stack([np.bincount(lab, weights=w * nrm[:, i], minlength=k) for i in range(3)], 1)
+    nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
+    fvec = np.stack([np.bincount(lab, weights=force_px[i].ravel(), minlength=k) for i in range(3)], 1)
+    area = np.bincount(labels.ravel(), weights=pixel_area.ravel(), minlength=k)
+    perim, circ = _shape_metrics(binary, labels, k)
+    out = []
+    for j in range(1, k):
+        if stats[j, cv2.CC_STAT_AREA] < cfg.min_pixels:
+            continue
+        out.append(Cluster(
+            id=-1, centroid_px=(float(u_c[j]), float(v_c[j])), centroid_mm=tuple(map(float, centroid[j])),
+            normal=tuple(map(float, nsum[j])), area_mm2=float(area[j]), force_n=tuple(map(float, fvec[j])),
+            force_mag_n=float(np.linalg.norm(fvec[j])), pixels=int(stats[j, cv2.CC_STAT_AREA]),
+            perimeter_px=float(perim[j]), circularity=float(circ[j])))
+    return out
+
+
+def _support_labels(labels: np.ndarray, mag: np.ndarray, cfg: ContactConfig) -> np.ndarray:
+    """Core labels grown onto weaker nearby pixels (nearest core pixel within the support radius),
+    so a cluster's force includes the tails the detection threshold cuts off."""
+    if cfg.support_radius_px <= 0:
+        return labels
+    dist, nearest = cv2.distanceTransformWithLabels((labels == 0).astype(np.uint8), cv2.DIST_L2, 5,
+                                                    labelType=cv2.DIST_LABEL_PIXEL)
+    flat = labels.ravel()
+    by_seed = np.concatenate([[0], flat[flat > 0]])  # DIST_LABEL_PIXEL numbers core pixels in raster order
+    grown = by_seed[nearest]
+    keep = (labels > 0) | ((mag > cfg.support_floor_n) & (dist <= cfg.support_radius_px))
+    return np.where(keep, grown, 0).astype(np.int32)
+
+
+def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Perimeter (contour length, px) and circularity 4πA/P² per label (1 for a disc)."""
+    perim = np.zeros(k)
+    circ = np.zeros(k)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    for c in contours:
+        x, y = c[0, 0]
+        j = labels[y, x]
+        p = cv2.arcLength(c, True)
+        a = cv2.contourArea(c)
+        if p > perim[j]:  # one external contour per 8-connected component; keep the longest
+            perim[j] = p
+            circ[j] = min(1.0, 4 * np.pi * a / (p * p)) if p > 0 else 0.0
+    return perim, circ
+
+
+@dataclass
+class ContactTracker:
+    """Assigns stable ids across frames and ranks clusters by force and stability."""
+
+    cfg: ContactConfig = field(default_factory=ContactConfig)
+    _prev: list[Cluster] = field(default_factory=list)
+    _next_id: int = 0
+
+    def update(self, clusters: list[Cluster]) -> list[Cluster]:
+        prev = self._prev
+        if prev and clusters:
+            a = np.array([c.centroid_mm for c in prev])
+            b = np.array([c.centroid_mm for c in clusters])
+            cost = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
+            rows, cols = linear_sum_assignment(cost)
+            for r, c in zip(rows, cols):
+                if cost[r, c] <= self.cfg.match_gate_mm:
+                    clusters[c].id = prev[r].id
+                    clusters[c].age = prev[r].age + 1
+        for c in clusters:
+            if c.id < 0:
+                c.id = self._next_id
+                self._next_id += 1
+        for c in clusters:
+            stability = min(1.0, (c.age + 1) / self.cfg.stable_frames)
+            c.priority = float(c.force_mag_n * stability)
+        clusters.sort(key=lambda c: c.priority, reverse=True)
+        clusters = clusters[: self.cfg.max_contacts]
+        self._prev = clusters
+        return clusters
+
+    def reset(self) -> None:
+        self._prev = []

@@ -1,0 +1,77 @@
+import numpy as np
+
+from runtime.contacts import ContactConfig, ContactTracker, find_clusters, pixel_forces
+from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
+
+SIZE = 64
+
+
+def tables():
+    th, ph = equidistant_theta_phi((SIZE, SIZE), np.deg2rad(90))
+    return surface_tables(th, ph, DomeProfile(radius_mm=16.0))
+
+
+def blob_fields(t, centres, forces_n, sigma_px=3.0):
+    """Fields whose contact-normal traction integrates to `forces_n` (N, along -normal) per blob."""
+    f = np.zeros((15, SIZE, SIZE), np.float32)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    for (u, v), F in zip(centres, forces_n):
+        g = np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * sigma_px ** 2)) * t["mask"]
+        g = g / (g * t["pixel_area"]).sum()  # traction profile integrating to 1 N
+        f[9:12] += (-F * g)[None] * np.moveaxis(t["normals"], -1, 0)
+    return f
+
+
+def test_two_blobs_two_clusters_with_forces():
+    t = tables()
+    f = blob_fields(t, [(20, 32), (46, 30)], [1.0, 0.5])
+    fp = pixel_forces(f, t["pixel_area"])
+    cl = find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"], disp=f[0:3])
+    assert len(cl) == 2
+    cl.sort(key=lambda c: c.centroid_px[0])
+    # nearly all force lies above the 0.005 N/pixel threshold
+    assert 0.9 < cl[0].force_mag_n <= 1.0 + 1e-6 and 0.4 < cl[1].force_mag_n <= 0.5 + 1e-6
+    assert abs(cl[0].centroid_px[0] - 20.5) < 0.6 and abs(cl[0].centroid_px[1] - 32.5) < 0.6
+    assert 0.7 < cl[0].circularity <= 1.0 and cl[0].perimeter_px > 0 and cl[0].area_mm2 > 0
+    # the 3D centroid lies on the dome, force points into the gel
+    assert abs(np.linalg.norm(cl[0].centroid_mm) - 16.0) < 0.5
+    assert np.dot(cl[0].force_n, cl[0].normal) < 0
+
+
+def test_threshold_and_zero_field():
+    t = tables()
+    z = np.zeros((3, SIZE, SIZE), np.float32)
+    assert find_clusters(z, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"]) == []
+    f = blob_fields(t, [(32, 32)], [0.01])  # spread so thin no pixel passes 0.005 N
+    fp = pixel_forces(f, t["pixel_area"])
+    assert fp.max() < 0.005
+    assert find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"]) == []
+
+
+def test_eight_connectivity_joins_diagonal_pixels():
+    t = tables()
+    fp = np.zeros((3, SIZE, SIZE), np.float32)
+    for k in range(5):
+        fp[2, 28 + k, 28 + k] = -0.1
+    cl = find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"], cfg=ContactConfig(min_pixels=1))
+    assert len(cl) == 1 and cl[0].pixels == 5
+
+
+def test_tracker_keeps_ids_and_ranks():
+    t = tables()
+    tr = ContactTracker()
+    ids = None
+    for step in range(6):
+        f = blob_fields(t, [(20 + step * 0.5, 32), (46, 30)], [0.4, 1.0])
+        fp = pixel_forces(f, t["pixel_area"])
+        cl = tr.update(find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"]))
+        now = {round(c.centroid_px[1]): c.id for c in cl}
+        if ids is not None:
+            assert now == ids  # same ids frame to frame
+        ids = now
+        assert cl[0].force_mag_n > cl[1].force_mag_n  # strongest first
+    assert all(c.age == 5 for c in cl)
+    # a new contact far away gets a fresh id
+    f = blob_fields(t, [(32, 10)], [1.0])
+    cl = tr.update(find_clusters(pixel_forces(f, t["pixel_area"]), t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"]))
+    assert cl[0].id not in ids.values() and cl[0].age == 0

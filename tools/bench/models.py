@@ -1,0 +1,137 @@
+"""Synthetic ONNX field networks for tests and runtime benchmarks (never shipped).
+
+Built directly with `onnx.helper` (no torch), so the runtime's benchmark and tests can exercise a
+realistically sized network (a conv encoder–decoder with skip connections, ~1–3 M parameters) and
+its static int8 QDQ version without a trained model. Weights are seeded random: packages made here
+go to temporary folders only, never into `exported_models/` (their manifest says "synthetic").
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from runtime.fields import CHANNELS, CHANNEL_UNITS, INPUT_CHANNELS
+
+
+def _conv(nodes, inits, rng, name, x, cin, cout, k=3, stride=1, act=True):
+    w = (rng.standard_normal((cout, cin, k, k)) * np.sqrt(2.0 / (cin * k * k))).astype(np.float32)
+    b = np.zeros(cout, np.float32)
+    from onnx import helper, numpy_helper
+
+    inits += [numpy_helper.from_array(w, f"{name}.w"), numpy_helper.from_array(b, f"{name}.b")]
+    nodes.append(helper.make_node("Conv", [x, f"{name}.w", f"{name}.b"], [f"{name}.y"],
+                                  kernel_shape=[k, k], strides=[stride, stride], pads=[k // 2] * 4))
+    if not act:
+        return f"{name}.y"
+    nodes.append(helper.make_node("Relu", [f"{name}.y"], [f"{name}.r"]))
+    return f"{name}.r"
+
+
+def build_unet(size: int, width: int = 32, depth: int = 3, seed: int = 0):
+    """A conv U-Net 6→15 channels with sigmoid output; width 32 / depth 3 ≈ 1.9 M parameters."""
+    from onnx import TensorProto, helper
+
+    rng = np.random.default_rng(seed)
+    nodes, inits = [], []
+    x = "input"
+    skips, cin = [], 6
+    for d in range(depth):
+        cout = width * 2 ** d
+        x = _conv(nodes, inits, rng, f"enc{d}a", x, cin, cout)
+        x = _conv(nodes, inits, rng, f"enc{d}b", x, cout, cout)
+        skips.append((x, cout))
+        x = _conv(nodes, inits, rng, f"down{d}", x, cout, cout * 2, stride=2)
+        cin = cout * 2
+    x = _conv(nodes, inits, rng, "mid", x, cin, cin)
+    for d in reversed(range(depth)):
+        skip, cs = skips[d]
+        up = f"up{d}"
+        nodes.append(helper.make_node("Resize", [x, "", "up_scales"], [up], mode="nearest"))
+        cat = f"cat{d}"
+        nodes.append(helper.make_node("Concat", [up, skip], [cat], axis=1))
+        x = _conv(nodes, inits, rng, f"dec{d}a", cat, cin + cs, cs)
+        x = _conv(nodes, inits, rng, f"dec{d}b", x, cs, cs)
+        cin = cs
+    y = _conv(nodes, inits, rng, "head", x, cin, len(CHANNELS), k=1, act=False)
+    nodes.append(helper.make_node("Sigmoid", [y], ["fields"]))
+    from onnx import numpy_helper
+
+    inits.append(numpy_helper.from_array(np.array([1, 1, 2, 2], np.float32), "up_scales"))
+    graph = helper.make_graph(
+        nodes, "synthetic_unet",
+        [helper.make_tensor_value_info("input", TensorProto.FLOAT, ["N", 6, size, size])],
+        [helper.make_tensor_value_info("fields", TensorProto.FLOAT, ["N", len(CHANNELS), size, size])],
+        inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    return model
+
+
+def param_count(model) -> int:
+    return int(sum(np.prod(t.dims) for t in model.graph.initializer))
+
+
+def quantize_int8(fp32_path: Path, int8_path: Path, size: int, n_calib: int = 8, seed: int = 0) -> None:
+    """Static QDQ int8: uint8 activations, per-channel int8 weights (DESIGN §10's fastest setting)."""
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+
+    rng = np.random.default_rng(seed)
+
+    class Reader(CalibrationDataReader):
+        def __init__(self):
+            self.items = iter([{"input": _structured_input(rng, size)} for _ in range(n_calib)])
+
+        def get_next(self):
+            return next(self.items, None)
+
+    quantize_static(str(fp32_path), str(int8_path), Reader(), quant_format=QuantFormat.QDQ,
+                    activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True)
+
+
+def _structured_input(rng, size: int) -> np.ndarray:
+    """Baseline + current image with a smooth blob, like a poke on the gel."""
+    yy, xx = np.mgrid[0:size, 0:size] / size
+    base = 0.5 + 0.2 * np.sin(8 * xx)[None] * np.ones((3, 1, 1))
+    cx, cy = rng.uniform(0.3, 0.7, 2)
+    blob = np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 0.01)
+    cur = base + 0.2 * blob[None]
+    return np.concatenate([base, cur])[None].astype(np.float32)
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def write_package(folder: Path, size: int = 32, width: int = 4, depth: int = 2, seed: int = 0,
+                  bounds: dict | None = None, int8: bool = True) -> Path:
+    """A complete synthetic model package (manifest + fp32 [+ int8]) in `folder` (a temp dir)."""
+    import onnx
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    model = build_unet(size, width, depth, seed)
+    fp32 = folder / "model.fp32.onnx"
+    onnx.save(model, str(fp32))
+    files = {"model.fp32.onnx": {"sha256": sha256(fp32)}}
+    if int8:
+        int8_path = folder / "model.int8.onnx"
+        quantize_int8(fp32, int8_path, size)
+        files["model.int8.onnx"] = {"sha256": sha256(int8_path)}
+    if bounds is None:
+        bounds = {c: ([-1.0, 1.0] if u == "mm" else [-0.05, 0.05]) for c, u in zip(CHANNELS, CHANNEL_UNITS)}
+    manifest = {
+        "schema": "tensortouch.model", "schema_version": 1, "name": f"synthetic-unet-{size}",
+        "created": "synthetic", "synthetic": True,
+        "input": {"name": "input", "layout": "NCHW", "size": [size, size], "dtype": "float32",
+                  "channels": list(INPUT_CHANNELS), "range": [0.0, 1.0]},
+        "output": {"name": "fields", "layout": "NCHW", "size": [size, size], "channels": list(CHANNELS),
+                   "units": list(CHANNEL_UNITS), "normalization": "minmax", "bounds": bounds},
+        "files": files,
+        "training": {"command": "tools.bench.models.write_package (synthetic, untrained)", "data_hash": None},
+        "metrics": {"params": param_count(model)},
+    }
+    (folder / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    return folder
