@@ -1,0 +1,237 @@
+"""`tensortouch listen`: subscribe to sensors over Zenoh, print one line per message, optionally save.
+
+    tensortouch listen                     # every sensor found by multicast scouting
+    tensortouch listen dome01 --connect tcp/127.0.0.1:7447 --count 100 --save out/ --json
+
+Saving: <DIR>/<sensor>/fields/<seq>.npy (float32 (15,H,W), written atomically) plus meta.json
+(channels, units), and contacts.jsonl / wrench.jsonl / status.jsonl (one message per line).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import queue
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+log = logging.getLogger(__name__)
+
+KINDS = ("fields", "contacts", "wrench", "status")
+
+
+def add_listen_parser(subparsers) -> None:
+    p = subparsers.add_parser("listen", help="print/save what sensors publish over Zenoh",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("sensor", nargs="?", default="*", help="sensor id, or * for all (default)")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--multicast", action=argparse.BooleanOptionalAction, default=None,
+                   help="multicast scouting (default: on only when no endpoint is given)")
+    p.add_argument("--count", type=int, default=0, help="stop after N messages (0 = no limit)")
+    p.add_argument("--timeout", type=float, default=0.0,
+                   help="stop after this many seconds (0 = no limit)")
+    p.add_argument("--kinds", default=",".join(KINDS),
+                   help=f"comma-separated streams to show (default {','.join(KINDS)})")
+    p.add_argument("--save", type=Path, metavar="DIR", help="save fields as .npy, the rest as JSONL")
+    p.add_argument("--json", action="store_true", help="one JSON object per line instead of text")
+    p.add_argument("--info", action="store_true",
+                   help="first list alive sensors and print their info (queryable)")
+    p.set_defaults(func=run_listen)
+
+
+# --------------------------------------------------------------------------- pure summaries
+
+def _fmt(v, nd: int = 3) -> str:
+    return "(" + ",".join(f"{x:.{nd}f}" for x in v) + ")"
+
+
+def summarize(kind: str, msg: Any) -> dict:
+    """Decoded message -> small JSON-ready summary (units in the key names)."""
+    import numpy as np
+
+    if kind == "status":
+        base = {k: msg.get(k) for k in ("sensor_id", "seq", "t", "state", "flags", "fps",
+                                        "timings_ms", "model_hash", "calibration_version")}
+        return {"kind": kind, **base}
+    base = {"kind": kind, "sensor_id": msg.sensor_id, "seq": msg.seq, "t": msg.t}
+    if kind == "fields":
+        from runtime.fields import MODALITIES
+
+        absmax = {name: float(np.nanmax(np.abs(msg.data[sl]))) if msg.data.size else 0.0
+                  for name, sl in MODALITIES.items()} if len(msg.channels) == 15 else {}
+        return {**base, "shape": list(msg.data.shape), "dtype": str(msg.data.dtype),
+                "units": sorted(set(msg.units)), "absmax": absmax, "clipped": list(msg.clipped)}
+    if kind == "contacts":
+        return {**base, "n": len(msg.contacts), "contacts": [
+            {"id": c.id, "position_mm": list(c.position_mm), "force_n": list(c.force_n),
+             "force_mag_n": c.force_mag_n, "area_mm2": c.area_mm2} for c in msg.contacts]}
+    return {**base, "force_n": list(msg.force_n), "torque_nmm": list(msg.torque_nmm)}
+
+
+def format_line(kind: str, msg: Any) -> str:
+    """One human-readable line per message."""
+    s = summarize(kind, msg)
+    head = f"tensortouch/{s['sensor_id']}/{kind:<8} seq={s['seq']} t={s['t']:.3f}"
+    if kind == "fields":
+        mx = " ".join(f"{k}={v:.3g}" for k, v in s["absmax"].items())
+        unit_note = "disp mm, stress/traction MPa"
+        clip = f" CLIPPED={','.join(s['clipped'])}" if s["clipped"] else ""
+        return f"{head} {'x'.join(map(str, s['shape']))} {s['dtype']} |max| {mx} ({unit_note}){clip}"
+    if kind == "contacts":
+        parts = [f"#{c['id']} |F|={c['force_mag_n']:.3f} N F={_fmt(c['force_n'])} N "
+                 f"at {_fmt(c['position_mm'], 2)} mm area={c['area_mm2']:.2f} mm2"
+                 for c in s["contacts"]]
+        return f"{head} {s['n']} contact(s)" + (": " + "; ".join(parts) if parts else "")
+    if kind == "wrench":
+        return f"{head} F={_fmt(s['force_n'])} N tau={_fmt(s['torque_nmm'], 2)} N*mm"
+    timings = " ".join(f"{k}={v:.2f}" for k, v in (s["timings_ms"] or {}).items()
+                       if isinstance(v, (int, float)))
+    fps = f"{s['fps']:.1f}" if isinstance(s["fps"], (int, float)) else "-"
+    return (f"{head} state={s['state']} fps={fps} flags={','.join(s['flags']) or '-'} "
+            f"timings_ms: {timings or '-'}")
+
+
+# --------------------------------------------------------------------------- saving
+
+class Saver:
+    """Writes decoded messages under DIR/<sensor>/ (fields .npy atomically, others as JSONL)."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self._files: dict[tuple[str, str], TextIO] = {}
+        self._meta_written: set[str] = set()
+
+    def save(self, kind: str, msg: Any) -> Path:
+        import numpy as np
+
+        sensor = msg["sensor_id"] if isinstance(msg, dict) else msg.sensor_id
+        folder = self.root / sensor
+        if kind == "fields":
+            fdir = folder / "fields"
+            fdir.mkdir(parents=True, exist_ok=True)
+            if sensor not in self._meta_written:
+                _atomic_write(fdir / "meta.json", json.dumps(
+                    {"channels": list(msg.channels), "units": list(msg.units), "dtype": "float32",
+                     "layout": "(C, H, W)"}, indent=1).encode())
+                self._meta_written.add(sensor)
+            path = fdir / f"{msg.seq:08d}.npy"
+            fd, tmp = tempfile.mkstemp(dir=fdir, suffix=".npy.tmp")
+            with os.fdopen(fd, "wb") as fh:
+                np.save(fh, msg.data)
+            os.replace(tmp, path)
+            return path
+        if kind == "contacts":
+            record = {"seq": msg.seq, "t": msg.t, "contacts": [c.to_dict() for c in msg.contacts]}
+        elif kind == "wrench":
+            record = {"seq": msg.seq, "t": msg.t, "force_n": list(msg.force_n),
+                      "torque_nmm": list(msg.torque_nmm)}
+        else:
+            record = msg
+        fh = self._files.get((sensor, kind))
+        if fh is None:
+            folder.mkdir(parents=True, exist_ok=True)
+            fh = self._files[(sensor, kind)] = open(folder / f"{kind}.jsonl", "a", encoding="utf-8")
+        fh.write(json.dumps(record, separators=(",", ":")) + "\n")
+        fh.flush()
+        return folder / f"{kind}.jsonl"
+
+    def close(self) -> None:
+        for fh in self._files.values():
+            fh.close()
+        self._files.clear()
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(data)
+    os.replace(tmp, path)
+
+
+# --------------------------------------------------------------------------- shell
+
+def run_listen(args) -> int:
+    from runtime.cli import CommandError
+    from runtime.subscriber import Subscriber, alive_sensors, query_info
+
+    kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        raise CommandError(f"--kinds {args.kinds!r}: unknown {unknown}; expected some of {KINDS}")
+    inbox: queue.Queue = queue.Queue(maxsize=1000)
+
+    def enqueue(kind):
+        def put(msg):
+            try:
+                inbox.put_nowait((kind, msg))
+            except queue.Full:  # the printer is behind: drop rather than stall zenoh
+                pass
+        return put
+
+    callbacks = {f"on_{k}": enqueue(k) for k in kinds}
+    multicast = args.multicast if args.multicast is not None else not (args.connect or args.listen)
+    from runtime.publisher import zenoh_config
+
+    cfg = zenoh_config(listen=args.listen, connect=args.connect, multicast=multicast)
+    saver = Saver(args.save) if args.save else None
+    out = sys.stdout
+    n = 0
+    with Subscriber(args.sensor, zenoh_config=cfg, **callbacks) as sub:
+        if args.info:
+            time.sleep(0.3)  # let the session discover its peers
+            sensors = alive_sensors(sub)
+            print(json.dumps({"alive": sensors}) if args.json else f"alive: {sensors or 'none'}",
+                  file=out, flush=True)
+            for sid in sensors:
+                if args.sensor not in ("*", sid):
+                    continue
+                try:
+                    info = query_info(sub, sid)
+                except Exception as exc:  # noqa: BLE001 - report and go on listening
+                    info = {"sensor_id": sid, "error": str(exc)}
+                print(json.dumps({"info": info}) if args.json else f"info {sid}: {json.dumps(info)}",
+                      file=out, flush=True)
+        deadline = time.monotonic() + args.timeout if args.timeout > 0 else None
+        try:
+            while not (args.count and n >= args.count):
+                wait = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
+                if wait <= 0:
+                    break
+                try:
+                    kind, msg = inbox.get(timeout=wait)
+                except queue.Empty:
+                    continue
+                n += 1
+                line = json.dumps(summarize(kind, msg)) if args.json else format_line(kind, msg)
+                if saver is not None:
+                    saver.save(kind, msg)
+                print(line, file=out, flush=True)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            if saver is not None:
+                saver.close()
+        if sub.errors:
+            print(f"note: {sub.errors} message(s) could not be decoded; last: {sub.last_error}",
+                  file=sys.stderr)
+    if n == 0:
+        print(f"tensortouch listen: no messages from {args.sensor!r} "
+              f"(connect={args.connect or '-'}, multicast={multicast}); is a sensor running?",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    add_listen_parser(parser.add_subparsers(dest="command"))
+    ns = parser.parse_args()
+    logging.basicConfig(level=logging.INFO)
+    sys.exit(ns.func(ns))

@@ -1,0 +1,385 @@
+"""Zenoh wire format: key expressions, schemas and pure encode/decode (docs/wire.md).
+
+No zenoh import here: these functions turn arrays and dataclasses into `bytes` (what zenoh-python
+accepts as a payload) and back, so they can be unit-tested and reused by any transport.
+
+Units on the wire: mm, N, MPa, N*mm, s. Every payload names its schema (`tensortouch.<kind>.v1`),
+both in the Zenoh Encoding (`<mime>;<schema>`) and inside the payload/attachment; decoders reject
+anything else with a `WireError` that says what arrived and what was expected.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+from dataclasses import asdict, dataclass, field, fields as dc_fields
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from runtime.errors import TensorTouchError
+from runtime.fields import CHANNEL_UNITS, CHANNELS
+
+log = logging.getLogger(__name__)
+
+WIRE_VERSION = 1
+KEY_PREFIX = "tensortouch"
+KINDS = ("fields", "contacts", "wrench", "status")
+INFO = "info"
+ALIVE = "alive"
+
+SCHEMAS = {kind: f"tensortouch.{kind}.v{WIRE_VERSION}" for kind in KINDS + (INFO,)}
+MIME = {"fields": "application/octet-stream", "contacts": "application/json",
+        "wrench": "application/json", "status": "application/json", INFO: "application/json"}
+# Zenoh Encoding strings ("<mime>;<schema>") for each payload kind.
+ENCODINGS = {kind: f"{MIME[kind]};{schema}" for kind, schema in SCHEMAS.items()}
+
+FIELDS_DTYPE = "<f2"                  # little-endian IEEE half precision
+FLOAT16_MAX = float(np.finfo(np.float16).max)  # 65504: larger magnitudes are clipped and flagged
+
+_SENSOR_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
+
+
+class WireError(TensorTouchError):
+    """A Zenoh payload does not match the wire format (schema, shape, byte length, fields)."""
+
+
+# --------------------------------------------------------------------------- key expressions
+
+def check_sensor_id(sensor_id: str) -> str:
+    """Return `sensor_id` if it is one valid key chunk (letters, digits, `_.-`, 1-64 chars)."""
+    if not isinstance(sensor_id, str) or not _SENSOR_ID.match(sensor_id):
+        raise WireError(f"sensor id {sensor_id!r}: expected 1-64 characters of [A-Za-z0-9_.-] "
+                        "starting with a letter or digit (it becomes one Zenoh key chunk)")
+    return sensor_id
+
+
+def key(sensor_id: str, kind: str) -> str:
+    """Key expression of one stream: `tensortouch/<sensor-id>/<kind>`; `sensor_id` may be `*`."""
+    if kind not in KINDS + (INFO, ALIVE, "*"):
+        raise WireError(f"key kind {kind!r}: expected one of {KINDS + (INFO, ALIVE)}")
+    if sensor_id not in ("*", "**"):
+        check_sensor_id(sensor_id)
+    return f"{KEY_PREFIX}/{sensor_id}/{kind}"
+
+
+def info_key(sensor_id: str) -> str:
+    return key(sensor_id, INFO)
+
+
+def alive_key(sensor_id: str) -> str:
+    """Liveliness token key of a running sensor."""
+    return key(sensor_id, ALIVE)
+
+
+def parse_key(key_expr: str) -> tuple[str, str]:
+    """`tensortouch/<sensor-id>/<kind>` -> (sensor_id, kind)."""
+    parts = str(key_expr).split("/")
+    if len(parts) != 3 or parts[0] != KEY_PREFIX:
+        raise WireError(f"key {key_expr!r}: expected '{KEY_PREFIX}/<sensor-id>/<kind>'")
+    return parts[1], parts[2]
+
+
+def schema_of(encoding: Any) -> str | None:
+    """Schema part of a Zenoh Encoding string `mime;schema` (None when there is none)."""
+    text = str(encoding)
+    return text.split(";", 1)[1] if ";" in text else None
+
+
+def _check_schema(kind: str, found: Any, where: str) -> None:
+    expected = SCHEMAS[kind]
+    if found != expected:
+        raise WireError(f"{kind} {where}: schema {found!r}, expected {expected!r} "
+                        f"(wire version {WIRE_VERSION}; see docs/wire.md)")
+
+
+def _check_encoding(kind: str, encoding: Any) -> None:
+    if encoding is not None:
+        _check_schema(kind, schema_of(encoding), f"encoding {str(encoding)!r}")
+
+
+# --------------------------------------------------------------------------- JSON helpers
+
+def _plain(value: Any, strict: bool) -> Any:
+    """numpy/tuple -> JSON-ready python; non-finite floats -> None (or WireError when strict)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v, strict) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, strict) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist(), strict)
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        if not math.isfinite(value):
+            if strict:
+                raise WireError(f"non-finite number {value} cannot be sent as JSON")
+            return None
+        return value
+    return value
+
+
+def _dumps(obj: dict, strict: bool = True) -> bytes:
+    return json.dumps(_plain(obj, strict), separators=(",", ":"), allow_nan=False).encode()
+
+
+def _loads(kind: str, payload: bytes | bytearray | str) -> dict:
+    try:
+        obj = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise WireError(f"{kind} payload: not valid UTF-8 JSON ({exc})") from None
+    if not isinstance(obj, dict):
+        raise WireError(f"{kind} payload: expected a JSON object, got {type(obj).__name__}")
+    _check_schema(kind, obj.get("schema"), "payload")
+    return obj
+
+
+def _need(kind: str, obj: dict, name: str) -> Any:
+    if name not in obj:
+        raise WireError(f"{kind} payload: missing field {name!r}")
+    return obj[name]
+
+
+# --------------------------------------------------------------------------- fields
+
+@dataclass(frozen=True)
+class FieldsFrame:
+    """One decoded field image: float32 (C, H, W) in the units of `units`, channel order `channels`."""
+    sensor_id: str
+    seq: int
+    t: float
+    data: np.ndarray
+    channels: tuple[str, ...] = CHANNELS
+    units: tuple[str, ...] = CHANNEL_UNITS
+    clipped: tuple[str, ...] = ()      # channels that exceeded +-65504 and were clipped
+
+    def channel(self, name: str) -> np.ndarray:
+        try:
+            return self.data[self.channels.index(name)]
+        except ValueError:
+            raise WireError(f"fields: no channel {name!r}; channels are {self.channels}") from None
+
+
+def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
+                  channels: Sequence[str] = CHANNELS,
+                  units: Sequence[str] = CHANNEL_UNITS) -> tuple[bytes, bytes, tuple[str, ...]]:
+    """(C, H, W) float array -> (payload, attachment, clipped channel names).
+
+    Payload: C*H*W little-endian float16, C-order. Attachment: compact JSON header (schema, sensor id,
+    seq, t, shape, dtype, channels, units, clipped). |x| > 65504 (and +-inf) is clipped to +-65504
+    and the channel is listed in `clipped`; NaN passes through as NaN.
+    """
+    arr = np.asarray(fields)
+    if arr.ndim != 3 or arr.shape[0] != len(channels) or len(units) != len(channels):
+        raise WireError(f"fields: expected shape (C={len(channels)}, H, W) with {len(channels)} "
+                        f"channel names and units, got shape {arr.shape}, {len(units)} units")
+    with np.errstate(over="ignore", invalid="ignore"):
+        half = arr.astype(FIELDS_DTYPE)
+    clipped: tuple[str, ...] = ()
+    over = np.isinf(half)
+    if over.any():
+        bad = over.reshape(over.shape[0], -1).any(axis=1)
+        clipped = tuple(name for name, b in zip(channels, bad) if b)
+        np.clip(half, -FLOAT16_MAX, FLOAT16_MAX, out=half)
+    header = {"schema": SCHEMAS["fields"], "sensor_id": check_sensor_id(sensor_id), "seq": int(seq),
+              "t": float(t), "shape": list(arr.shape), "dtype": FIELDS_DTYPE,
+              "channels": list(channels), "units": list(units), "clipped": list(clipped)}
+    return half.tobytes(), _dumps(header), clipped
+
+
+def decode_fields(payload: bytes | bytearray, attachment: bytes | bytearray | str | None,
+                  encoding: Any = None) -> FieldsFrame:
+    """Payload + attachment (+ optional Encoding) -> FieldsFrame with float32 data."""
+    _check_encoding("fields", encoding)
+    if attachment is None:
+        raise WireError("fields: missing attachment (the JSON header with seq, t, shape, channels)")
+    head = _loads("fields", attachment)
+    shape = tuple(int(n) for n in _need("fields", head, "shape"))
+    channels = tuple(_need("fields", head, "channels"))
+    units = tuple(_need("fields", head, "units"))
+    if head.get("dtype", FIELDS_DTYPE) != FIELDS_DTYPE:
+        raise WireError(f"fields: dtype {head.get('dtype')!r}, expected {FIELDS_DTYPE!r}")
+    if len(shape) != 3 or shape[0] != len(channels) or len(units) != len(channels):
+        raise WireError(f"fields: shape {shape} does not match {len(channels)} channels / "
+                        f"{len(units)} units")
+    expected = 2 * shape[0] * shape[1] * shape[2]
+    if len(payload) != expected:
+        raise WireError(f"fields: payload is {len(payload)} bytes, expected {expected} "
+                        f"(float16 x {shape})")
+    data = np.frombuffer(payload, dtype=FIELDS_DTYPE).reshape(shape).astype(np.float32)
+    return FieldsFrame(sensor_id=str(_need("fields", head, "sensor_id")),
+                       seq=int(_need("fields", head, "seq")), t=float(_need("fields", head, "t")),
+                       data=data, channels=channels, units=units,
+                       clipped=tuple(head.get("clipped", ())))
+
+
+# --------------------------------------------------------------------------- contacts
+
+def _vec(value: Any, n: int, name: str) -> tuple[float, ...]:
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise WireError(f"contact field {name!r}: expected {n} numbers, got {value!r}") from None
+    if len(out) != n:
+        raise WireError(f"contact field {name!r}: expected {n} numbers, got {len(out)}")
+    return out
+
+
+@dataclass
+class Contact:
+    """One contact cluster (seed §III.M). Positions mm, forces N, sensor frame (docs/fields.md)."""
+    id: int                                   # stable across frames while the contact persists
+    uv_px: tuple[float, float]                # pixel centroid (u = column, v = row), model grid
+    position_mm: tuple[float, float, float]   # 3D centroid on the gel surface
+    normal: tuple[float, float, float]        # unit outward surface normal at the centroid
+    area_mm2: float
+    force_n: tuple[float, float, float]       # total contact force (normal + shear)
+    force_mag_n: float                        # |force_n|
+    perimeter_px: float
+    circularity: float                        # 4*pi*area/perimeter^2 in pixels, 1 = disc
+    priority: float                           # ranking score, larger = more important
+    age_frames: int                           # frames since this id first appeared
+
+    _VECTORS = {"uv_px": 2, "position_mm": 3, "normal": 3, "force_n": 3}
+
+    def to_dict(self) -> dict:
+        return _plain(asdict(self), strict=True)
+
+    @classmethod
+    def from_dict(cls, obj: dict) -> "Contact":
+        if not isinstance(obj, dict):
+            raise WireError(f"contact: expected a JSON object, got {type(obj).__name__}")
+        names = [f.name for f in dc_fields(cls)]
+        missing = [n for n in names if n not in obj]
+        if missing:
+            raise WireError(f"contact: missing field(s) {missing}")
+        kw: dict[str, Any] = {}
+        for name in names:
+            value = obj[name]
+            try:
+                if name in cls._VECTORS:
+                    kw[name] = _vec(value, cls._VECTORS[name], name)
+                elif name in ("id", "age_frames"):
+                    kw[name] = int(value)
+                else:
+                    kw[name] = float(value)
+            except (TypeError, ValueError):
+                raise WireError(f"contact field {name!r}: expected a number, got {value!r}") from None
+        return cls(**kw)
+
+
+@dataclass(frozen=True)
+class ContactsFrame:
+    sensor_id: str
+    seq: int
+    t: float
+    contacts: list[Contact] = field(default_factory=list)
+
+
+def encode_contacts(contacts: Iterable[Contact | dict], seq: int, t: float, sensor_id: str) -> bytes:
+    items = [c.to_dict() if isinstance(c, Contact) else Contact.from_dict(c).to_dict()
+             for c in contacts]
+    return _dumps({"schema": SCHEMAS["contacts"], "sensor_id": check_sensor_id(sensor_id),
+                   "seq": int(seq), "t": float(t), "contacts": items})
+
+
+def decode_contacts(payload: bytes | bytearray | str, encoding: Any = None) -> ContactsFrame:
+    _check_encoding("contacts", encoding)
+    obj = _loads("contacts", payload)
+    items = _need("contacts", obj, "contacts")
+    if not isinstance(items, list):
+        raise WireError("contacts payload: field 'contacts' must be a list")
+    return ContactsFrame(sensor_id=str(_need("contacts", obj, "sensor_id")),
+                         seq=int(_need("contacts", obj, "seq")), t=float(_need("contacts", obj, "t")),
+                         contacts=[Contact.from_dict(c) for c in items])
+
+
+# --------------------------------------------------------------------------- wrench
+
+@dataclass(frozen=True)
+class Wrench:
+    """Total contact force (N) and torque (N*mm) about the gel origin, sensor frame."""
+    sensor_id: str
+    seq: int
+    t: float
+    force_n: tuple[float, float, float]
+    torque_nmm: tuple[float, float, float]
+
+
+def wrench_from_contacts(contacts: Iterable[Contact]) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of cluster forces and of position x force about the gel origin: (F N, tau N*mm)."""
+    force, torque = np.zeros(3), np.zeros(3)
+    for c in contacts:
+        f = np.asarray(c.force_n, dtype=float)
+        force += f
+        torque += np.cross(np.asarray(c.position_mm, dtype=float), f)
+    return force, torque
+
+
+def encode_wrench(force_n: Sequence[float], torque_nmm: Sequence[float], seq: int, t: float,
+                  sensor_id: str) -> bytes:
+    return _dumps({"schema": SCHEMAS["wrench"], "sensor_id": check_sensor_id(sensor_id),
+                   "seq": int(seq), "t": float(t), "frame": "gel",
+                   "force_n": list(_vec(force_n, 3, "force_n")),
+                   "torque_nmm": list(_vec(torque_nmm, 3, "torque_nmm"))})
+
+
+def decode_wrench(payload: bytes | bytearray | str, encoding: Any = None) -> Wrench:
+    _check_encoding("wrench", encoding)
+    obj = _loads("wrench", payload)
+    return Wrench(sensor_id=str(_need("wrench", obj, "sensor_id")), seq=int(_need("wrench", obj, "seq")),
+                  t=float(_need("wrench", obj, "t")),
+                  force_n=_vec(_need("wrench", obj, "force_n"), 3, "force_n"),
+                  torque_nmm=_vec(_need("wrench", obj, "torque_nmm"), 3, "torque_nmm"))
+
+
+# --------------------------------------------------------------------------- status and info
+
+STATUS_FIELDS = ("state", "flags", "fps", "timings_ms", "model_hash", "calibration_version")
+
+
+def encode_status(status: dict, seq: int, t: float, sensor_id: str) -> bytes:
+    """Status dict (state, flags, fps, timings_ms, model_hash, calibration_version, ...) -> JSON.
+
+    Missing standard fields are sent as null / empty; extra keys pass through. Non-finite numbers
+    become null (a status must always go out).
+    """
+    body: dict[str, Any] = {"schema": SCHEMAS["status"], "sensor_id": check_sensor_id(sensor_id),
+                            "seq": int(seq), "t": float(t)}
+    body.update({name: status.get(name) for name in STATUS_FIELDS})
+    body["flags"] = sorted({str(f) for f in (status.get("flags") or ())})
+    body["timings_ms"] = dict(status.get("timings_ms") or {})
+    body.update({k: v for k, v in status.items() if k not in body})
+    return _dumps(body, strict=False)
+
+
+def decode_status(payload: bytes | bytearray | str, encoding: Any = None) -> dict:
+    _check_encoding("status", encoding)
+    obj = _loads("status", payload)
+    for name in ("sensor_id", "seq", "t", "state", "flags", "timings_ms"):
+        _need("status", obj, name)
+    if not isinstance(obj["flags"], list) or not isinstance(obj["timings_ms"], dict):
+        raise WireError("status payload: 'flags' must be a list and 'timings_ms' an object")
+    return obj
+
+
+def encode_info(info: dict, sensor_id: str, runtime_version: str) -> bytes:
+    """Sensor info (model name/hash, calibration version, bounds, ...) -> JSON for the queryable."""
+    body: dict[str, Any] = {"schema": SCHEMAS[INFO], "sensor_id": check_sensor_id(sensor_id),
+                            "channels": list(CHANNELS), "units": list(CHANNEL_UNITS)}
+    body.update(info)
+    body.update(schema=SCHEMAS[INFO], sensor_id=sensor_id, runtime_version=runtime_version,
+                wire_version=WIRE_VERSION,
+                keys={kind: key(sensor_id, kind) for kind in KINDS + (ALIVE,)})
+    return _dumps(body, strict=False)
+
+
+def decode_info(payload: bytes | bytearray | str, encoding: Any = None) -> dict:
+    _check_encoding(INFO, encoding)
+    obj = _loads(INFO, payload)
+    _need(INFO, obj, "sensor_id")
+    return obj

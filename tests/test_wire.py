@@ -1,0 +1,173 @@
+"""Pure wire-format encode/decode (runtime/wire.py): no network."""
+import json
+
+import numpy as np
+import pytest
+
+from runtime import wire
+from runtime.errors import TensorTouchError
+from runtime.fields import CHANNEL_UNITS, CHANNELS
+
+
+def make_contact(i=1, f=(0.1, -0.2, -1.5), p=(1.0, 2.0, 14.0)):
+    return wire.Contact(id=i, uv_px=(64.5, 60.25), position_mm=p, normal=(0.0, 0.0, 1.0),
+                        area_mm2=3.5, force_n=f, force_mag_n=float(np.linalg.norm(f)),
+                        perimeter_px=21.0, circularity=0.87, priority=1.5, age_frames=7)
+
+
+def test_keys_and_parse():
+    assert wire.key("dome01", "fields") == "tensortouch/dome01/fields"
+    assert wire.alive_key("dome01") == "tensortouch/dome01/alive"
+    assert wire.info_key("dome01") == "tensortouch/dome01/info"
+    assert wire.key("*", "*") == "tensortouch/*/*"
+    assert wire.parse_key("tensortouch/dome01/status") == ("dome01", "status")
+    for bad in ("", "a/b", "a*", "$x", "a b", "-x"):
+        with pytest.raises(wire.WireError, match="sensor id"):
+            wire.key(bad, "fields")
+    with pytest.raises(wire.WireError):
+        wire.key("dome01", "nope")
+    with pytest.raises(wire.WireError):
+        wire.parse_key("other/dome01/fields")
+    assert issubclass(wire.WireError, TensorTouchError)
+
+
+def test_fields_round_trip_exact_for_half_values():
+    rng = np.random.default_rng(0)
+    f = rng.normal(scale=2.0, size=(15, 32, 48)).astype(np.float32)
+    payload, att, clipped = wire.encode_fields(f, seq=42, t=12.5, sensor_id="dome01")
+    assert isinstance(payload, bytes) and isinstance(att, bytes)
+    assert len(payload) == 15 * 32 * 48 * 2 and clipped == ()
+    # byte layout: little-endian float16, C-order (C, H, W)
+    raw = np.frombuffer(payload, dtype="<f2").reshape(15, 32, 48)
+    assert raw[3, 5, 7] == np.float16(f[3, 5, 7])
+    head = json.loads(att)
+    assert head["schema"] == "tensortouch.fields.v1" and head["shape"] == [15, 32, 48]
+    assert head["channels"] == list(CHANNELS) and head["units"] == list(CHANNEL_UNITS)
+    fr = wire.decode_fields(payload, att, wire.ENCODINGS["fields"])
+    assert fr.sensor_id == "dome01" and fr.seq == 42 and fr.t == 12.5
+    assert fr.data.dtype == np.float32 and fr.data.shape == (15, 32, 48)
+    np.testing.assert_array_equal(fr.data, f.astype(np.float16).astype(np.float32))
+    # half precision: relative error <= 2^-11 for normal numbers
+    big = np.abs(f) > 1e-3
+    assert np.max(np.abs(fr.data[big] - f[big]) / np.abs(f[big])) <= 2.0 ** -11
+    assert fr.channels == CHANNELS and fr.units == CHANNEL_UNITS
+    np.testing.assert_array_equal(fr.channel("sigma_zz"), fr.data[5])
+    with pytest.raises(wire.WireError, match="no channel"):
+        fr.channel("temperature")
+
+
+def test_fields_overflow_clipped_and_flagged():
+    f = np.zeros((15, 4, 4), np.float32)
+    f[4, 0, 0] = 1e6
+    f[10, 1, 1] = -np.inf
+    f[12, 2, 2] = 65000.0          # representable: not clipped
+    f[0, 3, 3] = np.nan            # NaN passes through, not flagged as overflow
+    payload, att, clipped = wire.encode_fields(f, 1, 0.0, "s")
+    assert clipped == ("sigma_yy", "fn_y")
+    fr = wire.decode_fields(payload, att)
+    assert fr.clipped == ("sigma_yy", "fn_y")
+    assert fr.data[4, 0, 0] == 65504.0 and fr.data[10, 1, 1] == -65504.0
+    assert fr.data[12, 2, 2] == np.float32(np.float16(65000.0))
+    assert np.isnan(fr.data[0, 3, 3])
+    assert np.isfinite(np.delete(fr.data.ravel(), 3 * 4 + 3)).all()
+
+
+def test_fields_bad_inputs():
+    f = np.zeros((15, 8, 8), np.float32)
+    payload, att, _ = wire.encode_fields(f, 1, 0.0, "s")
+    with pytest.raises(wire.WireError, match="expected 1920"):
+        wire.decode_fields(payload[:-2], att)
+    with pytest.raises(wire.WireError, match="expected 1920"):
+        wire.decode_fields(payload + b"\0\0", att)
+    head = json.loads(att)
+    wrong = json.dumps({**head, "schema": "tensortouch.fields.v2"}).encode()
+    with pytest.raises(wire.WireError, match="tensortouch.fields.v2.*expected 'tensortouch.fields.v1'"):
+        wire.decode_fields(payload, wrong)
+    with pytest.raises(wire.WireError, match="schema"):
+        wire.decode_fields(payload, att, "application/octet-stream;tensortouch.contacts.v1")
+    with pytest.raises(wire.WireError, match="schema None"):
+        wire.decode_fields(payload, att, "application/octet-stream")
+    with pytest.raises(wire.WireError, match="missing attachment"):
+        wire.decode_fields(payload, None)
+    with pytest.raises(wire.WireError, match="JSON"):
+        wire.decode_fields(payload, b"\xff\x00garbage")
+    with pytest.raises(wire.WireError, match="shape"):
+        wire.decode_fields(payload, json.dumps({**head, "shape": [14, 8, 8]}).encode())
+    with pytest.raises(wire.WireError, match="missing field 'seq'"):
+        wire.decode_fields(payload, json.dumps({k: v for k, v in head.items() if k != "seq"}).encode())
+    with pytest.raises(wire.WireError, match="expected shape"):
+        wire.encode_fields(np.zeros((14, 8, 8)), 1, 0.0, "s")
+    with pytest.raises(wire.WireError, match="expected shape"):
+        wire.encode_fields(np.zeros((8, 8)), 1, 0.0, "s")
+
+
+def test_contacts_round_trip_and_validation():
+    cs = [make_contact(1), make_contact(2, f=(0.0, 0.0, -0.4), p=(-3.0, 0.5, 13.0))]
+    payload = wire.encode_contacts(cs, seq=7, t=1.25, sensor_id="dome01")
+    obj = json.loads(payload)
+    assert obj["schema"] == "tensortouch.contacts.v1" and len(obj["contacts"]) == 2
+    fr = wire.decode_contacts(payload, wire.ENCODINGS["contacts"])
+    assert fr.sensor_id == "dome01" and fr.seq == 7 and fr.t == 1.25
+    assert fr.contacts == cs
+    assert wire.Contact.from_dict(cs[0].to_dict()) == cs[0]
+    # numpy values are accepted by the encoder
+    c = make_contact(3, f=np.array([0.1, 0.2, 0.3], np.float32), p=np.array([1, 2, 3.0]))
+    assert wire.decode_contacts(wire.encode_contacts([c], 1, 0.0, "s")).contacts[0].force_n == \
+        pytest.approx((0.1, 0.2, 0.3), rel=1e-6)
+    assert wire.decode_contacts(wire.encode_contacts([], 1, 0.0, "s")).contacts == []
+    with pytest.raises(wire.WireError, match="non-finite"):
+        wire.encode_contacts([make_contact(f=(np.nan, 0, 0))], 1, 0.0, "s")
+    bad = dict(cs[0].to_dict())
+    del bad["area_mm2"]
+    with pytest.raises(wire.WireError, match="area_mm2"):
+        wire.Contact.from_dict(bad)
+    with pytest.raises(wire.WireError, match="force_n"):
+        wire.Contact.from_dict({**cs[0].to_dict(), "force_n": [1, 2]})
+    wrong = json.dumps({**obj, "schema": "tensortouch.wrench.v1"})
+    with pytest.raises(wire.WireError, match="expected 'tensortouch.contacts.v1'"):
+        wire.decode_contacts(wrong)
+    with pytest.raises(wire.WireError, match="JSON object"):
+        wire.decode_contacts(b"[1, 2]")
+
+
+def test_wrench_from_contacts_and_round_trip():
+    cs = [make_contact(1, f=(0.0, 0.0, -1.0), p=(2.0, 0.0, 10.0)),
+          make_contact(2, f=(0.5, 0.0, 0.0), p=(0.0, 0.0, 14.0))]
+    force, torque = wire.wrench_from_contacts(cs)
+    np.testing.assert_allclose(force, [0.5, 0.0, -1.0])
+    # tau = sum p x f: (2,0,10)x(0,0,-1) = (0,2,0); (0,0,14)x(0.5,0,0) = (0,7,0)
+    np.testing.assert_allclose(torque, [0.0, 9.0, 0.0])
+    w = wire.decode_wrench(wire.encode_wrench(force, torque, 5, 2.0, "dome01"), wire.ENCODINGS["wrench"])
+    assert w.force_n == (0.5, 0.0, -1.0) and w.torque_nmm == (0.0, 9.0, 0.0)
+    assert (w.sensor_id, w.seq, w.t) == ("dome01", 5, 2.0)
+    with pytest.raises(wire.WireError, match="torque_nmm"):
+        wire.encode_wrench(force, [1.0, 2.0], 5, 2.0, "s")
+    with pytest.raises(wire.WireError, match="schema"):
+        wire.decode_wrench(wire.encode_wrench(force, torque, 5, 2.0, "s"),
+                           "application/json;tensortouch.status.v1")
+
+
+def test_status_round_trip_and_sanitizing():
+    st = {"state": "contact", "flags": ["frame_black", "camera_stalled", "frame_black"],
+          "fps": float("nan"), "timings_ms": {"capture": 1.5, "infer": np.float32(8.25)},
+          "model_hash": "sha256:ab", "calibration_version": 3, "extra": {"x": 1}}
+    d = wire.decode_status(wire.encode_status(st, 9, 3.5, "dome01"), wire.ENCODINGS["status"])
+    assert d["schema"] == "tensortouch.status.v1" and d["sensor_id"] == "dome01"
+    assert d["flags"] == ["camera_stalled", "frame_black"]
+    assert d["fps"] is None and d["timings_ms"] == {"capture": 1.5, "infer": 8.25}
+    assert d["seq"] == 9 and d["t"] == 3.5 and d["extra"] == {"x": 1}
+    minimal = wire.decode_status(wire.encode_status({}, 1, 0.0, "s"))
+    assert minimal["state"] is None and minimal["flags"] == [] and minimal["timings_ms"] == {}
+    with pytest.raises(wire.WireError, match="missing field 'timings_ms'"):
+        wire.decode_status(json.dumps({"schema": "tensortouch.status.v1", "sensor_id": "s",
+                                       "seq": 1, "t": 0, "state": "x", "flags": []}))
+
+
+def test_info_round_trip():
+    info = {"model": {"name": "hiera-s", "hash": "sha256:1"}, "calibration_version": 2,
+            "bounds": {"disp_x": [-1.0, 1.0]}}
+    d = wire.decode_info(wire.encode_info(info, "dome01", "0.1.0"), wire.ENCODINGS["info"])
+    assert d["model"]["hash"] == "sha256:1" and d["bounds"]["disp_x"] == [-1.0, 1.0]
+    assert d["channels"] == list(CHANNELS) and d["units"] == list(CHANNEL_UNITS)
+    assert d["keys"]["fields"] == "tensortouch/dome01/fields" and d["wire_version"] == 1
+    assert d["runtime_version"] == "0.1.0"
