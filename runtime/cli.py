@@ -37,13 +37,13 @@ def _register_plugins(sub) -> list[str]:
         try:
             register = ep.load()
             register(sub)
-        except ImportError as exc:  # a tools/ extra is not installed
+        except Exception as exc:  # a tools/ extra is not installed, or the plugin is broken
             problems.append(f"{ep.name}: unavailable ({exc}); install the train extra: pip install -e '.[train]'")
     return problems
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
-    parser = argparse.ArgumentParser(prog="tensortouch", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="tensortouch", description="TensorTouch: calibrated optical tactile sensing (runtime, train, twin, workbench).")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _register_deploy_commands(sub)

@@ -1,6 +1,140 @@
-"""Deploy-side subcommands of `tensortouch` (run, listen). Thin shells over runtime/ cores."""
+"""Deploy-side subcommands of `tensortouch`: run, listen, calib. Thin shells over runtime/ cores."""
 from __future__ import annotations
+
+import logging
+import signal
+import sys
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 def register(sub) -> None:
     """Add the deploy subcommands to the `tensortouch` parser."""
+    p = sub.add_parser("run", help="run one sensor: capture → fields → contacts → Zenoh",
+                       description="Run the runtime on a camera or a recording and publish over Zenoh. "
+                                   "With no --source it replays the shipped demo recording.")
+    p.add_argument("--source", help="replay:SESSION_DIR | file:VIDEO | v4l2:/dev/videoN | usb:SERIAL "
+                                    "(default: the shipped demo recording)")
+    p.add_argument("--sensor", help="sensor id = calibration store folder (default: the session's sensor_id)")
+    p.add_argument("--model", help="model package name in exported_models/ or a path (default: newest installed)")
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    p.add_argument("--listen", action="append", help=f"Zenoh listen endpoint (default {DEFAULT_ENDPOINT})")
+    p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to")
+    p.add_argument("--frames", type=int, help="stop after N frames")
+    p.add_argument("--fast", action="store_true", help="replay as fast as possible (default: recorded clock)")
+    p.add_argument("--loop", action="store_true", help="replay the recording in a loop")
+    p.add_argument("--no-fields", action="store_true", help="publish contacts/wrench/status only")
+    p.set_defaults(func=cmd_run)
+
+    from runtime.listen import add_listen_parser
+
+    add_listen_parser(sub)
+
+    c = sub.add_parser("calib", help="calibration store: list / show / rollback")
+    csub = c.add_subparsers(dest="calib_cmd", metavar="ACTION", required=True)
+    cl = csub.add_parser("list", help="sensors and their versions")
+    cl.set_defaults(func=cmd_calib_list)
+    cs = csub.add_parser("show", help="one sensor's active calibration")
+    cs.add_argument("sensor")
+    cs.add_argument("--version")
+    cs.set_defaults(func=cmd_calib_show)
+    cr = csub.add_parser("rollback", help="reactivate the previous (or a named) version")
+    cr.add_argument("sensor")
+    cr.add_argument("--to", dest="version")
+    cr.set_defaults(func=cmd_calib_rollback)
+    for q in (cl, cs, cr):
+        q.add_argument("--store", help="calibration store folder (default: calibration_store/)")
+
+
+def _open_source(args):
+    from drivers.camera import camera_from_uri
+    from runtime import paths
+    from runtime.errors import CaptureError
+    from runtime.session import load_session
+
+    source = args.source
+    session_sensor = None
+    if not source:
+        demo = paths.demo_dir()
+        if not (demo / "session.json").is_file():
+            raise CaptureError(f"no --source given and no demo recording at {demo}; "
+                               "record one with `tensortouch twin record ... --out runtime/demo`")
+        source = f"replay:{demo}"
+    if source.startswith("replay:"):
+        session_sensor = load_session(source.split(":", 1)[1]).sensor_id
+    cam = camera_from_uri(source, realtime=not args.fast, loop=args.loop)
+    return cam, session_sensor
+
+
+def cmd_run(args) -> int:
+    from runtime.calibration import CalibrationStore
+    from runtime.errors import TensorTouchError
+    from runtime.loop import SensorLoop
+    from runtime.model import FieldModel, find_package
+    from runtime.pipeline import SensorPipeline
+    from runtime.publisher import Publisher
+
+    package = find_package(args.model)          # clear message when no trained model is installed
+    cam, session_sensor = _open_source(args)
+    sensor = args.sensor or session_sensor
+    if not sensor:
+        raise TensorTouchError("--sensor is required for live cameras (the calibration store folder name)")
+    store = CalibrationStore()
+    cal = store.load(sensor)
+    model = FieldModel(package, args.precision, threads=args.threads)
+    pipeline = SensorPipeline(sensor, model, cal)
+    listen = args.listen or ([] if args.connect else [DEFAULT_ENDPOINT])
+    loop = None
+    with Publisher(sensor, listen=listen, connect=args.connect, info=lambda: loop.info() if loop else {}) as pub:
+        loop = SensorLoop(cam, pipeline, pub, store=store)
+        signal.signal(signal.SIGTERM, lambda *a: loop.stop())
+        print(f"tensortouch run: sensor {sensor}, model {package.name} ({args.precision}), "
+              f"calibration {cal.version}, Zenoh {' '.join(listen + args.connect)}; Ctrl-C to stop",
+              file=sys.stderr)
+        try:
+            with cam:
+                n = loop.run(max_frames=args.frames)
+        except KeyboardInterrupt:
+            n = loop.frames
+        summ = loop.latency.summary()
+    tot = summ.get("total", {})
+    print(f"tensortouch run: {n} frames, end-to-end p50 {tot.get('p50', 0):.2f} ms, "
+          f"p99 {tot.get('p99', 0):.2f} ms", file=sys.stderr)
+    return 0
+
+
+def _store(args):
+    from runtime.calibration import CalibrationStore
+
+    return CalibrationStore(args.store) if args.store else CalibrationStore()
+
+
+def cmd_calib_list(args) -> int:
+    store = _store(args)
+    sensors = store.sensors()
+    if not sensors:
+        print(f"no calibrations in {store.root}")
+    for s in sensors:
+        for row in store.history(s):
+            mark = "*" if row["active"] else " "
+            print(f"{mark} {s} {row['version']} {row['created']} {row['provenance'].get('method', '')}")
+    return 0
+
+
+def cmd_calib_show(args) -> int:
+    import json
+
+    cal = _store(args).load(args.sensor, args.version)
+    meta = {k: v for k, v in cal.meta.items() if k != "files"}
+    print(json.dumps(meta, indent=2))
+    return 0
+
+
+def cmd_calib_rollback(args) -> int:
+    v = _store(args).rollback(args.sensor, args.version)
+    print(f"{args.sensor}: active calibration is now {v}")
+    return 0
+

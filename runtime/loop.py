@@ -1,0 +1,173 @@
+"""The frame loop: camera → SensorPipeline → Publisher, with health flags and hot calibration reload.
+
+A camera that stops delivering frames, a black or frozen image, a publish error: the loop keeps
+running and says so in `status.flags`; it stops only when the source is exhausted (replay), when
+asked to, or after `max_camera_failures` consecutive capture errors (with a clear message).
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from runtime.calibration import CalibrationStore
+from runtime.errors import CaptureError, TensorTouchError
+from runtime.pipeline import FrameResult, SensorPipeline
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    publish_fields: bool = True
+    status_every_s: float = 0.5        # status message period
+    calibration_poll_s: float = 1.0    # how often the calibration store's CURRENT is checked
+    max_camera_failures: int = 50      # consecutive capture errors before giving up
+    retry_wait_s: float = 0.05
+
+
+def to_wire_contacts(result: FrameResult) -> list[dict]:
+    """Pipeline clusters → wire Contact dicts (docs/wire.md)."""
+    return [{"id": c.id, "uv_px": c.centroid_px, "position_mm": c.centroid_mm, "normal": c.normal,
+             "area_mm2": c.area_mm2, "force_n": c.force_n, "force_mag_n": c.force_mag_n,
+             "perimeter_px": c.perimeter_px, "circularity": c.circularity, "priority": c.priority,
+             "age_frames": c.age} for c in result.clusters]
+
+
+class LatencyWindow:
+    """Rolling per-stage timings for status messages and benchmarks."""
+
+    def __init__(self, n: int = 300):
+        self.samples: dict[str, deque] = {}
+        self.n = n
+
+    def add(self, timings: dict[str, float]) -> None:
+        for k, v in timings.items():
+            self.samples.setdefault(k, deque(maxlen=self.n)).append(v)
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        out = {}
+        for k, d in self.samples.items():
+            a = np.fromiter(d, float)
+            out[k] = {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+                      "mean": float(a.mean())}
+        return out
+
+
+class SensorLoop:
+    """Runs one sensor until the source ends or `stop()` is called."""
+
+    def __init__(self, camera, pipeline: SensorPipeline, publisher=None, config: LoopConfig | None = None,
+                 store: CalibrationStore | None = None, on_result=None):
+        self.camera, self.pipeline, self.publisher = camera, pipeline, publisher
+        self.cfg = config or LoopConfig()
+        self.store = store
+        self.on_result = on_result
+        self.latency = LatencyWindow()
+        self._stop = threading.Event()
+        self.frames = 0
+        self.flags: set[str] = set()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def info(self) -> dict:
+        p = self.pipeline
+        pkg = p.model.package
+        return {"sensor_id": p.sensor_id, "model": pkg.name, "model_sha256": pkg.sha256(p.model.precision),
+                "precision": p.model.precision, "calibration_version": p.cal.version,
+                "bounds": pkg.manifest["output"]["bounds"], "model_size": list(pkg.size),
+                "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"]}
+
+    def run(self, max_frames: int | None = None) -> int:
+        failures = 0
+        last_status = 0.0
+        last_poll = time.monotonic()
+        fps_t0, fps_n, fps = time.monotonic(), 0, 0.0
+        while not self._stop.is_set() and (max_frames is None or self.frames < max_frames):
+            t_cap = time.perf_counter()
+            try:
+                item = self.camera.read()
+            except StopIteration:
+                log.info("%s: source exhausted after %d frames", self.pipeline.sensor_id, self.frames)
+                break
+            except CaptureError as exc:
+                failures += 1
+                self.flags.add("camera_stalled")
+                if failures == 1:
+                    log.warning("%s: %s", self.pipeline.sensor_id, exc)
+                self._status(time.monotonic(), fps, force=failures == 1)
+                if failures >= self.cfg.max_camera_failures:
+                    raise TensorTouchError(f"sensor {self.pipeline.sensor_id}: camera failed "
+                                           f"{failures} times in a row, last error: {exc}") from None
+                self._stop.wait(self.cfg.retry_wait_s)
+                continue
+            if item is None:  # end of a replay
+                break
+            frame, t = item
+            failures = 0
+            self.flags.discard("camera_stalled")
+            capture_ms = (time.perf_counter() - t_cap) * 1e3
+            result = self.pipeline.process(frame, t)
+            result.timings = {"capture": capture_ms, **result.timings}
+            t_pub = time.perf_counter()
+            self._publish(result)
+            result.timings["publish"] = (time.perf_counter() - t_pub) * 1e3
+            result.timings["total"] = sum(v for k, v in result.timings.items() if k != "total")
+            self.latency.add(result.timings)
+            self.frames += 1
+            fps_n += 1
+            now = time.monotonic()
+            if now - fps_t0 >= 1.0:
+                fps, fps_t0, fps_n = fps_n / (now - fps_t0), now, 0
+            self.flags = (self.flags - {"frame_black", "camera_frozen"}) | set(result.flags)
+            if self.on_result:
+                self.on_result(result)
+            if now - last_status >= self.cfg.status_every_s:
+                self._status(now, fps, result=result)
+                last_status = now
+            if self.store is not None and now - last_poll >= self.cfg.calibration_poll_s:
+                last_poll = now
+                self._maybe_reload()
+        self._status(time.monotonic(), fps, force=True)
+        return self.frames
+
+    def _publish(self, r: FrameResult) -> None:
+        if self.publisher is None:
+            return
+        if r.fields is not None and self.cfg.publish_fields:
+            self.publisher.publish_fields(r.fields, r.seq, r.t)
+        self.publisher.publish_contacts(to_wire_contacts(r), r.seq, r.t)
+        self.publisher.publish_wrench(r.force_n, r.torque_nmm, r.seq, r.t)
+        self._last = r
+
+    def _status(self, now: float, fps: float, result: FrameResult | None = None, force: bool = False) -> None:
+        if self.publisher is None:
+            return
+        p = self.pipeline
+        status = {"state": result.state if result else p.baseline.state.name,
+                  "flags": sorted(self.flags), "fps": round(fps, 2),
+                  "timings_ms": {k: round(v["p50"], 3) for k, v in self.latency.summary().items()},
+                  "timings_p99_ms": {k: round(v["p99"], 3) for k, v in self.latency.summary().items()},
+                  "frames": self.frames, "model": p.model.package.name,
+                  "model_sha256": p.model.package.sha256(p.model.precision),
+                  "calibration_version": p.cal.version}
+        self.publisher.publish_status(status, seq=p.seq, t=result.t if result else None)
+
+    def _maybe_reload(self) -> None:
+        sid = self.pipeline.sensor_id
+        try:
+            current = self.store.current(sid)
+            if current != self.pipeline.cal.version:
+                cal = self.store.load(sid, current)
+                self.pipeline.set_calibration(cal)
+                self.flags.discard("calibration_invalid")
+                log.info("%s: calibration %s loaded without restart", sid, current)
+        except TensorTouchError as exc:
+            if "calibration_invalid" not in self.flags:
+                log.error("%s: new calibration rejected, keeping %s: %s", sid, self.pipeline.cal.version, exc)
+            self.flags.add("calibration_invalid")

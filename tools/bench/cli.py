@@ -1,0 +1,28 @@
+"""`tensortouch bench <area>`: benchmarks that print side-by-side ratios measured in one run.
+
+Each area is a module exposing `add_arguments(parser)` and `run(args) -> int`; an area whose
+module (or its dependencies) is not installed is listed as unavailable instead of failing.
+"""
+from __future__ import annotations
+
+import importlib
+
+AREAS = {
+    "runtime": ("tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32"),
+    "fe": ("tools.fe.bench", "FE solver: seconds per keypoint frame / 5-keypoint trajectory"),
+    "twin": ("tools.twin.bench", "digital twin: seconds of recording per minute of compute"),
+    "workbench": ("tools.workbench.bench", "compare → diagnose → add → compare"),
+}
+
+
+def register(sub) -> None:
+    p = sub.add_parser("bench", help="benchmarks (runtime, fe, twin, workbench)")
+    bsub = p.add_subparsers(dest="bench_area", metavar="AREA", required=True)
+    for name, (module, helptext) in AREAS.items():
+        try:
+            mod = importlib.import_module(module)
+        except ImportError:
+            continue
+        q = bsub.add_parser(name, help=helptext)
+        mod.add_arguments(q)
+        q.set_defaults(func=mod.run)
