@@ -121,9 +121,10 @@ class Publisher:
                 wire.key(self.sensor_id, kind), encoding=zenoh.Encoding(wire.ENCODINGS[kind]),
                 congestion_control=drop, priority=priority, express=express)
                 for kind, (priority, express) in qos.items()}
-            self._token = self.session.liveliness().declare_token(wire.alive_key(self.sensor_id))
             self._queryable = self.session.declare_queryable(wire.info_key(self.sensor_id),
                                                              self._on_query)
+            # token last: once a sensor is seen alive, its publishers and queryable exist
+            self._token = self.session.liveliness().declare_token(wire.alive_key(self.sensor_id))
         except zenoh.ZError as exc:
             raise TensorTouchError(f"zenoh: cannot declare sensor {self.sensor_id!r}: {exc}") from None
         log.info("publishing sensor %s on %s/%s/*", self.sensor_id, wire.KEY_PREFIX, self.sensor_id)

@@ -105,16 +105,18 @@ class Subscriber:
             except Exception:  # noqa: BLE001
                 log.exception("on_%s callback raised", kind)
 
-    def wait_for(self, kind: str, timeout: float = 5.0) -> Any:
-        """Block until a `kind` message arrives after this call; return it decoded.
+    def wait_for(self, kind: str, timeout: float = 5.0, since: int | None = None) -> Any:
+        """Block until a new `kind` message arrives; return it decoded (the latest one).
 
+        "New" means after this call, or after `since` = a value of `self.counts[kind]` read
+        earlier (read it before publishing to avoid missing a fast reply).
         Raises TimeoutError (with what did arrive) after `timeout` seconds.
         """
         if kind not in wire.KINDS:
             raise ValueError(f"kind {kind!r}: expected one of {wire.KINDS}")
         deadline = time.monotonic() + timeout
         with self._cond:
-            start = self.counts[kind]
+            start = self.counts[kind] if since is None else since
             while self.counts[kind] == start:
                 left = deadline - time.monotonic()
                 if left <= 0:

@@ -1,0 +1,131 @@
+"""`tensortouch listen` against a real publisher on loopback zenoh."""
+import argparse
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from runtime import wire
+from runtime.fields import CHANNELS
+from runtime.listen import add_listen_parser, format_line
+from runtime.publisher import Publisher
+
+
+def free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def parse(argv):
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    add_listen_parser(parser.add_subparsers(dest="command"))
+    return parser.parse_args(argv)
+
+
+CONTACT = wire.Contact(id=3, uv_px=(30.0, 31.0), position_mm=(2.0, 1.0, 14.0), normal=(0, 0, 1),
+                       area_mm2=5.25, force_n=(0.0, 0.1, -1.0), force_mag_n=1.005,
+                       perimeter_px=15.0, circularity=0.9, priority=1.0, age_frames=2)
+
+
+@pytest.fixture
+def running_sensor():
+    """A publisher (listening on a free port) sending all four streams at ~50 Hz from a thread."""
+    ep = free_endpoint()
+    pub = Publisher("dome01", listen=[ep], info=lambda: {"model": {"name": "tiny"}})
+    stop = threading.Event()
+
+    def loop():
+        seq = 0
+        fields = np.linspace(-1, 1, 15 * 16 * 16, dtype=np.float32).reshape(15, 16, 16)
+        while not stop.is_set():
+            t = time.time()
+            pub.publish_fields(fields, seq, t)
+            pub.publish_contacts([CONTACT], seq, t)
+            pub.publish_wrench((0.0, 0.1, -1.0), (1.0, 2.0, 0.0), seq, t)
+            pub.publish_status({"state": "contact", "fps": 50.0,
+                                "timings_ms": {"infer": 9.0}}, seq, t)
+            seq += 1
+            time.sleep(0.02)
+
+    th = threading.Thread(target=loop, daemon=True)
+    th.start()
+    try:
+        yield ep
+    finally:
+        stop.set()
+        th.join(5)
+        pub.close()
+
+
+def test_listen_prints_and_saves(running_sensor, tmp_path, capsys):
+    args = parse(["listen", "dome01", "--connect", running_sensor, "--count", "12", "--timeout", "20",
+                  "--save", str(tmp_path), "--info"])
+    assert args.func(args) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "alive: ['dome01']" and lines[1].startswith("info dome01: ")
+    assert json.loads(lines[1].split(": ", 1)[1])["model"]["name"] == "tiny"
+    msgs = lines[2:]
+    assert len(msgs) == 12
+    kinds = {line.split()[0] for line in msgs}
+    assert kinds == {f"tensortouch/dome01/{k}" for k in wire.KINDS}
+    contact_line = next(line for line in msgs if "/contacts" in line)
+    assert "#3 |F|=1.005 N F=(0.000,0.100,-1.000) N at (2.00,1.00,14.00) mm area=5.25 mm2" in contact_line
+    assert "state=contact" in next(line for line in msgs if "/status" in line)
+    assert "15x16x16 float32" in next(line for line in msgs if "/fields" in line)
+
+    folder = tmp_path / "dome01"
+    npys = sorted((folder / "fields").glob("*.npy"))
+    assert npys and not list((folder / "fields").glob("*.tmp"))
+    arr = np.load(npys[0])
+    assert arr.shape == (15, 16, 16) and arr.dtype == np.float32
+    np.testing.assert_allclose(arr.ravel(), np.linspace(-1, 1, 15 * 16 * 16), atol=1e-3)
+    meta = json.loads((folder / "fields" / "meta.json").read_text())
+    assert meta["channels"] == list(CHANNELS)
+    rec = json.loads((folder / "contacts.jsonl").read_text().splitlines()[0])
+    assert wire.Contact.from_dict(rec["contacts"][0]) == CONTACT
+    assert (folder / "status.jsonl").exists() and (folder / "wrench.jsonl").exists()
+
+
+def test_listen_json_in_separate_process(running_sensor):
+    """`python -m runtime.listen` in another process: one JSON object per message line."""
+    proc = subprocess.run([sys.executable, "-m", "runtime.listen", "listen", "*", "--connect",
+                           running_sensor, "--count", "8", "--timeout", "30", "--json",
+                           "--kinds", "contacts,status"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    objs = [json.loads(line) for line in proc.stdout.splitlines()]
+    assert len(objs) == 8 and {o["kind"] for o in objs} == {"contacts", "status"}
+    c = next(o for o in objs if o["kind"] == "contacts")
+    assert c["sensor_id"] == "dome01" and c["contacts"][0]["position_mm"] == [2.0, 1.0, 14.0]
+    s = next(o for o in objs if o["kind"] == "status")
+    assert s["timings_ms"] == {"infer": 9.0}
+
+
+def test_listen_nothing_running_exits_1_with_hint(capsys):
+    args = parse(["listen", "--connect", free_endpoint(), "--timeout", "1"])
+    assert args.func(args) == 1
+    assert "no messages" in capsys.readouterr().err
+
+
+def test_listen_rejects_unknown_kind():
+    from runtime.cli import CommandError
+
+    args = parse(["listen", "--kinds", "fields,pressure", "--timeout", "1"])
+    with pytest.raises(CommandError, match="pressure"):
+        args.func(args)
+
+
+def test_format_line_status_and_wrench():
+    st = wire.decode_status(wire.encode_status({"state": "stable", "flags": ["camera_stalled"],
+                                                "fps": 0.0, "timings_ms": {"capture": 33.3}},
+                                               4, 1.0, "s1"))
+    assert format_line("status", st) == ("tensortouch/s1/status   seq=4 t=1.000 state=stable fps=0.0 "
+                                         "flags=camera_stalled timings_ms: capture=33.30")
+    w = wire.decode_wrench(wire.encode_wrench((0, 0, -2), (0.5, 0, 0), 4, 1.0, "s1"))
+    assert "F=(0.000,0.000,-2.000) N tau=(0.50,0.00,0.00) N*mm" in format_line("wrench", w)
