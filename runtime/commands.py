@@ -4,6 +4,7 @@ from __future__ import annotations
 import logging
 import signal
 import sys
+from pathlib import Path
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +66,8 @@ def _open_source(args):
         source = f"replay:{demo}"
     if source.startswith("replay:"):
         session_sensor = load_session(source.split(":", 1)[1]).sensor_id
-    cam = camera_from_uri(source, realtime=not args.fast, loop=args.loop)
+    replay = source.startswith(("replay:", "file:")) or Path(source).exists()
+    cam = camera_from_uri(source, realtime=not args.fast, loop=args.loop) if replay else camera_from_uri(source)
     return cam, session_sensor
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.camera.camera import EndOfStream
 from runtime.calibration import CalibrationStore
 from runtime.errors import CaptureError, TensorTouchError
 from runtime.pipeline import FrameResult, SensorPipeline
@@ -78,7 +79,7 @@ class SensorLoop:
     def info(self) -> dict:
         p = self.pipeline
         pkg = p.model.package
-        return {"sensor_id": p.sensor_id, "model": pkg.name, "model_sha256": pkg.sha256(p.model.precision),
+        return {"sensor_id": p.sensor_id, "model": pkg.name, "model_hash": pkg.sha256(p.model.precision),
                 "precision": p.model.precision, "calibration_version": p.cal.version,
                 "bounds": pkg.manifest["output"]["bounds"], "model_size": list(pkg.size),
                 "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"]}
@@ -92,7 +93,7 @@ class SensorLoop:
             t_cap = time.perf_counter()
             try:
                 item = self.camera.read()
-            except StopIteration:
+            except EndOfStream:
                 log.info("%s: source exhausted after %d frames", self.pipeline.sensor_id, self.frames)
                 break
             except CaptureError as exc:
@@ -106,9 +107,7 @@ class SensorLoop:
                                            f"{failures} times in a row, last error: {exc}") from None
                 self._stop.wait(self.cfg.retry_wait_s)
                 continue
-            if item is None:  # end of a replay
-                break
-            frame, t = item
+            frame, t = item.image, item.t
             failures = 0
             self.flags.discard("camera_stalled")
             capture_ms = (time.perf_counter() - t_cap) * 1e3
@@ -154,7 +153,7 @@ class SensorLoop:
                   "timings_ms": {k: round(v["p50"], 3) for k, v in self.latency.summary().items()},
                   "timings_p99_ms": {k: round(v["p99"], 3) for k, v in self.latency.summary().items()},
                   "frames": self.frames, "model": p.model.package.name,
-                  "model_sha256": p.model.package.sha256(p.model.precision),
+                  "model_hash": p.model.package.sha256(p.model.precision),
                   "calibration_version": p.cal.version}
         self.publisher.publish_status(status, seq=p.seq, t=result.t if result else None)
 

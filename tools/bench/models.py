@@ -135,3 +135,72 @@ def write_package(folder: Path, size: int = 32, width: int = 4, depth: int = 2, 
     }
     (folder / "manifest.json").write_text(json.dumps(manifest, indent=2))
     return folder
+
+
+def build_difference_model(size: int, gain: float = 4.0):
+    """A deterministic, physics-free test network: contact normal traction fn_z = −gain·|current −
+    baseline| (mean over RGB, clipped at 1), every other channel 0. Outputs are normalized for the
+    bounds of `difference_bounds()`; used by integration tests to put contacts where frames change."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    n = len(CHANNELS)
+    k = CHANNELS.index("fn_z")
+    consts = {
+        "s0": np.array([0], np.int64), "s3": np.array([3], np.int64), "s6": np.array([6], np.int64),
+        "ax1": np.array([1], np.int64), "gain": np.array(gain, np.float32), "one": np.array(1.0, np.float32),
+        "zero": np.array(0.0, np.float32),
+    }
+    nodes = [
+        helper.make_node("Slice", ["input", "s0", "s3", "ax1"], ["base"]),
+        helper.make_node("Slice", ["input", "s3", "s6", "ax1"], ["cur"]),
+        helper.make_node("Sub", ["cur", "base"], ["diff"]),
+        helper.make_node("Abs", ["diff"], ["adiff"]),
+        helper.make_node("ReduceMean", ["adiff"], ["mdiff"], axes=[1], keepdims=1),
+        helper.make_node("Mul", ["mdiff", "gain"], ["scaled"]),
+        helper.make_node("Clip", ["scaled", "zero", "one"], ["d"]),
+        helper.make_node("Sub", ["one", "d"], ["y_fnz"]),           # bounds [-1, 0]: y = 1 - d
+        helper.make_node("Mul", ["mdiff", "zero"], ["z"]),
+        helper.make_node("Add", ["z", "one"], ["ones"]),
+        helper.make_node("Mul", ["ones", "half"], ["halfmap"]),     # symmetric bounds: 0 ↦ y = 0.5
+    ]
+    consts["half"] = np.array(0.5, np.float32)
+    parts = ["halfmap"] * k + ["y_fnz"] + ["halfmap"] * (n - k - 1)
+    nodes.append(helper.make_node("Concat", parts, ["fields"], axis=1))
+    graph = helper.make_graph(
+        nodes, "difference_model",
+        [helper.make_tensor_value_info("input", TensorProto.FLOAT, ["N", 6, size, size])],
+        [helper.make_tensor_value_info("fields", TensorProto.FLOAT, ["N", n, size, size])],
+        [numpy_helper.from_array(v, name) for name, v in consts.items()])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    return model
+
+
+def difference_bounds(traction_mpa: float = 0.02) -> dict:
+    b = {c: [-1.0, 1.0] for c in CHANNELS}
+    b["fn_z"] = [-traction_mpa, 0.0]
+    return b
+
+
+def write_difference_package(folder: Path, size: int = 32, traction_mpa: float = 0.02, gain: float = 4.0) -> Path:
+    """Model package around `build_difference_model` (fp32 file used for both precisions)."""
+    import onnx
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    onnx.save(build_difference_model(size, gain), str(folder / "model.fp32.onnx"))
+    onnx.save(build_difference_model(size, gain), str(folder / "model.int8.onnx"))
+    files = {n: {"sha256": sha256(folder / n)} for n in ("model.fp32.onnx", "model.int8.onnx")}
+    manifest = {
+        "schema": "tensortouch.model", "schema_version": 1, "name": f"difference-{size}", "synthetic": True,
+        "input": {"name": "input", "layout": "NCHW", "size": [size, size], "dtype": "float32",
+                  "channels": list(INPUT_CHANNELS), "range": [0.0, 1.0]},
+        "output": {"name": "fields", "layout": "NCHW", "size": [size, size], "channels": list(CHANNELS),
+                   "units": list(CHANNEL_UNITS), "normalization": "minmax",
+                   "bounds": difference_bounds(traction_mpa)},
+        "files": files,
+        "training": {"command": "tools.bench.models.write_difference_package (test network, not trained)"},
+        "metrics": {},
+    }
+    (folder / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    return folder
