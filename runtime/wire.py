@@ -13,7 +13,7 @@ import json
 import logging
 import math
 import re
-from dataclasses import asdict, dataclass, field, fields as dc_fields
+from dataclasses import dataclass, field, fields as dc_fields
 from typing import Any, Iterable, Sequence
 
 import numpy as np
@@ -37,6 +37,9 @@ ENCODINGS = {kind: f"{MIME[kind]};{schema}" for kind, schema in SCHEMAS.items()}
 
 FIELDS_DTYPE = "<f2"                  # little-endian IEEE half precision
 FLOAT16_MAX = float(np.finfo(np.float16).max)  # 65504: larger magnitudes are clipped and flagged
+
+_HALF = np.dtype(FIELDS_DTYPE)
+_HALF_SIGN, _HALF_ABS, _HALF_INF, _HALF_MAX_BITS = 0x8000, 0x7FFF, 0x7C00, 0x7BFF
 
 _SENSOR_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 
@@ -178,13 +181,15 @@ def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
         raise WireError(f"fields: expected shape (C={len(channels)}, H, W) with {len(channels)} "
                         f"channel names and units, got shape {arr.shape}, {len(units)} units")
     with np.errstate(over="ignore", invalid="ignore"):
-        half = arr.astype(FIELDS_DTYPE)
+        half = arr.astype(_HALF)
+    # overflow test on the bit pattern (float16 arithmetic in numpy is slow): |x| bits == inf
+    bits = half.view(np.uint16)
+    over = (bits & _HALF_ABS) == _HALF_INF
     clipped: tuple[str, ...] = ()
-    over = np.isinf(half)
     if over.any():
         bad = over.reshape(over.shape[0], -1).any(axis=1)
         clipped = tuple(name for name, b in zip(channels, bad) if b)
-        np.clip(half, -FLOAT16_MAX, FLOAT16_MAX, out=half)
+        bits[over] = (bits[over] & _HALF_SIGN) | _HALF_MAX_BITS   # +-inf -> +-65504
     header = {"schema": SCHEMAS["fields"], "sensor_id": check_sensor_id(sensor_id), "seq": int(seq),
               "t": float(t), "shape": list(arr.shape), "dtype": FIELDS_DTYPE,
               "channels": list(channels), "units": list(units), "clipped": list(clipped)}
@@ -210,7 +215,7 @@ def decode_fields(payload: bytes | bytearray, attachment: bytes | bytearray | st
     if len(payload) != expected:
         raise WireError(f"fields: payload is {len(payload)} bytes, expected {expected} "
                         f"(float16 x {shape})")
-    data = np.frombuffer(payload, dtype=FIELDS_DTYPE).reshape(shape).astype(np.float32)
+    data = np.frombuffer(payload, dtype=_HALF).reshape(shape).astype(np.float32)
     return FieldsFrame(sensor_id=str(_need("fields", head, "sensor_id")),
                        seq=int(_need("fields", head, "seq")), t=float(_need("fields", head, "t")),
                        data=data, channels=channels, units=units,
@@ -247,13 +252,26 @@ class Contact:
     _VECTORS = {"uv_px": 2, "position_mm": 3, "normal": 3, "force_n": 3}
 
     def to_dict(self) -> dict:
-        return _plain(asdict(self), strict=True)
+        out = {}
+        for name in _CONTACT_FIELDS:
+            value = getattr(self, name)
+            if name in self._VECTORS:
+                value = [float(v) for v in value]
+            elif name in ("id", "age_frames"):
+                value = int(value)
+            else:
+                value = float(value)
+            out[name] = value
+        if not all(math.isfinite(v) for n in _CONTACT_FIELDS
+                   for v in (out[n] if isinstance(out[n], list) else (out[n],))):
+            raise WireError(f"contact {self.id}: non-finite number cannot be sent as JSON: {out}")
+        return out
 
     @classmethod
     def from_dict(cls, obj: dict) -> "Contact":
         if not isinstance(obj, dict):
             raise WireError(f"contact: expected a JSON object, got {type(obj).__name__}")
-        names = [f.name for f in dc_fields(cls)]
+        names = _CONTACT_FIELDS
         missing = [n for n in names if n not in obj]
         if missing:
             raise WireError(f"contact: missing field(s) {missing}")
@@ -272,6 +290,9 @@ class Contact:
         return cls(**kw)
 
 
+_CONTACT_FIELDS = tuple(f.name for f in dc_fields(Contact))
+
+
 @dataclass(frozen=True)
 class ContactsFrame:
     sensor_id: str
@@ -283,8 +304,9 @@ class ContactsFrame:
 def encode_contacts(contacts: Iterable[Contact | dict], seq: int, t: float, sensor_id: str) -> bytes:
     items = [c.to_dict() if isinstance(c, Contact) else Contact.from_dict(c).to_dict()
              for c in contacts]
-    return _dumps({"schema": SCHEMAS["contacts"], "sensor_id": check_sensor_id(sensor_id),
-                   "seq": int(seq), "t": float(t), "contacts": items})
+    body = {"schema": SCHEMAS["contacts"], "sensor_id": check_sensor_id(sensor_id),
+            "seq": int(seq), "t": float(t), "contacts": items}
+    return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()  # items are plain
 
 
 def decode_contacts(payload: bytes | bytearray | str, encoding: Any = None) -> ContactsFrame:
