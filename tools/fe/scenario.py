@@ -133,6 +133,7 @@ class Indenter:
 class SolverSettings:
     """Newton-Raphson with increments, cutback and penalty contact (units in field names).
     penalty_scale: contact stiffness per unit area = penalty_scale * mu0 / size_top (N/mm^3).
+    friction_stiffness_ratio: tangential (stick) penalty / normal penalty (elastic slip allowance).
     max_bulk_ratio: for linear tets the bulk modulus is capped at max_bulk_ratio * mu0 (locking,
     docs/fe.md); 0 disables the cap."""
 
@@ -144,6 +145,7 @@ class SolverSettings:
     tol_force: float = 1e-4
     tol_rel: float = 1e-6
     penalty_scale: float = 100.0
+    friction_stiffness_ratio: float = 0.1
     max_bulk_ratio: float = 50.0
     threads: int = 2
 
@@ -271,7 +273,8 @@ def _validate(s: Scenario) -> None:
             _vec3(f"{where}.keypoints[{j}].translation", kp.translation)
             _vec3(f"{where}.keypoints[{j}].rotation", kp.rotation)
     sv = s.solver
-    for name in ("max_increment_mm", "max_increment_rad", "tol_force", "tol_rel", "penalty_scale"):
+    for name in ("max_increment_mm", "max_increment_rad", "tol_force", "tol_rel", "penalty_scale",
+                 "friction_stiffness_ratio"):
         _num(f"solver.{name}", getattr(sv, name))
     for name in ("min_increments", "max_iterations", "threads"):
         if not isinstance(getattr(sv, name), int) or getattr(sv, name) < 1:

@@ -1,0 +1,114 @@
+"""Node-to-rigid-surface penalty contact with Coulomb friction (pure numpy core).
+
+For a surface node at x and an indenter with pose (R, p) and signed distance d(xi), xi = R^T (x-p):
+  normal force    fN = -eps d n              (d < 0 only; eps = penalty * nodal area, N/mm)
+  tangential      trial  fT = -eps_t (I - n n)(x - a), eps_t = tangential_ratio * eps,  a = R a_loc + p the stick anchor
+                  stick  |fT| <= mu |fN|,  else slip fT = -mu |fN| s/|s|   (return mapping from the
+                  last converged state, elastic slip <= mu |d| / tangential_ratio)
+The node force tangents dF/dx (3x3 per node) are exact for the normal part (incl. curvature
+n (x) n + d H) and for slip; stick drops dn/dx terms. Anchors live in the indenter's local frame
+so a rotating/translating indenter drags sticking nodes along.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class ContactState:
+    """Converged history: stick anchors in the local frame of each indenter (K, M, 3), NaN = free,
+    and the converged node positions x_prev (M,3): a node touching for the first time sticks to the
+    closest surface point of its converged position (fixed during the iterations: consistent tangent)."""
+
+    anchors: np.ndarray
+    x_prev: np.ndarray
+
+    @classmethod
+    def empty(cls, n_indenters: int, x: np.ndarray) -> "ContactState":
+        return cls(np.full((n_indenters, len(x), 3), np.nan), np.array(x, float))
+
+
+@dataclass
+class ContactEval:
+    fn: np.ndarray       # (M,3) normal force on each node (N)
+    ft: np.ndarray       # (M,3) friction force on each node (N)
+    K: np.ndarray        # (M,3,3) d(fn+ft)/dx
+    owner: np.ndarray    # (M,) indenter index, -1 free
+    gap: np.ndarray      # (K,M) signed distance (mm)
+    slip: np.ndarray     # (K,M) bool
+    new_anchors: np.ndarray  # (K,M,3) anchors to commit if this state converges
+    force_k: np.ndarray  # (K,M,3) total force from indenter k on each node
+
+
+def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: float,
+             tangent: bool = True, tangential_ratio: float = 1.0) -> ContactEval:
+    """Contact forces on surface nodes at current positions x (M,3); poses = [(p, R), ...]."""
+    M, K = len(x), len(shapes)
+    fn, ft = np.zeros((M, 3)), np.zeros((M, 3))
+    Kt = np.zeros((M, 3, 3))
+    owner = np.full(M, -1)
+    gap = np.full((K, M), np.inf)
+    slip = np.zeros((K, M), bool)
+    new_anchors = np.full((K, M, 3), np.nan)
+    force_k = np.zeros((K, M, 3))
+    eye = np.eye(3)
+    for k, (shape, (p, R)) in enumerate(zip(shapes, poses)):
+        xi = (x - p) @ R
+        bound = getattr(shape, "radius_bound", np.inf)
+        cand = np.flatnonzero(np.linalg.norm(xi, axis=1) < bound) if np.isfinite(bound) else np.arange(M)
+        if cand.size == 0:
+            continue
+        d, g = shape.sdf(xi[cand])
+        gap[k, cand] = d
+        act = d < 0
+        if not np.any(act):
+            continue
+        idx = cand[act]
+        d, n = d[act], g[act] @ R.T
+        eps = penalty * area[idx]
+        fN = (-eps * d)[:, None] * n
+        nn = np.einsum("ai,aj->aij", n, n)
+        Kn = np.zeros((len(idx), 3, 3))
+        if tangent:
+            H = R @ shape.hessian(xi[idx]) @ R.T
+            Kn = -eps[:, None, None] * (nn + d[:, None, None] * H)
+        # friction
+        a_loc = state.anchors[k, idx]
+        fresh = np.isnan(a_loc[:, 0])
+        surf_pt = x[idx] - d[:, None] * n
+        a_w = a_loc @ R.T + p
+        if np.any(fresh):
+            xp = state.x_prev[idx[fresh]]
+            dp, gp = shape.sdf((xp - p) @ R)
+            a_w[fresh] = xp - dp[:, None] * (gp @ R.T)
+        P = eye - nn
+        s = np.einsum("aij,aj->ai", P, x[idx] - a_w)
+        epst = tangential_ratio * eps
+        fT = -epst[:, None] * s
+        lim = mu * eps * (-d)
+        mag = np.linalg.norm(fT, axis=1)
+        slipping = mag > lim
+        shat = s / np.maximum(np.linalg.norm(s, axis=1), 1e-300)[:, None]
+        fT[slipping] = -lim[slipping, None] * shat[slipping]
+        Kf = -epst[:, None, None] * P
+        if tangent and np.any(slipping):
+            sl = slipping
+            snorm = np.maximum(np.linalg.norm(s[sl], axis=1), 1e-300)
+            ss = np.einsum("ai,aj->aij", shat[sl], shat[sl])
+            Kf[sl] = (-(lim[sl] / snorm)[:, None, None] * np.einsum("aij,ajk->aik", eye - ss, P[sl])
+                      + mu * eps[sl, None, None] * np.einsum("ai,aj->aij", shat[sl], n[sl]))
+        # anchors to commit: stick keeps the anchor (or the first touch point); slip drags it
+        a_new = a_w.copy()
+        if np.any(slipping):
+            elastic = (lim[slipping] / epst[slipping])[:, None] * shat[slipping]
+            a_new[slipping] = surf_pt[slipping] - elastic
+        new_anchors[k, idx] = (a_new - p) @ R
+        slip[k, idx] = slipping
+        fn[idx] += fN
+        ft[idx] += fT
+        force_k[k, idx] = fN + fT
+        Kt[idx] += Kn + (Kf if mu > 0 else 0.0)
+        owner[idx] = np.where(owner[idx] < 0, k, owner[idx])
+    return ContactEval(fn, ft, Kt, owner, gap, slip, new_anchors, force_k)

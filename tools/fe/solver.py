@@ -1,0 +1,251 @@
+"""Quasi-static Newton-Raphson solver: felupe hyperelastic gel + rigid penalty contact with friction.
+
+felupe assembles the internal force vector and tangent of the gel (linear tets, closed-form Yeoh
+user material); tools.fe.contact adds the node-to-rigid-indenter forces and their exact 3x3
+tangents; scipy's SuperLU solves. Each keypoint step is split into increments (cutback on failure).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from tools.fe import contact as fc
+from tools.fe.errors import FEConvergenceError, ScenarioError
+from tools.fe.indenters import make_shape, pose_at, rotmat
+from tools.fe.materials import cauchy_from_P, effective_bulk, make_umat
+from tools.fe.mesh import GelMesh, mesh_gel
+from tools.fe.result import FEResult
+from tools.fe.scenario import Scenario
+
+log = logging.getLogger(__name__)
+
+INITIAL_PENETRATION_TOL = 1e-6  # mm
+
+
+def build_mesh(scenario: Scenario) -> GelMesh:
+    stl = str(scenario.resolve(scenario.gel.stl_path)) if scenario.gel.kind == "stl" else ""
+    return mesh_gel(scenario.gel, scenario.mesh, stl_path=stl)
+
+
+class GelModel:
+    """felupe objects + contact bookkeeping for one scenario and mesh."""
+
+    def __init__(self, scenario: Scenario, gm: GelMesh):
+        import felupe as fem
+
+        if scenario.mesh.order != 1:
+            raise ScenarioError("mesh.order: solve() supports linear tets (1) only; quadratic tets "
+                                "are used in the locking study (tools.fe.locking)")
+        self.sc, self.gm = scenario, gm
+        mesh = fem.Mesh(gm.nodes, gm.tets, "tetra")
+        self.region = fem.RegionTetra(mesh)
+        self.u = fem.Field(self.region, dim=3)
+        self.field = fem.FieldContainer([self.u])
+        self.bulk = effective_bulk(scenario.material, 1, scenario.solver.max_bulk_ratio)
+        self.umat = make_umat(scenario.material, self.bulk)
+        self.solid = fem.SolidBody(self.umat, self.field)
+        n = len(gm.nodes)
+        self.ndof = 3 * n
+        fixed = (3 * gm.fixed_nodes[:, None] + np.arange(3)).ravel()
+        mask = np.ones(self.ndof, bool)
+        mask[fixed] = False
+        self.free = np.flatnonzero(mask)
+        self.fixed = fixed
+        self.surf = gm.surface_nodes
+        self.surf_dofs = (3 * self.surf[:, None] + np.arange(3)).ravel()
+        self.area = gm.node_area[self.surf]
+        self.shapes = [make_shape(i, scenario.resolve) for i in scenario.indenters]
+        mu0 = scenario.material.shear_modulus
+        self.penalty = scenario.solver.penalty_scale * mu0 / scenario.mesh.size_top  # N/mm^3
+        rows = np.repeat(self.surf_dofs.reshape(-1, 3), 3, axis=1).ravel()
+        cols = np.tile(self.surf_dofs.reshape(-1, 3), (1, 3)).ravel()
+        self._crow, self._ccol = rows, cols
+
+    def poses(self, s: float):
+        out = []
+        for ind in self.sc.indenters:
+            p, rv = pose_at(ind, s)
+            out.append((p, rotmat(rv)))
+        return out
+
+    def set_u(self, U):
+        self.u.values[:] = U
+
+    def residual(self, U, poses, state, tangent=True):
+        self.set_u(U)
+        r = np.asarray(self.solid.assemble.vector(self.field).todense()).ravel()
+        x = self.gm.nodes[self.surf] + U[self.surf]
+        ce = fc.evaluate(x, self.area, self.shapes, poses, state, self.penalty, self.sc.friction, tangent,
+                         self.sc.solver.friction_stiffness_ratio)
+        r[self.surf_dofs] -= (ce.fn + ce.ft).ravel()
+        return r, ce
+
+    def tangent(self, ce):
+        K = self.solid.assemble.matrix(self.field).tocsr()
+        Kc = sp.csr_matrix((-ce.K.ravel(), (self._crow, self._ccol)), shape=K.shape)
+        return (K + Kc)[self.free][:, self.free].tocsc()
+
+    def cauchy_nodal(self, U) -> np.ndarray:
+        self.set_u(U)
+        F = self.field.extract()[0]  # (3,3,q,c)
+        P = self.umat.gradient([F, np.zeros((0, *F.shape[2:]))])[0]
+        sig = cauchy_from_P(F, P).mean(axis=2)  # (3,3,c)
+        voigt = np.stack([sig[0, 0], sig[1, 1], sig[2, 2], sig[0, 1], sig[0, 2], sig[1, 2]], axis=1)
+        vol = self.region.dV.sum(axis=0)
+        tets = self.gm.tets
+        n = len(self.gm.nodes)
+        w = np.bincount(tets.ravel(), np.repeat(vol, 4), minlength=n)
+        out = np.zeros((n, 6))
+        for c in range(6):
+            out[:, c] = np.bincount(tets.ravel(), np.repeat(vol * voigt[:, c], 4), minlength=n)
+        return out / np.maximum(w, 1e-300)[:, None]
+
+
+def newton(model: GelModel, U0, poses, state, sv):
+    """Solve equilibrium at fixed indenter poses; returns (U, ContactEval, iterations, residual)."""
+    U = U0.copy()
+    r, ce = model.residual(U, poses, state)
+    for it in range(1, sv.max_iterations + 1):
+        rf = r[model.free]
+        fscale = max(np.abs(ce.fn).sum(), 1e-12)
+        K = model.tangent(ce)
+        try:
+            lu = sla.splu(K, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                          options=dict(SymmetricMode=True))
+            du = -lu.solve(rf)
+        except RuntimeError as exc:  # singular factor
+            raise FloatingPointError(f"singular tangent ({exc})") from exc
+        if not np.all(np.isfinite(du)):
+            raise FloatingPointError("non-finite Newton update")
+        norm0 = np.linalg.norm(rf)
+        step = 1.0
+        for _ in range(6):  # backtracking line search on the residual norm
+            Ut = U.copy()
+            Ut.reshape(-1)[model.free] += step * du
+            rt, cet = model.residual(Ut, poses, state)
+            if np.linalg.norm(rt[model.free]) < norm0 or step < 0.1:
+                break
+            step *= 0.5
+        U, r, ce = Ut, rt, cet
+        res = np.abs(r[model.free]).max()
+        dmax = np.abs(step * du).max()
+        log.debug("  it %d: |r|max %.3e N, |du|max %.3e mm, step %.2f", it, res, dmax, step)
+        if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 1e-3 * model.sc.mesh.size_top:
+            return U, ce, it, res
+    raise FloatingPointError(f"no convergence in {sv.max_iterations} iterations (|r|max {res:.3e} N)")
+
+
+def _n_increments(model: GelModel, s0: float, s1: float) -> int:
+    sv = model.sc.solver
+    n = sv.min_increments
+    for ind in model.sc.indenters:
+        (p0, r0), (p1, r1) = pose_at(ind, s0), pose_at(ind, s1)
+        n = max(n, math.ceil(np.linalg.norm(p1 - p0) / sv.max_increment_mm - 1e-9),
+                math.ceil(np.linalg.norm(r1 - r0) / sv.max_increment_rad - 1e-9))
+    return n
+
+
+def check_initial(model: GelModel) -> None:
+    poses = model.poses(-1.0)
+    x = model.gm.nodes[model.surf]
+    for k, (shape, (p, R)) in enumerate(zip(model.shapes, poses)):
+        d, _ = shape.sdf((x - p) @ R)
+        if d.min() < -INITIAL_PENETRATION_TOL:
+            ind = model.sc.indenters[k]
+            raise ScenarioError(f"indenters[{k}] ({ind.name}).position: the initial pose penetrates "
+                                f"the gel by {-d.min():.3f} mm; start the indenter above the surface")
+
+
+def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FEResult:
+    """Solve all keypoint frames of `scenario`; see docs/fe.md for the contract."""
+    scenario.validate()
+    t_start = time.time()
+    gm = mesh if mesh is not None else build_mesh(scenario)
+    model = GelModel(scenario, gm)
+    check_initial(model)
+    sv = scenario.solver
+    N, K, F = len(gm.nodes), len(scenario.indenters), scenario.n_keypoints
+    out = _alloc(N, K, F)
+    U = np.zeros((N, 3))
+    state = fc.ContactState.empty(K, gm.nodes[model.surf])
+    s_done = -1.0
+    stats = {"increments": 0, "iterations": 0, "cutbacks": 0}
+    for j in range(F):
+        t0 = time.time()
+        n_inc = _n_increments(model, s_done, float(j))
+        ds = (j - s_done) / n_inc
+        cut = 0
+        while s_done < j - 1e-12:
+            s_try = min(s_done + ds, float(j))
+            try:
+                U_new, ce, its, _ = newton(model, U, model.poses(s_try), state, sv)
+            except FloatingPointError as exc:
+                cut += 1
+                stats["cutbacks"] += 1
+                if cut > sv.max_cutbacks:
+                    msg = (f"keypoint step {j} did not converge at keypoint {s_try:.4f} after "
+                           f"{sv.max_cutbacks} cutbacks: {exc}")
+                    partial = _finish(out, model, scenario, stats, t_start, F)
+                    raise FEConvergenceError(msg, partial=partial) from exc
+                ds *= 0.5
+                log.info("step %d: cutback %d (%s), increment %.4f", j, cut, exc, ds)
+                continue
+            U, s_done = U_new, s_try
+            state = fc.ContactState(np.where(ce.gap[:, :, None] >= 0, np.nan, ce.new_anchors),
+                                    gm.nodes[model.surf] + U[model.surf])
+            stats["increments"] += 1
+            stats["iterations"] += its
+        _record(out, j, model, U, ce, time.time() - t0)
+        if progress:
+            progress(j, F, f"frame {j + 1}/{F}: |RF| " +
+                     ", ".join(f"{np.linalg.norm(out['RF'][j, k]):.3f}" for k in range(K)) + " N")
+    return _finish(out, model, scenario, stats, t_start, F)
+
+
+def _alloc(N, K, F):
+    z = np.zeros
+    return {"U": z((F, N, 3)), "S": z((F, N, 6)), "CNORMF": z((F, N, 3)), "CSHEAR": z((F, N, 3)),
+            "contact_owner": np.full((F, N), -1, np.int16), "CAREA": z((F, K)), "RF": z((F, K, 3)),
+            "RM": z((F, K, 3)), "pose_position": z((F, K, 3)), "pose_rotation": z((F, K, 3)),
+            "converged": np.zeros(F, bool), "base_reaction": z((F, 3)), "seconds": z(F)}
+
+
+def _record(out, j, model: GelModel, U, ce, seconds):
+    surf = model.surf
+    out["U"][j] = U
+    out["S"][j] = model.cauchy_nodal(U)
+    out["CNORMF"][j, surf] = ce.fn
+    out["CSHEAR"][j, surf] = ce.ft
+    out["contact_owner"][j, surf] = ce.owner
+    x = model.gm.nodes[surf] + U[surf]
+    for k, ind in enumerate(model.sc.indenters):
+        p, rv = pose_at(ind, float(j))
+        out["pose_position"][j, k], out["pose_rotation"][j, k] = p, rv
+        out["CAREA"][j, k] = model.area[ce.gap[k] < 0].sum()
+        out["RF"][j, k] = ce.force_k[k].sum(axis=0)
+        out["RM"][j, k] = np.cross(x - p, ce.force_k[k]).sum(axis=0)
+    model.set_u(U)
+    r = np.asarray(model.solid.assemble.vector(model.field).todense()).ravel()
+    out["base_reaction"][j] = r[model.fixed].reshape(-1, 3).sum(axis=0)
+    out["converged"][j] = True
+    out["seconds"][j] = seconds
+
+
+def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FEResult:
+    import felupe
+
+    info = {"solver": "tools.fe (felupe %s, P1 tets, penalty contact)" % felupe.__version__,
+            "bulk_modulus_used": model.bulk, "penalty_N_per_mm3": model.penalty,
+            "seconds_total": time.time() - t_start, **stats}
+    gm = model.gm
+    return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,
+                    surface_tris=gm.surface_tris, fixed_nodes=gm.fixed_nodes,
+                    indenter_names=np.array([i.name for i in scenario.indenters]),
+                    scenario_json=scenario.to_json(), scenario_hash=scenario.hash(),
+                    solver_info=json.dumps(info), **out)
