@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import abc
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -48,8 +48,8 @@ class Frame:
 class CameraConfig:
     """Fields shared by every backend."""
 
-    read_timeout_s: float = 1.0
-    """`read()` raises CaptureError when no new frame arrives within this time (s)."""
+    read_timeout_s: float = field(default=1.0, kw_only=True)
+    """(keyword-only, so each backend's own first field can be positional) `read()` raises CaptureError when no new frame arrives within this time (s)."""
 
 
 class Camera(abc.ABC):

@@ -166,6 +166,8 @@ class OpenCVCamera(Camera):
         cap, timeout = self._cap, self.config.read_timeout_s
         node = self._device if isinstance(self._device, str) else (
             f"/dev/video{self._device}" if self.config.api == "v4l2" else None)
+        if node is not None and not os.path.exists(node):
+            node = None  # not a filesystem path (e.g. a URL): cannot watch for it to disappear
         index, failing_since = 0, None
         while not self._stop.is_set():
             try:
@@ -175,7 +177,7 @@ class OpenCVCamera(Camera):
                 log.debug("%s: read raised %s", self._device, exc)
             now = time.monotonic()
             if not ok or image is None:
-                if node is not None and node.startswith("/dev/") and not os.path.exists(node):
+                if node is not None and not os.path.exists(node):
                     self._fail(f"{node}: camera disappeared (unplugged?)")
                     return
                 failing_since = failing_since or now
