@@ -84,6 +84,8 @@ class Subscriber:
             raise TensorTouchError(f"zenoh: cannot subscribe to {wire.key(sensor_id, '*')}: {exc}") from None
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
+        if str(sample.key_expr).rsplit("/", 1)[-1] not in wire.KINDS:
+            return  # a stream added by a newer wire version: not ours to decode
         try:
             kind, msg = decode_sample(sample)
         except Exception as exc:  # noqa: BLE001 - never raise into zenoh's thread

@@ -116,6 +116,20 @@ def test_round_trip_every_payload(pair):
     assert sub.errors == 0
 
 
+def test_subscriber_counts_malformed_and_skips_unknown_streams(pair):
+    """Raw puts from a foreign publisher: a bad schema is counted, a new stream is ignored."""
+    pub, sub, _ = pair
+    n = sub.counts["status"]
+    pub.session.put("tensortouch/dome01/status", b'{"schema":"tensortouch.status.v9"}',
+                    encoding="application/json;tensortouch.status.v9")
+    pub.session.put("tensortouch/dome01/pressure", b"future stream")
+    assert wait_until(lambda: sub.errors == 1, 5.0), (sub.errors, sub.last_error)
+    assert "tensortouch.status.v9" in sub.last_error and sub.counts["status"] == n
+    pub.publish_status({"state": "stable"}, 5, 0.5)       # the stream keeps working
+    assert sub.wait_for("status", timeout=5.0, since=n)["seq"] == 5
+    assert sub.errors == 1
+
+
 def test_queryable_answers_and_errors(pair):
     pub, sub, _ = pair
     info = query_info(sub, "dome01")
