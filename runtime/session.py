@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import json
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -145,6 +146,73 @@ def _check_clock(name: str, t: np.ndarray, per_indenter: np.ndarray | None, wher
                                f"(t={g[bad]:.6f} s after {g[bad - 1]:.6f} s)")
 
 
+def avi_frame_count(path: Path) -> int:
+    """Complete video chunks ('##dc'/'##db') in an AVI file's 'movi' lists, read from the RIFF
+    chunk headers only (pure Python; a truncated file counts only the chunks that are whole)."""
+    size = path.stat().st_size
+    count = 0
+    with open(path, "rb") as fh:
+        def walk(start: int, end: int, in_movi: bool) -> None:
+            nonlocal count
+            pos = start
+            while pos + 8 <= end:
+                fh.seek(pos)
+                head = fh.read(12)
+                if len(head) < 8:
+                    return
+                cid, clen = head[:4], struct.unpack("<I", head[4:8])[0]
+                body_end = pos + 8 + clen
+                if cid in (b"RIFF", b"LIST"):
+                    walk(pos + 12, min(body_end, end), head[8:12] == b"movi" or in_movi)
+                elif in_movi and cid[2:4] in (b"dc", b"db") and body_end <= size:
+                    count += 1
+                pos = body_end + (clen & 1)
+
+        walk(0, size, False)
+    return count
+
+
+def _check_video(src: Path, info: dict, n: int) -> None:
+    if not src.is_file():
+        raise SessionError(f"{src}: frame video missing")
+    size = src.stat().st_size
+    if isinstance(info.get("bytes"), int) and size < info["bytes"]:
+        raise SessionError(f"{src}: {size} bytes but the manifest recorded {info['bytes']} (truncated frames)")
+    if src.suffix.lower() == ".avi":
+        count = avi_frame_count(src)
+        if count < n:
+            raise SessionError(f"{src}: {count} complete frames but frames.csv lists {n} (truncated frames)")
+
+
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+def _check_pngs(src: Path, indices: np.ndarray) -> None:
+    """Every listed frame NNNNNN.png exists and ends with its IEND chunk (not cut short)."""
+    for i in indices.astype(int):
+        f = src / f"{i:06d}.png"
+        try:
+            with open(f, "rb") as fh:
+                fh.seek(max(f.stat().st_size - 12, 0))
+                tail = fh.read(12)
+        except OSError:
+            raise SessionError(f"{f}: frame {i} listed in frames.csv is missing (truncated frames)") from None
+        if tail != _PNG_END:
+            raise SessionError(f"{f}: PNG is cut short (truncated frames)")
+
+
+def _check_wrench(session: "Session", where: Path) -> None:
+    info = session.streams["wrench"]
+    tf = info.get("ft_to_indenter")
+    if not isinstance(tf, dict) or len(tf.get("rotation_wxyz", [])) != 4 or len(tf.get("translation_mm", [])) != 3:
+        raise SessionError(f"{where}: streams.wrench.ft_to_indenter must give rotation_wxyz (4 numbers) and "
+                           "translation_mm (3 numbers): p_indenter = R p_ft + t")
+    if session.has("poses"):
+        extra = set(np.unique(session.table("wrench")[:, 1])) - set(np.unique(session.table("poses")[:, 1]))
+        if extra:
+            raise SessionError(f"{where}: wrench has indenter ids {sorted(int(e) for e in extra)} with no poses")
+
+
 def load_session(path: str | Path, check_frames: bool = True) -> Session:
     """Open and validate a session directory. Raises SessionError naming the problem."""
     path = Path(path)
@@ -159,8 +227,14 @@ def load_session(path: str | Path, check_frames: bool = True) -> Session:
     session = Session(path, manifest)
     for name in session.streams:
         table = session.table(name)
+        where = path / session.streams[name].get("file", STREAM_FILES[name])
+        if not np.all(np.isfinite(table)):
+            row = int(np.argmax(~np.all(np.isfinite(table), axis=1))) + 2
+            raise SessionError(f"{where}:{row}: non-finite value in stream '{name}'")
         ind = table[:, 1] if name in ("poses", "wrench") else None
-        _check_clock(name, table[:, 0], ind, path / session.streams[name].get("file", STREAM_FILES[name]))
+        _check_clock(name, table[:, 0], ind, where)
+    if session.has("wrench"):
+        _check_wrench(session, manifest_path)
     if check_frames:
         kind, src = session.image_source()
         n = len(session.table("frames"))
@@ -170,8 +244,9 @@ def load_session(path: str | Path, check_frames: bool = True) -> Session:
             count = len(list(src.glob("*.png")))
             if count < n:
                 raise SessionError(f"{src}: {count} images but frames.csv lists {n} (truncated frames)")
-        elif not src.is_file():
-            raise SessionError(f"{src}: frame video missing")
+            _check_pngs(src, session.table("frames")[:, 1])
+        else:
+            _check_video(src, session.streams["frames"], n)
     return session
 
 

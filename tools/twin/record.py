@@ -1,0 +1,283 @@
+"""`twin record`: simulate a session of one twin unit -- deterministic for a seed, resumable.
+
+Stages: plan (trajectory.py) -> physics per poke (FE by default, cached) -> signals at the rig's
+rates (signals.py) with the truth effects (effects.py) -> frames rendered at camera rate
+(camera.py) into numbered PNGs (resume skips the ones already on disk) -> streams, truth/ and the
+manifest last (tools.sessions.writer). Everything random comes from generators seeded by
+(seed, stream), so a resumed recording equals an uninterrupted one.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from runtime.errors import SessionError
+from runtime.session import write_table
+from tools.sessions.writer import SessionWriter
+from tools.twin.effects import FrictionMismatch, apply_stage, build_effects
+from tools.twin.physics import HertzFallbackPhysics, interpolate
+from tools.twin.signals import (Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track,
+                                temperature)
+from tools.twin.trajectory import TrajectoryConfig, module_indenters, plan_session, session_duration
+from tools.twin.unit import TwinUnit
+
+log = logging.getLogger(__name__)
+PHYSICS = ("fe", "hertz-fallback")
+
+
+@dataclass
+class RecordConfig:
+    serial: str = "TWIN-0001"
+    pokes: int = 5
+    seed: int = 0
+    effects: list = field(default_factory=list)      # [(name, {param: value})]
+    physics: str = "fe"
+    frame_format: str = "ffv1"
+    model_size: int = 128
+    fe_mesh_top: float = 1.0                           # mm; twin default coarser than the FE's 0.7
+    fe_mesh_inside: float = 2.5
+    rig: RigConfig = field(default_factory=RigConfig)
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["effects"] = [[n, dict(p)] for n, p in self.effects]
+        return json.loads(json.dumps(d))
+
+    def key(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def make_physics(cfg: RecordConfig, unit: TwinUnit, progress=None):
+    if cfg.physics == "hertz-fallback":
+        return HertzFallbackPhysics(unit.gel)
+    if cfg.physics == "fe":
+        from tools.fe import GelGeometry, MeshSettings
+        from tools.twin.fe_physics import FEPhysics
+
+        g = unit.gel
+        gel = GelGeometry(kind="flattened_dome", radius=g.radius, cap_height=g.cap_height, skirt=g.skirt)
+        return FEPhysics(gel=gel, mesh=MeshSettings(size_top=cfg.fe_mesh_top, size_inside=cfg.fe_mesh_inside),
+                         progress=progress)
+    raise SessionError(f"physics {cfg.physics!r}: expected one of {PHYSICS}")
+
+
+def _rng(cfg: RecordConfig, stream: int, *more: int) -> np.random.Generator:
+    return np.random.default_rng([cfg.seed, stream, *more])
+
+
+def _interleave(t: np.ndarray, per_slot: list[np.ndarray]) -> np.ndarray:
+    """Rows (t, indenter, values...) sorted by time then indenter."""
+    rows = [np.column_stack([t, np.full(len(t), k), v]) for k, v in enumerate(per_slot)]
+    return np.concatenate(rows)[np.lexsort((np.concatenate([np.full(len(t), k) for k in range(len(per_slot))]),
+                                            np.concatenate([t] * len(per_slot))))]
+
+
+class Recorder:
+    """One recording job. `run()` returns the session path."""
+
+    def __init__(self, cfg: RecordConfig, out, physics=None, progress=None):
+        self.cfg, self.out = cfg, Path(out)
+        self.progress = progress or (lambda stage, i, n: None)
+        self.unit = TwinUnit(cfg.serial)
+        self.gel = self.unit.gel
+        self.plan = plan_session(cfg.pokes, cfg.seed, self.gel, cfg.trajectory)
+        self.modules = module_indenters(cfg.seed, cfg.trajectory)
+        self.physics = physics
+        self.effects = build_effects(cfg.effects)
+        self.timing: dict = {}
+
+    # -- resume bookkeeping -----------------------------------------------------------------
+    def _claim(self) -> bool:
+        """Check/create .partial/record.json; True when resuming an earlier run."""
+        state = self.out / ".partial" / "record.json"
+        if (self.out / "session.json").is_file():
+            raise SessionError(f"{self.out}: already holds a finished session; choose another --out")
+        if state.is_file():
+            old = json.loads(state.read_text())
+            if old.get("key") != self.cfg.key():
+                raise SessionError(f"{self.out}: holds a partial recording with other settings "
+                                   f"(key {old.get('key')} != {self.cfg.key()}); use another --out or delete it")
+            return True
+        state.parent.mkdir(parents=True, exist_ok=True)
+        state.write_text(json.dumps({"key": self.cfg.key(), "config": self.cfg.to_dict()}, indent=2))
+        return False
+
+    def run(self) -> Path:
+        cfg, rig = self.cfg, self.cfg.rig
+        resumed = self._claim()
+        t_start = time.perf_counter()
+        physics = self.physics or make_physics(cfg, self.unit)
+        solves = []
+        for i, poke in enumerate(self.plan):
+            self.progress("physics", i, len(self.plan))
+            solves.append(physics.solve(poke))
+        self.progress("physics", len(self.plan), len(self.plan))
+        self.timing["physics_s"] = time.perf_counter() - t_start
+        writer = SessionWriter(self.out, cfg.serial, cfg.frame_format)
+        dur = session_duration(self.plan, cfg.trajectory)
+        K = len(self.modules)
+        t_pose = np.arange(0.0, dur, 1.0 / rig.pose_rate)
+        t_wr = np.arange(0.0, dur, 1.0 / rig.wrench_rate)
+        t_cam = np.arange(0.0, dur, 1.0 / rig.camera_fps)
+        t_tmp = np.arange(0.0, dur, 1.0 / rig.temperature_rate)
+        temp = temperature(t_tmp, rig, _rng(cfg, 1))
+        # poses -------------------------------------------------------------------------------
+        true_pose, meas_pose = [], []
+        for k in range(K):
+            pos, rv = slot_track(self.plan, k, t_pose, rig)
+            npos, nrv = mocap_noise(pos, rv, rig, _rng(cfg, 2, k))
+            true_pose.append(np.column_stack([pos, quat_wxyz(rv)]))
+            meas_pose.append(np.column_stack([npos, quat_wxyz(nrv)]))
+        # wrench ------------------------------------------------------------------------------
+        truth_rows, fe_rows, contact_rows, ft_rows, shear = [], [], [], [], []
+        scale = self.unit.params.stiffness_scale
+        for k in range(K):
+            rf, rm = np.zeros((len(t_wr), 3)), np.zeros((len(t_wr), 3))
+            depth, area = np.zeros(len(t_wr)), np.zeros(len(t_wr))
+            cpt = np.full((len(t_wr), 3), np.nan)
+            for poke, sol in zip(self.plan, solves):
+                if k not in poke.slots:
+                    continue
+                j = poke.slots.index(k)
+                sel = (t_wr >= poke.times[0]) & (t_wr <= poke.times[-1])
+                if not sel.any():
+                    continue
+                rf[sel] = interpolate(sol, poke, t_wr[sel], "RF")[:, j]
+                rm[sel] = interpolate(sol, poke, t_wr[sel], "RM")[:, j]
+                depth[sel] = interpolate(sol, poke, t_wr[sel], "depth")[:, j]
+                area[sel] = interpolate(sol, poke, t_wr[sel], "CAREA")[:, j]
+                c = sol.contact[:, j]
+                if np.isfinite(c).any():
+                    c = np.where(np.isnan(c), np.nanmean(c, axis=0), c)
+                idx = np.rint(np.interp(t_wr[sel], poke.times, np.arange(len(c)))).astype(int)
+                cpt[sel] = c[idx]
+            touching = depth > 0
+            cpt[~touching] = np.nan
+            fe_rows.append(np.column_stack([rf, rm]))
+            x = scale * np.column_stack([rf, rm])
+            safe = np.where(np.isnan(cpt), [0.0, 0.0, self.gel.top_z], cpt)
+            normal = self.gel.normals(safe)
+            fvec = -x[:, :3]
+            fn = np.abs(np.sum(fvec * normal, 1))
+            cov = {"time": t_wr, "temperature": np.interp(t_wr, t_tmp, temp), "depth": depth,
+                   "max_depth": np.maximum.accumulate(depth), "normal": normal, "force_n": fn,
+                   "force_t": np.linalg.norm(fvec - (np.sum(fvec * normal, 1))[:, None] * normal, axis=1),
+                   "rim_distance": np.where(touching, self.gel.rim_distance(safe), 1e3),
+                   "gel_height": np.full(len(t_wr), self.gel.top_z)}
+            ratio = np.ones(len(t_wr))
+            for e in self.effects:
+                if isinstance(e, FrictionMismatch):
+                    ratio = e.shear_ratio(x, cov)
+            shear.append(ratio)
+            x = apply_stage(self.effects, "force", x, cov)
+            truth_rows.append(x)
+            contact_rows.append(np.column_stack([depth, np.nan_to_num(cpt, nan=0.0), area, touching]))
+            pos, rv = slot_track(self.plan, k, t_wr, rig)
+            ft = ft_reading(x[:, :3], x[:, 3:], pos, rv, rig)
+            ft = apply_stage(self.effects, "measurement", ft, {"time": t_wr})
+            noise = _rng(cfg, 3, k).normal(0.0, 1.0, ft.shape) * np.array([rig.ft_noise_n] * 3 + [rig.ft_noise_nmm] * 3)
+            ft_rows.append(ft + noise)
+        writer.table("poses", _interleave(t_pose, meas_pose), rate_hz=rig.pose_rate, frame="sensor",
+                     indenters={str(k): n for k, n in enumerate(self.modules)},
+                     pose="indenter tip position (mm) and orientation (local -> sensor), docs/fe.md frame",
+                     noise={"position_mm": rig.pose_noise_mm, "rotation_rad": rig.pose_noise_rad})
+        writer.table("wrench", _interleave(t_wr, ft_rows), rate_hz=rig.wrench_rate, frame="ft",
+                     ft_to_indenter=rig.ft_to_indenter_dict(),
+                     sign="load of the gel on the indenter (= -RF of docs/fe.md), moment about the F/T origin",
+                     noise={"force_n": rig.ft_noise_n, "torque_nmm": rig.ft_noise_nmm})
+        writer.table("temperature", np.column_stack([t_tmp, temp]), rate_hz=rig.temperature_rate)
+        self._truth(t_pose, true_pose, t_wr, truth_rows, fe_rows, contact_rows, solves)
+        # frames ------------------------------------------------------------------------------
+        t0 = time.perf_counter()
+        rendered = self._frames(writer, t_cam, t_wr, shear, t_tmp, temp, solves)
+        self.timing["render_s"] = time.perf_counter() - t0
+        self.timing["frames_rendered"] = rendered
+        writer.finish_frames(t_cam, rig.camera_fps)
+        self.timing["total_s"] = time.perf_counter() - t_start
+        prov = {"source": "twin", "unit": cfg.serial, "seed": cfg.seed, "pokes": cfg.pokes,
+                "generator": "tensortouch twin record", "resumed": resumed,
+                "command": " ".join(sys.argv) if sys.argv and "tensortouch" in sys.argv[0] else ""}
+        writer.finish(prov, {"source": "simulated", "t0": 0.0, "unit": "s"},
+                      truth={"dir": "truth", "note": "twin ground truth: no deploy or workbench stage reads it"})
+        (self.out / ".partial" / "record.json").unlink(missing_ok=True)
+        try:
+            (self.out / ".partial").rmdir()
+        except OSError:
+            pass
+        log.info("session %s: %.1f s recorded, %s", self.out, dur, self.timing)
+        return self.out
+
+    def _truth(self, t_pose, true_pose, t_wr, truth_rows, fe_rows, contact_rows, solves) -> None:
+        d = self.out / "truth"
+        d.mkdir(exist_ok=True)
+        write_table(d / "poses.csv", ["t", "indenter", "x", "y", "z", "qw", "qx", "qy", "qz"], _interleave(t_pose, true_pose))
+        cols = ["t", "indenter", "fx", "fy", "fz", "mx", "my", "mz"]
+        write_table(d / "reaction.csv", cols, _interleave(t_wr, truth_rows))
+        write_table(d / "reaction_fe.csv", cols, _interleave(t_wr, fe_rows))
+        write_table(d / "contact.csv", ["t", "indenter", "depth", "x", "y", "z", "area", "touching"],
+                    _interleave(t_wr, contact_rows))
+        info = {"schema": "tensortouch.twin_truth", "schema_version": 1, "config": self.cfg.to_dict(),
+                "unit": self.unit.describe(), "effects": [e.to_dict() for e in self.effects],
+                "modules": self.modules, "physics": solves[0].backend if solves else "",
+                "fe_scenarios": [s.key for s in solves], "plan": [p.to_dict() for p in self.plan],
+                "reaction": "true force the indenter applies to the gel (FE RF convention), sensor frame, "
+                            "moment about the tip; reaction_fe.csv = nominal material, no effects",
+                "hysteresis": {"fraction": self.cfg.rig.hysteresis_fraction, "tau_s": self.cfg.rig.hysteresis_tau_s},
+                "calibration": {"store_sensor_id": self.cfg.serial, "method": "twin-truth"}}
+        tmp = d / "truth.json.tmp"
+        tmp.write_text(json.dumps(info, indent=2))
+        tmp.replace(d / "truth.json")
+
+    def _frames(self, writer, t_cam, t_wr, shear, t_tmp, temp, solves) -> int:
+        cfg, rig = self.cfg, self.cfg.rig
+        r = self.unit.renderer
+        mask = r.view.mask
+        targets = r.view.points[mask]
+        W_cache: dict = {}
+        hyst = None
+        gains = apply_stage(self.effects, "image", np.ones(len(t_cam)),
+                            {"time": t_cam, "temperature": np.interp(t_cam, t_tmp, temp)})
+        n_nodes = solves[0].nodes.shape[0] if solves else 0
+        rendered = 0
+        for i, t in enumerate(t_cam):
+            u = np.zeros((n_nodes, 3))
+            nodes = solves[0].nodes if solves else np.zeros((0, 3))
+            for poke, sol in zip(self.plan, solves):
+                if poke.times[0] <= t <= poke.times[-1]:
+                    du = interpolate(sol, poke, np.array([t]), "U")[0]
+                    ratio = min(float(np.interp(t, t_wr, shear[s])) for s in poke.slots)
+                    if ratio < 1.0:
+                        n0 = self.gel.normals(sol.nodes)
+                        un = np.sum(du * n0, 1, keepdims=True) * n0
+                        du = un + ratio * (du - un)
+                    u, nodes = u + du, sol.nodes
+            if hyst is None:
+                hyst = Hysteresis(rig.hysteresis_fraction, rig.hysteresis_tau_s, u.shape)
+            u_vis = hyst.step(float(t), u)
+            if writer.has_frame(i):
+                continue
+            if n_nodes and np.any(u_vis):
+                key = nodes.shape[0], float(nodes[:7].sum())
+                if key not in W_cache:
+                    W_cache[key] = self.gel.interpolator(nodes, targets)
+                u_pix = np.zeros(r.view.points.shape)
+                u_pix[mask] = W_cache[key] @ u_vis
+            else:
+                u_pix = None
+            img = r.render(u_pix, float(gains[i]), _rng(cfg, 4, i))
+            writer.frame(i, img)
+            rendered += 1
+            self.progress("frames", i + 1, len(t_cam))
+        return rendered
+
+
+def record(cfg: RecordConfig, out, physics=None, progress=None) -> Path:
+    return Recorder(cfg, out, physics, progress).run()

@@ -1,0 +1,244 @@
+"""Human-demonstrator-like indentation plans: pokes, presses, slides and twists with 1-2 indenters.
+
+A plan is a list of `Poke`s on one session clock. Each poke holds, per indenter, the initial pose
+(tip just above the rest surface, local +z along the outward surface normal so the indenter
+approaches perpendicular, as a person does) and keypoints relative to it in the FE contract
+(docs/fe.md: translation mm, rotation vector rad about the tip, gel frame). Between keypoints
+the motion follows a minimum-jerk profile s(τ) = 10τ³ - 15τ⁴ + 6τ⁵ of the keypoint-to-keypoint
+straight line, which is what the physics interpolation uses too (fields and reactions between
+solved keypoints are interpolated linearly in s). Outside pokes an indenter rests at a parking
+pose 30 mm above the gel; approach and retreat are straight min-jerk moves along the normal.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from tools.twin.geometry import GelSurface
+
+log = logging.getLogger(__name__)
+
+# The FE engineer's analytic indenter set (tools/fe INDENTER_SHAPES) with the twin's default sizes.
+INDENTER_SET = {
+    "sphere5": {"shape": "sphere", "params": {"radius": 5.0}},
+    "sphere3": {"shape": "sphere", "params": {"radius": 3.0}},
+    "flat4": {"shape": "flat", "params": {"radius": 4.0, "fillet": 1.0}},
+    "cylinder3": {"shape": "cylinder", "params": {"radius": 3.0, "length": 10.0}},
+    "edge": {"shape": "box_edge", "params": {"length": 10.0, "width": 4.0}},
+    "torus": {"shape": "torus", "params": {"major_radius": 4.0, "minor_radius": 1.5}},
+}
+KINDS = ("poke", "press", "slide", "twist")
+
+
+@dataclass
+class TrajectoryConfig:
+    """Ranges of the random demonstrator (mm, s, rad)."""
+
+    kinds: tuple = KINDS
+    indenters: tuple = ("sphere5", "sphere3", "flat4", "cylinder3")
+    theta_max: float = 0.6           # rad, largest contact angle θ from the axis (geometry.py)
+    depth_poke: tuple = (0.4, 1.2)
+    depth_press: tuple = (1.0, 2.2)
+    slide: tuple = (0.4, 1.2)
+    twist: tuple = (0.08, 0.25)
+    max_step_mm: float = 0.5         # keypoint spacing along a press/slide
+    max_step_rad: float = 0.08
+    p_two: float = 0.25              # probability that a poke uses two indenters
+    min_separation: float = 9.0      # mm between two simultaneous contacts
+    approach_gap: float = 0.05       # mm above the surface at the initial pose
+    hover: float = 6.0               # mm above the surface where approach starts
+    park_height: float = 30.0
+    t_approach: tuple = (0.3, 0.5)
+    t_press: tuple = (0.3, 0.8)
+    t_hold: tuple = (0.15, 0.5)
+    t_move: tuple = (0.4, 0.9)
+    t_release: tuple = (0.25, 0.5)
+    t_gap: tuple = (0.5, 1.2)
+    t_lead: float = 0.8              # s of rest before the first poke (baseline frames)
+
+
+@dataclass
+class Poke:
+    kind: str
+    indenters: list[str]                # names in INDENTER_SET
+    slots: list[int]                    # indentation module (session indenter id) of each
+    position: np.ndarray                # (K,3) initial tip positions
+    rotation: np.ndarray                # (K,3) initial rotation vectors
+    translation: np.ndarray             # (K,J,3) keypoint translations relative to initial
+    rotvec: np.ndarray                  # (K,J,3) keypoint rotations relative to initial
+    times: np.ndarray                   # (J,) keypoint times on the session clock; times[0] = start
+    t_approach: float                   # approach starts here (from hover)
+    t_retreat_end: float                # back at hover
+    depth: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def t_start(self) -> float:
+        return float(self.times[0])
+
+    @property
+    def t_end(self) -> float:
+        return float(self.times[-1])
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "indenters": self.indenters, "slots": self.slots, "position": self.position.tolist(),
+                "rotation": self.rotation.tolist(), "translation": self.translation.tolist(),
+                "rotvec": self.rotvec.tolist(), "times": self.times.tolist(),
+                "t_approach": self.t_approach, "t_retreat_end": self.t_retreat_end,
+                "depth": self.depth, **self.extra}
+
+
+def minjerk(tau: np.ndarray) -> np.ndarray:
+    tau = np.clip(tau, 0.0, 1.0)
+    return tau ** 3 * (10 - 15 * tau + 6 * tau * tau)
+
+
+def segment_phase(times: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For session times t inside [times[0], times[-1]]: keypoint segment index j and phase s in
+    [0,1] so that the motion is kp[j] + s (kp[j+1] - kp[j])."""
+    t = np.asarray(t, dtype=np.float64)
+    j = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    tau = (t - times[j]) / np.maximum(times[j + 1] - times[j], 1e-12)
+    return j, minjerk(tau)
+
+
+def _align_z(n: np.ndarray) -> np.ndarray:
+    """Rotation vector taking local +z onto unit vector n."""
+    ez = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(ez, n)
+    s = np.linalg.norm(axis)
+    if s < 1e-12:
+        return np.zeros(3)
+    return axis / s * np.arctan2(s, float(ez @ n))
+
+
+def _steps(total: float, step: float) -> int:
+    return max(1, int(np.ceil(abs(total) / step - 1e-9)))
+
+
+def plan_session(n_pokes: int, seed: int, gel: GelSurface, cfg: TrajectoryConfig | None = None) -> list[Poke]:
+    """A deterministic random plan of n_pokes for a given seed."""
+    cfg = cfg or TrajectoryConfig()
+    rng = np.random.default_rng(seed)
+    t = cfg.t_lead
+    pokes = []
+    U = lambda r: float(rng.uniform(*r))  # noqa: E731
+    modules = module_indenters(seed, cfg)
+    for _ in range(n_pokes):
+        kind = str(rng.choice(cfg.kinds))
+        if len(modules) > 1 and rng.random() < cfg.p_two:
+            slots = [0, 1]
+        else:
+            slots = [int(rng.integers(len(modules)))]
+        names, pts = [modules[s] for s in slots], []
+        while len(pts) < len(slots):
+            th = np.arccos(1 - rng.random() * (1 - np.cos(cfg.theta_max)))
+            ph = rng.uniform(-np.pi, np.pi)
+            p = gel.point_at(th, ph)
+            if all(np.linalg.norm(p - q) >= cfg.min_separation for q in pts):
+                pts.append(p)
+        depth = U(cfg.depth_press if kind in ("press", "slide", "twist") else cfg.depth_poke)
+        n_press = _steps(depth, cfg.max_step_mm)
+        K = len(pts)
+        normals = gel.normals(np.array(pts))
+        start_t = t + U(cfg.t_approach)
+        seg_t = [U(cfg.t_press) / n_press] * n_press
+        trans = [[np.zeros(3)] for _ in range(K)]
+        rots = [[np.zeros(3)] for _ in range(K)]
+        for i in range(1, n_press + 1):
+            for k in range(K):
+                trans[k].append(-normals[k] * depth * i / n_press)
+                rots[k].append(np.zeros(3))
+        hold = U(cfg.t_hold)
+        extra = {}
+        # hold: a keypoint repeating the deepest pose (lets viscoelastic effects and hysteresis act)
+        seg_t.append(hold)
+        for k in range(K):
+            trans[k].append(trans[k][-1].copy())
+            rots[k].append(rots[k][-1].copy())
+        if kind in ("slide", "twist"):
+            amount = U(cfg.slide if kind == "slide" else cfg.twist) * rng.choice([-1.0, 1.0])
+            n_mv = _steps(amount, cfg.max_step_mm if kind == "slide" else cfg.max_step_rad)
+            dirs = []
+            for k in range(K):
+                a = rng.uniform(0, 2 * np.pi)
+                tang = np.cross(normals[k], [np.cos(a), np.sin(a), 0.0])
+                tang /= max(np.linalg.norm(tang), 1e-12)
+                dirs.append(tang)
+            for i in range(1, n_mv + 1):
+                f = i / n_mv
+                for k in range(K):
+                    base = trans[k][n_press]
+                    if kind == "slide":
+                        trans[k].append(base + dirs[k] * amount * f)
+                        rots[k].append(np.zeros(3))
+                    else:
+                        trans[k].append(base.copy())
+                        rots[k].append(normals[k] * amount * f)
+            seg_t += [U(cfg.t_move) / n_mv] * n_mv
+            extra = {"amount": amount}
+        n_rel = _steps(depth, 2 * cfg.max_step_mm)
+        for i in range(1, n_rel + 1):
+            f = i / n_rel
+            for k in range(K):
+                last_t, last_r = trans[k][-1], rots[k][-1]
+                # lift along the normal to just above the rest surface, keeping any slide/twist
+                lift = last_t + normals[k] * (depth + 2 * cfg.approach_gap) / n_rel
+                trans[k].append(lift)
+                rots[k].append(last_r.copy())
+        seg_t += [U(cfg.t_release) / n_rel] * n_rel
+        times = start_t + np.concatenate([[0.0], np.cumsum(seg_t)])
+        position = np.array([p + n * cfg.approach_gap for p, n in zip(pts, normals)])
+        rotation = np.array([_align_z(n) for n in normals])
+        poke = Poke(kind, names, slots, position, rotation, np.array(trans, dtype=np.float64),
+                    np.array(rots, dtype=np.float64), times, t, float(times[-1]) + (start_t - t),
+                    depth, extra)
+        pokes.append(poke)
+        t = poke.t_retreat_end + U(cfg.t_gap)
+    return pokes
+
+
+def module_indenters(seed: int, cfg: TrajectoryConfig | None = None) -> list[str]:
+    """The session's indentation modules (indenter id -> indenter name): two modules, as the seed's
+    demonstrator holds one or two, unless p_two == 0."""
+    cfg = cfg or TrajectoryConfig()
+    rng = np.random.default_rng([seed, 1])
+    first = str(rng.choice(cfg.indenters))
+    if cfg.p_two <= 0:
+        return [first]
+    return [first, str(rng.choice([n for n in cfg.indenters if n != first] or [first]))]
+
+
+def session_duration(pokes: list[Poke], cfg: TrajectoryConfig | None = None) -> float:
+    cfg = cfg or TrajectoryConfig()
+    return (pokes[-1].t_retreat_end if pokes else 0.0) + cfg.t_gap[0]
+
+
+def poke_pose(poke: Poke, k: int, t: np.ndarray, hover: float) -> tuple[np.ndarray, np.ndarray]:
+    """Tip position (T,3) and rotation vector (T,3) of the poke's k-th indenter for times t in
+    [t_approach, t_retreat_end] (approach from and retreat to `hover` mm along the normal)."""
+    t = np.asarray(t, dtype=np.float64)
+    R0 = Rotation.from_rotvec(poke.rotation[k])
+    n = R0.apply([0.0, 0.0, 1.0])
+    pos = np.empty((len(t), 3))
+    rot = np.empty((len(t), 3))
+    a = t < poke.t_start
+    s = minjerk((t[a] - poke.t_approach) / max(poke.t_start - poke.t_approach, 1e-9))
+    pos[a] = poke.position[k] + np.outer(1 - s, n * hover)
+    rot[a] = poke.rotation[k]
+    b = t > poke.t_end
+    s = minjerk((t[b] - poke.t_end) / max(poke.t_retreat_end - poke.t_end, 1e-9))
+    end = poke.position[k] + poke.translation[k, -1]
+    pos[b] = end + np.outer(s, n * hover)
+    rot[b] = (Rotation.from_rotvec(poke.rotvec[k, -1]) * R0).as_rotvec()
+    c = ~(a | b)
+    if c.any():
+        j, s = segment_phase(poke.times, t[c])
+        tr = poke.translation[k, j] + s[:, None] * (poke.translation[k, j + 1] - poke.translation[k, j])
+        rv = poke.rotvec[k, j] + s[:, None] * (poke.rotvec[k, j + 1] - poke.rotvec[k, j])
+        pos[c] = poke.position[k] + tr
+        rot[c] = (Rotation.from_rotvec(rv) * R0).as_rotvec()
+    return pos, rot

@@ -1,0 +1,155 @@
+"""Twin units: per-unit manufacturing variation from a serial, and each unit's TRUE calibration.
+
+A serial (e.g. "TWIN-0001") seeds a generator (sha256 of the serial), which draws the unit's gel
+stiffness scale, image centre offset, focal length scale and per-LED brightness. The true
+calibration (θ/φ, surface_xyz, normals, pixel_area, mask per model pixel, gel centre/radius in
+px) is what the calibration stage must later recover; `write_true_calibration` stores it with
+runtime.calibration.CalibrationStore (provenance method "twin-truth").
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from tools.twin.camera import CameraConfig, FisheyeModel, LEDConfig, NoiseConfig, PatternConfig, Renderer
+from tools.twin.geometry import GelSurface
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class VariationConfig:
+    """Spread of manufacturing variation between units (uniform ranges, ± around nominal)."""
+
+    stiffness: float = 0.12      # relative
+    center_px: float = 6.0       # px, each axis
+    focal: float = 0.04          # relative
+    led: float = 0.10            # relative, per LED
+
+
+@dataclass
+class UnitParams:
+    serial: str
+    seed: int
+    stiffness_scale: float
+    center_offset_px: tuple[float, float]
+    focal_scale: float
+    led_brightness: list[float]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def serial_seed(serial: str) -> int:
+    return int(hashlib.sha256(serial.encode()).hexdigest()[:12], 16)
+
+
+def unit_params(serial: str, var: VariationConfig | None = None, n_leds: int = 9) -> UnitParams:
+    var = var or VariationConfig()
+    seed = serial_seed(serial)
+    rng = np.random.default_rng(seed)
+    return UnitParams(serial, seed,
+                      float(1 + rng.uniform(-var.stiffness, var.stiffness)),
+                      (float(rng.uniform(-var.center_px, var.center_px)),
+                       float(rng.uniform(-var.center_px, var.center_px))),
+                      float(1 + rng.uniform(-var.focal, var.focal)),
+                      [float(1 + rng.uniform(-var.led, var.led)) for _ in range(n_leds)])
+
+
+@dataclass
+class TwinUnit:
+    """One simulated sensor: nominal design + its unit's variation."""
+
+    serial: str
+    gel: GelSurface = field(default_factory=GelSurface)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    leds: LEDConfig = field(default_factory=LEDConfig)
+    pattern: PatternConfig = field(default_factory=PatternConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    variation: VariationConfig = field(default_factory=VariationConfig)
+
+    def __post_init__(self):
+        self.params = unit_params(self.serial, self.variation, self.leds.count)
+        p = self.params
+        self.camera_true = replace(self.camera, cx=self.camera.cx + p.center_offset_px[0],
+                                   cy=self.camera.cy + p.center_offset_px[1],
+                                   focal_px=self.camera.focal_px * p.focal_scale)
+        self.model = FisheyeModel(self.camera_true)
+        self._renderer = None
+
+    @property
+    def renderer(self) -> Renderer:
+        if self._renderer is None:
+            self._renderer = Renderer(self.model, self.gel, self.leds, self.pattern, self.noise,
+                                      np.asarray(self.params.led_brightness))
+        return self._renderer
+
+    @property
+    def gel_center_px(self) -> tuple[float, float]:
+        """Image of the gel apex = the optical centre (camera on the dome axis)."""
+        uv = self.model.project(np.array([0.0, 0.0, self.gel.top_z]))
+        return float(uv[0]), float(uv[1])
+
+    @property
+    def gel_radius_px(self) -> float:
+        return self.model.rim_radius_px(self.gel)
+
+    def describe(self) -> dict:
+        return {"serial": self.serial, "params": self.params.to_dict(), "gel": asdict(self.gel),
+                "camera_nominal": asdict(self.camera), "camera_true": asdict(self.camera_true),
+                "leds": asdict(self.leds), "pattern": asdict(self.pattern), "noise": asdict(self.noise)}
+
+
+def true_tables(unit: TwinUnit, model_size: int = 128) -> dict[str, np.ndarray]:
+    """The unit's exact per-model-pixel tables (calibration store contract)."""
+    from runtime.preprocess import Preprocessor
+
+    cx, cy = unit.gel_center_px
+    pre = Preprocessor(cx, cy, unit.gel_radius_px, model_size)
+    S = model_size
+    v, u = np.mgrid[0:S, 0:S].astype(np.float64)
+
+    def surface(uu, vv):
+        x, y = pre.to_raw(uu, vv)
+        dirs, fov = unit.model.rays(np.stack([x, y], -1))
+        pts, ok = unit.gel.intersect(unit.model.center, dirs)
+        return pts, ok & fov
+
+    pts, ok = surface(u, v)
+    theta, phi = unit.gel.theta_phi(pts)
+    normals = unit.gel.normals(pts)
+    h = 0.5
+    dxu = (surface(u + h, v)[0] - surface(u - h, v)[0]) / (2 * h)
+    dxv = (surface(u, v + h)[0] - surface(u, v - h)[0]) / (2 * h)
+    area = np.linalg.norm(np.cross(dxu, dxv), axis=-1)
+    for arr in (pts, normals):
+        arr[~ok] = 0.0
+    return {"theta": np.where(ok, theta, 0.0), "phi": np.where(ok, phi, 0.0), "surface_xyz": pts,
+            "normals": normals, "pixel_area": np.where(ok, area, 0.0), "mask": ok}
+
+
+def calibration_meta(unit: TwinUnit, model_size: int = 128) -> dict:
+    g = unit.gel
+    return {"camera": {"width": unit.camera.width, "height": unit.camera.height},
+            "gel_center_px": list(unit.gel_center_px), "gel_radius_px": unit.gel_radius_px,
+            "model_size": [model_size, model_size],
+            "gel": {"shape": "flattened_dome" if g.cap_height < g.radius else "dome",
+                    "base_radius_mm": g.radius, "cap_height_mm": g.cap_height, "skirt_mm": g.skirt,
+                    "radius_mm": g.sphere_radius, "center_z_mm": g.sphere_z,
+                    "theta": "angle from +z about (0, 0, center_z_mm) (runtime.geometry.DomeProfile)"},
+            "provenance": {"method": "twin-truth", "pokes": 0,
+                           "notes": f"exact tables of twin unit {unit.serial} (tools.twin.unit)",
+                           "unit": unit.params.to_dict()}}
+
+
+def write_true_calibration(unit: TwinUnit, root=None, model_size: int = 128) -> str:
+    """Store the unit's true calibration as a new version under calibration_store/<serial>/."""
+    from runtime.calibration import CalibrationStore
+
+    store = CalibrationStore(root)
+    version = store.write(unit.serial, true_tables(unit, model_size), calibration_meta(unit, model_size))
+    log.info("true calibration of %s written as %s", unit.serial, version)
+    return version
