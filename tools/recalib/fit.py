@@ -1,0 +1,195 @@
+"""Zero-constrained random-forest force correction from a handful of pokes (seed §III.I).
+
+Each poke pairs the model's cluster force F_pred (N, vector) with the reference force magnitude F_ref
+(N, from a force gauge or typed in) at a 2D contact position (u, v normalized to [0, 1] on the model
+grid). The forest learns the *gain* g = |F_ref| / |F_pred| as a function of force magnitude and
+position; the runtime applies F' = g · F_pred (runtime/correction.py, output kind "gain"), so a zero
+predicted force stays exactly zero whatever the forest says (the zero constraint), and the direction
+of the predicted force is kept.
+
+Everything here is a pure function of arrays; `to_onnx` converts with skl2onnx so the runtime needs
+onnxruntime only. No pickle: the fitted forest leaves this module as ONNX bytes.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from runtime.correction import FEATURES, feature_matrix
+from runtime.errors import CalibrationError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Forest and acceptance settings. Seed: 5–7 pokes; the gain clip matches the runtime's."""
+
+    inputs: tuple[str, ...] = ("fmag", "u", "v")   # feature columns (runtime FEATURES names)
+    n_estimators: int = 50                        # DESIGN §10: 50 trees ≈ 10 µs/sample in onnxruntime
+    max_depth: int | None = 3                     # shallow: 5–7 samples cannot support deeper trees
+    min_samples_leaf: int = 1
+    bootstrap: bool = True
+    random_state: int = 0
+    max_gain: float = 5.0                         # = runtime ForceCorrection.max_gain
+    min_pokes: int = 5                            # seed: as few as 5–7 measurement points
+    min_pred_force_n: float = 1e-3                # pokes below this predicted force carry no gain info
+    target_opset: int = 17
+
+
+@dataclass
+class PokeSet:
+    """Paired measurements: predicted force vectors (N,3) N, reference magnitudes (N,) N,
+    positions (N,2) normalized u,v, angles (N,2) θ,φ rad."""
+
+    pred_force: np.ndarray
+    ref_force: np.ndarray
+    uv: np.ndarray
+    theta_phi: np.ndarray
+
+    def __post_init__(self):
+        self.pred_force = np.asarray(self.pred_force, dtype=np.float64).reshape(-1, 3)
+        n = len(self.pred_force)
+        self.ref_force = np.asarray(self.ref_force, dtype=np.float64).reshape(n)
+        self.uv = np.asarray(self.uv, dtype=np.float64).reshape(n, 2)
+        self.theta_phi = np.asarray(self.theta_phi, dtype=np.float64).reshape(n, 2)
+
+    def __len__(self) -> int:
+        return len(self.pred_force)
+
+    def subset(self, idx) -> "PokeSet":
+        return PokeSet(self.pred_force[idx], self.ref_force[idx], self.uv[idx], self.theta_phi[idx])
+
+    def features(self, names) -> np.ndarray:
+        return feature_matrix(self.pred_force, self.uv, self.theta_phi, list(names))
+
+    @property
+    def pred_mag(self) -> np.ndarray:
+        return np.linalg.norm(self.pred_force, axis=1)
+
+
+def gain_targets(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> np.ndarray:
+    """g = |F_ref| / |F_pred|, clipped to the runtime's [0, max_gain]."""
+    mag = pokes.pred_mag
+    if np.any(mag < cfg.min_pred_force_n):
+        bad = np.flatnonzero(mag < cfg.min_pred_force_n).tolist()
+        raise CalibrationError(f"pokes {bad}: predicted force below {cfg.min_pred_force_n} N; "
+                               "a poke the model does not see cannot calibrate its gain")
+    return np.clip(pokes.ref_force / mag, 0.0, cfg.max_gain)
+
+
+def fit_forest(pokes: PokeSet, cfg: FitConfig = FitConfig()):
+    """A scikit-learn RandomForestRegressor of the gain on cfg.inputs."""
+    from sklearn.ensemble import RandomForestRegressor
+
+    bad = [n for n in cfg.inputs if n not in FEATURES]
+    if bad:
+        raise CalibrationError(f"FitConfig.inputs {bad}: not runtime correction features {FEATURES}")
+    rf = RandomForestRegressor(n_estimators=cfg.n_estimators, max_depth=cfg.max_depth,
+                               min_samples_leaf=cfg.min_samples_leaf, bootstrap=cfg.bootstrap,
+                               random_state=cfg.random_state, n_jobs=1)
+    rf.fit(pokes.features(cfg.inputs), gain_targets(pokes, cfg))
+    return rf
+
+
+def corrected_magnitude(pred_mag: np.ndarray, gain: np.ndarray, cfg: FitConfig = FitConfig()) -> np.ndarray:
+    """|F'| as the runtime computes it: |F_pred| · clip(g, 0, max_gain); zero stays zero."""
+    return np.where(pred_mag == 0.0, 0.0, pred_mag * np.clip(np.ravel(gain), 0.0, cfg.max_gain))
+
+
+def error_stats(est: np.ndarray, ref: np.ndarray) -> dict:
+    """Mean absolute, RMS and mean relative error of force magnitudes (N, N, fraction)."""
+    err = np.abs(np.asarray(est, float) - np.asarray(ref, float))
+    return {"mae_n": float(err.mean()), "rmse_n": float(np.sqrt((err ** 2).mean())),
+            "mre": float((err / np.maximum(np.abs(ref), 1e-9)).mean()), "max_n": float(err.max())}
+
+
+def leave_one_out(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> dict:
+    """Held-out evaluation: each poke predicted by a forest fitted on the others.
+
+    Returns per-poke held-out corrected magnitudes and before/after error statistics; "before" is
+    the uncorrected model (use `error_stats` with another baseline to compare with an active correction).
+    """
+    n = len(pokes)
+    if n < 3:
+        raise CalibrationError(f"leave-one-out needs at least 3 pokes, got {n}")
+    held = np.empty(n)
+    for i in range(n):
+        rest = np.r_[0:i, i + 1:n]
+        rf = fit_forest(pokes.subset(rest), cfg)
+        g = rf.predict(pokes.subset([i]).features(cfg.inputs))
+        held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, cfg)[0]
+    return {"held_out_n": held.tolist(), "before": error_stats(pokes.pred_mag, pokes.ref_force),
+            "after": error_stats(held, pokes.ref_force)}
+
+
+def to_onnx(rf, n_inputs: int, cfg: FitConfig = FitConfig()) -> bytes:
+    """skl2onnx conversion with the output width declared (DESIGN §10: avoids a shape warning)."""
+    from skl2onnx import convert_sklearn
+    from skl2onnx.common.data_types import FloatTensorType
+
+    model = convert_sklearn(rf, initial_types=[("features", FloatTensorType([None, n_inputs]))],
+                            final_types=[("gain", FloatTensorType([None, 1]))],
+                            target_opset=cfg.target_opset)
+    model.doc_string = "TensorTouch zero-constrained force gain (tools.recalib.fit)"
+    return model.SerializeToString()
+
+
+@dataclass
+class CorrectionFit:
+    """A fitted correction ready for the calibration store."""
+
+    onnx_bytes: bytes
+    spec: dict                    # calibration.json "correction" entry (runtime contract)
+    loo: dict                     # leave-one-out before/after
+    train_gain: list[float]       # in-sample gains (diagnostics)
+    config: dict = field(default_factory=dict)
+
+
+def fit_correction(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> CorrectionFit:
+    """Fit on all pokes, evaluate by leave-one-out, convert to ONNX and check ONNX == sklearn."""
+    if len(pokes) < cfg.min_pokes:
+        raise CalibrationError(f"{len(pokes)} accepted pokes, need at least {cfg.min_pokes} (seed: 5–7)")
+    loo = leave_one_out(pokes, cfg)
+    rf = fit_forest(pokes, cfg)
+    x = pokes.features(cfg.inputs)
+    onnx_bytes = to_onnx(rf, len(cfg.inputs), cfg)
+    _check_onnx(onnx_bytes, x, rf.predict(x))
+    spec = {"file": "correction.onnx", "inputs": list(cfg.inputs), "output": "gain",
+            "kind": "random_forest_gain", "n_estimators": cfg.n_estimators, "max_depth": cfg.max_depth,
+            "pokes": len(pokes)}
+    return CorrectionFit(onnx_bytes, spec, loo, rf.predict(x).tolist(), asdict(cfg))
+
+
+def _check_onnx(onnx_bytes: bytes, x: np.ndarray, expect: np.ndarray) -> None:
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(onnx_bytes, providers=["CPUExecutionProvider"])
+    got = sess.run(None, {sess.get_inputs()[0].name: x.astype(np.float32)})[0].ravel()
+    if not np.allclose(got, expect, rtol=1e-4, atol=1e-5):
+        raise CalibrationError(f"ONNX conversion of the correction disagrees with scikit-learn "
+                               f"(max diff {np.abs(got - expect).max():.3g})")
+
+
+@dataclass(frozen=True)
+class Decision:
+    store: bool
+    reason: str
+    before_mae_n: float
+    after_mae_n: float
+
+
+def decide(held_out_after: dict, active_before: dict, force: bool = False) -> Decision:
+    """Store the new correction only if its held-out error beats the active calibration's error on
+    the same pokes (or `force`). Both dicts come from `error_stats`."""
+    before, after = active_before["mae_n"], held_out_after["mae_n"]
+    if after < before:
+        return Decision(True, f"held-out error {after:.3f} N < {before:.3f} N with the active calibration",
+                        before, after)
+    if force:
+        return Decision(True, f"held-out error {after:.3f} N is not better than {before:.3f} N; "
+                              "stored anyway (--force)", before, after)
+    return Decision(False, f"held-out error {after:.3f} N would not improve on {before:.3f} N with the "
+                           "active calibration; not stored (use --force to store anyway)", before, after)
