@@ -4,8 +4,9 @@ A background thread calls `VideoCapture.read()` continuously and keeps only the 
 `read_latest()` never returns a frame that sat in a queue and `read()` returns the next one to
 arrive. The thread notices a camera that stops delivering (no frame for `read_timeout_s`) or a
 device node that disappears (unplugged) and records a CaptureError that the next read raises.
-After such a fault, `disconnect()` + `connect()` reopens the device (a USB serial is looked up
-again, so a replugged camera that came back under another /dev/video number is found).
+After such a fault the next read reopens the device when `auto_reconnect` is on (a USB serial is
+looked up again, so a replugged camera that came back under another /dev/video number is found);
+while it stays unplugged each read raises a CaptureError saying why reopening failed.
 """
 from __future__ import annotations
 
@@ -48,6 +49,8 @@ class OpenCVCamera(Camera):
         self._error: CaptureError | None = None
         self._device: int | str | None = None
         self._actual: dict = {}
+        self._wanted = False  # connect() called and not disconnect()ed: recover from faults
+        self._count = 0       # frames captured since construction (Frame.index keeps rising across reconnects)
 
     # -- description -----------------------------------------------------------------------
     @property
@@ -86,6 +89,14 @@ class OpenCVCamera(Camera):
     def connect(self) -> None:
         if self.is_connected:
             return
+        self._wanted = True
+        self._open(self.config.connect_timeout_s)
+
+    def disconnect(self) -> None:
+        self._wanted = False
+        self._close()
+
+    def _open(self, first_frame_timeout_s: float) -> None:
         c = self.config
         self._device = self._resolve_device()
         api = cv2.CAP_V4L2 if c.api == "v4l2" else cv2.CAP_ANY
@@ -97,20 +108,20 @@ class OpenCVCamera(Camera):
         self._cap = cap
         self._apply_settings()
         self._stop.clear()
-        self._error, self._latest, self._last_returned = None, None, -1
+        self._error, self._latest = None, None
         self._thread = threading.Thread(target=self._reader, name=f"camera-{self._device}", daemon=True)
         self._thread.start()
         with self._cond:
             self._cond.wait_for(lambda: self._latest is not None or self._error is not None,
-                                timeout=c.connect_timeout_s)
+                                timeout=first_frame_timeout_s)
             error, ok = self._error, self._latest is not None
         if not ok:
-            self.disconnect()
+            self._close()
             raise error or CaptureError(f"{self._device}: opened, but no frame arrived within "
-                                        f"{c.connect_timeout_s} s (wrong format? try fourcc=None)")
+                                        f"{first_frame_timeout_s} s (wrong format? try fourcc=None)")
         log.info("camera %s connected: %s", self._device, self._actual)
 
-    def disconnect(self) -> None:
+    def _close(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
@@ -118,6 +129,27 @@ class OpenCVCamera(Camera):
         if self._cap is not None:
             self._cap.release()
             self._cap = None
+
+    def _recover(self) -> None:
+        """After a fault: reopen the device (auto_reconnect) or raise the fault."""
+        cause = self._error or CaptureError(f"{self.name}: camera is closed after an earlier fault")
+        if not self.config.auto_reconnect:
+            raise cause
+        self._close()
+        try:
+            self._open(self.config.read_timeout_s)
+        except CaptureError as exc:
+            raise CaptureError(f"{cause} (reconnect failed: {exc})") from None
+        log.warning("camera %s reconnected after: %s", self._device, cause)
+
+    def _require_connected(self) -> None:
+        if not self._wanted:
+            raise CaptureError(f"{self.name}: not connected (call connect() or use 'with camera:')")
+        if self._cap is None or (self._error is not None and not self._has_fresh()):
+            self._recover()
+
+    def _has_fresh(self) -> bool:
+        return self._latest is not None and self._latest[2] > self._last_returned
 
     # -- settings --------------------------------------------------------------------------
     def _apply_settings(self) -> None:
@@ -168,7 +200,7 @@ class OpenCVCamera(Camera):
             f"/dev/video{self._device}" if self.config.api == "v4l2" else None)
         if node is not None and not os.path.exists(node):
             node = None  # not a filesystem path (e.g. a URL): cannot watch for it to disappear
-        index, failing_since = 0, None
+        failing_since = None
         while not self._stop.is_set():
             try:
                 ok, image = cap.read()
@@ -189,18 +221,17 @@ class OpenCVCamera(Camera):
                 continue
             failing_since = None
             with self._cond:
-                self._latest = (image, now, index)
+                self._latest = (image, now, self._count)
+                self._count += 1
                 self._cond.notify_all()
-            index += 1
 
     # -- frames ----------------------------------------------------------------------------
     def read(self, timeout_s: float | None = None) -> Frame:
         self._require_connected()
         timeout = self.config.read_timeout_s if timeout_s is None else timeout_s
         with self._cond:
-            fresh = lambda: self._latest is not None and self._latest[2] > self._last_returned  # noqa: E731
-            self._cond.wait_for(lambda: fresh() or self._error is not None, timeout=timeout)
-            if fresh():
+            self._cond.wait_for(lambda: self._has_fresh() or self._error is not None, timeout=timeout)
+            if self._has_fresh():
                 latest = self._latest
             elif self._error is not None:
                 raise self._error

@@ -29,6 +29,9 @@ class OpenCVCameraConfig(CameraConfig):
     """Manual exposure time in s; None keeps the device's auto exposure."""
     api: str = "v4l2"
     """'v4l2' (Linux cameras) or 'any' (OpenCV picks: other OSes, or a video file for tests)."""
+    auto_reconnect: bool = True
+    """After a fault (unplugged, stalled) the next read reopens the device (re-finding a USB serial);
+    if that fails the read raises a CaptureError saying so, and the following read tries again."""
     connect_timeout_s: float = 5.0
     """connect() fails when the first frame does not arrive within this time (s)."""
 
