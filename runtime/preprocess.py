@@ -119,7 +119,7 @@ class Preprocessor:
     # -- per frame -------------------------------------------------------------------------
     def crop(self, frame: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 RGB -> (S, S, 3) uint8: masked gel window at model size (new array)."""
-        if frame.shape != self._frame_shape:
+        if frame.shape != self._frame_shape or frame.dtype != np.uint8:
             if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
                 raise CaptureError(f"frame {frame.shape} {frame.dtype}: expected (H, W, 3) uint8 RGB")
             self._prepare(frame.shape)
