@@ -64,28 +64,36 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
         return []
     k = n
     support = _support_labels(labels, mag, cfg)
-    lab = support.ravel()
-    w = mag.ravel()
+    idx = np.flatnonzero(support)                 # only pixels that belong to some cluster
+    lab = support.ravel()[idx]
+    w = mag.ravel()[idx]
     wsum = np.bincount(lab, weights=w, minlength=k)
     safe = np.where(wsum > 0, wsum, 1.0)
-    h, wd = mag.shape
-    vv, uu = np.divmod(np.arange(h * wd), wd)
-    u_c = np.bincount(lab, weights=w * (uu + 0.5), minlength=k) / safe
-    v_c = np.bincount(lab, weights=w * (vv + 0.5), minlength=k) / safe
-    pos = surface_xyz.reshape(-1, 3) if disp is None else (surface_xyz + np.moveaxis(disp, 0, -1)).reshape(-1, 3)
-    centroid = np.stack([np.bincount(lab, weights=w * pos[:, i], minlength=k) for i in range(3)], 1) / safe[:, None]
-    nrm = normals.reshape(-1, 3)
-    nsum = np.stack([np.bincount(lab, weights=w * nrm[:, i], minlength=k) for i in range(3)], 1)
+    wd = mag.shape[1]
+    vv, uu = np.divmod(idx, wd)
+
+    def wmean(values):  # force-weighted mean per cluster of (len(idx), ...) values
+        values = values.reshape(len(idx), -1)
+        return np.stack([np.bincount(lab, weights=w * values[:, i], minlength=k)
+                         for i in range(values.shape[1])], 1) / safe[:, None]
+
+    uv = wmean(np.stack([uu + 0.5, vv + 0.5], 1))
+    pos = surface_xyz.reshape(-1, 3)[idx]
+    if disp is not None:
+        pos = pos + disp.reshape(3, -1)[:, idx].T
+    centroid = wmean(pos)
+    nsum = wmean(normals.reshape(-1, 3)[idx])
     nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
-    fvec = np.stack([np.bincount(lab, weights=force_px[i].ravel(), minlength=k) for i in range(3)], 1)
-    area = np.bincount(labels.ravel(), weights=pixel_area.ravel(), minlength=k)
+    fvec = np.stack([np.bincount(lab, weights=force_px[i].ravel()[idx], minlength=k) for i in range(3)], 1)
+    core = labels.ravel()
+    area = np.bincount(core, weights=pixel_area.ravel(), minlength=k)
     perim, circ = _shape_metrics(binary, labels, k)
     out = []
     for j in range(1, k):
         if stats[j, cv2.CC_STAT_AREA] < cfg.min_pixels:
             continue
         out.append(Cluster(
-            id=-1, centroid_px=(float(u_c[j]), float(v_c[j])), centroid_mm=tuple(map(float, centroid[j])),
+            id=-1, centroid_px=(float(uv[j, 0]), float(uv[j, 1])), centroid_mm=tuple(map(float, centroid[j])),
             normal=tuple(map(float, nsum[j])), area_mm2=float(area[j]), force_n=tuple(map(float, fvec[j])),
             force_mag_n=float(np.linalg.norm(fvec[j])), pixels=int(stats[j, cv2.CC_STAT_AREA]),
             perimeter_px=float(perim[j]), circularity=float(circ[j])))

@@ -16,28 +16,33 @@ import numpy as np
 from runtime.fields import CHANNELS, CHANNEL_UNITS, INPUT_CHANNELS
 
 
-def _conv(nodes, inits, rng, name, x, cin, cout, k=3, stride=1, act=True):
+def _conv(nodes, inits, rng, name, x, cin, cout, k=3, stride=1, act=True, pad=None):
     w = (rng.standard_normal((cout, cin, k, k)) * np.sqrt(2.0 / (cin * k * k))).astype(np.float32)
     b = np.zeros(cout, np.float32)
     from onnx import helper, numpy_helper
 
     inits += [numpy_helper.from_array(w, f"{name}.w"), numpy_helper.from_array(b, f"{name}.b")]
     nodes.append(helper.make_node("Conv", [x, f"{name}.w", f"{name}.b"], [f"{name}.y"],
-                                  kernel_shape=[k, k], strides=[stride, stride], pads=[k // 2] * 4))
+                                  kernel_shape=[k, k], strides=[stride, stride], pads=[k // 2 if pad is None else pad] * 4))
     if not act:
         return f"{name}.y"
     nodes.append(helper.make_node("Relu", [f"{name}.y"], [f"{name}.r"]))
     return f"{name}.r"
 
 
-def build_unet(size: int, width: int = 32, depth: int = 3, seed: int = 0):
-    """A conv U-Net 6→15 channels with sigmoid output; width 32 / depth 3 ≈ 1.9 M parameters."""
+def build_unet(size: int, width: int = 32, depth: int = 3, seed: int = 0, stem: int = 1):
+    """A conv U-Net 6→15 channels with sigmoid output. `stem` > 1 patchifies the input first (a
+    stride-`stem` conv, like Hiera's 4×4 patch embedding) and upsamples back at the end, which gives
+    a ViT-like compute profile; stem 4 / width 32 / depth 3 ≈ 2.2 M parameters."""
     from onnx import TensorProto, helper
 
     rng = np.random.default_rng(seed)
     nodes, inits = [], []
     x = "input"
     skips, cin = [], 6
+    if stem > 1:
+        x = _conv(nodes, inits, rng, "stem", x, cin, width, k=stem, stride=stem, pad=0)
+        cin = width
     for d in range(depth):
         cout = width * 2 ** d
         x = _conv(nodes, inits, rng, f"enc{d}a", x, cin, cout)
@@ -55,10 +60,15 @@ def build_unet(size: int, width: int = 32, depth: int = 3, seed: int = 0):
         x = _conv(nodes, inits, rng, f"dec{d}a", cat, cin + cs, cs)
         x = _conv(nodes, inits, rng, f"dec{d}b", x, cs, cs)
         cin = cs
-    y = _conv(nodes, inits, rng, "head", x, cin, len(CHANNELS), k=1, act=False)
-    nodes.append(helper.make_node("Sigmoid", [y], ["fields"]))
     from onnx import numpy_helper
 
+    if stem > 1:
+        nodes.append(helper.make_node("Resize", [x, "", "stem_scales"], ["unstem"], mode="linear"))
+        inits.append(numpy_helper.from_array(np.array([1, 1, stem, stem], np.float32), "stem_scales"))
+        x = _conv(nodes, inits, rng, "refine", "unstem", cin, 16)
+        cin = 16
+    y = _conv(nodes, inits, rng, "head", x, cin, len(CHANNELS), k=1, act=False)
+    nodes.append(helper.make_node("Sigmoid", [y], ["fields"]))
     inits.append(numpy_helper.from_array(np.array([1, 1, 2, 2], np.float32), "up_scales"))
     graph = helper.make_graph(
         nodes, "synthetic_unet",
@@ -106,13 +116,13 @@ def sha256(path: Path) -> str:
 
 
 def write_package(folder: Path, size: int = 32, width: int = 4, depth: int = 2, seed: int = 0,
-                  bounds: dict | None = None, int8: bool = True) -> Path:
+                  bounds: dict | None = None, int8: bool = True, stem: int = 1) -> Path:
     """A complete synthetic model package (manifest + fp32 [+ int8]) in `folder` (a temp dir)."""
     import onnx
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    model = build_unet(size, width, depth, seed)
+    model = build_unet(size, width, depth, seed, stem)
     fp32 = folder / "model.fp32.onnx"
     onnx.save(model, str(fp32))
     files = {"model.fp32.onnx": {"sha256": sha256(fp32)}}

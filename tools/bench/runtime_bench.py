@@ -3,8 +3,8 @@
 Per configuration (model size × precision): frames are decoded from an MJPG video (real OpenCV
 capture), run through `SensorPipeline` (the exact deploy code) and published over a real Zenoh
 session on loopback; per-stage and end-to-end p50/p99 latency and frames/s are printed. The network
-is the shipped model when one is installed at that size, else a synthetic ~1.9 M-parameter conv
-U-Net (random weights: timing only — said in the output).
+is the shipped model when one is installed at that size, else a synthetic ~2.2 M-parameter conv
+U-Net with a 4×4 patch stem (Hiera-like compute) (random weights: timing only — said in the output).
 """
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def _package_for(size: int, work: Path):
             continue
         if pkg.size == (size, size) and not pkg.manifest.get("synthetic"):
             return pkg, False
-    return load_package(write_package(work / f"synthetic-{size}", size=size, width=32, depth=3)), True
+    return load_package(write_package(work / f"synthetic-{size}", size=size, width=32, depth=3, stem=4)), True
 
 
 def bench_config(pkg, precision: str, video: Path, cal, frames: int, threads: int, publisher) -> dict:
