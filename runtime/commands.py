@@ -51,24 +51,26 @@ def register(sub) -> None:
 
 
 def _open_source(args):
-    from drivers.camera import camera_from_uri
+    from drivers.camera import config_from_uri, make_camera
+    from drivers.camera.replay import ReplayCameraConfig
     from runtime import paths
     from runtime.errors import CaptureError
     from runtime.session import load_session
 
     source = args.source
-    session_sensor = None
     if not source:
         demo = paths.demo_dir()
         if not (demo / "session.json").is_file():
             raise CaptureError(f"no --source given and no demo recording at {demo}; "
                                "record one with `tensortouch twin record ... --out runtime/demo`")
         source = f"replay:{demo}"
-    if source.startswith("replay:"):
-        session_sensor = load_session(source.split(":", 1)[1]).sensor_id
-    replay = source.startswith(("replay:", "file:")) or Path(source).exists()
-    cam = camera_from_uri(source, realtime=not args.fast, loop=args.loop) if replay else camera_from_uri(source)
-    return cam, session_sensor
+    config = config_from_uri(source)
+    session_sensor = None
+    if isinstance(config, ReplayCameraConfig):
+        config = config_from_uri(source, realtime=not args.fast, loop=args.loop or config.loop)
+        if Path(config.path).is_dir():
+            session_sensor = load_session(config.path).sensor_id
+    return make_camera(config), session_sensor
 
 
 def cmd_run(args) -> int:
@@ -79,6 +81,9 @@ def cmd_run(args) -> int:
     from runtime.pipeline import SensorPipeline
     from runtime.publisher import Publisher
 
+    import cv2
+
+    cv2.setNumThreads(1)                        # leave the cores to onnxruntime and other sensors
     package = find_package(args.model)          # clear message when no trained model is installed
     cam, session_sensor = _open_source(args)
     sensor = args.sensor or session_sensor
