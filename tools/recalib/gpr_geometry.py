@@ -11,7 +11,8 @@ fitted jointly by least squares (φ residuals in px, θ residuals scaled to px);
 (scikit-learn GaussianProcessRegressor) then models the remaining θ(d) residual, so far from the
 pokes the mapping falls back to the trend. Dense tables are evaluated on the model grid, which the
 preprocessor centres on the (new) gel centre with the crop radius R mapped to the grid's inscribed
-circle: camera x = x_c + (u - W/2)·R/(W/2), y = y_c + (v - H/2)·R/(H/2) (u, v continuous grid px).
+circle; grid ↔ camera px goes through runtime.preprocess.Preprocessor (to_raw / to_model) so the
+tables match the runtime's crop exactly.
 
 Pure: arrays in, arrays out. No pickle: the GP lives only for the evaluation of the tables.
 """
@@ -25,6 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from runtime.errors import CalibrationError
+from runtime.preprocess import Preprocessor
 
 log = logging.getLogger(__name__)
 
@@ -41,19 +43,19 @@ class GeometryFitConfig:
 
 def model_to_camera(uv_px: np.ndarray, center: tuple[float, float], radius: float,
                     size: tuple[int, int]) -> np.ndarray:
-    """Model-grid positions (N,2) (u = column, v = row, continuous px) → camera px (N,2)."""
-    h, w = size
+    """Cluster centroids on the model grid (N,2) (u = column, v = row; pixel i spans [i, i+1] as in
+    runtime.contacts) → camera px (N,2) through the runtime's own Preprocessor crop."""
     uv = np.asarray(uv_px, float).reshape(-1, 2)
-    return np.stack([center[0] + (uv[:, 0] - w / 2) * radius / (w / 2),
-                     center[1] + (uv[:, 1] - h / 2) * radius / (h / 2)], axis=1)
+    x, y = Preprocessor(center[0], center[1], radius, tuple(size)).to_raw(uv[:, 0] - 0.5, uv[:, 1] - 0.5)
+    return np.stack([x, y], axis=1)
 
 
 def camera_to_model(xy: np.ndarray, center: tuple[float, float], radius: float,
                     size: tuple[int, int]) -> np.ndarray:
-    h, w = size
+    """Inverse of `model_to_camera`."""
     xy = np.asarray(xy, float).reshape(-1, 2)
-    return np.stack([w / 2 + (xy[:, 0] - center[0]) * (w / 2) / radius,
-                     h / 2 + (xy[:, 1] - center[1]) * (h / 2) / radius], axis=1)
+    u, v = Preprocessor(center[0], center[1], radius, tuple(size)).to_model(xy[:, 0], xy[:, 1])
+    return np.stack([u + 0.5, v + 0.5], axis=1)
 
 
 def _wrap(a):
@@ -126,12 +128,14 @@ class GeometryFit:
     fit: dict                     # centre/trend fit diagnostics
 
 
-def grid_theta_phi(f: ThetaOfDistance, phi0: float, radius: float, size: tuple[int, int]):
-    """Dense θ/φ tables on the model grid (pixel centres) centred on the gel centre."""
+def grid_theta_phi(f: ThetaOfDistance, phi0: float, center: tuple[float, float], radius: float,
+                   size: tuple[int, int]):
+    """Dense θ/φ tables on the model grid cropped around `center` (pixel centres mapped to camera
+    px by the runtime's Preprocessor, so the tables match what the runtime will crop)."""
     h, w = size
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    dx = (xx + 0.5 - w / 2) * radius / (w / 2)
-    dy = (yy + 0.5 - h / 2) * radius / (h / 2)
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    x, y = Preprocessor(center[0], center[1], radius, (h, w)).to_raw(uu, vv)
+    dx, dy = x - center[0], y - center[1]
     theta = f(np.hypot(dx, dy))
     phi = _wrap(np.arctan2(dy, dx) + phi0)
     return theta.astype(np.float32), phi.astype(np.float32)
@@ -155,7 +159,7 @@ def refresh_geometry(xy_cam: np.ndarray, theta_true: np.ndarray, phi_true: np.nd
     xc, yc = fc["center"]
     d = np.hypot(xy[:, 0] - xc, xy[:, 1] - yc)
     f = ThetaOfDistance(d, theta_true, fc["trend"], radius, cfg)
-    theta, phi = grid_theta_phi(f, fc["phi0"], radius, size)
+    theta, phi = grid_theta_phi(f, fc["phi0"], (xc, yc), radius, size)
     res_t = np.degrees(f(d) - theta_true)
     res_p = np.degrees(_wrap(np.arctan2(xy[:, 1] - yc, xy[:, 0] - xc) + fc["phi0"] - phi_true))
     log.info("geometry refresh: centre (%.2f, %.2f) px (moved %.2f px), phi0 %.2f deg, theta rms %.3f deg",

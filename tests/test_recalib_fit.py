@@ -1,0 +1,98 @@
+"""Zero-constrained RF force correction on synthetic pokes (known true force vs a biased model)."""
+import numpy as np
+import pytest
+
+from runtime.correction import ForceCorrection
+from runtime.errors import CalibrationError
+from tools.recalib.fit import (FitConfig, PokeSet, corrected_magnitude, decide, error_stats, fit_correction,
+                               fit_forest, gain_targets, to_onnx)
+from tools.recalib.synthetic import SyntheticUnit
+
+STIFF_SHIFTED = SyntheticUnit(stiffness_ratio=1.2, center_shift=(0.06, -0.04), radial_bias=0.25)
+
+
+def _runtime_correction(tmp_path, fit):
+    path = tmp_path / "correction.onnx"
+    path.write_bytes(fit.onnx_bytes)
+    return ForceCorrection(path, fit.spec)
+
+
+@pytest.mark.parametrize("n", [5, 6, 7])
+def test_pokes_cut_held_out_error_on_stiffer_shifted_gel(n):
+    rng = np.random.default_rng(100 + n)
+    pokes = STIFF_SHIFTED.guided_pokes(rng, n)
+    fit = fit_correction(pokes)
+    assert fit.loo["after"]["mae_n"] < 0.6 * fit.loo["before"]["mae_n"]
+    test = STIFF_SHIFTED.held_out(rng, 300)
+    g = fit_forest(pokes).predict(test.features(FitConfig().inputs))
+    before = error_stats(test.pred_mag, test.ref_force)["mae_n"]
+    after = error_stats(corrected_magnitude(test.pred_mag, g), test.ref_force)["mae_n"]
+    assert after <= 0.4 * before, (before, after)
+
+
+def test_onnx_model_runs_in_the_runtime_and_matches_sklearn(tmp_path):
+    rng = np.random.default_rng(3)
+    pokes = STIFF_SHIFTED.guided_pokes(rng, 6)
+    fit = fit_correction(pokes)
+    corr = _runtime_correction(tmp_path, fit)
+    test = STIFF_SHIFTED.held_out(rng, 50)
+    out = corr(test.pred_force, test.uv, test.theta_phi)
+    g = fit_forest(pokes).predict(test.features(FitConfig().inputs))
+    assert np.allclose(np.linalg.norm(out, axis=1), corrected_magnitude(test.pred_mag, g), rtol=1e-4)
+    # direction kept: gain only
+    cos = np.sum(out * test.pred_force, axis=1) / (np.linalg.norm(out, axis=1) * test.pred_mag)
+    assert np.allclose(cos, 1.0)
+
+
+def test_zero_constraint_no_contact_gives_exactly_zero(tmp_path):
+    rng = np.random.default_rng(4)
+    fit = fit_correction(STIFF_SHIFTED.guided_pokes(rng, 6))
+    corr = _runtime_correction(tmp_path, fit)
+    forces = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.5], [0.0, 0.0, 0.0]])
+    uv = np.array([[0.5, 0.5], [0.3, 0.6], [0.9, 0.1]])
+    out = corr(forces, uv, np.zeros((3, 2)))
+    assert np.all(out[0] == 0.0) and np.all(out[2] == 0.0)
+    assert out[1, 2] < -1.5   # stiffer gel: the correction raises the force
+    # the forest itself predicts a non-zero gain at zero force: the constraint is what zeroes it
+    g0 = fit_forest(STIFF_SHIFTED.guided_pokes(rng, 6)).predict(np.array([[0.0, 0.5, 0.5]], np.float32))
+    assert g0[0] > 0.5
+
+
+def test_correction_worse_than_the_active_one_is_refused(tmp_path):
+    """The active calibration already corrects well (fitted on 400 bench pokes): 5 noisy field pokes
+    give a held-out error above the active correction's error on the same pokes → refused unless forced."""
+    rng = np.random.default_rng(7)
+    noisy = SyntheticUnit(stiffness_ratio=1.2, center_shift=(0.06, -0.04), radial_bias=0.25, gauge_rel_noise=0.05)
+    cfg = FitConfig(max_depth=None)
+    path = tmp_path / "bench.onnx"
+    path.write_bytes(to_onnx(fit_forest(STIFF_SHIFTED.held_out(rng, 400), cfg), 3, cfg))
+    active = ForceCorrection(path, {"inputs": list(cfg.inputs), "output": "gain"})
+    pokes = noisy.guided_pokes(rng, 5)
+    fit = fit_correction(pokes)
+    active_err = error_stats(np.linalg.norm(active(pokes.pred_force, pokes.uv, pokes.theta_phi), axis=1),
+                             pokes.ref_force)
+    d = decide(fit.loo["after"], active_err)
+    assert not d.store and "--force" in d.reason, d
+    forced = decide(fit.loo["after"], active_err, force=True)
+    assert forced.store and "stored anyway" in forced.reason
+
+
+def test_decide_accepts_improvement():
+    d = decide({"mae_n": 0.1}, {"mae_n": 0.5})
+    assert d.store and d.after_mae_n == 0.1 and d.before_mae_n == 0.5
+
+
+def test_too_few_pokes_and_invisible_pokes_are_errors():
+    rng = np.random.default_rng(5)
+    pokes = STIFF_SHIFTED.guided_pokes(rng, 4)
+    with pytest.raises(CalibrationError, match="need at least 5"):
+        fit_correction(pokes)
+    p = STIFF_SHIFTED.guided_pokes(rng, 5)
+    p.pred_force[2] = 0.0
+    with pytest.raises(CalibrationError, match=r"pokes \[2\]: predicted force below"):
+        gain_targets(p)
+
+
+def test_gain_clipped_like_the_runtime():
+    p = PokeSet(np.array([[0, 0, -1.0]] * 5), np.array([10.0, 1, 1, 1, 1]), np.full((5, 2), 0.5), np.zeros((5, 2)))
+    assert gain_targets(p)[0] == FitConfig().max_gain
