@@ -1,0 +1,127 @@
+"""`tensortouch twin record|show|calibration` (registered through the tensortouch.commands entry point).
+
+    tensortouch twin record --unit TWIN-0001 --pokes 5 --effect temperature_softening:alpha=0.02 \\
+        --out cache/sessions/s1 [--seed 0] [--physics fe|hertz-fallback] [--frames ffv1|mjpg|png]
+    tensortouch twin show SESSION --out sheet.png
+    tensortouch twin calibration --unit TWIN-0001 [--store DIR]   # write the unit's true calibration
+"""
+from __future__ import annotations
+
+import logging
+import sys
+import time
+
+log = logging.getLogger(__name__)
+
+
+class _Bar:
+    """One-line progress on stderr (no dependency)."""
+
+    def __init__(self, stream=sys.stderr):
+        self.stream, self.t0, self.last = stream, time.perf_counter(), 0.0
+
+    def __call__(self, stage: str, i: int, n: int) -> None:
+        now = time.perf_counter()
+        if i < n and now - self.last < 0.2:
+            return
+        self.last = now
+        frac = i / max(n, 1)
+        bar = "#" * int(30 * frac)
+        self.stream.write(f"\r{stage:8s} [{bar:30s}] {i}/{n}  {now - self.t0:6.1f} s")
+        if i >= n:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+def _record(args) -> int:
+    from runtime.errors import TensorTouchError
+    from tools.twin.effect_specs import parse_effect_arg
+    from tools.twin.record import RecordConfig, Recorder
+
+    try:
+        effects = [parse_effect_arg(e) for e in args.effect or []]
+    except ValueError as exc:
+        raise TensorTouchError(str(exc)) from None
+    cfg = RecordConfig(serial=args.unit, pokes=args.pokes, seed=args.seed, effects=effects,
+                       physics=args.physics, frame_format=args.frames, model_size=args.model_size)
+    cfg.rig.camera_fps = args.fps
+    if args.hysteresis_tau is not None:
+        cfg.rig.hysteresis_tau_s = args.hysteresis_tau
+    rec = Recorder(cfg, args.out, progress=_Bar())
+    if args.calibration:
+        from tools.twin.unit import write_true_calibration
+
+        version = write_true_calibration(rec.unit, args.store, args.model_size)
+        print(f"true calibration of {args.unit}: {version}")
+    path = rec.run()
+    t = rec.timing
+    print(f"session {path}: {t.get('frames_rendered', 0)} frames rendered, physics {t['physics_s']:.1f} s, "
+          f"render {t['render_s']:.1f} s, total {t['total_s']:.1f} s")
+    return 0
+
+
+def _show(args) -> int:
+    from tools.twin.show import contact_sheet
+
+    print(contact_sheet(args.session, args.out, n=args.frames))
+    return 0
+
+
+def _calibration(args) -> int:
+    from tools.twin.unit import TwinUnit, write_true_calibration
+
+    print(write_true_calibration(TwinUnit(args.unit), args.store, args.model_size))
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("twin", help="digital twin sensor: record sessions, contact sheets, true calibration")
+    tsub = p.add_subparsers(dest="twin_command", metavar="TWIN_COMMAND")
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+    r = tsub.add_parser("record", help="simulate a recording session of one twin unit")
+    r.add_argument("--unit", required=True, help="twin unit serial (sets the unit's variation; = sensor id)")
+    r.add_argument("--pokes", type=int, default=5)
+    r.add_argument("--effect", action="append", metavar="NAME:param=value,...",
+                   help="switch a physical effect on in truth (repeatable); see docs/effects.md")
+    r.add_argument("--out", required=True, help="session directory (resumes an unfinished one)")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--physics", choices=("fe", "hertz-fallback"), default="fe",
+                   help="fe (default): per-poke FE solves, cached; hertz-fallback: analytic, for quick previews")
+    r.add_argument("--frames", choices=("ffv1", "mjpg", "png"), default="ffv1",
+                   help="ffv1 = lossless .avi (default), png = lossless folder, mjpg = small lossy .avi")
+    r.add_argument("--fps", type=float, default=30.0)
+    r.add_argument("--model-size", type=int, default=128)
+    r.add_argument("--hysteresis-tau", type=float, help="gel recovery time constant, s (default 1.5)")
+    r.add_argument("--calibration", action="store_true", help="also write the unit's true calibration")
+    r.add_argument("--store", help="calibration store root (default: runtime.paths.calibration_dir())")
+    r.set_defaults(func=_record)
+    s = tsub.add_parser("show", help="contact sheet of a session: frames, deformation, force trace")
+    s.add_argument("session")
+    s.add_argument("--out", required=True, help="PNG file to write")
+    s.add_argument("--frames", type=int, default=5, help="frames in the sheet (rest + force peaks)")
+    s.set_defaults(func=_show)
+    c = tsub.add_parser("calibration", help="write a twin unit's true calibration into the calibration store")
+    c.add_argument("--unit", required=True)
+    c.add_argument("--store", help="calibration store root (default: runtime.paths.calibration_dir())")
+    c.add_argument("--model-size", type=int, default=128)
+    c.set_defaults(func=_calibration)
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    from runtime.errors import TensorTouchError
+
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except TensorTouchError as exc:
+        print(f"tensortouch twin: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:] if sys.argv[1:2] == ["twin"] else ["twin", *sys.argv[1:]]))
