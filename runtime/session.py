@@ -231,6 +231,9 @@ def load_session(path: str | Path, check_frames: bool = True) -> Session:
         if not np.all(np.isfinite(table)):
             row = int(np.argmax(~np.all(np.isfinite(table), axis=1))) + 2
             raise SessionError(f"{where}:{row}: non-finite value in stream '{name}'")
+        rows = session.streams[name].get("rows")
+        if isinstance(rows, int) and len(table) != rows:
+            raise SessionError(f"{where}: {len(table)} rows but the manifest recorded {rows} (truncated stream)")
         ind = table[:, 1] if name in ("poses", "wrench") else None
         _check_clock(name, table[:, 0], ind, where)
     if session.has("wrench"):
