@@ -1,0 +1,173 @@
+"""`tensortouch recalibrate --sensor ID`: the guided field recalibration (docs/recalibration.md).
+
+Thin shell: opens the calibration store, the model package, the camera (live, replay or twin
+recording) and the reference (serial gauge, typed, or the recording's force stream), runs
+tools.recalib.session, prints before/after held-out errors and stores a new calibration version
+(or refuses). Exit status: 0 stored (or --dry-run), 1 refused / not enough pokes, 2 error.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import sys
+
+log = logging.getLogger(__name__)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("recalibrate", help="field recalibration from 5–7 pokes (force correction, θ/φ tables)",
+                       description="Guided field recalibration: poke the gel 5–7 times where shown; the "
+                                   "reference force comes from a serial force gauge, is typed in, or is "
+                                   "read from a recording's force stream. Fits the zero-constrained "
+                                   "random-forest force correction, shows before/after held-out error and "
+                                   "stores a new calibration version (refused if it is worse, unless --force).")
+    p.add_argument("--sensor", required=True, help="sensor id = calibration store folder")
+    p.add_argument("--source", help="camera: replay:SESSION_DIR | file:VIDEO | v4l2:/dev/videoN | usb:SERIAL")
+    p.add_argument("--gauge", default=None,
+                   help="serial:/dev/ttyUSB0 | any pyserial URL (loop://, socket://host:port) | typed | "
+                        "session (the replayed recording's wrench stream; default for replay sources that have one, "
+                        "else typed)")
+    p.add_argument("--gauge-protocol", choices=("tt", "mark10"), default="tt",
+                   help="tt: 'F <newtons>*<xor>' stream; mark10: '?' request, '<value> <unit>' reply")
+    p.add_argument("--baud", type=int, default=None, help="gauge baud rate (default 115200 tt, 9600 mark10)")
+    p.add_argument("--pokes", type=int, default=6, choices=range(5, 8), metavar="{5,6,7}")
+    p.add_argument("--geometry", action="store_true",
+                   help="also refresh θ/φ tables and gel centre (needs true poke positions: twin truth or mocap poses)")
+    p.add_argument("--force", action="store_true", help="store even if the held-out error does not improve")
+    p.add_argument("--dry-run", action="store_true", help="fit and report, store nothing")
+    p.add_argument("--report", help="write the session report (pokes, errors, decision) as JSON here")
+    p.add_argument("--store", help="calibration store folder (default: calibration_store/)")
+    p.add_argument("--model", help="model package name or path (default: newest installed)")
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    p.add_argument("--threads", type=int, default=1)
+    p.set_defaults(func=cmd_recalibrate)
+
+
+def _frames(camera, pipeline):
+    from drivers.camera.camera import EndOfStream
+
+    while True:
+        try:
+            frame = camera.read()
+        except EndOfStream:
+            return
+        yield frame.t, pipeline.process(frame.image, frame.t).clusters
+
+
+def _reference(args, session, say):
+    from runtime.errors import TensorTouchError
+    from tools.recalib.session import GaugeReference, StreamReference, TypedReference
+
+    kind = args.gauge or ("session" if session is not None and session.has("wrench") else "typed")
+    if kind == "session":
+        if session is None or not session.has("wrench"):
+            raise TensorTouchError("--gauge session needs a replay:SESSION_DIR source with a wrench stream")
+        return StreamReference.from_session(session), None
+    if kind == "typed":
+        return TypedReference(say=say), None
+    from drivers.gauge import ForceGauge, GaugeConfig
+
+    url = kind.split(":", 1)[1] if kind.startswith("serial:") else kind
+    baud = args.baud or (9600 if args.gauge_protocol == "mark10" else 115200)
+    gauge = ForceGauge(GaugeConfig(url, protocol=args.gauge_protocol, baudrate=baud)).open()
+    gauge.start()
+    return GaugeReference(gauge), gauge
+
+
+def _print_errors(an, say) -> None:
+    loo, act = an.fit.loo, an.active
+    say(f"held-out force magnitude error over {len(an.pokes)} pokes (leave-one-out):")
+    say(f"  uncorrected model          MAE {loo['before']['mae_n']:.3f} N  ({loo['before']['mre']:.1%})")
+    say(f"  active calibration         MAE {act['mae_n']:.3f} N  ({act['mre']:.1%})")
+    say(f"  new correction (held out)  MAE {loo['after']['mae_n']:.3f} N  ({loo['after']['mre']:.1%})")
+    if an.geometry is not None:
+        g = an.geometry
+        rms = sum(r * r for r in g.residual_deg["theta"]) / len(g.residual_deg["theta"])
+        say(f"geometry: gel centre ({g.center[0]:.1f}, {g.center[1]:.1f}) px, moved {g.fit['center_shift_px']:.2f} px; "
+            f"θ residual rms {rms ** 0.5:.2f}°")
+
+
+def cmd_recalibrate(args, say=None) -> int:
+    from drivers.camera import camera_from_uri
+    from runtime.calibration import CalibrationStore
+    from runtime.correction import ForceCorrection
+    from runtime.errors import TensorTouchError
+    from runtime.model import FieldModel, find_package
+    from runtime.pipeline import SensorPipeline
+    from runtime.session import load_session
+    from tools.recalib.session import SessionConfig, analyse, run_guided, session_truth_xyz
+    from tools.recalib.store_ops import store_recalibration
+
+    say = say or (lambda msg: print(msg, file=sys.stderr))
+    store = CalibrationStore(args.store) if args.store else CalibrationStore()
+    cal = store.load(args.sensor)
+    package = find_package(args.model)
+    if not args.source:
+        raise TensorTouchError("--source is required (the live camera, or replay:SESSION_DIR)")
+    session = load_session(args.source.split(":", 1)[1]) if args.source.startswith("replay:") else None
+    model = FieldModel(package, args.precision, threads=args.threads)
+    pipeline = SensorPipeline(args.sensor, model, cal, correction=ForceCorrection(None, None))  # raw model force
+    cfg = SessionConfig(pokes=args.pokes)
+    reference, gauge = _reference(args, session, say)
+    say(f"recalibrating {args.sensor} (active {cal.version}) with model {package.name}; reference: {reference.name}")
+    try:
+        with camera_from_uri(args.source, **({"realtime": False} if session is not None else {})) as cam:
+            outcome = run_guided(_frames(cam, pipeline), cal, reference, cfg, say)
+    except TensorTouchError as exc:
+        raise TensorTouchError(f"{exc}\nsession aborted: nothing was stored, the active calibration is still "
+                               f"{store.current(args.sensor)}") from None
+    finally:
+        if gauge is not None:
+            gauge.close()
+    if len(outcome.accepted) < cfg.fit.min_pokes:
+        say(f"only {len(outcome.accepted)} pokes accepted ({len(outcome.rejected)} rejected); need "
+            f"{cfg.fit.min_pokes}. Nothing stored; active calibration still {cal.version}.")
+        return 1
+    truth = session_truth_xyz(session, outcome.accepted) if args.geometry and session is not None else None
+    if args.geometry and truth is None:
+        raise TensorTouchError("--geometry needs true poke positions: use a replay:SESSION_DIR source "
+                               "recorded with mocap poses or from the twin")
+    an = analyse(outcome.accepted, cal, cfg, force=args.force, truth_xyz=truth)
+    _print_errors(an, say)
+    say(an.decision.reason)
+    report = {"sensor": args.sensor, "base_version": cal.version, "model": package.name,
+              "reference": reference.name, **an.summary(),
+              "accepted": [p.to_dict() for p in outcome.accepted], "rejected": [p.to_dict() for p in outcome.rejected]}
+    code = 1
+    if an.decision.store and not args.dry_run:
+        geometry = None if an.geometry is None else {"gel_center_px": an.geometry.center, "theta": an.geometry.theta,
+                                                     "phi": an.geometry.phi}
+        prov = {"pokes": len(an.pokes), "source": args.source, "reference": reference.name,
+                "model": {"name": package.name, "sha256": package.sha256(args.precision)},
+                "errors": {"uncorrected": an.fit.loo["before"], "active": an.active, "held_out": an.fit.loo["after"]},
+                "forced": bool(args.force and "anyway" in an.decision.reason),
+                "poke_data": [{"pred_force_n": p.pred_force.tolist(), "ref_force_n": p.ref_force_n,
+                               "uv_px": p.uv_px.tolist()} for p in outcome.accepted]}
+        version = store_recalibration(store, cal, prov, correction=(an.fit.spec, an.fit.onnx_bytes), geometry=geometry)
+        report["stored_version"] = version
+        say(f"stored {args.sensor}/{version} and made it active (was {cal.version}); a running sensor picks it up "
+            f"within a second; undo with: tensortouch calib rollback {args.sensor}")
+        code = 0
+    elif args.dry_run:
+        say("--dry-run: nothing stored")
+        code = 0
+    if args.report:
+        with open(args.report, "w") as fh:
+            json.dump(report, fh, indent=2, default=float)
+    return code
+
+
+if __name__ == "__main__":
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m tools.recalib.cli")
+    register(parser.add_subparsers(dest="command", required=True))
+    a = parser.parse_args()
+    logging.basicConfig(level=logging.INFO)
+    from runtime.errors import TensorTouchError
+
+    try:
+        sys.exit(a.func(a))
+    except TensorTouchError as e:
+        print(f"tensortouch recalibrate: {e}", file=sys.stderr)
+        sys.exit(2)

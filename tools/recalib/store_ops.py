@@ -1,0 +1,81 @@
+"""Storing a recalibration as a new calibration-store version (thin shell over CalibrationStore).
+
+The store writes atomically (temp folder → fsync → rename → CURRENT replaced last), so a crash or a
+full disk leaves the active version intact; this module turns the low-level OSError into a message
+that says so, and verifies the new version (hashes, ONNX loads in onnxruntime) before leaving it
+active — if that check fails, CURRENT goes back to the previous version.
+"""
+from __future__ import annotations
+
+import errno
+import logging
+import time
+
+import numpy as np
+
+from runtime.calibration import TABLES, Calibration, CalibrationStore
+from runtime.correction import ForceCorrection
+from runtime.errors import CalibrationError, TensorTouchError
+from runtime.geometry import DomeProfile, surface_tables
+
+log = logging.getLogger(__name__)
+
+
+def dome_profile(meta: dict) -> DomeProfile:
+    """The gel profile named in calibration.json "gel" (sphere radius and centre height, mm)."""
+    gel = meta.get("gel") or {}
+    if "radius_mm" not in gel:
+        raise CalibrationError("calibration.json: gel.radius_mm missing; cannot rebuild surface tables")
+    return DomeProfile(radius_mm=float(gel["radius_mm"]), center_z_mm=float(gel.get("center_z_mm", 0.0)))
+
+
+def _explain(exc: OSError, store: CalibrationStore, sensor_id: str, active: str) -> CalibrationError:
+    what = "the disk is full" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
+    return CalibrationError(f"could not store the new calibration of {sensor_id} in {store.root / sensor_id}: "
+                            f"{what} ({type(exc).__name__} errno {exc.errno}); nothing was changed, the active "
+                            f"calibration is still {active}")
+
+
+def store_recalibration(store: CalibrationStore, cal: Calibration, provenance: dict,
+                        correction: tuple[dict, bytes] | None = None,
+                        geometry: dict | None = None) -> str:
+    """Write a new version of `cal.sensor_id` with a new correction (spec, onnx bytes) and/or new
+    geometry ({"gel_center_px", "theta", "phi"}); everything else is kept from `cal`. Returns the
+    new version name; the previous version stays on disk for `tensortouch calib rollback`."""
+    sid, active = cal.sensor_id, store.current(cal.sensor_id)
+    prov = {"method": "recalibrate-pokes", "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "base_version": cal.version, **provenance}
+    try:
+        if geometry is None:
+            files = {correction[0]["file"]: correction[1]} if correction else None
+            changes = {"correction": correction[0]} if correction else {}
+            version = store.derive(sid, changes, files=files, provenance=prov)
+        else:
+            meta = {k: v for k, v in cal.meta.items() if k not in ("files", "tables", "version", "created")}
+            meta["gel_center_px"] = [float(v) for v in geometry["gel_center_px"]]
+            meta["provenance"] = prov
+            tables = surface_tables(geometry["theta"], geometry["phi"], dome_profile(cal.meta))
+            files = {}
+            if correction:
+                meta["correction"] = correction[0]
+                files[correction[0]["file"]] = correction[1]
+            elif cal.meta.get("correction"):
+                files[cal.meta["correction"]["file"]] = cal.correction_path
+            version = store.write(sid, {k: tables[k] for k in TABLES}, meta, files=files)
+    except OSError as exc:
+        raise _explain(exc, store, sid, active) from None
+    try:  # verify what was written before leaving it active
+        new = store.load(sid, version)
+        ForceCorrection.from_calibration(new)
+    except TensorTouchError as exc:
+        store.rollback(sid, active)
+        raise CalibrationError(f"new calibration {sid}/{version} failed verification ({exc}); "
+                               f"{active} re-activated") from None
+    log.info("%s: recalibration stored as %s (was %s)", sid, version, active)
+    return version
+
+
+def active_magnitudes(cal: Calibration, pred_force: np.ndarray, uv: np.ndarray, theta_phi: np.ndarray) -> np.ndarray:
+    """|F| the active calibration's correction gives for the raw model forces (identity if none)."""
+    corr = ForceCorrection.from_calibration(cal)
+    return np.linalg.norm(corr(pred_force, uv, theta_phi), axis=1)
