@@ -96,13 +96,39 @@ def hand_cfg(tmp: Path, package: Path, sources: dict, *, can: dict | None = None
     return parse_hand_config(data, "test hand config")
 
 
-class FlakyCamera:
-    """Wraps a real camera; while `unplugged` is set, connect() and read() fail like a pulled USB cable."""
+def make_session(folder: Path, sensor_id: str, frames, fps: float = 30.0) -> Path:
+    """A session directory (session.json + frames.csv + frames.avi) holding `frames`."""
+    import numpy as np
 
-    def __init__(self, camera):
-        self.camera = camera
+    from runtime.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
+
+    folder.mkdir(parents=True)
+    write_frames(frames, folder / "frames.avi", fps)
+    n = len(frames)
+    write_table(folder / "frames.csv", STREAM_COLUMNS["frames"], np.stack([np.arange(n) / fps, np.arange(n)], 1))
+    write_manifest(folder, new_manifest(sensor_id, {"frames": {"file": "frames.csv", "video": "frames.avi"}},
+                                        provenance={"source": "tests/hand_util.py"}))
+    return folder
+
+
+class Plug:
+    """The USB cable of an injected unplug: shared by every FlakyCamera of one finger."""
+
+    def __init__(self):
         self.unplugged = False
+
+
+class FlakyCamera:
+    """Wraps a real camera; while `plug.unplugged`, connect() and read() fail like a pulled USB cable."""
+
+    def __init__(self, camera, plug: Plug):
+        self.camera = camera
+        self.plug = plug
         self.connects = 0
+
+    @property
+    def unplugged(self):
+        return self.plug.unplugged
 
     def connect(self):
         if self.unplugged:
