@@ -1,0 +1,185 @@
+"""`tensortouch train ...` — thin shells over the train-side stages (docs/train.md).
+
+    tensortouch train keypoints SESSION [--out FILE]       stage 1: contact periods + keypoints → JSON
+    tensortouch train synth --out DIR [--n N --size S]     synthetic dataset (tests/benchmarks; not physics)
+    tensortouch train pretrain --data DIR --out RUN        stage 6a: MAE pretraining of the Hiera encoder
+    tensortouch train fit --data DIR --out RUN             stage 6b: supervised training (resumes)
+    tensortouch train export --run RUN --data DIR --name N stage 7: ONNX + int8 + parity → exported_models/N/
+    tensortouch train bench                                network benchmark (params, samples/s, latency)
+
+Heavy libraries (torch, onnx) are imported inside the handlers.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import shlex
+import sys
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def _command_line() -> str:
+    argv = list(sys.argv)
+    if argv and Path(argv[0]).name == "tensortouch":
+        argv[0] = "tensortouch"
+    return shlex.join(argv)
+
+
+def _atomic_json(obj, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1))
+    tmp.replace(path)
+
+
+def cmd_keypoints(args) -> int:
+    from runtime.paths import cache_dir
+    from runtime.session import load_session
+    from tools.train.keypoints import KeypointConfig, extract_keypoints
+
+    ses = load_session(args.session, check_frames=False)
+    cfg = KeypointConfig(image_rate_hz=args.image_rate, max_keypoints=args.max_keypoints)
+    frames = ses.table("frames") if ses.has("frames") else None
+    kps = extract_keypoints(ses.table("poses"), ses.table("wrench"), frames, cfg)
+    doc = {"schema": "tensortouch.keypoints", "schema_version": 1, "session": str(Path(args.session).resolve()),
+           "sensor_id": ses.sensor_id, "units": {"t": "s", "position": "mm", "angle": "rad", "force": "N",
+                                                 "torque": "N*mm"},
+           "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+           "periods": [{"t_start": float(k.period.t_start), "t_end": float(k.period.t_end),
+                        "t_contact": float(k.period.t_contact), "indenters": list(k.period.indenters),
+                        "indenter_ids": list(k.indenter_ids), "t": k.t.tolist(),
+                        "position": k.position.tolist(), "quaternion_wxyz": k.quaternion.tolist(),
+                        "rel_pose": k.rel_pose.tolist(), "force": k.force.tolist(), "torque": k.torque.tolist(),
+                        "frame_index": k.frame_index.tolist()} for k in kps]}
+    out = Path(args.out) if args.out else cache_dir() / "keypoints" / f"{Path(args.session).name}.json"
+    _atomic_json(doc, out)
+    print(f"{len(kps)} contact period(s), {sum(len(k.t) for k in kps)} keypoints → {out}")
+    return 0
+
+
+def cmd_synth(args) -> int:
+    from tools.train.model.data import write_synthetic_dataset
+
+    h = write_synthetic_dataset(args.out, args.n, args.size, args.seed)
+    print(f"synthetic dataset ({args.n} samples, {args.size}²) → {args.out}  data hash {h}")
+    return 0
+
+
+def cmd_pretrain(args) -> int:
+    from tools.train.model.train import PretrainConfig, pretrain
+
+    cfg = PretrainConfig(epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr)
+    res = pretrain(args.data, args.out, cfg)
+    print(f"pretrained encoder → {Path(args.out) / 'encoder.pt'}  ({res.get('samples_per_s') or 0:.1f} samples/s)")
+    return 0
+
+
+def cmd_fit(args) -> int:
+    from tools.train.model.train import FitConfig, fit
+
+    cfg = FitConfig(arch=args.arch, epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr)
+    res = fit(args.data, args.out, cfg, encoder_init=args.encoder)
+    m = res["metrics"]["mean"]
+    print(f"{args.arch}: {res['params']:,} params, val PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.4f}, "
+          f"AUC_rel {m['auc_rel']:.4f}, FPR_rel {m['fpr_rel']:.4f} → {args.out}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from runtime.paths import models_dir
+    from tools.train.export import ExportConfig, export_run
+
+    t0 = time.monotonic()
+    root = Path(args.models_dir) if args.models_dir else models_dir()
+    cfg = ExportConfig(calibration_samples=args.calibration)
+    man = export_run(args.run, args.data, args.name, root, _command_line(), cfg, wall_time_s=args.wall_time)
+    m = man["metrics"]
+    print(f"{root / args.name}: PSNR fp32 {m['fp32']['psnr']:.2f} / int8 {m['int8']['psnr']:.2f} dB, "
+          f"latency fp32 {m['latency_ms']['fp32']:.2f} / int8 {m['latency_ms']['int8']:.2f} ms "
+          f"({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from tools.train.bench import run_bench
+
+    res = run_bench(sizes=args.sizes, archs=args.archs, threads=args.threads, steps=args.steps,
+                    latency_runs=args.runs)
+    text = json.dumps(res, indent=1)
+    if args.out:
+        _atomic_json(res, Path(args.out))
+    print(text)
+    return 0
+
+
+def register(sub) -> None:
+    """Add `train` and its stage subcommands to the `tensortouch` parser."""
+    p = sub.add_parser("train", help="train-side pipeline: keypoints, datasets, training, export",
+                       description="Train-side stages (docs/train.md). Each reads and writes documented files.")
+    ts = p.add_subparsers(dest="train_cmd", metavar="STAGE", required=True)
+
+    k = ts.add_parser("keypoints", help="stage 1: contact detection and keypoints of a session")
+    k.add_argument("session", help="session directory (docs/session.md)")
+    k.add_argument("--out", help="output JSON (default: cache/keypoints/<session>.json)")
+    k.add_argument("--image-rate", type=float, default=30.0, help="camera frame rate f_image (Hz)")
+    k.add_argument("--max-keypoints", type=int, default=12)
+    k.set_defaults(func=cmd_keypoints)
+
+    s = ts.add_parser("synth", help="write a synthetic (not physical) dataset for tests and benchmarks")
+    s.add_argument("--out", required=True)
+    s.add_argument("--n", type=int, default=200)
+    s.add_argument("--size", type=int, default=96)
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=cmd_synth)
+
+    def common(q, epochs, batch):
+        q.add_argument("--data", required=True, help="dataset directory (index.json, bounds.json, samples/)")
+        q.add_argument("--out", required=True, help="run directory (resumes if it holds a checkpoint)")
+        q.add_argument("--epochs", type=int, default=epochs)
+        q.add_argument("--batch", type=int, default=batch)
+        q.add_argument("--lr", type=float, default=1e-3)
+        q.add_argument("--threads", type=int, default=2)
+
+    pr = ts.add_parser("pretrain", help="stage 6a: MAE pretraining (75 %% of mask units hidden)")
+    common(pr, 10, 16)
+    pr.set_defaults(func=cmd_pretrain)
+
+    f = ts.add_parser("fit", help="stage 6b: supervised training, L1, AdamW, warmup + cosine")
+    common(f, 20, 16)
+    f.add_argument("--arch", default="hiera_qup", choices=("hiera_qup", "unet", "vit"))
+    f.add_argument("--encoder", help="encoder.pt from `train pretrain` (hiera_qup only)")
+    f.set_defaults(func=cmd_fit)
+
+    e = ts.add_parser("export", help="stage 7: ONNX + static int8 + parity → exported_models/<name>/")
+    e.add_argument("--run", required=True, help="fit run directory")
+    e.add_argument("--data", required=True, help="dataset (calibration inputs, evaluation, bounds, hash)")
+    e.add_argument("--name", required=True, help="package name")
+    e.add_argument("--models-dir", help="root of model packages (default: exported_models/ or $TENSORTOUCH_MODELS)")
+    e.add_argument("--calibration", type=int, default=32, help="training inputs used for int8 calibration")
+    e.add_argument("--wall-time", type=float, default=0.0, help="wall time of the whole build to record (s)")
+    e.set_defaults(func=cmd_export)
+
+    b = ts.add_parser("bench", help="network benchmark: params, training samples/s, ORT fp32 vs int8 latency")
+    b.add_argument("--sizes", type=int, nargs="+", default=[96, 128])
+    b.add_argument("--archs", nargs="+", default=["hiera_qup", "unet", "vit"])
+    b.add_argument("--threads", type=int, default=2, help="torch threads for the training measurement")
+    b.add_argument("--steps", type=int, default=6, help="timed training steps per model")
+    b.add_argument("--runs", type=int, default=60, help="latency runs per model")
+    b.add_argument("--out", help="also write the JSON here")
+    b.set_defaults(func=cmd_bench)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tools.train.cli")
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,271 @@
+"""Training loops: MAE pretraining of the Hiera encoder and supervised fitting (seed §III.J, §IV-C).
+
+L1 loss, AdamW (lr 1e-3), linear warmup then cosine decay; progress lines with samples/s and ETA;
+checkpoint (atomic) every `checkpoint_every_s` and at each epoch end; an interrupted run resumes from
+`checkpoint.pt` (same epoch order: each epoch's permutation is seeded by (seed, epoch)); the best
+validation weights are kept in `best.pt`. A run directory holds:
+
+  config.json  checkpoint.pt  best.pt  history.jsonl  metrics.json        (fit)
+  config.json  checkpoint.pt  encoder.pt  history.jsonl                   (pretrain)
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tools.train.model import build_model
+from tools.train.model.data import DatasetError, load_split, read_index
+from tools.train.model.metrics import evaluate
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FitConfig:
+    """Seed §IV-C training setup as defaults (epochs/batch scaled to a 2-core CPU)."""
+
+    arch: str = "hiera_qup"
+    epochs: int = 20
+    batch_size: int = 16
+    lr: float = 1e-3
+    weight_decay: float = 0.05
+    warmup_steps: int = 500              # seed: 500 warmup steps ...
+    warmup_max_fraction: float = 0.1     # ... but at most this fraction of a short run
+    threads: int = 2
+    seed: int = 0
+    checkpoint_every_s: float = 120.0
+    log_every: int = 10
+    eval_batch: int = 16
+
+
+@dataclass
+class PretrainConfig:
+    epochs: int = 10
+    batch_size: int = 16
+    lr: float = 1e-3
+    weight_decay: float = 0.05
+    warmup_steps: int = 500
+    warmup_max_fraction: float = 0.1
+    mask_ratio: float = 0.75             # seed: 75 % of the 6-channel input patches are masked
+    decoder_dim: int = 64
+    decoder_depth: int = 2
+    threads: int = 2
+    seed: int = 0
+    checkpoint_every_s: float = 120.0
+    log_every: int = 10
+
+
+def lr_at(step: int, total: int, base: float, warmup_steps: int, warmup_max_fraction: float) -> float:
+    """Linear warmup to `base`, then cosine decay to 0 at `total`."""
+    warm = max(1, min(warmup_steps, int(warmup_max_fraction * total)))
+    if step < warm:
+        return base * (step + 1) / warm
+    progress = min(1.0, (step - warm) / max(1, total - warm))
+    return base * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def _atomic_save(obj, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    os.close(fd)
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _atomic_json(obj, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(obj, fh, indent=1)
+    os.replace(tmp, path)
+
+
+def _prepare_run(out: Path, config: dict) -> dict | None:
+    """Create the run dir; refuse to resume a run made with a different config; return the checkpoint."""
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_path, ckpt_path = out / "config.json", out / "checkpoint.pt"
+    if cfg_path.exists():
+        old = json.loads(cfg_path.read_text())
+        if ckpt_path.exists() and old != config:
+            diff = sorted(k for k in set(old) | set(config) if old.get(k) != config.get(k))
+            raise DatasetError(f"{cfg_path}: run exists with a different configuration ({diff}); "
+                               "use a new --out or delete the run")
+    _atomic_json(config, cfg_path)
+    if ckpt_path.exists():
+        return torch.load(ckpt_path, weights_only=False, map_location="cpu")
+    return None
+
+
+class _Progress:
+    def __init__(self, total_steps: int, batch: int, every: int, what: str):
+        self.total, self.batch, self.every, self.what = total_steps, batch, every, what
+        self.t0, self.n0 = time.monotonic(), 0
+
+    def start(self, step: int):
+        self.t0, self.n0 = time.monotonic(), step
+
+    def rate(self, step: int) -> float:
+        return (step - self.n0) * self.batch / max(1e-9, time.monotonic() - self.t0)
+
+    def tick(self, step: int, epoch: int, loss: float, lr: float):
+        if step % self.every == 0 or step == self.total:
+            r = self.rate(step)
+            eta = (self.total - step) * self.batch / max(r, 1e-9)
+            log.info("%s step %d/%d epoch %d loss %.5f lr %.2e  %.1f samples/s  eta %.0f s",
+                     self.what, step, self.total, epoch, loss, lr, r, eta)
+
+
+def _batches(n: int, batch: int, seed: int, epoch: int) -> list[np.ndarray]:
+    perm = np.random.default_rng([seed, epoch]).permutation(n)
+    return [perm[i:i + batch] for i in range(0, n - batch + 1 if n >= batch else 1, batch)]
+
+
+def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, on_epoch=None,
+          state_extra=None) -> dict:
+    """Shared epoch/step loop with checkpoint + resume. loss_fn(model, xb, yb) -> scalar tensor."""
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    n = x_all.shape[0]
+    per_epoch = len(_batches(n, cfg.batch_size, cfg.seed, 0))
+    total = per_epoch * cfg.epochs
+    config = {"what": what, **asdict(cfg), "n_train": n}
+    ckpt = _prepare_run(out, config)
+    step, epoch0, batch0, extra = 0, 0, 0, dict(state_extra or {})
+    if ckpt is not None:
+        model.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        step, epoch0, batch0, extra = ckpt["step"], ckpt["epoch"], ckpt["batch"], ckpt.get("extra", extra)
+        torch.set_rng_state(ckpt["torch_rng"])
+        log.info("%s: resuming %s at step %d (epoch %d, batch %d)", what, out, step, epoch0, batch0)
+    prog = _Progress(total, cfg.batch_size, cfg.log_every, what)
+    prog.start(step)
+    last_ckpt = time.monotonic()
+    hist = open(out / "history.jsonl", "a")
+
+    def save(epoch: int, batch: int):
+        _atomic_save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                      "epoch": epoch, "batch": batch, "extra": extra, "torch_rng": torch.get_rng_state()},
+                     out / "checkpoint.pt")
+
+    for epoch in range(epoch0, cfg.epochs):
+        model.train()
+        batches = _batches(n, cfg.batch_size, cfg.seed, epoch)
+        losses = []
+        for b, idx in enumerate(batches):
+            if epoch == epoch0 and b < batch0:
+                continue
+            lr = lr_at(step, total, cfg.lr, cfg.warmup_steps, cfg.warmup_max_fraction)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            xb = torch.from_numpy(x_all[idx].astype(np.float32) / 255.0)
+            yb = None if y_all is None else torch.from_numpy(np.asarray(y_all[idx], dtype=np.float32))
+            loss = loss_fn(model, xb, yb)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            losses.append(loss.item())
+            prog.tick(step, epoch, losses[-1], lr)
+            if time.monotonic() - last_ckpt > cfg.checkpoint_every_s:
+                save(epoch, b + 1)
+                last_ckpt = time.monotonic()
+        record = {"epoch": epoch, "step": step, "train_loss": float(np.mean(losses)) if losses else None,
+                  "samples_per_s": prog.rate(step)}
+        if on_epoch is not None:
+            record.update(on_epoch(epoch, extra))
+        hist.write(json.dumps(record) + "\n")
+        hist.flush()
+        save(epoch + 1, 0)
+        last_ckpt = time.monotonic()
+    hist.close()
+    extra["samples_per_s"] = prog.rate(step) if step > prog.n0 else extra.get("samples_per_s")
+    extra["steps"] = step
+    return extra
+
+
+def predict(model, x_uint8: np.ndarray, batch: int = 16) -> np.ndarray:
+    """Model outputs (N, 15, H, W) float32 for uint8 inputs (N, 6, H, W)."""
+    model.eval()
+    outs = []
+    with torch.no_grad():
+        for i in range(0, x_uint8.shape[0], batch):
+            outs.append(model(torch.from_numpy(x_uint8[i:i + batch].astype(np.float32) / 255.0)).numpy())
+    return np.concatenate(outs)
+
+
+def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder_init: str | Path | None = None
+        ) -> dict:
+    """Supervised training on a dataset directory; returns {'metrics', 'samples_per_s', ...}."""
+    from tools.train.fields import read_bounds
+
+    data, out = Path(data), Path(out)
+    index = read_index(data)
+    size = int(index["size"][0])
+    x_tr, y_tr = load_split(data, "train")
+    try:
+        x_va, y_va = load_split(data, "val")
+    except DatasetError:
+        x_va, y_va = x_tr[: cfg.eval_batch], y_tr[: cfg.eval_batch]
+    bounds = read_bounds(data / "bounds.json")
+    torch.manual_seed(cfg.seed)
+    model = build_model(cfg.arch, size)
+    if encoder_init is not None and not (out / "checkpoint.pt").exists():
+        state = torch.load(encoder_init, weights_only=True, map_location="cpu")
+        model.encoder.load_state_dict(state, strict=True)
+        log.info("encoder initialised from %s", encoder_init)
+
+    def loss_fn(m, xb, yb):
+        return torch.nn.functional.l1_loss(m(xb), yb)
+
+    def on_epoch(epoch, extra):
+        pred = predict(model, x_va, cfg.eval_batch)
+        val = float(np.mean(np.abs(pred - y_va)))
+        if val < extra.get("best_val", float("inf")):
+            extra["best_val"] = val
+            extra["best_epoch"] = epoch
+            _atomic_save(model.state_dict(), out / "best.pt")
+        return {"val_l1": val}
+
+    extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch)
+    model.load_state_dict(torch.load(out / "best.pt", weights_only=True))
+    metrics = evaluate(predict(model, x_va, cfg.eval_batch), y_va, bounds)
+    result = {"arch": cfg.arch, "image_size": size, "params": sum(p.numel() for p in model.parameters()),
+              "metrics": metrics, "val_samples": int(x_va.shape[0]), **extra}
+    _atomic_json(result, out / "metrics.json")
+    return result
+
+
+def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainConfig()) -> dict:
+    """MAE pretraining of the Hiera encoder on the 6-channel inputs; writes encoder.pt."""
+    from tools.train.model.hiera import Hiera, HieraConfig, HieraMAE
+
+    data, out = Path(data), Path(out)
+    size = int(read_index(data)["size"][0])
+    x_tr, _ = load_split(data, None)
+    torch.manual_seed(cfg.seed)
+    mae = HieraMAE(Hiera(HieraConfig(image_size=size)), cfg.decoder_dim, cfg.decoder_depth,
+                   mask_ratio=cfg.mask_ratio)
+
+    def loss_fn(m, xb, _):
+        return m(xb)[0]
+
+    extra = _loop(out, mae, loss_fn, x_tr, None, cfg, "pretrain")
+    _atomic_save(mae.encoder.state_dict(), out / "encoder.pt")
+    return {"image_size": size, **extra}
+
+
+def load_trained(run: str | Path):
+    """(model in eval mode, metrics.json dict) of a finished fit run."""
+    run = Path(run)
+    info = json.loads((run / "metrics.json").read_text())
+    model = build_model(info["arch"], info["image_size"])
+    model.load_state_dict(torch.load(run / "best.pt", weights_only=True, map_location="cpu"))
+    return model.eval(), info
