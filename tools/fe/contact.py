@@ -5,8 +5,8 @@ For a surface node at x and an indenter with pose (R, p) and signed distance d(x
   tangential      trial  fT = -eps_t (I - n n)(x - a), eps_t = tangential_ratio * eps,  a = R a_loc + p the stick anchor
                   stick  |fT| <= mu |fN|,  else slip fT = -mu |fN| s/|s|   (return mapping from the
                   last converged state, elastic slip <= mu |d| / tangential_ratio)
-The node force tangents dF/dx (3x3 per node) are exact for the normal part (incl. curvature
-n (x) n + d H) and for slip; stick drops dn/dx terms. Anchors live in the indenter's local frame
+The node force tangents dF/dx (3x3 per node) are exact (normal part incl. curvature n (x) n + d H;
+friction incl. the turning of the normal, dn/dx = H); the tests check them by finite differences. Anchors live in the indenter's local frame
 so a rotating/translating indenter drags sticking nodes along.
 """
 from __future__ import annotations
@@ -71,6 +71,7 @@ def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: fl
         fN = (-eps * d)[:, None] * n
         nn = np.einsum("ai,aj->aij", n, n)
         Kn = np.zeros((len(idx), 3, 3))
+        H = np.zeros((len(idx), 3, 3))
         if tangent:
             H = R @ shape.hessian(xi[idx]) @ R.T
             Kn = -eps[:, None, None] * (nn + d[:, None, None] * H)
@@ -92,12 +93,16 @@ def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: fl
         slipping = mag > lim
         shat = s / np.maximum(np.linalg.norm(s, axis=1), 1e-300)[:, None]
         fT[slipping] = -lim[slipping, None] * shat[slipping]
-        Kf = -epst[:, None, None] * P
+        # ds/dx = P - (n.r) H - n (x) (H r), r = x - a (includes the turning of the normal)
+        r = x[idx] - a_w
+        Hr = np.einsum("aij,aj->ai", H, r)
+        dsdx = P - np.einsum("a,aij->aij", np.einsum("ai,ai->a", n, r), H) - np.einsum("ai,aj->aij", n, Hr)
+        Kf = -epst[:, None, None] * dsdx
         if tangent and np.any(slipping):
             sl = slipping
             snorm = np.maximum(np.linalg.norm(s[sl], axis=1), 1e-300)
             ss = np.einsum("ai,aj->aij", shat[sl], shat[sl])
-            Kf[sl] = (-(lim[sl] / snorm)[:, None, None] * np.einsum("aij,ajk->aik", eye - ss, P[sl])
+            Kf[sl] = (-(lim[sl] / snorm)[:, None, None] * np.einsum("aij,ajk->aik", eye - ss, dsdx[sl])
                       + mu * eps[sl, None, None] * np.einsum("ai,aj->aij", shat[sl], n[sl]))
         # anchors to commit: stick keeps the anchor (or the first touch point); slip drags it
         a_new = a_w.copy()

@@ -99,7 +99,14 @@ def mesh_gel(gel: GelGeometry, settings: MeshSettings, stl_path: str = "") -> Ge
         fd.setNumber(2, "SizeMax", settings.size_inside)
         fd.setNumber(2, "DistMin", settings.refine_depth)
         fd.setNumber(2, "DistMax", settings.refine_depth + 2.0 * settings.size_inside)
-        fd.setAsBackgroundMesh(2)
+        if settings.refine_radius > 0:  # size grows linearly (slope 0.3) outside a ball at the top
+            top = max(gmsh.model.getBoundingBox(-1, -1)[5], 0.0)
+            fd.add("MathEval", 3)
+            fd.setString(3, "F", f"Min({settings.size_inside}, {settings.size_top} + 0.3*Max(0, "
+                                 f"Sqrt(x*x+y*y+(z-{top})*(z-{top})) - {settings.refine_radius}))")
+            fd.setAsBackgroundMesh(3)
+        else:
+            fd.setAsBackgroundMesh(2)
         for opt in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
             gmsh.option.setNumber(f"Mesh.{opt}", 0)
         gmsh.option.setNumber("Mesh.Algorithm3D", 1)
@@ -151,10 +158,24 @@ def finish_mesh(nodes: np.ndarray, tets: np.ndarray) -> GelMesh:
     return GelMesh(nodes, tets, tris, surface_nodes, fixed, node_area)
 
 
-def box_mesh(size=(10.0, 10.0, 5.0), n=(5, 5, 3)) -> GelMesh:
-    """Structured tet mesh of a box [-sx/2,sx/2]x[-sy/2,sy/2]x[0,sz] (tests; no gmsh)."""
-    xs = [np.linspace(-size[0] / 2, size[0] / 2, n[0] + 1), np.linspace(-size[1] / 2, size[1] / 2, n[1] + 1),
-          np.linspace(0, size[2], n[2] + 1)]
+def graded(half: float, h_min: float, n: int, symmetric: bool = True) -> np.ndarray:
+    """Coordinates from 0 to `half` with geometric growth from spacing h_min (mirrored if symmetric)."""
+    from scipy.optimize import brentq
+
+    q = 1.0 if abs(half - n * h_min) < 1e-12 else brentq(
+        lambda q: h_min * (q ** n - 1) / (q - 1) - half, 1.0 + 1e-9, 10.0)
+    t = np.concatenate([[0.0], np.cumsum(h_min * q ** np.arange(n))])
+    t *= half / t[-1]
+    return np.concatenate([-t[:0:-1], t]) if symmetric else t
+
+
+def box_mesh(size=(10.0, 10.0, 5.0), n=(5, 5, 3), coords=None) -> GelMesh:
+    """Structured tet mesh of a box [-sx/2,sx/2]x[-sy/2,sy/2]x[0,sz] (tests; no gmsh), or of the
+    tensor grid `coords` = (xs, ys, zs) when given (e.g. from `graded`)."""
+    xs = list(coords) if coords is not None else [
+        np.linspace(-size[0] / 2, size[0] / 2, n[0] + 1), np.linspace(-size[1] / 2, size[1] / 2, n[1] + 1),
+        np.linspace(0, size[2], n[2] + 1)]
+    n = [len(c) - 1 for c in xs]
     X, Y, Z = np.meshgrid(*xs, indexing="ij")
     nodes = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
     idx = np.arange(nodes.shape[0]).reshape(X.shape)

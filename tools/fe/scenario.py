@@ -99,12 +99,15 @@ class Material:
 @dataclass
 class MeshSettings:
     """gmsh sizes (mm): `size_top` within `refine_depth` of the top surface, growing to
-    `size_inside` in the core; `order` 1 = linear tets (fast, default), 2 = quadratic tets."""
+    `size_inside` in the core; `order` 1 = linear tets (fast, default), 2 = quadratic tets.
+    refine_radius > 0 refines only a ball of that radius around the top centre (verification
+    meshes of large pads); 0 = the whole free surface."""
 
     size_top: float = 0.7
     size_inside: float = 2.0
     refine_depth: float = 1.5
     order: int = 1
+    refine_radius: float = 0.0
 
 
 @dataclass
@@ -240,6 +243,7 @@ def _validate(s: Scenario) -> None:
     _num("mesh.size_top", s.mesh.size_top)
     _num("mesh.size_inside", s.mesh.size_inside)
     _num("mesh.refine_depth", s.mesh.refine_depth, allow_zero=True)
+    _num("mesh.refine_radius", s.mesh.refine_radius, allow_zero=True)
     if s.mesh.size_top > s.mesh.size_inside:
         raise ScenarioError(f"mesh.size_top: expected <= mesh.size_inside, got {s.mesh.size_top} > "
                             f"{s.mesh.size_inside}")

@@ -115,12 +115,15 @@ def newton(model: GelModel, U0, poses, state, sv):
         rf = r[model.free]
         fscale = max(np.abs(ce.fn).sum(), 1e-12)
         K = model.tangent(ce)
-        try:
+        try:  # fast symmetric-mode ordering first, partial pivoting as the fallback
             lu = sla.splu(K, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                           options=dict(SymmetricMode=True))
-            du = -lu.solve(rf)
-        except RuntimeError as exc:  # singular factor
-            raise FloatingPointError(f"singular tangent ({exc})") from exc
+        except RuntimeError:
+            try:
+                lu = sla.splu(K, permc_spec="COLAMD")
+            except RuntimeError as exc:  # singular factor
+                raise FloatingPointError(f"singular tangent ({exc})") from exc
+        du = -lu.solve(rf)
         if not np.all(np.isfinite(du)):
             raise FloatingPointError("non-finite Newton update")
         norm0 = np.linalg.norm(rf)
@@ -181,10 +184,12 @@ def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FER
         n_inc = _n_increments(model, s_done, float(j))
         ds = (j - s_done) / n_inc
         cut = 0
+        dU_last, ds_last = None, 0.0  # predictor: extrapolate the last increment of this step
         while s_done < j - 1e-12:
             s_try = min(s_done + ds, float(j))
+            U0 = U if dU_last is None else U + dU_last * ((s_try - s_done) / ds_last)
             try:
-                U_new, ce, its, _ = newton(model, U, model.poses(s_try), state, sv)
+                U_new, ce, its, _ = newton(model, U0, model.poses(s_try), state, sv)
             except FloatingPointError as exc:
                 cut += 1
                 stats["cutbacks"] += 1
@@ -194,8 +199,10 @@ def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FER
                     partial = _finish(out, model, scenario, stats, t_start, F)
                     raise FEConvergenceError(msg, partial=partial) from exc
                 ds *= 0.5
+                dU_last = None
                 log.info("step %d: cutback %d (%s), increment %.4f", j, cut, exc, ds)
                 continue
+            dU_last, ds_last = U_new - U, s_try - s_done
             U, s_done = U_new, s_try
             state = fc.ContactState(np.where(ce.gap[:, :, None] >= 0, np.nan, ce.new_anchors),
                                     gm.nodes[model.surf] + U[model.surf])
