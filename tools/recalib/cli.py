@@ -104,14 +104,16 @@ def cmd_recalibrate(args, say=None) -> int:
     package = find_package(args.model)
     if not args.source:
         raise TensorTouchError("--source is required (the live camera, or replay:SESSION_DIR)")
-    session = load_session(args.source.split(":", 1)[1]) if args.source.startswith("replay:") else None
+    path, _, query = args.source.partition("?")
+    session = load_session(path.split(":", 1)[1]) if path.startswith("replay:") else None
     model = FieldModel(package, args.precision, threads=args.threads)
     pipeline = SensorPipeline(args.sensor, model, cal, correction=ForceCorrection(None, None))  # raw model force
     cfg = SessionConfig(pokes=args.pokes)
     reference, gauge = _reference(args, session, say)
     say(f"recalibrating {args.sensor} (active {cal.version}) with model {package.name}; reference: {reference.name}")
     try:
-        with camera_from_uri(args.source, **({"realtime": False} if session is not None else {})) as cam:
+        fast = {"realtime": False} if session is not None and "realtime=" not in query else {}
+        with camera_from_uri(args.source, **fast) as cam:
             outcome = run_guided(_frames(cam, pipeline), cal, reference, cfg, say)
     except TensorTouchError as exc:
         raise TensorTouchError(f"{exc}\nsession aborted: nothing was stored, the active calibration is still "
