@@ -68,6 +68,8 @@ def _open_source(args):
     session_sensor = None
     if isinstance(config, ReplayCameraConfig):
         config = config_from_uri(source, realtime=not args.fast, loop=args.loop or config.loop)
+        if not Path(config.path).exists():
+            raise CaptureError(f"{config.path}: no such recording (expected a session folder or a video file)")
         if Path(config.path).is_dir():
             session_sensor = load_session(config.path).sensor_id
     return make_camera(config), session_sensor
@@ -88,7 +90,8 @@ def cmd_run(args) -> int:
     cam, session_sensor = _open_source(args)
     sensor = args.sensor or session_sensor
     if not sensor:
-        raise TensorTouchError("--sensor is required for live cameras (the calibration store folder name)")
+        raise TensorTouchError("--sensor is required unless --source is a session folder "
+                               "(it names the calibration store folder of this sensor)")
     store = CalibrationStore()
     cal = store.load(sensor)
     model = FieldModel(package, args.precision, threads=args.threads)
