@@ -12,11 +12,11 @@ from tools.fe.scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSe
                                SolverSettings, load_scenario, save_scenario, standard_dome)
 
 
-def solve(scenario, progress=None):
-    """Solve an FE scenario; see tools.fe.solver.solve."""
+def solve(scenario, progress=None, mesh=None):
+    """Solve an FE scenario; see tools.fe.solver.solve (mesh: optional prebuilt GelMesh)."""
     from tools.fe.solver import solve as _solve
 
-    return _solve(scenario, progress=progress)
+    return _solve(scenario, progress=progress, mesh=mesh)
 
 
 __all__ = ["FEConvergenceError", "FEError", "FEResult", "FEResultError", "GelGeometry", "Indenter",

@@ -1,0 +1,154 @@
+"""tools.fe solves on small meshes: equilibrium, friction (frictionless / stick-then-slip), two
+indenters, clear errors, and the Hertz check (fast level; the 3-level convergence study is slow)."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("felupe")
+
+from tools.fe import FEConvergenceError, ScenarioError, load_result, save_result, solve  # noqa: E402
+from tools.fe.mesh import mesh_gel  # noqa: E402
+from tools.fe.scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings,  # noqa: E402
+                               Scenario)
+
+PAD = GelGeometry(kind="flat_pad", size_x=16.0, size_y=16.0, thickness=6.0)
+
+
+@pytest.fixture(scope="module")
+def pad_mesh():
+    return mesh_gel(PAD, MeshSettings(size_top=1.0, size_inside=1.5, refine_depth=1.0))
+
+
+def _pad(indenters, mu, material=None):
+    return Scenario(gel=PAD, material=material or Material(), mesh=MeshSettings(size_top=1.0, size_inside=1.2),
+                    indenters=indenters, friction=mu)
+
+
+def _sphere(name="s", x=0.0, keypoints=(), radius=4.0):
+    return Indenter(name=name, shape="sphere", params={"radius": radius}, position=[x, 0.0, 6.0],
+                    keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in keypoints])
+
+
+def _eq_error(r, f):
+    total = r.RF[f].sum(axis=0)
+    return np.linalg.norm(total + r.base_reaction[f]) / np.linalg.norm(total)
+
+
+def test_press_and_slide_equilibrium_and_stick_then_slip(pad_mesh, tmp_path):
+    mu = 0.4
+    kps = [(0, 0, -0.8), (0.05, 0, -0.8), (0.15, 0, -0.8), (1.0, 0, -0.8), (2.0, 0, -0.8)]
+    r = solve(_pad([_sphere(keypoints=kps)], mu), mesh=pad_mesh)
+    assert r.converged.all()
+    for f in range(r.n_frames):  # equilibrium: contact total = -(base reaction) within 1 %
+        assert _eq_error(r, f) < 0.01
+        contact_total = (r.CNORMF[f] + r.CSHEAR[f]).sum(axis=0)
+        assert np.allclose(contact_total, r.RF[f, 0], atol=1e-9)
+    fz = -r.RF[:, 0, 2]
+    ratio = r.RF[:, 0, 0] / fz  # tangential / normal along the slide
+    assert fz[0] > 0.1 and abs(ratio[0]) < 0.02
+    assert 0 < ratio[1] < 0.8 * mu  # stick: small slide, tangential force below the Coulomb limit
+    assert ratio[1] < ratio[2] < ratio[3]
+    assert ratio[4] == pytest.approx(mu, rel=0.1)  # gross slip: tangential = mu * normal
+    slip_nodes = np.linalg.norm(r.CSHEAR[4], axis=1) >= 0.99 * mu * np.linalg.norm(r.CNORMF[4], axis=1)
+    touching = r.contact_owner[4] >= 0
+    assert slip_nodes[touching].mean() > 0.9
+    stick_frac = (np.linalg.norm(r.CSHEAR[1], axis=1) < 0.99 * mu * np.linalg.norm(r.CNORMF[1], axis=1))
+    assert stick_frac[r.contact_owner[1] >= 0].mean() > 0.3
+    assert r.CAREA[0, 0] > 0 and np.all(r.S[0, :, 2][touching] < 0.05)  # compressive under contact
+    back = load_result(save_result(r, tmp_path / "r.npz"))
+    assert np.array_equal(back.U, r.U) and json.loads(back.solver_info)["increments"] >= 5
+
+
+def test_frictionless_slide_has_no_tangential_force(pad_mesh):
+    kps = [(0, 0, -0.8), (1.0, 0, -0.8)]
+    r = solve(_pad([_sphere(keypoints=kps)], 0.0), mesh=pad_mesh)
+    assert np.abs(r.CSHEAR).max() == 0.0
+    fz = -r.RF[1, 0, 2]
+    # the only tangential resultant comes from the tilted contact normals of the deformed pad
+    assert abs(r.RF[1, 0, 0]) < 0.05 * fz and abs(r.RF[1, 0, 1]) < 0.02 * fz
+    assert _eq_error(r, 1) < 0.01
+
+
+def test_two_indenters_two_patches(pad_mesh):
+    a = _sphere("left", -4.0, [(0, 0, -0.6)], radius=2.0)
+    b = _sphere("right", 4.0, [(0, 0, -0.9)], radius=2.0)
+    r = solve(_pad([a, b], 2.2), mesh=pad_mesh)
+    owner = r.contact_owner[0]
+    xl, xr = r.nodes[owner == 0], r.nodes[owner == 1]
+    assert len(xl) > 0 and len(xr) > 0
+    assert xl[:, 0].max() < -1.0 and xr[:, 0].min() > 1.0  # separated patches, each near its indenter
+    fz = -r.RF[0, :, 2]
+    assert fz[1] > fz[0] > 0  # deeper press -> larger force, attributed per indenter
+    assert np.allclose((r.CNORMF[0] + r.CSHEAR[0])[owner == 1].sum(axis=0), r.RF[0, 1], rtol=1e-9)
+    assert _eq_error(r, 0) < 0.01
+    assert list(r.indenter_names) == ["left", "right"]
+
+
+def test_indenter_starting_inside_gel_is_rejected(pad_mesh):
+    ind = _sphere(keypoints=[(0, 0, -0.5)])
+    ind.position = [0.0, 0.0, 5.5]
+    with pytest.raises(ScenarioError, match=r"indenters\[0\] \(s\)\.position.*penetrates"):
+        solve(_pad([ind], 2.2), mesh=pad_mesh)
+
+
+def test_non_converging_step_raises_with_partial(pad_mesh):
+    sc = _pad([_sphere(keypoints=[(0, 0, -0.3), (0, 0, -3.0)])], 2.2)
+    sc.solver.max_iterations = 2
+    sc.solver.max_cutbacks = 1
+    sc.solver.max_increment_mm = 3.0
+    with pytest.raises(FEConvergenceError, match="did not converge") as info:
+        solve(sc, mesh=pad_mesh)
+    partial = info.value.partial
+    assert partial is not None and not partial.converged.all()
+
+
+def _hertz_bonded(E, nu, R, delta, thickness):
+    """Hertz force with the bonded finite-thickness correction of Dimitriadis et al. (2002)."""
+    f_h = 4 / 3 * E / (1 - nu ** 2) * math.sqrt(R) * delta ** 1.5
+    a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu ** 2) / (1 - nu)
+    b0 = (0.6387 - 1.0277 * nu + 1.5164 * nu ** 2) / (1 - nu)
+    chi = math.sqrt(R * delta) / thickness
+    corr = (1 - 2 * a0 * chi / math.pi + 4 * a0 ** 2 * chi ** 2 / math.pi ** 2
+            - 8 / math.pi ** 3 * (a0 ** 3 + 4 * math.pi ** 2 * b0 / 15) * chi ** 3)
+    return f_h, f_h * corr
+
+
+def hertz_case(size_top, bulk_ratio=2.1667, half=20.0, thickness=20.0, R=5.0, delta=0.3):
+    mu0 = 0.06
+    mat = Material(model="neo_hookean", C10=mu0 / 2, C20=0.0, C30=0.0, D1=2 / (bulk_ratio * mu0))
+    sc = Scenario(gel=GelGeometry(kind="flat_pad", size_x=2 * half, size_y=2 * half, thickness=thickness),
+                  material=mat, friction=0.0,
+                  mesh=MeshSettings(size_top=size_top, size_inside=thickness / 4, refine_radius=2.5),
+                  indenters=[Indenter(name="ball", shape="sphere", params={"radius": R},
+                                      position=[0.0, 0.0, thickness], keypoints=[Keypoint([0, 0, -delta])])])
+    sc.solver.max_increment_mm = delta / 2
+    sc.solver.max_bulk_ratio = 0.0
+    r = solve(sc)
+    K = mat.bulk_modulus
+    nu = (3 * K - 2 * mu0) / (2 * (3 * K + mu0))
+    f_h, f_hb = _hertz_bonded(2 * mu0 * (1 + nu), nu, R, delta, thickness)
+    return -r.RF[0, 0, 2], f_h, f_hb, r
+
+
+def test_hertz_small_depth_thick_pad():
+    f, f_h, f_hb, r = hertz_case(0.35)
+    assert f == pytest.approx(f_hb, rel=0.10)  # vs Hertz corrected for the bonded 20 mm pad
+    assert f == pytest.approx(f_h, rel=0.15)  # and the half-space value
+    assert r.CAREA[0, 0] == pytest.approx(math.pi * 5.0 * 0.3, rel=0.25)
+
+
+@pytest.mark.slow
+def test_hertz_mesh_convergence_three_levels(capsys):
+    rows = []
+    for h in (0.5, 0.35, 0.25):
+        f, f_h, f_hb, r = hertz_case(h)
+        rows.append((h, r.n_nodes, f, f / f_hb))
+    with capsys.disabled():
+        for h, n, f, q in rows:
+            print(f"\nHertz level size_top={h} nodes={n} F={f:.5f} N F/F_hertz_bonded={q:.4f}")
+    errs = [abs(q - 1) for *_, q in rows]
+    assert errs[-1] < 0.10 and errs[-1] <= errs[0] + 0.01
+    forces = [f for _, _, f, _ in rows]
+    assert abs(forces[2] - forces[1]) < abs(forces[1] - forces[0]) + 0.005 * forces[2]
