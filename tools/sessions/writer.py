@@ -122,7 +122,7 @@ class SessionWriter:
     def frame(self, index: int, image: np.ndarray) -> None:
         write_png(self.frame_path(index), image)
 
-    def finish_frames(self, t: np.ndarray, fps: float, **info) -> None:
+    def finish_frames(self, t: np.ndarray, fps: float, quality: int = 90, **info) -> None:
         t = np.asarray(t, dtype=np.float64)
         n = len(t)
         missing = [i for i in range(n) if not self.has_frame(i)]
@@ -138,8 +138,10 @@ class SessionWriter:
         if fourcc is None:
             entry.update(images=name, codec="png")
         else:
-            size = encode_video(self.staging, self.out / name, fourcc, fps, n)
+            size = encode_video(self.staging, self.out / name, fourcc, fps, n, quality)
             entry.update(video=name, codec=fourcc, bytes=int(size))
+            if not lossless:
+                entry["quality"] = int(quality)
         self.streams["frames"] = entry
 
     # -- manifest -------------------------------------------------------------------------

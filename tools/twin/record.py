@@ -40,6 +40,7 @@ class RecordConfig:
     effects: list = field(default_factory=list)      # [(name, {param: value})]
     physics: str = "fe"
     frame_format: str = "ffv1"
+    mjpg_quality: int = 90                             # only for frame_format "mjpg"
     model_size: int = 128
     fe_mesh_top: float = 1.0                           # mm; twin default coarser than the FE's 0.7
     fe_mesh_inside: float = 2.5
@@ -200,7 +201,7 @@ class Recorder:
         rendered = self._frames(writer, t_cam, t_wr, shear, t_tmp, temp, solves)
         self.timing["render_s"] = time.perf_counter() - t0
         self.timing["frames_rendered"] = rendered
-        writer.finish_frames(t_cam, rig.camera_fps)
+        writer.finish_frames(t_cam, rig.camera_fps, quality=cfg.mjpg_quality)
         self.timing["total_s"] = time.perf_counter() - t_start
         prov = {"source": "twin", "unit": cfg.serial, "seed": cfg.seed, "pokes": cfg.pokes,
                 "generator": "tensortouch twin record", "resumed": resumed,

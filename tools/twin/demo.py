@@ -1,0 +1,50 @@
+"""Regenerate the shipped demo session (runtime/demo/) and its unit's true calibration.
+
+    python -m tools.twin.demo [--out runtime/demo] [--store calibration_store]
+
+= `tensortouch twin record --unit TWIN-DEMO --pokes 3 --seed 7 --frames mjpg --calibration`, with
+FE physics (solves cached under cache/twin/fe), MJPG quality 80 to stay under ~5 MB. The new demo is
+recorded beside the old one and swapped in at the end, so an interrupted run leaves the old demo.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import shutil
+from pathlib import Path
+
+from runtime import paths
+
+log = logging.getLogger(__name__)
+SERIAL, POKES, SEED, QUALITY = "TWIN-DEMO", 3, 7, 80
+
+
+def main(argv=None) -> int:
+    from tools.twin.cli import _Bar
+    from tools.twin.record import RecordConfig, Recorder
+    from tools.twin.unit import write_true_calibration
+
+    ap = argparse.ArgumentParser(prog="python -m tools.twin.demo")
+    ap.add_argument("--out", default=str(paths.demo_dir()))
+    ap.add_argument("--store", default=None, help="calibration store root (default: calibration_store/)")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    out = Path(args.out)
+    staging = out.with_name(out.name + ".new")
+    cfg = RecordConfig(serial=SERIAL, pokes=POKES, seed=SEED, physics="fe", frame_format="mjpg",
+                       mjpg_quality=QUALITY)
+    rec = Recorder(cfg, staging, progress=_Bar())
+    rec.run()
+    old = out.with_name(out.name + ".old")
+    if out.exists():
+        out.rename(old)
+    staging.rename(out)
+    shutil.rmtree(old, ignore_errors=True)
+    version = write_true_calibration(rec.unit, args.store, cfg.model_size)
+    size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
+    print(f"demo session {out} ({size / 1e6:.2f} MB), true calibration {SERIAL}/{version}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
