@@ -22,13 +22,6 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
-def _command_line() -> str:
-    argv = list(sys.argv)
-    if argv and Path(argv[0]).name == "tensortouch":
-        argv[0] = "tensortouch"
-    return shlex.join(argv)
-
-
 def _atomic_json(obj, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
@@ -95,8 +88,11 @@ def cmd_export(args) -> int:
 
     t0 = time.monotonic()
     root = Path(args.models_dir) if args.models_dir else models_dir()
-    cfg = ExportConfig(calibration_samples=args.calibration)
-    man = export_run(args.run, args.data, args.name, root, _command_line(), cfg, wall_time_s=args.wall_time)
+    cfg = ExportConfig(calibration_samples=args.calibration, latency_runs=args.latency_runs)
+    command = args.command_line or shlex.join(
+        ["tensortouch", "train", "export", "--run", str(args.run), "--data", str(args.data), "--name", args.name,
+         "--models-dir", str(root), "--calibration", str(args.calibration), "--latency-runs", str(args.latency_runs)])
+    man = export_run(args.run, args.data, args.name, root, command, cfg, wall_time_s=args.wall_time)
     m = man["metrics"]
     print(f"{root / args.name}: PSNR fp32 {m['fp32']['psnr']:.2f} / int8 {m['int8']['psnr']:.2f} dB, "
           f"latency fp32 {m['latency_ms']['fp32']:.2f} / int8 {m['latency_ms']['int8']:.2f} ms "
@@ -160,7 +156,10 @@ def register(sub) -> None:
     e.add_argument("--name", required=True, help="package name")
     e.add_argument("--models-dir", help="root of model packages (default: exported_models/ or $TENSORTOUCH_MODELS)")
     e.add_argument("--calibration", type=int, default=32, help="training inputs used for int8 calibration")
+    e.add_argument("--latency-runs", type=int, default=50, help="timed runs per precision for the latency figure")
     e.add_argument("--wall-time", type=float, default=0.0, help="wall time of the whole build to record (s)")
+    e.add_argument("--command-line", help="command to record in the manifest when export is one step of a "
+                                          "larger build (default: this export command)")
     e.set_defaults(func=cmd_export)
 
     b = ts.add_parser("bench", help="network benchmark: params, training samples/s, ORT fp32 vs int8 latency")

@@ -1,0 +1,134 @@
+"""Stage 7: ONNX export, static int8 QDQ, parity report and the model package (docs/model_package.md).
+
+Everything is built in temp dirs; nothing is written to exported_models/."""
+import argparse
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+onnx = pytest.importorskip("onnx")
+ort = pytest.importorskip("onnxruntime")
+
+from runtime.errors import ModelPackageError  # noqa: E402
+from runtime.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS  # noqa: E402
+from runtime.paths import ROOT  # noqa: E402
+from tools.train.cli import register  # noqa: E402
+from tools.train.export import FP32, INT8, count_quantize_nodes, verify_package  # noqa: E402
+
+SIZE = 64
+
+
+def _cli(argv):
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+@pytest.fixture(scope="module")
+def package(tmp_path_factory):
+    """synth → fit (1 epoch, tiny) → export, all through the CLI handlers, in a temp models dir."""
+    torch.set_num_threads(1)
+    before = sorted(p.name for p in (ROOT / "exported_models").iterdir())
+    tmp = tmp_path_factory.mktemp("pkg")
+    data, run, models = tmp / "data", tmp / "run", tmp / "models"
+    assert _cli(["train", "synth", "--out", str(data), "--n", "24", "--size", str(SIZE), "--seed", "3"]) == 0
+    assert _cli(["train", "fit", "--data", str(data), "--out", str(run), "--epochs", "1", "--batch", "8",
+                 "--threads", "1"]) == 0
+    assert _cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "tiny",
+                 "--models-dir", str(models), "--calibration", "8", "--latency-runs", "5"]) == 0
+    assert sorted(p.name for p in (ROOT / "exported_models").iterdir()) == before
+    return models / "tiny", data
+
+
+def test_manifest_follows_the_contract(package):
+    folder, data = package
+    assert sorted(p.name for p in folder.iterdir()) == sorted(["manifest.json", INT8, FP32])
+    man = json.loads((folder / "manifest.json").read_text())
+    assert man["schema"] == "tensortouch.model" and man["schema_version"] == 1 and man["name"] == "tiny"
+    assert man["input"] == {"name": "input", "layout": "NCHW", "size": [SIZE, SIZE], "dtype": "float32",
+                            "channels": list(INPUT_CHANNELS), "range": [0.0, 1.0]}
+    out = man["output"]
+    assert out["channels"] == list(CHANNELS) and out["units"] == list(CHANNEL_UNITS)
+    assert out["normalization"] == "minmax" and out["size"] == [SIZE, SIZE]
+    bounds = json.loads((data / "bounds.json").read_text())["bounds"]
+    assert out["bounds"] == bounds
+    for f in (FP32, INT8):
+        assert man["files"][f]["sha256"] == hashlib.sha256((folder / f).read_bytes()).hexdigest()
+    tr = man["training"]
+    assert "train export" in tr["command"] and "--name tiny" in tr["command"]
+    assert tr["data_hash"] == hashlib.sha256((data / "index.json").read_bytes()).hexdigest()
+    assert len(tr["git_commit"]) in (40, 7) or tr["git_commit"] == "unknown"
+    m = man["metrics"]
+    for prec in ("fp32", "int8"):
+        assert set(m[prec]) >= {"psnr", "ssim", "mse", "auc_rel", "fpr_rel"}
+        assert m["latency_ms"][prec] > 0
+    assert set(m["int8_vs_fp32_psnr"]) == {"displacement", "normal_stress", "shear_stress",
+                                           "contact_normal", "contact_shear"}
+    assert verify_package(folder)["name"] == "tiny"
+
+
+def test_both_models_load_in_onnxruntime_and_agree(package):
+    folder, _ = package
+    x = np.random.default_rng(0).random((1, 6, SIZE, SIZE), dtype=np.float32)
+    outs = {}
+    for f in (FP32, INT8):
+        s = ort.InferenceSession(str(folder / f), providers=["CPUExecutionProvider"])
+        assert s.get_inputs()[0].name == "input" and s.get_outputs()[0].name == "fields"
+        outs[f] = s.run(None, {"input": x})[0]
+        assert outs[f].shape == (1, 15, SIZE, SIZE) and np.all(np.isfinite(outs[f]))
+    mse = np.mean((outs[FP32] - outs[INT8]) ** 2)
+    assert 0 < mse < 1e-2                                   # quantized, but close
+    assert count_quantize_nodes(folder / INT8) > 10
+    assert count_quantize_nodes(folder / FP32) == 0
+
+
+def test_tampered_package_is_rejected(package, tmp_path):
+    import shutil
+
+    folder, _ = package
+    bad = tmp_path / "bad"
+    shutil.copytree(folder, bad)
+    data = bytearray((bad / INT8).read_bytes())
+    data[-10] ^= 0xFF
+    (bad / INT8).write_bytes(bytes(data))
+    with pytest.raises(ModelPackageError, match="model.int8.onnx"):
+        verify_package(bad)
+    shutil.copy(folder / INT8, bad / INT8)
+    man = json.loads((bad / "manifest.json").read_text())
+    man["output"]["channels"] = man["output"]["channels"][::-1]
+    (bad / "manifest.json").write_text(json.dumps(man))
+    with pytest.raises(ModelPackageError, match="channels"):
+        verify_package(bad)
+    (bad / "manifest.json").unlink()
+    with pytest.raises(ModelPackageError, match="manifest.json"):
+        verify_package(bad)
+
+
+def test_keypoints_cli_on_a_session(tmp_path):
+    from runtime.session import new_manifest, write_manifest, write_table, STREAM_COLUMNS
+
+    t = np.arange(0, 4, 1 / 120)
+    z = 10 - 2.0 * np.clip(np.minimum(t - 0.5, 3.5 - t), 0, 1)
+    x = np.interp(t, [0, 1.5, 2.0, 2.5, 4], [0, 0, 0.8, 0, 0])
+    poses = np.stack([t, 0 * t, x, 0 * t, z, 1 + 0 * t, 0 * t, 0 * t, 0 * t], 1)
+    tw = np.arange(0, 4, 1 / 200)
+    wrench = np.zeros((tw.size, 8)); wrench[:, 0] = tw
+    wrench[:, 4] = 2.0 * np.interp(tw, t, 10 - z)
+    frames = np.stack([np.arange(0, 4, 1 / 30), np.arange(120)], 1)
+    for name, arr in (("poses", poses), ("wrench", wrench), ("frames", frames)):
+        write_table(tmp_path / f"{name}.csv", STREAM_COLUMNS[name], arr)
+    write_manifest(tmp_path, new_manifest("TT-TEST", {
+        "poses": {}, "frames": {"images": "frames"},
+        "wrench": {"ft_to_indenter": {"rotation_wxyz": [1, 0, 0, 0], "translation_mm": [0, 0, 0]}}}))
+    out = tmp_path / "kp.json"
+    assert _cli(["train", "keypoints", str(tmp_path), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["schema"] == "tensortouch.keypoints" and len(doc["periods"]) == 1
+    p = doc["periods"][0]
+    assert p["indenters"] == [0] and min(abs(np.array(p["t"]) - 2.0)) < 0.1
+    assert np.array(p["force"]).shape == (len(p["t"]), 1, 3)
+    assert doc["config"]["contact_force_n"] == 1.5 and doc["config"]["detach_force_n"] == 1.1
