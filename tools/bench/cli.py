@@ -9,6 +9,7 @@ import importlib
 
 AREAS = {
     "runtime": ("tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32"),
+    "hand": ("tools.bench.hand_bench", "N sensors in one process: frames/s per sensor, p99, soak drift"),
     "fe": ("tools.fe.bench", "FE solver: seconds per keypoint frame / 5-keypoint trajectory"),
     "twin": ("tools.twin.bench", "digital twin: seconds of recording per minute of compute"),
     "workbench": ("tools.workbench.bench", "compare → diagnose → add → compare"),

@@ -1,0 +1,145 @@
+"""`tensortouch view`: colour-map core, and the page's JSON API fed by a real hand over real Zenoh."""
+import base64
+import json
+import urllib.error
+import urllib.request
+
+import cv2
+import numpy as np
+import pytest
+
+from runtime.wire import FieldsFrame
+from tools.view.render import DIVERGING, SEQUENTIAL, channel_data, colorize, downsample, frame_view, value_range
+from tests.hand_util import free_endpoint, hand_cfg, make_package, make_store, make_video, wait_until
+
+
+def test_colour_maps_and_ranges():
+    v = np.array([[-2.0, 0.0, 2.0, np.nan]])
+    lo, hi = value_range(v, signed=True)
+    assert (lo, hi) == (-2.0, 2.0)
+    rgb = colorize(v, lo, hi, signed=True)
+    assert tuple(rgb[0, 0]) == tuple(DIVERGING[0]) and tuple(rgb[0, 2]) == tuple(DIVERGING[-1])
+    assert tuple(rgb[0, 1]) == tuple(DIVERGING[128]) and rgb[0, 1].min() > 240     # zero is white
+    assert tuple(rgb[0, 3]) == (128, 128, 128)                                   # NaN is grey
+    assert value_range(np.abs(v), signed=False) == (0.0, 2.0)
+    assert tuple(colorize(np.array([[3.0]]), 0, 2, False)[0, 0]) == tuple(SEQUENTIAL[-1])   # clipped
+
+
+def test_derived_channels_and_downsample():
+    rng = np.random.default_rng(0)
+    data = rng.normal(size=(15, 8, 8)).astype(np.float32)
+    from runtime.fields import CHANNEL_UNITS, CHANNELS
+
+    mag, unit, signed = channel_data(data, CHANNELS, CHANNEL_UNITS, "traction_mag")
+    np.testing.assert_allclose(mag, np.linalg.norm(data[9:12] + data[12:15], axis=0), rtol=1e-6)
+    assert unit == "MPa" and not signed
+    z, unit, signed = channel_data(data, CHANNELS, CHANNEL_UNITS, "disp_z")
+    assert unit == "mm" and signed and np.array_equal(z, data[2])
+    with pytest.raises(KeyError, match="nope"):
+        channel_data(data, CHANNELS, CHANNEL_UNITS, "nope")
+    d = downsample(data[0], (4, 4))
+    assert d.shape == (4, 4) and d[1, 2] == pytest.approx(data[0, 2:4, 4:6].mean())
+    f = FieldsFrame("S", 3, 1.5, data)
+    out = frame_view(f, None, "fn_z", (4, 4))
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(out["png"]), np.uint8), cv2.IMREAD_COLOR)
+    assert img.shape == (8, 8, 3) and out["unit"] == "MPa" and len(out["grid_values"]) == 16
+    assert len(out["grid_disp_mm"]) == 48 and out["vmin"] == -out["vmax"]
+
+
+def _get(url):
+    try:
+        with urllib.request.urlopen(url, timeout=5) as r:
+            return r.status, r.headers.get("Content-Type"), r.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.headers.get("Content-Type"), exc.read()
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    from runtime.hand import Hand
+    from runtime.publisher import open_session
+    from tools.view.server import ViewState, serve
+
+    tmp = tmp_path_factory.mktemp("view")
+    pkg = make_package(tmp / "models" / "difference-32")
+    make_store(tmp / "store", ["TT-A", "TT-B"])
+    cfg = hand_cfg(tmp, pkg, {"TT-A": f"file:{make_video(tmp / 'a.avi')}",
+                              "TT-B": f"file:{make_video(tmp / 'b.avi', seed=1, dx=-20)}"})
+    hand = Hand(cfg).start()
+    session = open_session(connect=list(cfg.listen))
+    state = ViewState(session)
+    httpd = serve(state, "127.0.0.1", 0)
+    base = "http://127.0.0.1:%d" % httpd.server_address[1]
+    try:
+        yield base, state, hand
+    finally:
+        httpd.shutdown()
+        state.close()
+        session.close()
+        hand.stop()
+
+
+def test_page_and_sensor_list(live):
+    base, state, hand = live
+    code, ctype, body = _get(base + "/")
+    assert code == 200 and ctype.startswith("text/html") and b"<canvas" in body
+    assert wait_until(lambda: {s["sensor_id"] for s in json.loads(_get(base + "/api/sensors")[2])
+                               if s["has_fields"]} == {"TT-A", "TT-B"}, 15)
+    sensors = json.loads(_get(base + "/api/sensors")[2])
+    assert all(s["status"]["state"] for s in sensors)
+
+
+def test_frame_api_colour_map_contacts_and_geometry(live):
+    base, state, hand = live
+    assert wait_until(lambda: state.contacts.get("TT-A") is not None and state.contacts["TT-A"].contacts, 20)
+    code, _, body = _get(base + "/api/frame?sensor=TT-A&channel=fn_z")
+    assert code == 200
+    f = json.loads(body)
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(f["png"]), np.uint8), cv2.IMREAD_COLOR)
+    assert img.shape == (32, 32, 3)
+    assert f["unit"] == "MPa" and f["signed"] and f["vmin"] == -f["vmax"] and f["vmax"] > 0
+    assert "traction_mag" in f["channels"] and "disp_z" in f["channels"]
+    geo = json.loads(_get(base + "/api/geometry?sensor=TT-A")[2])
+    assert not geo.get("nominal") and geo["finger"] == "f0"
+    gh, gw = geo["grid"]
+    assert len(geo["xyz_mm"]) == 3 * gh * gw and len(f["grid_values"]) == gh * gw
+    z = np.array([v if v is not None else np.nan for v in geo["xyz_mm"]]).reshape(gh, gw, 3)[..., 2]
+    assert np.nanmax(z) == pytest.approx(16.0, abs=0.5)                  # the dome's apex, mm
+    code, _, body = _get(base + "/api/frame?sensor=TT-A&channel=disp_mag")
+    assert code == 200 and json.loads(body)["unit"] == "mm"
+
+
+def test_frame_api_errors(live):
+    base, state, hand = live
+    assert _get(base + "/api/frame?sensor=TT-A&channel=bogus")[0] == 400
+    assert _get(base + "/api/frame?sensor=NOBODY&channel=fn_z")[0] == 404
+    assert _get(base + "/api/frame")[0] == 400
+    assert _get(base + "/nothing")[0] == 404
+
+
+def test_sensor_without_geometry_gets_nominal_dome():
+    from runtime.publisher import Publisher, open_session
+    from tools.view.server import ViewState
+
+    ep = free_endpoint()
+    with Publisher("plain-1", listen=[ep]) as pub:
+        session = open_session(connect=[ep])
+        state = ViewState(session)
+        try:
+            pub.publish_fields(np.zeros((15, 32, 32), np.float32), 1, 0.0)
+            geo = state.geometry("plain-1")
+            assert geo["nominal"] and geo["grid"] == [24, 24]
+        finally:
+            state.close()
+            session.close()
+
+
+def test_cli_registers_view():
+    import argparse
+
+    from tools.view.cli import register
+
+    p = argparse.ArgumentParser()
+    register(p.add_subparsers())
+    a = p.parse_args(["view", "TT-A", "--port", "0", "--duration", "0.1"])
+    assert a.host == "127.0.0.1" and a.sensor == "TT-A" and callable(a.func)

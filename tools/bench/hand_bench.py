@@ -1,0 +1,237 @@
+"""`tensortouch bench hand`: N replayed sensors in one process (runtime/hand.py), side by side.
+
+Throughput: every finger replays an MJPG recording as fast as it decodes (looping) through the
+exact deploy code (camera → SensorPipeline → Zenoh Publisher on one shared session), for each
+scheduling mode: one onnxruntime session per finger vs one shared session, with the inference
+gate at `--workers` (default = cores) or off. A raw zenoh subscriber in the same process counts
+what arrives, so the fields really go over loopback. Prints frames/s per sensor and end-to-end
+(capture → publish) p50/p99 per mode.
+
+Soak (`--soak SECONDS`): the default mode at a fixed camera rate (`--soak-fps`, real-time replay);
+every `--log-every` s it logs resident memory (VmRSS), per-finger frames/s and latency p50/p99 to a
+JSON-lines file under cache/ (latency there = pipeline + publish, without the wait for the next
+frame) and prints the drift (linear fit of RSS, first vs last p99) at the end.
+
+The network is the shipped model at that size when installed, else the synthetic ~1.9 M-parameter
+conv U-Net (random weights: timing only — said in the output).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+MODES = {  # name: (share_model, inference_workers or None = --workers)
+    "separate": (False, None),
+    "shared": (True, None),
+    "separate-nogate": (False, 0),
+}
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _setup(work: Path, n: int, size: int, width: int = 320, height: int = 240):
+    from tools.bench.runtime_bench import _calibration, _package_for, synthetic_frames, write_video
+
+    pkg, synthetic = _package_for(size, work)
+    videos, serials = [], []
+    for i in range(n):
+        serial = f"bench-{i}"
+        videos.append(write_video(synthetic_frames(120, width, height, seed=i), work / f"{serial}.avi"))
+        _calibration(work / "store", serial, size, width, height)
+        serials.append(serial)
+    return pkg, synthetic, videos, serials
+
+
+def _config(pkg, work, videos, serials, share, workers, precision, camera, endpoint):
+    from runtime.hand_config import FingerConfig, HandConfig
+
+    fingers = tuple(FingerConfig(name=f"f{i}", serial=s, source=f"file:{v}")
+                    for i, (s, v) in enumerate(zip(serials, videos)))
+    return HandConfig(fingers=fingers, name="bench", model=str(pkg.folder), precision=precision,
+                      share_model=share, inference_workers=workers, calibration_store=str(work / "store"),
+                      listen=(endpoint,), camera_options=camera, status_every_s=1.0)
+
+
+class _Counter:
+    def __init__(self, session):
+        self.n = 0
+        self.bytes = 0
+        self.sub = session.declare_subscriber("tensortouch/**", self._on)
+
+    def _on(self, sample):
+        self.n += 1
+        self.bytes += len(sample.payload)
+
+
+def _free_endpoint() -> str:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def run_mode(cfg, seconds: float, warmup: float) -> dict:
+    from runtime.hand import Hand
+    from runtime.publisher import open_session
+
+    hand = Hand(cfg).start()
+    listener = open_session(connect=list(cfg.listen))
+    counter = _Counter(listener)
+    try:
+        time.sleep(warmup)
+        for f in hand.fingers.values():              # fresh latency windows after warm-up + baseline
+            if f.loop is not None:
+                f.loop.latency = type(f.loop.latency)(100000)
+        start = {n: (f.loop.frames if f.loop else 0) for n, f in hand.fingers.items()}
+        msgs0 = counter.n
+        t0 = time.perf_counter()
+        time.sleep(seconds)
+        wall = time.perf_counter() - t0
+        per = {}
+        for n, f in hand.fingers.items():
+            s = f.loop.latency.summary().get("total", {}) if f.loop else {}
+            per[n] = {"hz": (f.loop.frames - start[n]) / wall, "p50_ms": s.get("p50"), "p99_ms": s.get("p99"),
+                      "inference_p50_ms": f.loop.latency.summary().get("inference", {}).get("p50")}
+        received = (counter.n - msgs0) / wall
+    finally:
+        counter.sub.undeclare()
+        listener.close()
+        hand.stop()
+    return {"fingers": per, "received_msgs_per_s": received,
+            "min_hz": min(v["hz"] for v in per.values()),
+            "total_hz": sum(v["hz"] for v in per.values()),
+            "p99_ms": max(v["p99_ms"] or 0 for v in per.values())}
+
+
+class _ProcLatency:
+    """Per-finger pipeline+publish latency (total minus capture: a real-time replay's read() also
+    waits for the next frame to be due, which is idle time, not latency)."""
+
+    def __init__(self):
+        from collections import defaultdict
+
+        self.ms = defaultdict(list)
+
+    def __call__(self, finger, result):
+        t = result.timings
+        self.ms[finger.cfg.name].append(t.get("total", 0.0) - t.get("capture", 0.0))
+
+    def take(self, name) -> tuple[float, float]:
+        a, self.ms[name] = self.ms[name], []
+        if not a:
+            return 0.0, 0.0
+        return float(np.percentile(a, 50)), float(np.percentile(a, 99))
+
+
+def soak(cfg, seconds: float, log_every: float, log_path: Path) -> dict:
+    from runtime.hand import Hand
+
+    lat = _ProcLatency()
+    hand = Hand(cfg, on_result=lat).start()
+    rows = []
+    t_start = time.monotonic()
+    try:
+        with open(log_path, "w") as log:
+            last = {n: 0 for n in hand.fingers}
+            t_last = time.monotonic()
+            while time.monotonic() - t_start < seconds:
+                time.sleep(log_every)
+                now = time.monotonic()
+                row = {"t_s": round(now - t_start, 1), "rss_mb": round(rss_mb(), 2), "fingers": {}}
+                for n, f in hand.fingers.items():
+                    frames = f.loop.frames if f.loop else 0
+                    p50, p99 = lat.take(n)
+                    row["fingers"][n] = {"hz": round((frames - last[n]) / (now - t_last), 2),
+                                         "p50_ms": round(p50, 3), "p99_ms": round(p99, 3), "state": f.state}
+                    last[n] = frames
+                t_last = now
+                rows.append(row)
+                log.write(json.dumps(row) + "\n")
+                log.flush()
+                print(f"  soak t={row['t_s']:7.1f} s  RSS {row['rss_mb']:7.1f} MB  " + "  ".join(
+                    f"{n} {v['hz']:5.1f} Hz p99 {v['p99_ms']:6.1f} ms" for n, v in row["fingers"].items()),
+                    flush=True)
+    finally:
+        hand.stop()
+    t = np.array([r["t_s"] for r in rows])
+    rss = np.array([r["rss_mb"] for r in rows])
+    p99 = np.array([max(v["p99_ms"] for v in r["fingers"].values()) for r in rows])
+    skip = max(1, len(rows) // 10)                    # ignore the first 10 % (allocator warm-up)
+    slope = float(np.polyfit(t[skip:], rss[skip:], 1)[0] * 3600) if len(rows) - skip >= 3 else float("nan")
+    q = max(1, len(rows) // 4)
+    return {"duration_s": float(t[-1]) if len(t) else 0.0, "windows": len(rows),
+            "rss_first_mb": float(rss[skip]) if len(rss) > skip else float("nan"),
+            "rss_last_mb": float(rss[-1]) if len(rss) else float("nan"),
+            "rss_slope_mb_per_h": slope, "p99_first_quarter_ms": float(np.median(p99[:q])),
+            "p99_last_quarter_ms": float(np.median(p99[-q:])), "log": str(log_path)}
+
+
+def run(args) -> int:
+    import tempfile
+
+    from runtime import paths
+
+    workers = args.workers or os.cpu_count() or 2
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        pkg, synthetic, videos, serials = _setup(work, args.sensors, args.size)
+        params = pkg.manifest.get("metrics", {}).get("params")
+        tag = " (synthetic weights, timing only)" if synthetic else ""
+        print(f"hand benchmark — {args.sensors} replayed sensors in one process, model {pkg.name}{tag}, "
+              f"params {params}, {args.precision}, {args.size}², cpu count {os.cpu_count()}, inference gate "
+              f"{workers}; capture = MJPG 320x240 decode, publish = Zenoh loopback with a counting subscriber")
+        results = {}
+        if not args.soak_only:
+            modes = [m.strip() for m in args.modes.split(",")]
+            for mode in modes:
+                share, gate = MODES[mode]
+                cfg = _config(pkg, work, videos, serials, share, workers if gate is None else gate,
+                              args.precision, {"realtime": False, "loop": True}, _free_endpoint())
+                r = run_mode(cfg, args.seconds, args.warmup)
+                results[mode] = r
+                print(f"\n{mode}: per sensor " + ", ".join(f"{v['hz']:.1f}" for v in r["fingers"].values())
+                      + f" frames/s (total {r['total_hz']:.1f}), end-to-end p50 "
+                      + ", ".join(f"{v['p50_ms']:.1f}" for v in r["fingers"].values())
+                      + f" ms, worst p99 {r['p99_ms']:.1f} ms, subscriber got {r['received_msgs_per_s']:.0f} msg/s")
+        summary = {"sensors": args.sensors, "size": args.size, "precision": args.precision,
+                   "synthetic_weights": synthetic, "params": params, "modes": results}
+        if args.soak:
+            camera = {"realtime": True, "loop": True, "fps": args.soak_fps}
+            cfg = _config(pkg, work, videos, serials, False, workers, args.precision, camera, _free_endpoint())
+            log_path = paths.cache_dir() / "hand" / f"soak-{time.strftime('%Y%m%d-%H%M%S')}.jsonl"
+            log_path.parent.mkdir(parents=True, exist_ok=True)
+            print(f"\nsoak: {args.soak:.0f} s at {args.soak_fps} frames/s per sensor, log {log_path}")
+            s = soak(cfg, args.soak, args.log_every, log_path)
+            summary["soak"] = s
+            print(f"soak done: {s['duration_s']:.0f} s, RSS {s['rss_first_mb']:.1f} → {s['rss_last_mb']:.1f} MB "
+                  f"(fit {s['rss_slope_mb_per_h']:+.2f} MB/h), worst-finger p99 first quarter "
+                  f"{s['p99_first_quarter_ms']:.1f} ms, last quarter {s['p99_last_quarter_ms']:.1f} ms")
+    if args.json:
+        print(json.dumps(summary))
+    return 0
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--sensors", type=int, default=4)
+    p.add_argument("--size", type=int, default=128, help="model input size")
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    p.add_argument("--seconds", type=float, default=20.0, help="timed seconds per mode")
+    p.add_argument("--warmup", type=float, default=5.0, help="seconds before timing (baseline startup)")
+    p.add_argument("--workers", type=int, default=0, help="inference gate (default: cpu count)")
+    p.add_argument("--modes", default=",".join(MODES), help=f"comma separated, from: {', '.join(MODES)}")
+    p.add_argument("--soak", type=float, default=0.0, help="then soak this many seconds at --soak-fps")
+    p.add_argument("--soak-only", action="store_true", help="skip the throughput modes")
+    p.add_argument("--soak-fps", type=float, default=10.0, help="camera rate per sensor during the soak")
+    p.add_argument("--log-every", type=float, default=10.0, help="soak log period, s")
+    p.add_argument("--json", action="store_true", help="print one JSON object on the last line")

@@ -1,0 +1,58 @@
+"""`tensortouch view`: subscribe over Zenoh and serve a live page on http://127.0.0.1:PORT/."""
+from __future__ import annotations
+
+import logging
+import sys
+import time
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+
+
+def register(sub) -> None:
+    p = sub.add_parser("view", help="live web view of published fields and contacts (127.0.0.1)",
+                       description="Subscribe to sensors over Zenoh and serve a local page showing each "
+                                   "field channel as a colour map with units, the contacts on the image "
+                                   "and on a 3D gel view.")
+    p.add_argument("sensor", nargs="?", default="*", help="sensor id, or * for every sensor (default)")
+    p.add_argument("--connect", action="append", help=f"Zenoh endpoint of the runtime (default {DEFAULT_CONNECT})")
+    p.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on")
+    p.add_argument("--host", default="127.0.0.1", help="HTTP address (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.set_defaults(func=cmd_view)
+
+
+def cmd_view(args) -> int:
+    from runtime.publisher import open_session
+    from tools.view.server import ViewState, serve
+
+    connect = args.connect or ([] if args.listen else [DEFAULT_CONNECT])
+    session = open_session(connect=connect, listen=args.listen)
+    state = ViewState(session, args.sensor)
+    httpd = serve(state, args.host, args.port)
+    host, port = httpd.server_address[:2]
+    print(f"tensortouch view: http://{host}:{port}/  (Zenoh {' '.join(connect + args.listen)}, "
+          f"sensor {args.sensor}); Ctrl-C to stop", file=sys.stderr)
+    t0 = time.monotonic()
+    try:
+        while args.duration is None or time.monotonic() - t0 < args.duration:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        httpd.shutdown()
+        state.close()
+        session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    register(parser.add_subparsers())
+    a = parser.parse_args(["view", *sys.argv[1:]])
+    logging.basicConfig(level=logging.INFO)
+    sys.exit(a.func(a))
