@@ -49,6 +49,10 @@ def register(sub) -> None:
     for q in (cl, cs, cr):
         q.add_argument("--store", help="calibration store folder (default: calibration_store/)")
 
+    from runtime.hand import register_hand
+
+    register_hand(sub)
+
 
 def _open_source(args):
     from drivers.camera import config_from_uri, make_camera
