@@ -131,12 +131,16 @@ def newton(model: GelModel, U0, poses, state, sv):
         for _ in range(6):  # backtracking line search on the residual norm
             Ut = U.copy()
             Ut.reshape(-1)[model.free] += step * du
-            rt, cet = model.residual(Ut, poses, state)
-            if np.linalg.norm(rt[model.free]) < norm0 or step < 0.1:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rt, cet = model.residual(Ut, poses, state)
+            nt = np.linalg.norm(rt[model.free])
+            if np.isfinite(nt) and (nt < norm0 or step < 0.1):
                 break
             step *= 0.5
         U, r, ce = Ut, rt, cet
         res = np.abs(r[model.free]).max()
+        if not np.isfinite(res):
+            raise FloatingPointError("inverted elements (non-finite residual)")
         dmax = np.abs(step * du).max()
         log.debug("  it %d: |r|max %.3e N, |du|max %.3e mm, step %.2f", it, res, dmax, step)
         if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 1e-3 * model.sc.mesh.size_top:

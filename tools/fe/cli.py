@@ -1,0 +1,145 @@
+"""`tensortouch fe ...`: solve one scenario, run a batch, fit materials, make indenters, export .inp.
+
+Registered through the entry point `fe = "tools.fe.cli:register"`; also `python -m tools.fe.cli`.
+Heavy libraries are imported inside the handlers.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def _progress(prefix=""):
+    def cb(j, n, msg):
+        print(f"{prefix}[{j + 1}/{n}] {msg}", file=sys.stderr, flush=True)
+    return cb
+
+
+def _cmd_solve(args) -> int:
+    from tools.fe.result import save_result
+    from tools.fe.scenario import load_scenario, save_scenario, standard_dome
+    from tools.fe.solver import solve
+
+    scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
+    if args.write_scenario:
+        save_scenario(scenario, args.write_scenario)
+    result = solve(scenario, progress=_progress())
+    save_result(result, args.out)
+    print(f"wrote {args.out}: {result.n_frames} frames, {result.n_nodes} nodes, "
+          f"final RF {result.RF[-1].round(4).tolist()} N")
+    return 0
+
+
+def _cmd_batch(args) -> int:
+    from tools.fe.batch import run_batch
+
+    report = run_batch(args.scenarios, out_dir=args.out_dir, workers=args.workers, retry_failed=args.retry_failed)
+    print(f"batch: {report['solved']} solved, {report['cached']} cached, {report['failed']} failed "
+          f"-> {report['out_dir']}")
+    return 0 if report["failed"] == 0 else 1
+
+
+def _cmd_fit(args) -> int:
+    from tools.fe.fitting import fit_report, load_test_data, synthetic_test_data
+
+    data = synthetic_test_data() if args.data == "synthetic" else load_test_data(args.data)
+    report = fit_report(data, models=args.models.split(","), plot=args.plot)
+    print(report["table"])
+    if args.json_out:
+        import json
+
+        Path(args.json_out).write_text(json.dumps(report["fits"], indent=2))
+    return 0
+
+
+def _cmd_ind_generate(args) -> int:
+    from tools.fe.procedural import generate_set
+
+    paths = generate_set(args.out_dir, seed=args.seed, count=args.count)
+    for p in paths:
+        print(p)
+    return 0
+
+
+def _cmd_ind_list(args) -> int:
+    from tools.fe.procedural import OBJECT_KINDS
+
+    for name, doc in OBJECT_KINDS.items():
+        print(f"{name:16s} {doc}")
+    return 0
+
+
+def _cmd_inp(args) -> int:
+    from tools.fe.inp import export_inp
+    from tools.fe.scenario import load_scenario, standard_dome
+
+    scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
+    path = export_inp(scenario, args.out)
+    print(f"wrote {path}")
+    return 0
+
+
+def register(sub) -> None:
+    """Add the `fe` command and its subcommands to an argparse subparsers object."""
+    fe = sub.add_parser("fe", help="hyperelastic FE of the gel (solve, batch, fit-material, indenters)")
+    fsub = fe.add_subparsers(dest="fe_command", metavar="SUBCOMMAND")
+    fe.set_defaults(func=lambda a: (fe.print_help(), 2)[1])
+
+    p = fsub.add_parser("solve", help="solve one scenario file (JSON/TOML) -> result .npz")
+    p.add_argument("scenario", help="scenario file, or 'standard' for the standard dome")
+    p.add_argument("--out", required=True, help="result .npz path")
+    p.add_argument("--write-scenario", help="also write the scenario as JSON here")
+    p.set_defaults(func=_cmd_solve)
+
+    p = fsub.add_parser("batch", help="solve many scenarios with an on-disk cache (resumable)")
+    p.add_argument("scenarios", nargs="+", help="scenario files or folders of *.json/*.toml")
+    p.add_argument("--out-dir", default=None, help="cache folder (default <cache>/fe)")
+    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    p.add_argument("--retry-failed", action="store_true", help="re-run scenarios that failed before")
+    p.set_defaults(func=_cmd_batch)
+
+    p = fsub.add_parser("fit-material", help="fit Yeoh/NH/MR/Ogden to uniaxial+biaxial data")
+    p.add_argument("data", help="CSV (mode,stretch,stress_MPa) or 'synthetic'")
+    p.add_argument("--models", default="yeoh,neo_hookean,mooney_rivlin,ogden")
+    p.add_argument("--plot", help="write a PNG of the fits here (needs matplotlib)")
+    p.add_argument("--json-out", help="write the fitted constants as JSON here")
+    p.set_defaults(func=_cmd_fit)
+
+    p = fsub.add_parser("indenters", help="procedural indenter set (seed III.B standardization)")
+    isub = p.add_subparsers(dest="ind_command", metavar="ACTION")
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+    g = isub.add_parser("generate", help="write the standardized indenter STL files")
+    g.add_argument("--out-dir", default=None, help="folder (default <cache>/fe/indenters)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--count", type=int, default=12)
+    g.set_defaults(func=_cmd_ind_generate)
+    ls = isub.add_parser("list", help="list the procedural object kinds")
+    ls.set_defaults(func=_cmd_ind_list)
+
+    p = fsub.add_parser("export-inp", help="write the scenario as an Abaqus-style .inp deck")
+    p.add_argument("scenario", help="scenario file, or 'standard'")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=_cmd_inp)
+
+
+def main(argv=None) -> int:
+    from runtime.errors import TensorTouchError
+
+    parser = argparse.ArgumentParser(prog="python -m tools.fe.cli")
+    sub = parser.add_subparsers(dest="command")
+    register(sub)
+    args = parser.parse_args(["fe", *(argv if argv is not None else sys.argv[1:])])
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except TensorTouchError as exc:
+        print(f"fe: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
