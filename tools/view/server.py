@@ -138,7 +138,7 @@ def make_handler(state: ViewState):
                 elif url.path == "/api/geometry":
                     self._json(state.geometry(q["sensor"]))
                 elif url.path == "/api/frame":
-                    out = state.frame(q["sensor"], q.get("channel", "disp_z"))
+                    out = state.frame(q["sensor"], q.get("channel", "fn_z"))
                     self._json(out if out is not None else {"error": f"no fields from {q['sensor']} yet"},
                                200 if out is not None else 404)
                 else:
