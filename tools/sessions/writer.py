@@ -28,9 +28,9 @@ FRAME_FORMATS = {  # name -> (fourcc or None for PNG folder, file/folder name, l
 }
 
 
-def write_png(path: Path, image: np.ndarray) -> None:
-    """Write a PNG atomically."""
-    ok, buf = cv2.imencode(".png", image)
+def write_png(path: Path, image: np.ndarray, compression: int = 1) -> None:
+    """Write a PNG atomically (zlib level `compression`: 1 = fast, lossless like every level)."""
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
     if not ok:
         raise SessionError(f"{path}: PNG encoding failed")
     tmp = path.with_name(path.name + ".tmp")
@@ -38,11 +38,15 @@ def write_png(path: Path, image: np.ndarray) -> None:
     tmp.replace(path)
 
 
-def encode_video(png_dir: Path, out: Path, fourcc: str, fps: float, count: int, quality: int = 90) -> int:
-    """Encode numbered PNGs 000000.png.. into a video file (atomically); returns its size."""
-    first = cv2.imread(str(png_dir / f"{0:06d}.png"), cv2.IMREAD_COLOR)
-    if first is None:
-        raise SessionError(f"{png_dir}: no frame 000000.png to encode")
+def encode_video(staging: Path, out: Path, fourcc: str, fps: float, count: int, quality: int = 90) -> int:
+    """Encode staged frames 000000.npy.. into a video file (atomically); returns its size."""
+    def load(i):
+        try:
+            return np.load(staging / f"{i:06d}.npy", allow_pickle=False)
+        except (OSError, ValueError):
+            raise SessionError(f"{staging / f'{i:06d}.npy'}: staged frame missing or unreadable") from None
+
+    first = load(0)
     h, w = first.shape[:2]
     tmp = out.with_name(".tmp-" + out.name)
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*fourcc), float(fps), (w, h))
@@ -51,11 +55,7 @@ def encode_video(png_dir: Path, out: Path, fourcc: str, fps: float, count: int, 
     if fourcc == "MJPG":
         writer.set(cv2.VIDEOWRITER_PROP_QUALITY, quality)
     for i in range(count):
-        img = first if i == 0 else cv2.imread(str(png_dir / f"{i:06d}.png"), cv2.IMREAD_COLOR)
-        if img is None:
-            writer.release()
-            raise SessionError(f"{png_dir / f'{i:06d}.png'}: frame missing or unreadable")
-        writer.write(img)
+        writer.write(first if i == 0 else load(i))
     writer.release()
     tmp.replace(out)
     return out.stat().st_size
@@ -114,13 +114,21 @@ class SessionWriter:
 
     # -- frames ---------------------------------------------------------------------------
     def frame_path(self, index: int) -> Path:
-        return self.staging / f"{index:06d}.png"
+        """PNG in the final folder (png format) or a raw .npy staged for video encoding (fast)."""
+        return self.staging / f"{index:06d}.{'png' if self.frame_format == 'png' else 'npy'}"
 
     def has_frame(self, index: int) -> bool:
         return self.frame_path(index).is_file()
 
     def frame(self, index: int, image: np.ndarray) -> None:
-        write_png(self.frame_path(index), image)
+        path = self.frame_path(index)
+        if self.frame_format == "png":
+            write_png(path, image)
+            return
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "wb") as fh:
+            np.save(fh, np.ascontiguousarray(image, dtype=np.uint8), allow_pickle=False)
+        tmp.replace(path)
 
     def finish_frames(self, t: np.ndarray, fps: float, quality: int = 90, **info) -> None:
         t = np.asarray(t, dtype=np.float64)
@@ -130,7 +138,8 @@ class SessionWriter:
             raise SessionError(f"{self.staging}: frames {missing[:5]}... not rendered")
         write_table(self.out / STREAM_FILES["frames"], STREAM_COLUMNS["frames"], np.stack([t, np.arange(n)], 1))
         fourcc, name, lossless = FRAME_FORMATS[self.frame_format]
-        first = cv2.imread(str(self.frame_path(0)))
+        first = cv2.imread(str(self.frame_path(0))) if self.frame_format == "png" else \
+            np.load(self.frame_path(0), allow_pickle=False)
         h, w = first.shape[:2]
         entry = {"file": STREAM_FILES["frames"], "rows": n, "count": n, "fps": float(fps), "width": w,
                  "height": h, "color": "bgr8 as stored by OpenCV (a normal color image)",

@@ -2,7 +2,7 @@
 
 Stages: plan (trajectory.py) -> physics per poke (FE by default, cached) -> signals at the rig's
 rates (signals.py) with the truth effects (effects.py) -> frames rendered at camera rate
-(camera.py) into numbered PNGs (resume skips the ones already on disk) -> streams, truth/ and the
+(camera.py) into numbered staged frames (resume skips the ones already on disk) -> streams, truth/ and the
 manifest last (tools.sessions.writer). Everything random comes from generators seeded by
 (seed, stream), so a resumed recording equals an uninterrupted one.
 """
