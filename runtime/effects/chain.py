@@ -1,0 +1,80 @@
+"""Enabled effects of one sensor, in order, as stored in its calibration (`calibration.json`
+field "effects": [{"name": ..., "params": {...}, "source": ..., "added": ...}, ...]).
+
+The runtime applies the force-stage effects to every predicted contact force and the image-stage
+gain to frames before inference; measurement-stage effects only matter when comparing with a
+reference instrument (the workbench applies them to its side of the comparison).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from runtime.effects.base import Effect
+from runtime.effects.registry import Registry
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class EnabledEffect:
+    effect: Effect
+    params: dict
+
+    def to_dict(self, source: str = "") -> dict:
+        out = {"name": self.effect.name, "params": dict(self.params)}
+        if source:
+            out["source"] = source
+            out["added"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        return out
+
+
+class EffectChain:
+    """An ordered list of enabled effects with resolved parameters."""
+
+    def __init__(self, items: list[EnabledEffect] | None = None):
+        self.items = list(items or [])
+
+    @classmethod
+    def from_list(cls, entries: list[dict], registry: Registry | None = None) -> "EffectChain":
+        """From calibration.json's "effects" list; unknown names/parameters raise ValueError."""
+        registry = registry or Registry.default()
+        items = []
+        for i, entry in enumerate(entries or []):
+            name = entry.get("name") if isinstance(entry, dict) else None
+            if name not in registry:
+                raise ValueError(f"effects[{i}]: unknown effect {name!r} (known: {', '.join(registry.names())}; "
+                                 "is its plugin installed?)")
+            eff = registry.get(name)
+            items.append(EnabledEffect(eff, eff.resolve(entry.get("params") or {})))
+        return cls(items)
+
+    @classmethod
+    def from_calibration(cls, cal, registry: Registry | None = None) -> "EffectChain":
+        return cls.from_list(cal.effects, registry)
+
+    @property
+    def names(self) -> list[str]:
+        return [it.effect.name for it in self.items]
+
+    def to_list(self) -> list[dict]:
+        return [it.to_dict() for it in self.items]
+
+    def apply(self, forces: np.ndarray, cov: dict, stages: tuple[str, ...] = ("force",)) -> np.ndarray:
+        """Model forces (N,3) through every enabled effect of the given stages, in order."""
+        x = np.asarray(forces, dtype=np.float64)
+        for it in self.items:
+            if it.effect.stage in stages:
+                x = it.effect.apply(x, cov, it.params)
+        return x
+
+    def image_gain(self, cov: dict, n: int) -> np.ndarray:
+        """Product of the image-stage gains (n,) — divide frames by it before inference."""
+        g = np.ones(n)
+        for it in self.items:
+            if it.effect.stage == "image":
+                g = g * it.effect.gain(cov, it.params)
+        return g

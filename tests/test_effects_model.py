@@ -1,0 +1,179 @@
+"""Model-side effects (runtime/effects): library, plugin API, registry, chain, twin agreement."""
+import json
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from runtime.effects import CANONICAL, EffectChain, Registry
+from runtime.effects.builtin import prony_history
+
+
+def _cov(n=200, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.02
+    depth = np.clip(np.sin(t * 2) * 2, 0, None)
+    normal = rng.normal(size=(n, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    return {"time": t, "temperature": 24 + t, "depth": depth, "max_depth": np.maximum.accumulate(depth),
+            "gel_height": np.full(n, 8.0), "rim_distance": rng.uniform(0, 10, n), "normal": normal,
+            "force_n": np.ones(n), "force_t": np.ones(n)}
+
+
+def test_library_has_the_canonical_eight_with_identity_values():
+    reg = Registry.default(entry_points=False)
+    assert set(CANONICAL) <= set(reg.names())
+    assert len(CANONICAL) == 8
+    cov = _cov()
+    x = 2.0 * cov["normal"] + 0.5 * np.random.default_rng(1).normal(size=(200, 3))  # shear < 3 x normal
+    for name in CANONICAL:
+        e = reg.get(name)
+        if e.stage == "image":
+            assert np.allclose(e.gain(cov, e.identity_params()), 1.0)
+            continue
+        assert np.allclose(e.apply(x, cov, e.identity_params()), x), name
+        off = e.identity_params()
+        far = {p.name: (p.lo if abs(p.lo - off[p.name]) > abs(p.hi - off[p.name]) else p.hi) for p in e.free_params}
+        assert not np.allclose(e.apply(x, cov, e.resolve(far)), x), name
+
+
+def test_parameter_names_units_bounds_match_the_twin_specs():
+    specs = pytest.importorskip("tools.twin.effect_specs")
+    reg = Registry.default(entry_points=False)
+    for name in CANONICAL:
+        spec, e = specs.SPECS[name], reg.get(name)
+        assert e.stage == spec.stage, name
+        assert [(p.name, p.unit, p.lo, p.hi, p.default) for p in e.params] == \
+               [(p.name, p.unit, p.lo, p.hi, p.default) for p in spec.params], name
+        assert e.resolve(e.off) == spec.resolve(spec.off), name
+
+
+@pytest.mark.parametrize("name,params", [
+    ("temperature_softening", {"alpha": 0.03, "t_ref": 22.0}), ("viscoelastic_relaxation", {"g1": 0.4, "tau": 0.3}),
+    ("mullins_softening", {"r": 0.3, "m": 0.4}), ("strain_stiffening", {"k": 12.0}),
+    ("friction_mismatch", {"mu": 0.3}), ("rim_stiffening", {"a": 1.5, "w": 3.0}),
+    ("ft_bias_drift", {"bx": 0.01, "by": -0.005, "bz": 0.002})])
+def test_model_forward_agrees_with_the_twin_truth_forward(name, params):
+    """Same physics written twice (model side here, truth side in the twin): must agree."""
+    twin = pytest.importorskip("tools.twin.effects")
+    cov = _cov()
+    x = np.random.default_rng(2).normal(size=(200, 6))
+    truth = twin.build_effects([(name, params)])[0].forward(x, cov)
+    e = Registry.default(entry_points=False).get(name)
+    ours = e.apply(x[:, :3], cov, e.resolve(params))
+    if name == "friction_mismatch":  # the twin rescales the moment too; forces must agree
+        assert np.allclose(ours, truth[:, :3], atol=1e-9)
+    else:
+        assert np.allclose(ours, truth[:, :3], atol=1e-9)
+
+
+def test_prony_fast_filter_equals_the_recursion_and_the_step_response():
+    t = np.arange(500) * 0.01
+    x = np.where(t > 1.0, 1.0, 0.0)[:, None] * np.array([[1.0, 2.0, 0.0]])
+    fast = prony_history(x, t, 0.5)
+    t2 = t.copy()
+    t2[100:] += 1e-4  # non-uniform spacing -> exact recursion path
+    slow = prony_history(x, t2, 0.5)
+    assert np.allclose(fast, slow, atol=2e-3)
+    # a unit step decays as exp(-(t - t_step)/tau) after the ramp sample
+    i = 300
+    assert fast[i, 0] == pytest.approx(np.exp(-(t[i] - 1.005) / 0.5), rel=0.02)
+
+
+def test_bounds_are_enforced_and_unknown_parameters_named():
+    e = Registry.default(entry_points=False).get("viscoelastic_relaxation")
+    with pytest.raises(ValueError, match="tau"):
+        e.resolve({"tau": 100.0})
+    with pytest.raises(ValueError, match="gamma"):
+        e.resolve({"gamma": 1.0})
+
+
+def test_describe_states_the_physics_with_units():
+    e = Registry.default(entry_points=False).get("viscoelastic_relaxation")
+    text = e.describe({"g1": 0.24, "tau": 1.9})
+    assert "relaxes" in text and "τ = 1.9 s" in text and "g = 0.24" in text
+
+
+PLUGIN = '''
+import numpy as np
+from runtime.effects import Effect, Param, need, scale_rows
+
+class AzimuthStiffness(Effect):
+    name = "azimuth_stiffness"
+    summary = "gel stiffer on one side"
+    params = (Param("a", "-", 0.1, 0.0, 1.0), Param("phi0", "rad", 0.0, -3.2, 3.2))
+    covariates = ("phi",)
+    off = {"a": 0.0}
+
+    def forward(self, x, cov, p):
+        return scale_rows(x, 1 + p["a"] * np.cos(need(cov, "phi", self.name) - p["phi0"]))
+'''
+
+
+def test_plugin_folder_joins_the_registry(tmp_path, monkeypatch):
+    (tmp_path / "azimuth.py").write_text(PLUGIN)
+    reg = Registry.default(plugin_dirs=[tmp_path], entry_points=False)
+    assert "azimuth_stiffness" in reg.names()
+    e = reg.get("azimuth_stiffness")
+    y = e.apply(np.ones((2, 3)), {"phi": np.array([0.0, np.pi])}, e.resolve({"a": 0.5}))
+    assert np.allclose(y[:, 0], [1.5, 0.5])
+    monkeypatch.setenv("TENSORTOUCH_EFFECTS_PATH", str(tmp_path))
+    assert "azimuth_stiffness" in Registry.default(entry_points=False).names()
+
+
+def test_entry_point_plugin_is_discovered(tmp_path, monkeypatch):
+    """A real installed distribution (dist-info with entry_points.txt) on sys.path."""
+    (tmp_path / "tt_azimuth_plugin.py").write_text(PLUGIN)
+    dist = tmp_path / "tt_azimuth_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: tt-azimuth-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[tensortouch.effects]\nazimuth = tt_azimuth_plugin:AzimuthStiffness\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    reg = Registry.default()
+    assert "azimuth_stiffness" in reg.names()
+    assert reg.origin["azimuth_stiffness"] == "entry point azimuth"
+    sys.modules.pop("tt_azimuth_plugin", None)
+
+
+def test_bad_plugins_are_rejected_with_a_reason(tmp_path):
+    (tmp_path / "bad.py").write_text(textwrap.dedent('''
+        from runtime.effects import Effect, Param
+        class Bad(Effect):
+            name = "temperature_softening"
+            params = (Param("a", "-", 0.1, 0.0, 1.0),)
+            def forward(self, x, cov, p):
+                return x
+    '''))
+    with pytest.raises(ValueError, match="already taken"):
+        Registry.default(plugin_dirs=[tmp_path], entry_points=False)
+    (tmp_path / "bad.py").write_text(textwrap.dedent('''
+        from runtime.effects import Effect, Param
+        class Bad(Effect):
+            name = "bad"
+            params = (Param("a", "-", 0.1, 0.0, 1.0),)
+            covariates = ("moon_phase",)
+            def forward(self, x, cov, p):
+                return x
+    '''))
+    with pytest.raises(ValueError, match="moon_phase"):
+        Registry.default(plugin_dirs=[tmp_path], entry_points=False)
+
+
+def test_chain_from_calibration_store(calib_store):
+    store = calib_store
+    sensor = store.sensors()[0]
+    entries = [{"name": "strain_stiffening", "params": {"k": 10.0}},
+               {"name": "ft_bias_drift", "params": {"bz": 0.01}}]
+    store.derive(sensor, {"effects": entries})
+    chain = EffectChain.from_calibration(store.load(sensor), Registry.default(entry_points=False))
+    assert chain.names == ["strain_stiffening", "ft_bias_drift"]
+    cov = {"depth": np.array([0.0, 4.0]), "gel_height": np.array([8.0, 8.0]), "time": np.array([0.0, 10.0])}
+    f = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    runtime_force = chain.apply(f, cov)                                  # what the runtime publishes
+    assert np.allclose(runtime_force[:, 2], [1.0, 1.0 + 10.0 * 0.25])
+    vs_reference = chain.apply(f, cov, stages=("force", "measurement"))  # what an F/T would read
+    assert np.allclose(vs_reference[:, 2], [1.0, 3.5 + 0.1])
+    json.dumps(chain.to_list())
+    with pytest.raises(ValueError, match="unknown effect"):
+        EffectChain.from_list([{"name": "nope"}], Registry.default(entry_points=False))
