@@ -61,13 +61,52 @@ def keypoint_poses(poke: Poke) -> tuple[np.ndarray, np.ndarray]:
     return pos, rot
 
 
-def interpolate(solve: PokeSolve, poke: Poke, t: np.ndarray, what: str) -> np.ndarray:
-    """Array `what` of the solve at session times t inside the poke's keypoint span, linear in
-    the min-jerk motion phase between the two enclosing keypoints."""
+def motion_runs(poke: Poke, tol: float = 1e-6) -> list[tuple[int, int]]:
+    """Keypoint index ranges [a, b] over which every indenter moves along one straight line at a
+    constant step (e.g. the press steps), so the response is smooth in the keypoint parameter."""
+    K, J = poke.translation.shape[:2]
+    steps = np.concatenate([np.diff(poke.translation, axis=1), np.diff(poke.rotvec, axis=1)], axis=2)
+    steps = np.transpose(steps, (1, 0, 2)).reshape(J - 1, -1)
+    runs, a = [], 0
+    for j in range(1, J - 1):
+        if np.linalg.norm(steps[j] - steps[j - 1]) > tol * max(1.0, np.linalg.norm(steps[j - 1])):
+            runs.append((a, j))
+            a = j
+    runs.append((a, J - 1))
+    return runs
+
+
+def interpolate(solve: PokeSolve, poke: Poke, t: np.ndarray, what: str, method: str = "pchip") -> np.ndarray:
+    """Array `what` of the solve at session times t inside the poke's keypoint span.
+
+    The keypoint parameter σ = j + s (segment j, min-jerk motion phase s) moves the indenters
+    piecewise linearly; within each straight run of equal steps (motion_runs) the response is
+    interpolated in σ by a monotone cubic (PCHIP), which follows the curvature of e.g. the
+    force-depth curve; runs of one segment and method="linear" interpolate linearly in s.
+    """
     arr = getattr(solve, what)
     j, s = segment_phase(poke.times, np.atleast_1d(t))
-    s = s.reshape((-1,) + (1,) * (arr.ndim - 1))
-    return arr[j] + s * (arr[j + 1] - arr[j])
+    if method == "linear":
+        s = s.reshape((-1,) + (1,) * (arr.ndim - 1))
+        return arr[j] + s * (arr[j + 1] - arr[j])
+    from scipy.interpolate import PchipInterpolator
+
+    sigma = j + s
+    out = np.empty((len(sigma),) + arr.shape[1:])
+    cache = solve.__dict__.setdefault("_interp", {})
+    for a, b in motion_runs(poke):
+        sel = (j >= a) & (j < b)
+        if not sel.any():
+            continue
+        if b - a < 2:
+            ss = (sigma[sel] - a).reshape((-1,) + (1,) * (arr.ndim - 1))
+            out[sel] = arr[a] + ss * (arr[b] - arr[a])
+            continue
+        key = (what, a, b)
+        if key not in cache:
+            cache[key] = PchipInterpolator(np.arange(a, b + 1), arr[a:b + 1], axis=0)
+        out[sel] = cache[key](sigma[sel])
+    return out
 
 
 def _equivalent_radius(name: str) -> float:
