@@ -7,9 +7,9 @@ Decoding goes coarse → fine over Hiera's stage maps. At each level:
    queries (a linear map plus a learned sub-position embedding), and those queries attend to the
    level's keys/values, giving a map at twice the resolution;
 3. fusion with the encoder feature of the same size (concat → linear → MLP), keeping fine detail.
-After the stride-4 level, two ×2 pixel-shuffle convolutions reach full resolution and five small
-convolution heads (displacement, normal stress, shear stress, contact normal, contact shear) each
-give three channels: 15 in docs/fields.md order.
+After the stride-4 level, a ×2 pixel-shuffle convolution reaches half resolution and five small
+convolution heads (displacement, normal stress, shear stress, contact normal, contact shear), each
+ending in a ×2 pixel shuffle to full resolution, give three channels each: 15 in docs/fields.md order.
 """
 from __future__ import annotations
 
@@ -31,7 +31,8 @@ log = logging.getLogger(__name__)
 class QUpsampleConfig:
     dims: tuple[int, ...] = (128, 64, 32)    # decoder width at encoder levels 3, 2, 1 (stride 16, 8, 4)
     heads: tuple[int, ...] = (4, 2, 1)
-    head_channels: int = 16                  # features at full resolution feeding the heads
+    head_channels: int = 32                  # features at half resolution feeding the heads
+    head_hidden: int = 16
     mlp_ratio: float = 2.0
     local_tokens: int = 256                  # levels with more tokens use attention inside mask units
 
@@ -103,13 +104,18 @@ class Fuse(nn.Module):
 
 
 class Heads(nn.Module):
-    """Five 3-channel convolution heads, concatenated in docs/fields.md order."""
+    """Five 3-channel convolution heads, concatenated in docs/fields.md order.
 
-    def __init__(self, ch: int, hidden: int = 8):
+    With `shuffle` = 2 each head works at half resolution and emits 3·4 channels that a pixel
+    shuffle turns into 3 full-resolution channels (the targets are σ = 2 px smooth, so the sub-pixel
+    layout is learned at a quarter of the cost of full-resolution convolutions)."""
+
+    def __init__(self, ch: int, hidden: int = 8, shuffle: int = 1):
         super().__init__()
         self.names = list(MODALITIES)
         self.heads = nn.ModuleList(nn.Sequential(nn.Conv2d(ch, hidden, 3, padding=1), nn.GELU(),
-                                                 nn.Conv2d(hidden, 3, 1)) for _ in self.names)
+                                                 nn.Conv2d(hidden, 3 * shuffle ** 2, 1), nn.PixelShuffle(shuffle))
+                                   for _ in self.names)
 
     def forward(self, x):
         return torch.cat([h(x) for h in self.heads], 1)
@@ -140,8 +146,8 @@ class HieraQUpsample(nn.Module):
                 "attn": attn, "up": QUpsample(prev, d, hd), "fuse": Fuse(d, e[-2 - i], dec_cfg.mlp_ratio)}))
             prev, tokens = d, tokens * 2
         hc = dec_cfg.head_channels
-        self.to_full = nn.Sequential(_up_conv(prev, 2 * hc), _up_conv(2 * hc, hc))
-        self.heads = Heads(hc)
+        self.to_half = _up_conv(prev, hc)               # stride 4 → 2
+        self.heads = Heads(hc, dec_cfg.head_hidden, shuffle=2)
 
     def forward(self, x):
         feats = self.encoder(x)
@@ -150,4 +156,4 @@ class HieraQUpsample(nn.Module):
             y = lvl["attn"](y)
             y = lvl["up"](y)
             y = lvl["fuse"](y, feats[-2 - i])
-        return self.heads(self.to_full(y))
+        return self.heads(self.to_half(y))
