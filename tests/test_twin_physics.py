@@ -1,0 +1,98 @@
+"""Twin physics: keypoint runs, interpolation between solved keypoints, FE scenario mapping, trajectories."""
+import numpy as np
+import pytest
+
+from tools.twin.bench import _densify
+from tools.twin.geometry import GelSurface
+from tools.twin.physics import HertzFallbackPhysics, PokeSolve, interpolate, keypoint_poses, motion_runs
+from tools.twin.trajectory import TrajectoryConfig, plan_session, poke_pose
+
+GEL = GelSurface()
+
+
+def _poke(kind, seed=3):
+    return plan_session(1, seed, GEL, TrajectoryConfig(kinds=(kind,), p_two=0.0, indenters=("sphere5",)))[0]
+
+
+def test_motion_runs_split_press_hold_move_release():
+    p = _poke("slide")
+    runs = motion_runs(p)
+    assert runs[0][0] == 0 and runs[-1][1] == len(p.times) - 1
+    assert all(a < b for a, b in runs) and all(r[1] == s[0] for r, s in zip(runs, runs[1:]))
+    assert len(runs) >= 4  # press, hold, slide, release
+
+
+def test_interpolation_exact_at_keypoints_and_pchip_beats_linear():
+    p = _poke("press")
+    phys = HertzFallbackPhysics(GEL)
+    sol = phys.solve(p)
+    np.testing.assert_allclose(interpolate(sol, p, p.times, "RF"), sol.RF, atol=1e-12)
+    dense_p = _densify(p, 4)
+    dense = phys.solve(dense_p)
+    between = np.arange(len(dense_p.times)) % 4 != 0
+    t = dense_p.times[between]
+    err = {m: np.abs(interpolate(sol, p, t, "RF", method=m) - dense.RF[between]).max() for m in ("pchip", "linear")}
+    assert err["pchip"] < 0.5 * err["linear"], err
+    peak = np.abs(dense.RF).max()
+    assert err["pchip"] < 0.05 * peak  # 3.5 % measured; the contact onset segment dominates
+
+
+def test_hertz_fallback_force_grows_with_depth_and_points_into_gel():
+    p = _poke("press")
+    sol = HertzFallbackPhysics(GEL).solve(p)
+    press = [j for j in range(1, len(p.times)) if sol.depth[j, 0] > sol.depth[j - 1, 0]]
+    f = np.linalg.norm(sol.RF[press, 0], axis=1)
+    assert np.all(np.diff(f) > 0)
+    n = GEL.normals(sol.contact[press[-1], 0])
+    assert sol.RF[press[-1], 0] @ n < 0  # the indenter pushes into the gel (FE RF convention)
+
+
+def test_trajectory_keypoints_match_poses_and_start_outside_gel():
+    p = _poke("twist")
+    pos, rot = keypoint_poses(p)
+    tp, tr = poke_pose(p, 0, p.times, hover=6.0)
+    np.testing.assert_allclose(tp, pos[:, 0], atol=1e-9)
+    np.testing.assert_allclose(tr, rot[:, 0], atol=1e-9)
+    # initial tip above the rest surface, pressing along the inward normal
+    start = p.position[0]
+    assert np.linalg.norm(start) > np.linalg.norm(GEL.point_at(*GEL.theta_phi(start)))
+    a, b = plan_session(4, 9, GEL), plan_session(4, 9, GEL)
+    assert [x.to_dict() for x in a] == [x.to_dict() for x in b]
+
+
+def test_fe_scenario_mapping_and_cache_key(tmp_path):
+    pytest.importorskip("felupe")
+    from tools.twin.fe_physics import FEPhysics
+
+    p = plan_session(2, 5, GEL, TrajectoryConfig(p_two=1.0))[0]
+    fe = FEPhysics(cache=tmp_path)
+    sc = fe.scenario(p)
+    assert len(sc.indenters) == len(p.slots) == 2
+    for k, ind in enumerate(sc.indenters):
+        np.testing.assert_allclose(ind.position, p.position[k])
+        np.testing.assert_allclose([kp.translation for kp in ind.keypoints], p.translation[k])
+    assert sc.hash() == fe.scenario(p).hash()
+    assert sc.gel.radius == GEL.radius and sc.friction == 2.2
+
+
+def test_fe_result_conversion_uses_surface_nodes():
+    from tools.twin.fe_physics import from_fe_result
+
+    class R:  # a minimal FEResult-shaped object (3 nodes, 2 on the surface, 2 frames, 1 indenter)
+        nodes = np.array([[0, 0, 8.0], [1, 0, 7.9], [0, 0, 1.0]])
+        surface_nodes = np.array([0, 1])
+        U = np.zeros((2, 3, 3))
+        CNORMF = np.zeros((2, 3, 3))
+        contact_owner = -np.ones((2, 3), int)
+        RF = np.array([[[0, 0, 0.0]], [[0, 0, -1.0]]])
+        RM = np.zeros((2, 1, 3))
+        CAREA = np.array([[0.0], [2.0]])
+        scenario_hash = "abc"
+
+    R.U[1, 0, 2] = -0.5
+    R.CNORMF[1, 0, 2] = -1.0
+    R.contact_owner[1, 0] = 0
+    sol = from_fe_result(R, GEL)
+    assert isinstance(sol, PokeSolve) and sol.nodes.shape == (2, 3)
+    assert sol.depth[1, 0] == pytest.approx(0.5) and sol.depth[0, 0] == 0
+    np.testing.assert_allclose(sol.contact[1, 0], [0, 0, 8.0])
