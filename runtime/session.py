@@ -6,12 +6,15 @@
   poses.csv             t,indenter,x,y,z,qw,qx,qy,qz        (s, -, mm, unit quaternion)
   wrench.csv            t,indenter,fx,fy,fz,tx,ty,tz        (s, -, N in the F/T frame, N*mm)
   frames.csv            t,index                              (s, frame number in the image stream)
-  frames.avi | frames/  image stream: a video file or a folder of numbered PNG files
+  frames.avi | frames/  image stream: a video file or a folder of PNGs 000000.png, 000001.png, ...
   temperature.csv       t,celsius
   truth/                twin-only ground truth; no deploy or workbench stage reads it
 ```
 
-Only `frames` is required; the other streams are listed in the manifest when present. This module
+Only `frames` is required; the other streams are listed in the manifest when present; `wrench`
+needs `streams.wrench.ft_to_indenter` {rotation_wxyz, translation_mm}: p_indenter = R p_ft + t.
+Validation names the problem: missing stream, unit mismatch, non-monotonic clock, truncated rows
+or frames (video frames are counted from the AVI's RIFF headers, PNGs checked for their end). This module
 is pure (json + numpy + csv) so both the runtime (replay) and `tools/` (twin, training, workbench)
 read sessions through the same code. See docs/session.md.
 """
