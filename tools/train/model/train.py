@@ -249,7 +249,7 @@ def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainCo
 
     data, out = Path(data), Path(out)
     size = int(read_index(data)["size"][0])
-    x_tr, _ = load_split(data, None)
+    x_tr, _ = load_split(data, "train")           # self-supervised, but validation inputs stay unseen
     torch.manual_seed(cfg.seed)
     mae = HieraMAE(Hiera(HieraConfig(image_size=size)), cfg.decoder_dim, cfg.decoder_depth,
                    mask_ratio=cfg.mask_ratio)
