@@ -197,3 +197,18 @@ class CanSummarySender:
                 self.stats.reopens += 1
             log.info("CAN %s:%s reopened", self.cfg.interface, self.cfg.channel)
             return
+
+
+def receive_summaries(bus, id_base: int, n_slots: int, timeout_s: float = 1.0):
+    """Controller side: yield (slot, FingerSummary) as complete summaries arrive on `bus`; stops
+    when nothing arrives for `timeout_s`."""
+    from runtime.can_summary import SummaryDecoder
+
+    dec = SummaryDecoder(id_base, n_slots)
+    while True:
+        msg = bus.recv(timeout_s)
+        if msg is None:
+            return
+        slot = dec.feed(msg.arbitration_id, msg.data)
+        if slot is not None:
+            yield slot, dec.fingers[slot]

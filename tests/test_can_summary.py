@@ -1,5 +1,4 @@
 """CAN summary: frame layout round trip, scaling, saturation, and the sender on python-can's virtual bus."""
-import threading
 import time
 import uuid
 
@@ -8,7 +7,7 @@ import pytest
 
 can = pytest.importorskip("can")
 
-from drivers.can_bus import CanConfig, CanSummarySender  # noqa: E402
+from drivers.can_bus import CanConfig, CanSummarySender, receive_summaries  # noqa: E402
 from runtime.can_summary import (FORCE_SCALE_N, POSITION_SCALE_MM, STATUS_BITS, FingerSummary,  # noqa: E402
                                  SummaryDecoder, check_id_range, decode_frames, encode_finger,
                                  frame_ids, summary_from_result)
@@ -178,3 +177,23 @@ def test_injected_blocking_bus_does_not_stall_updates():
         time.sleep(0.2)
     assert per_update < 1e-3          # the frame loop's side stays O(microseconds)
     assert bus.calls >= 2 and tx.stats.errors == bus.calls
+
+
+def test_receive_summaries_generator_on_virtual_bus():
+    ch = _channel()
+    rx = can.Bus(interface="virtual", channel=ch)
+    try:
+        with CanSummarySender(CanConfig(interface="virtual", channel=ch, id_base=0x500, rate_hz=50), 3) as tx:
+            tx.update(2, FingerSummary(2, (0.5, 0.25, 14.0), (0, 0.01, -0.75), 0.8, {"alive", "contact"}))
+            got = []
+            for slot, s in receive_summaries(rx, 0x500, 3, timeout_s=1.0):
+                got.append((slot, s))
+                if len(got) >= 5:
+                    break
+        assert {slot for slot, _ in got} == {2}
+        s = got[-1][1]
+        assert s.count == 2 and s.position_mm[2] == pytest.approx(14.0) and s.force_n[2] == pytest.approx(-0.75)
+        counters = [g[1].counter for g in got]
+        assert all((b - a) % 16 == 1 for a, b in zip(counters, counters[1:]))   # no round lost
+    finally:
+        rx.shutdown()

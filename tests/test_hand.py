@@ -175,3 +175,15 @@ source = "file:{videos['TT-B']}"
     err = capsys.readouterr().err
     assert "2 finger(s)" in err
     assert err.count(" ended ") == 2 and "    90 frames" in err
+
+
+def test_documented_example_config_parses():
+    import re
+    import tomllib
+    from pathlib import Path
+
+    doc = (Path(__file__).parents[1] / "docs" / "hand.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", doc, re.S).group(1)
+    cfg = parse_hand_config(tomllib.loads(block), "docs/hand.md")
+    assert cfg.fingers[0].serial == "TT-0001" and cfg.can.id_base == 0x300 and cfg.can.rate_hz == 100
+    assert cfg.camera_options == {"realtime": True, "loop": False}

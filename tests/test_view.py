@@ -143,3 +143,17 @@ def test_cli_registers_view():
     register(p.add_subparsers())
     a = p.parse_args(["view", "TT-A", "--port", "0", "--duration", "0.1"])
     assert a.host == "127.0.0.1" and a.sensor == "TT-A" and callable(a.func)
+
+
+def test_view_command_serves_then_stops():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests.hand_util import free_endpoint
+
+    ep = free_endpoint()
+    r = subprocess.run([sys.executable, "-m", "tools.view.cli", "--connect", ep, "--port", "0", "--duration", "1"],
+                       capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[1])
+    assert r.returncode == 0, r.stderr
+    assert "tensortouch view: http://127.0.0.1:" in r.stderr
