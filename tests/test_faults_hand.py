@@ -133,6 +133,29 @@ def test_camera_unplugged_and_replugged(rig):
         hand.stop()
 
 
+def test_sensor_absent_at_start_joins_later(rig):
+    from drivers.camera import camera_from_uri
+
+    tmp, pkg, videos = rig
+    cfg = hand_cfg(tmp, pkg, {s: f"file:{videos[s]}" for s in SERIALS}, reconnect_s=0.1, offline_after_s=30.0)
+    plug = Plug()
+    plug.unplugged = True
+    factory = _factory(cfg, {SICK: lambda f: FlakyCamera(camera_from_uri(f.source_uri, **cfg.camera_options), plug)})
+    col = Collector()
+    hand = Hand(cfg, camera_factory=factory).start()
+    sub = col.subscriber(cfg.listen)
+    try:
+        assert wait_until(lambda: all(col.n(s) > 5 for s in HEALTHY), 20)
+        assert wait_until(lambda: "camera_lost" in col.flags(SICK), 10), col.status.get(SICK)
+        assert col.n(SICK) == 0 and SICK in alive_sensors(sub, 0.5)        # declared, flagged, no data
+        plug.unplugged = False
+        assert wait_until(lambda: col.n(SICK) > 5, 15)
+        assert wait_until(lambda: "camera_lost" not in col.flags(SICK), 5)
+    finally:
+        sub.close()
+        hand.stop()
+
+
 def _black_frames():
     frames = poke_frames(90, seed=3)
     return frames[:35] + [np.zeros_like(frames[0])] * 55
