@@ -1,0 +1,213 @@
+"""Diagnosis: which physical effect is missing from the model? (pure core, no files)
+
+1. The session is cut into `n_blocks` contiguous time blocks (samples inside a block are
+   correlated; blocks are the unit of resampling).
+2. For every candidate effect (library + plugins, minus those already enabled) and every block b:
+   fit the effect's free parameters on the other blocks (bounded least squares, fit.py) and
+   score on block b. Per block: SSE before (model + enabled effects) and after (+ candidate).
+3. Held-out error = RMS of the residual vector over all held-out rows (N for force, relative
+   intensity for the brightness channel); reduction = 1 - after / before.
+4. Significance: one-sided sign-flip permutation test on the per-block SSE differences
+   (exact over all 2^B sign patterns for B <= 16), Holm-corrected over the candidates. An effect
+   is reported significant when the corrected p <= alpha AND the held-out reduction is at least
+   `min_reduction` (statistically and practically significant).
+5. Ranking by held-out reduction; the verdict is the best significant effect; its final
+   parameters are fitted on all blocks.
+6. The covariate that best explains the remaining residual (scan.py) is named.
+Nothing here reads a session's provenance or ground truth: only the sample table.
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from runtime.effects import Effect, EffectChain, EnabledEffect, Registry
+from tools.workbench.fit import Candidate, Channels, FitConfig, channel_of
+from tools.workbench.scan import ScanConfig, scan
+from tools.workbench.table import SCAN_COVARIATES, SampleTable
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DiagnoseConfig:
+    n_blocks: int = 16
+    alpha: float = 0.05
+    min_reduction: float = 0.05
+    max_exact_blocks: int = 16
+    n_perm: int = 20000           # Monte-Carlo sign flips when there are more blocks
+    seed: int = 0
+    fit: FitConfig = field(default_factory=FitConfig)
+    scan: ScanConfig = field(default_factory=ScanConfig)
+
+
+def time_blocks(time: np.ndarray, n_blocks: int) -> np.ndarray:
+    """Block id (0..n_blocks-1) per sample: equal-duration contiguous spans of the session."""
+    t = np.asarray(time, dtype=np.float64)
+    edges = np.linspace(t.min(), t.max(), n_blocks + 1)
+    return np.clip(np.searchsorted(edges, t, side="right") - 1, 0, n_blocks - 1)
+
+
+def sign_flip_pvalue(d: np.ndarray, cfg: DiagnoseConfig | None = None) -> float:
+    """One-sided p-value of sum(d) > 0 under random signs (H0: d symmetric about 0)."""
+    cfg = cfg or DiagnoseConfig()
+    d = np.asarray(d, dtype=np.float64)
+    obs = d.sum()
+    B = len(d)
+    if B <= cfg.max_exact_blocks:
+        signs = np.array(list(itertools.product((1.0, -1.0), repeat=B)))
+    else:
+        rng = np.random.default_rng(cfg.seed)
+        signs = np.vstack([np.ones(B), rng.choice((1.0, -1.0), size=(cfg.n_perm, B))])
+    stats = signs @ d
+    return float(np.mean(stats >= obs - 1e-12 * max(abs(obs), 1e-300)))
+
+
+def holm(pvalues: list[float]) -> list[float]:
+    """Holm-Bonferroni adjusted p-values (same order as given)."""
+    m = len(pvalues)
+    order = np.argsort(pvalues)
+    adj = np.empty(m)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * pvalues[i]))
+        adj[i] = running
+    return adj.tolist()
+
+
+@dataclass
+class EffectScore:
+    effect: Effect
+    channel: str
+    params: dict
+    before: float
+    after: float
+    p_value: float
+    p_adjusted: float = 1.0
+    significant: bool = False
+    block_gain: list = field(default_factory=list)
+
+    @property
+    def reduction(self) -> float:
+        return 1.0 - self.after / self.before if self.before > 0 else 0.0
+
+    def to_json(self) -> dict:
+        out = {"effect": self.effect.name, "params": {k: float(v) for k, v in self.params.items()},
+               "heldout_error_before": float(self.before), "heldout_error_after": float(self.after),
+               "reduction": float(self.reduction), "significant": bool(self.significant),
+               "p_value": float(self.p_value), "p_adjusted": float(self.p_adjusted)}
+        if self.channel != "force":
+            out["channel"] = self.channel
+            out["unit"] = "relative intensity"
+        return out
+
+
+@dataclass
+class Diagnosis:
+    ranking: list[EffectScore]
+    unexplained: dict
+    scan: list[dict]
+    enabled: list[str]
+    n_samples: int
+    n_blocks: int
+    seconds: float
+
+    @property
+    def verdict(self) -> EffectScore | None:
+        sig = [s for s in self.ranking if s.significant]
+        return sig[0] if sig else None
+
+    def to_json(self) -> dict:
+        v = self.verdict
+        return {"verdict": v.effect.name if v else None,
+                "ranking": [s.to_json() for s in self.ranking],
+                "unexplained": self.unexplained}
+
+    def words(self) -> list[str]:
+        lines = []
+        v = self.verdict
+        if v is not None:
+            unit = "N" if v.channel == "force" else "(relative intensity)"
+            lines.append(f"Missing physics: {v.effect.describe(v.params)}")
+            lines.append(f"  held-out error {v.before:.4g} -> {v.after:.4g} {unit} "
+                         f"({-100 * v.reduction:+.0f} %), p = {v.p_adjusted:.3g} (Holm-corrected)")
+        else:
+            best = self.ranking[0] if self.ranking else None
+            lines.append("No significant missing effect"
+                         + (f" (best candidate {best.effect.name}: {100 * best.reduction:+.1f} % "
+                            f"held-out error reduction, p = {best.p_adjusted:.2g})" if best else ""))
+        u = self.unexplained
+        if u.get("covariate"):
+            lines.append(f"What remains is best explained by {u['covariate']} "
+                         f"(held-out R² = {u['score']:.3f}, {u.get('form', '')} error)")
+        return lines
+
+
+def _score_candidate(effect: Effect, ch: Channels, blocks: np.ndarray, cfg: DiagnoseConfig) -> EffectScore:
+    cand = Candidate(effect, ch, cfg.fit)
+    rows = ch.rows(cand.channel)
+    blk = blocks[rows]
+    base = ch.base_residual(cand.channel)
+    ids = np.unique(blk)
+    before = np.zeros(len(ids))
+    after = np.zeros(len(ids))
+    scout = cand.scout(blk)
+    for i, b in enumerate(ids):
+        test = blk == b
+        train = np.flatnonzero(~test)
+        theta, _ = cand.fit(train, scout, ids[ids != b])
+        r = cand.residual(theta)[test]
+        before[i] = float(np.sum(base[test] ** 2))
+        after[i] = float(np.sum(r ** 2))
+    n = max(len(rows), 1)
+    theta_all, _ = cand.fit(np.arange(len(rows)), scout)
+    d = before - after
+    p = sign_flip_pvalue(d, cfg) if len(ids) > 1 else 1.0
+    return EffectScore(effect, cand.channel, cand.params(theta_all), float(np.sqrt(before.sum() / n)),
+                       float(np.sqrt(after.sum() / n)), p, block_gain=d.tolist())
+
+
+def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None = None,
+             cfg: DiagnoseConfig | None = None, candidates: list[str] | None = None) -> Diagnosis:
+    """Rank every candidate effect by held-out error reduction (see module docstring)."""
+    t0 = time.perf_counter()
+    cfg = cfg or DiagnoseConfig()
+    chain = enabled or EffectChain()
+    ch = Channels(table, chain)
+    blocks = time_blocks(table.cols["time"], cfg.n_blocks)
+    names = candidates if candidates is not None else [n for n in registry.names() if n not in chain.names]
+    scores = []
+    for name in names:
+        eff = registry.get(name)
+        if channel_of(eff) == "brightness" and len(ch.bright_rows) < 2 * cfg.n_blocks:
+            log.info("%s skipped: the table has no brightness measurements", name)
+            continue
+        missing = [c for c in eff.covariates if c not in ch.cov]
+        if missing:
+            log.info("%s skipped: covariates %s not in the table", name, missing)
+            continue
+        scores.append(_score_candidate(eff, ch, blocks, cfg))
+        log.debug("%s: %.4g -> %.4g (p=%.3g)", name, scores[-1].before, scores[-1].after, scores[-1].p_value)
+    for s, padj in zip(scores, holm([s.p_value for s in scores])):
+        s.p_adjusted = padj
+        s.significant = padj <= cfg.alpha and s.reduction >= cfg.min_reduction
+    scores.sort(key=lambda s: -s.reduction)
+    resid, pred = table.meas - ch.base_force, ch.base_force
+    sig = [s for s in scores if s.significant]
+    if sig and sig[0].channel == "force":  # what remains once the verdict is in
+        pred = sig[0].effect.apply(ch.base_force, ch.cov, sig[0].params)
+        resid = table.meas - pred
+    scanned = scan(ch.cov, SCAN_COVARIATES, resid, pred, blocks, cfg.scan)
+    unexplained = ({"covariate": scanned[0]["covariate"], "score": float(scanned[0]["score"]),
+                    "form": scanned[0]["form"], "unit": scanned[0]["unit"]}
+                   if scanned else {"covariate": None, "score": 0.0})
+    return Diagnosis(scores, unexplained, scanned, chain.names, len(table), cfg.n_blocks,
+                     time.perf_counter() - t0)
+
+
+def add_to_chain(chain: EffectChain, score: EffectScore) -> EffectChain:
+    return EffectChain(chain.items + [EnabledEffect(score.effect, dict(score.params))])

@@ -1,0 +1,167 @@
+"""Fitting effect parameters to measurements (pure numpy/scipy core).
+
+`Candidate` = the enabled chain (fixed parameters) followed by one effect whose free parameters
+are fitted by bounded least squares (scipy.optimize.least_squares, dogbox) on a
+subset of rows, started from the best point of a small grid over the bounds (robust to local
+minima such as the relaxation time). Forward passes always run over the whole table (sequential
+effects need the full series) but only the selected rows enter the cost; forward functions see
+the model prediction and covariates only, never the measurements, so held-out rows cannot leak.
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from runtime.effects import Effect, EffectChain
+from tools.workbench.table import SampleTable
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    grid_points: int = 3          # per free parameter (capped so the grid has <= max_grid points)
+    max_grid: int = 27
+    max_nfev: int = 40
+    diff_step: float = 1e-3       # relative finite-difference step
+    log_ratio: float = 20.0       # a positive range wider than this ratio is gridded in log
+
+
+def channel_of(effect: Effect) -> str:
+    """Which measurement an effect changes: 'force' or 'brightness'."""
+    return "brightness" if effect.stage == "image" else "force"
+
+
+class Channels:
+    """Base prediction (model + enabled chain) and the measurements, per channel."""
+
+    def __init__(self, table: SampleTable, chain: EffectChain):
+        self.table = table
+        self.cov = table.cov()
+        self.chain = chain
+        self.base_force = chain.apply(table.model, self.cov, stages=("force", "measurement"))
+        n = len(table)
+        bright = self.cov.get("brightness")
+        ok = self.cov.get("bright_ok")
+        if bright is not None:
+            mask = np.isfinite(bright) & (np.asarray(ok) > 0 if ok is not None else True)
+        else:
+            mask = np.zeros(n, bool)
+        self.bright_rows = np.flatnonzero(mask)
+        self.bright_meas = np.asarray(bright)[self.bright_rows] if bright is not None else np.zeros(0)
+        self.base_gain = chain.image_gain(self.cov, n)[self.bright_rows]
+
+    def rows(self, channel: str) -> np.ndarray:
+        return np.arange(len(self.table)) if channel == "force" else self.bright_rows
+
+    def base_residual(self, channel: str) -> np.ndarray:
+        """(M, k) residual of the base prediction on the channel's rows."""
+        if channel == "force":
+            return self.table.meas - self.base_force
+        return (self.bright_meas - self.base_gain)[:, None]
+
+
+class Candidate:
+    """One effect appended to the base chain; evaluates residuals for a parameter vector."""
+
+    def __init__(self, effect: Effect, ch: Channels, cfg: FitConfig | None = None):
+        self.effect, self.ch, self.cfg = effect, ch, cfg or FitConfig()
+        self.channel = channel_of(effect)
+        self.free = effect.free_params
+        self.defaults = effect.resolve({})
+        self.lo = np.array([p.lo for p in self.free])
+        self.hi = np.array([p.hi for p in self.free])
+
+    def params(self, theta: np.ndarray) -> dict:
+        p = dict(self.defaults)
+        p.update({q.name: float(v) for q, v in zip(self.free, np.clip(theta, self.lo, self.hi))})
+        return p
+
+    def residual(self, theta: np.ndarray) -> np.ndarray:
+        """(M, k) residual on the channel's rows for parameters theta."""
+        p = self.params(theta)
+        ch = self.ch
+        if self.channel == "force":
+            return ch.table.meas - self.effect.apply(ch.base_force, ch.cov, p)
+        gain = self.effect.gain(ch.cov, p)[ch.bright_rows]
+        return (ch.bright_meas - ch.base_gain * gain)[:, None]
+
+    def _grid(self) -> list[np.ndarray]:
+        k = len(self.free)
+        per = max(2, min(self.cfg.grid_points, int(round(self.cfg.max_grid ** (1.0 / max(k, 1))))))
+        axes = []
+        for q in self.free:
+            if q.lo > 0 and q.hi / q.lo > self.cfg.log_ratio:
+                axes.append(np.geomspace(q.lo, q.hi, per + 2)[1:-1])
+            else:
+                axes.append(np.linspace(q.lo, q.hi, per + 2)[1:-1])
+        off = self.effect.identity_params()
+        start = [np.array([off[q.name] for q in self.free])]
+        return start + [np.array(c) for c in itertools.product(*axes)]
+
+    def scout(self, blk: np.ndarray) -> "Scout":
+        """Evaluate the grid once: per grid point and block, the SSE; plus the rows the effect
+        can change at all. Fold fits then pick their start from training-block sums only."""
+        grid = self._grid() if self.free else [np.zeros(0)]
+        ids = np.unique(blk)
+        r0 = self.residual(grid[0])
+        costs = np.zeros((len(grid), len(ids)))
+        active = np.zeros(len(r0), bool)
+        for gi, g in enumerate(grid):
+            r = r0 if gi == 0 else self.residual(g)
+            if gi:
+                active |= np.any(r != r0, axis=1)
+            e = np.sum(r ** 2, axis=1)
+            costs[gi] = [float(e[blk == b].sum()) for b in ids]
+        return Scout(grid, ids, costs, active)
+
+    def fit(self, rows: np.ndarray, scout: "Scout | None" = None, train_blocks=None) -> tuple[np.ndarray, float]:
+        """Fit the free parameters on `rows` (indices into the channel's rows), started from the
+        best grid point (`scout` + the training block ids, or a fresh grid over `rows`).
+        Returns (theta, cost = sum of squared residuals on rows)."""
+        if not self.free:
+            return np.zeros(0), float(np.sum(self.residual(np.zeros(0))[rows] ** 2))
+
+        def cost(th):
+            return float(np.sum(self.residual(th)[rows] ** 2))
+
+        if scout is None:
+            grid = self._grid()
+            costs = np.array([cost(g) for g in grid])
+            active = np.ones(len(self.residual(grid[0])), bool)
+        else:
+            grid = scout.grid
+            cols = np.isin(scout.ids, train_blocks if train_blocks is not None else scout.ids)
+            costs = scout.costs[:, cols].sum(axis=1)
+            active = scout.active
+        # rows the effect leaves unchanged at every grid point (e.g. zero force for a gain) only
+        # add a constant to the cost: the optimizer works on the others
+        sub = rows[active[rows]] if active[rows].any() else rows
+        x0 = np.clip(grid[int(np.argmin(costs))], self.lo, self.hi)
+        span = np.maximum(self.hi - self.lo, 1e-12)
+        # least_squares needs x0 strictly inside the bounds
+        x0 = np.clip(x0, self.lo + 1e-6 * span, self.hi - 1e-6 * span)
+        try:
+            sol = least_squares(lambda th: self.residual(th)[sub].ravel(), x0,
+                                bounds=(self.lo, self.hi), x_scale=span, diff_step=self.cfg.diff_step,
+                                max_nfev=self.cfg.max_nfev, method="dogbox")
+            theta = sol.x
+        except (ValueError, FloatingPointError) as exc:
+            log.debug("least squares for %s failed (%s); keeping the grid point", self.effect.name, exc)
+            theta = x0
+        best = cost(theta)
+        if best > float(np.min(costs)):  # never return something worse than the best grid point
+            theta, best = grid[int(np.argmin(costs))], float(np.min(costs))
+        return np.asarray(theta, dtype=np.float64), best
+
+
+@dataclass
+class Scout:
+    grid: list
+    ids: np.ndarray
+    costs: np.ndarray      # (grid points, blocks) SSE
+    active: np.ndarray     # rows some grid point changes

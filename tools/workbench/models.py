@@ -1,0 +1,127 @@
+"""The model side of a comparison: something that predicts the contact force per sample.
+
+`ForceModel` is pluggable: anything with `name`, `fingerprint()` and `predict(table) -> (N,3) N`.
+Until the trained network is wired in, the default is `ContactLaw`, the nominal quasi-static
+contact mechanics of each indenter fitted once on a calibration session (no effects in it):
+
+    F = Fn(depth) * normal + c_t * sqrt(depth) * slip_vec,   |tangential| <= mu * Fn
+    Fn = monotone piecewise-linear in depth (non-negative hat weights, Fn(0) = 0)
+
+per indenter name (Hertz/Mindlin-like, but the force-depth curve is learned, so an FE-made or a
+real gel's curve fits too). Stored as JSON; the workbench caches raw predictions by fingerprint.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from runtime.errors import TensorTouchError
+from tools.workbench.scan import hat_basis
+from tools.workbench.table import SampleTable
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LawConfig:
+    knots: int = 10
+    mu: float = 2.2               # the model's friction coefficient (seed's mu)
+
+
+@dataclass
+class ContactLaw:
+    """Per indenter name: depth knots, normal-force weights, tangential stiffness coefficient."""
+
+    laws: dict = field(default_factory=dict)   # name -> {"knots": [...], "w": [...], "ct": float}
+    mu: float = 2.2
+    source: str = ""
+    name: str = "contact-law"
+
+    def fingerprint(self) -> str:
+        return hashlib.sha256(json.dumps({"laws": self.laws, "mu": self.mu}, sort_keys=True).encode()).hexdigest()[:16]
+
+    @staticmethod
+    def _kinds(table: SampleTable) -> np.ndarray:
+        names = table.meta.get("indenters", {})
+        return np.array([names.get(str(int(s)), f"indenter{int(s)}") for s in table.cols["series"]])
+
+    @classmethod
+    def fit(cls, table: SampleTable, cfg: LawConfig | None = None, source: str = "") -> "ContactLaw":
+        cfg = cfg or LawConfig()
+        kinds = cls._kinds(table)
+        d = table.cols["depth"]
+        n = table.vec["normal"]
+        sv = table.vec["slip_vec"]
+        laws = {}
+        for kind in np.unique(kinds):
+            m = (kinds == kind) & (d > 0)
+            if m.sum() < 3 * cfg.knots:
+                log.warning("contact law: indenter %s has only %d contact samples; skipped", kind, m.sum())
+                continue
+            knots = np.concatenate([[0.0], np.quantile(d[m], np.linspace(0.1, 1.0, cfg.knots - 1))])
+            knots = np.unique(knots)
+            B = hat_basis(d[m], knots)[:, 1:]                       # Fn(0) = 0
+            X = np.concatenate([B[:, None, :] * n[m][:, :, None],
+                                (np.sqrt(d[m])[:, None] * sv[m])[:, :, None]], axis=2).reshape(-1, B.shape[1] + 1)
+            y = table.meas[m].reshape(-1)
+            lo = np.r_[np.zeros(B.shape[1]), -np.inf]
+            sol = lsq_linear(X, y, bounds=(lo, np.full(B.shape[1] + 1, np.inf)))
+            w = np.maximum.accumulate(sol.x[:-1])                   # monotone force-depth curve
+            laws[str(kind)] = {"knots": knots.tolist(), "w": [0.0] + w.tolist(), "ct": float(sol.x[-1])}
+            log.info("contact law %s: Fn(%.2f mm) = %.3f N, ct = %.3f", kind, knots[-1], w[-1], sol.x[-1])
+        if not laws:
+            raise TensorTouchError("contact law: no indenter has enough contact samples to fit")
+        return cls(laws, cfg.mu, source)
+
+    def predict(self, table: SampleTable) -> np.ndarray:
+        kinds = self._kinds(table)
+        d = table.cols["depth"]
+        n = table.vec["normal"]
+        sv = table.vec["slip_vec"]
+        out = np.zeros((len(table), 3))
+        for kind in np.unique(kinds):
+            if kind not in self.laws:
+                raise TensorTouchError(f"contact law ({self.source}): no law for indenter {kind!r} "
+                                       f"(fitted: {sorted(self.laws)})")
+            law = self.laws[kind]
+            m = kinds == kind
+            knots = np.asarray(law["knots"])
+            dm = np.clip(d[m], 0.0, None)
+            fn = np.interp(dm, knots, law["w"], right=np.nan)
+            over = np.isnan(fn)  # beyond the calibrated range: extend the last slope
+            if over.any():
+                slope = (law["w"][-1] - law["w"][-2]) / max(knots[-1] - knots[-2], 1e-9)
+                fn[over] = law["w"][-1] + slope * (dm[over] - knots[-1])
+            ft = law["ct"] * np.sqrt(dm)[:, None] * sv[m]
+            ftm = np.linalg.norm(ft, axis=1)
+            cap = self.mu * fn
+            ft *= np.where(ftm > cap, cap / np.maximum(ftm, 1e-12), 1.0)[:, None]
+            out[m] = fn[:, None] * n[m] + ft
+        out[d <= 0] = 0.0
+        return out
+
+    def save(self, path: str | Path) -> None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({"schema": "tensortouch.contact_law", "mu": self.mu, "source": self.source,
+                                   "laws": self.laws}, indent=2))
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "ContactLaw":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise TensorTouchError(f"{path}: cannot read the contact-law model ({exc})") from None
+        if data.get("schema") != "tensortouch.contact_law":
+            raise TensorTouchError(f"{path}: schema {data.get('schema')!r}, expected 'tensortouch.contact_law'")
+        return cls(data["laws"], float(data["mu"]), data.get("source", str(path)))

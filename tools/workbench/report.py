@@ -1,0 +1,225 @@
+"""Pictures and the HTML report of a comparison (matplotlib, Agg; small PNGs).
+
+residual_map.png   signed normal-force residual over the gel (θ/φ, polar view), contact samples
+residual_vs.png    residual vs depth, loading rate, slip, temperature, time, load history,
+                   brightness
+timeline.png       measured vs predicted |F| and residual over the session
+worst.png          the worst samples with their camera frames
+before_after.png   error per axis before/after (when a previous comparison is given)
+"""
+from __future__ import annotations
+
+import html
+import json
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+DPI = 72
+PANELS = (("depth", "depth (mm)"), ("rate", "loading rate (mm/s)"), ("slip", "slip (mm)"),
+          ("temperature", "temperature (°C)"), ("time", "time (s)"), ("load_history", "max depth − depth (mm)"),
+          ("brightness", "frame brightness (rel.)"), ("rim_distance", "distance to rim (mm)"))
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> str:
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
+    fig.savefig(tmp, dpi=DPI)
+    tmp.replace(path)
+    _plt().close(fig)
+    return path.name
+
+
+def normal_residual(comp) -> np.ndarray:
+    r = comp.table.meas - comp.pred
+    n = comp.table.vec.get("normal")
+    return np.sum(r * n, axis=1) if n is not None else np.linalg.norm(r, axis=1)
+
+
+def residual_map(comp, path: Path) -> str:
+    plt = _plt()
+    c = comp.table.cols
+    m = c["depth"] > 0
+    rn = normal_residual(comp)
+    fig, ax = plt.subplots(figsize=(4.6, 4.0))
+    x, y = c["theta"][m] * np.cos(c["phi"][m]), c["theta"][m] * np.sin(c["phi"][m])
+    lim = max(float(np.quantile(np.abs(rn[m]), 0.98)) if m.any() else 1e-3, 1e-3)
+    sc = ax.scatter(x, y, c=rn[m], s=4, cmap="coolwarm", vmin=-lim, vmax=lim)
+    fig.colorbar(sc, ax=ax, label="normal-force residual (N)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("θ cos φ (rad)")
+    ax.set_ylabel("θ sin φ (rad)")
+    ax.set_title("residual over the gel (contact samples)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def residual_vs(comp, path: Path) -> str:
+    plt = _plt()
+    cov = comp.table.cov()
+    rn = normal_residual(comp)
+    contact = comp.table.cols["depth"] > 0
+    panels = [(k, lab) for k, lab in PANELS if k in cov]
+    fig, axes = plt.subplots(2, (len(panels) + 1) // 2, figsize=(3.0 * ((len(panels) + 1) // 2), 5.2), squeeze=False)
+    for ax, (key, label) in zip(axes.ravel(), panels):
+        v = np.asarray(cov[key], dtype=np.float64)
+        if key == "brightness":
+            ok = np.isfinite(v)
+            g = comp.chain.image_gain(cov, len(v))
+            ax.plot(cov["time"][ok], v[ok] - g[ok], ".", ms=2)
+            ax.set_xlabel("time (s)")
+            ax.set_ylabel("brightness residual")
+            continue
+        sel = contact if key not in ("time",) else np.ones_like(contact)
+        ax.plot(v[sel], rn[sel], ".", ms=1.5, alpha=0.4)
+        if sel.sum() > 20:
+            edges = np.unique(np.quantile(v[sel], np.linspace(0, 1, 13)))
+            idx = np.clip(np.searchsorted(edges, v[sel], side="right") - 1, 0, len(edges) - 2)
+            med = [np.median(rn[sel][idx == i]) if np.any(idx == i) else np.nan for i in range(len(edges) - 1)]
+            ax.plot(0.5 * (edges[1:] + edges[:-1]), med, "-", color="C3", lw=2)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_xlabel(label)
+        ax.set_ylabel("residual (N)")
+    for ax in axes.ravel()[len(panels):]:
+        ax.axis("off")
+    fig.suptitle("normal-force residual vs covariates (red: binned median)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def timeline(comp, path: Path) -> str:
+    plt = _plt()
+    t = comp.table.cols["time"]
+    s = comp.table.cols["series"]
+    fig, ax = plt.subplots(2, 1, figsize=(8, 4.2), sharex=True)
+    for k in np.unique(s)[:2]:
+        m = s == k
+        ax[0].plot(t[m], np.linalg.norm(comp.table.meas[m], axis=1), lw=0.8, label=f"measured #{int(k)}")
+        ax[0].plot(t[m], np.linalg.norm(comp.pred[m], axis=1), lw=0.8, ls="--", label=f"model #{int(k)}")
+        ax[1].plot(t[m], np.linalg.norm(comp.table.meas[m] - comp.pred[m], axis=1), lw=0.6)
+    ax[0].set_ylabel("|F| (N)")
+    ax[0].legend(fontsize=7, ncol=4)
+    ax[1].set_ylabel("|residual| (N)")
+    ax[1].set_xlabel("time (s)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _frame_at(session_path: Path, t: float):
+    try:
+        import cv2
+
+        from runtime.session import load_session
+
+        s = load_session(session_path, check_frames=False)
+        fr = s.table("frames")
+        i = int(np.argmin(np.abs(fr[:, 0] - t)))
+        kind, src = s.image_source()
+        if kind == "video":
+            cap = cv2.VideoCapture(str(src))
+            cap.set(cv2.CAP_PROP_POS_FRAMES, int(fr[i, 1]))
+            ok, img = cap.read()
+            cap.release()
+            return img[:, :, ::-1] if ok else None
+        img = cv2.imread(str(src / f"{int(fr[i, 1]):06d}.png"), cv2.IMREAD_COLOR)
+        return None if img is None else img[:, :, ::-1]
+    except Exception as exc:  # pictures are best effort; the numbers are in summary.json
+        log.warning("frame at t=%.2f s unavailable: %s", t, exc)
+        return None
+
+
+def worst(comp, path: Path, session_path: Path | None, k: int = 6) -> tuple[str, list[dict]]:
+    plt = _plt()
+    err = np.linalg.norm(comp.table.meas - comp.pred, axis=1)
+    order = np.argsort(-err)
+    picked, times = [], []
+    for i in order:  # one per second of the session, so the worst are not all one press
+        t = comp.table.cols["time"][i]
+        if all(abs(t - u) > 1.0 for u in times):
+            picked.append(int(i))
+            times.append(t)
+        if len(picked) >= k:
+            break
+    fig, axes = plt.subplots(1, len(picked), figsize=(2.2 * max(len(picked), 1), 2.6), squeeze=False)
+    rows = []
+    for ax, i in zip(axes[0], picked):
+        c = comp.table.cols
+        img = _frame_at(session_path, float(c["t"][i])) if session_path else None
+        if img is not None:
+            ax.imshow(img)
+        ax.set_title(f"t={c['time'][i]:.1f}s |r|={err[i]:.2f}N", fontsize=7)
+        ax.axis("off")
+        rows.append({"time": float(c["time"][i]), "indenter": int(c["series"][i]), "error_n": float(err[i]),
+                     "depth_mm": float(c["depth"][i]), "measured": comp.table.meas[i].tolist(),
+                     "predicted": comp.pred[i].tolist()})
+    fig.tight_layout()
+    return _save(fig, path), rows
+
+
+def before_after(prev: dict, cur: dict, path: Path) -> str:
+    plt = _plt()
+    keys = ["rms_x", "rms_y", "rms_z", "rms_vector", "mae_magnitude"]
+    a = [prev["force_error"][k] for k in keys]
+    b = [cur["force_error"][k] for k in keys]
+    fig, ax = plt.subplots(figsize=(5.5, 3.0))
+    x = np.arange(len(keys))
+    ax.bar(x - 0.2, a, 0.4, label=f"before ({len(prev.get('effects', []))} effects)")
+    ax.bar(x + 0.2, b, 0.4, label=f"after ({len(cur.get('effects', []))} effects)")
+    ax.set_xticks(x, keys)
+    ax.set_ylabel("force error (N)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _table_html(err: dict) -> str:
+    cells = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.4g}</td></tr>" for k, v in err.items()
+                    if isinstance(v, float))
+    return f"<table border=1 cellpadding=3>{cells}</table>"
+
+
+def write_report(comp, out: Path, session_path: Path | None = None, previous: dict | None = None) -> Path:
+    """summary.json, PNGs and report.html into `out`; returns the HTML path."""
+    out.mkdir(parents=True, exist_ok=True)
+    pics = [residual_map(comp, out / "residual_map.png"), residual_vs(comp, out / "residual_vs.png"),
+            timeline(comp, out / "timeline.png")]
+    wname, wrows = worst(comp, out / "worst.png", session_path)
+    pics.append(wname)
+    comp.summary["worst_samples"] = wrows
+    parts = [f"<h1>TensorTouch compare: {html.escape(str(comp.summary.get('session', '')))}</h1>",
+             f"<p>sensor {html.escape(str(comp.summary.get('sensor_id', '')))}, calibration "
+             f"{html.escape(str(comp.summary.get('calibration_version', '')))}, model "
+             f"{html.escape(json.dumps(comp.summary.get('model', {})))}</p>",
+             f"<p>enabled effects: {html.escape(', '.join(e['name'] for e in comp.summary['effects']) or 'none')}</p>",
+             "<h2>Force error, all samples (N)</h2>", _table_html(comp.summary["force_error"]),
+             "<h2>Force error, contact samples (N)</h2>", _table_html(comp.summary["force_error_contact"])]
+    if previous is not None:
+        comp.summary["before"] = {"effects": previous.get("effects", []), "force_error": previous["force_error"]}
+        pics.append(before_after(previous, comp.summary, out / "before_after.png"))
+        rows = "".join(f"<tr><td>{k}</td><td>{previous['force_error'][k]:.4g}</td><td>{v:.4g}</td>"
+                       f"<td>{100 * (v / previous['force_error'][k] - 1):+.0f} %</td></tr>"
+                       for k, v in comp.summary["force_error"].items()
+                       if isinstance(v, float) and previous["force_error"].get(k))
+        parts += ["<h2>Before / after</h2><table border=1 cellpadding=3><tr><th>error</th><th>before</th>"
+                  f"<th>after</th><th>change</th></tr>{rows}</table>"]
+    parts += [f'<h2>{html.escape(p[:-4].replace("_", " "))}</h2><img src="{p}">' for p in pics]
+    page = "<!doctype html><meta charset=utf-8><title>compare</title>" + "\n".join(parts)
+    tmp = out / f".report.{os.getpid()}.tmp"
+    tmp.write_text(page)
+    tmp.replace(out / "report.html")
+    tmp = out / f".summary.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(comp.summary, indent=2, default=float))
+    tmp.replace(out / "summary.json")
+    return out / "report.html"

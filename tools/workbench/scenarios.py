@@ -1,0 +1,84 @@
+"""Twin sessions for the workbench's tests, benchmark and walkthrough (recorded once, cached).
+
+Every scenario uses one twin unit, the same two indentation modules (so a contact law fitted on a
+calibration session applies), the analytic physics backend (fast; the FE backend works the same
+way, slower) and few camera frames (brightness needs only a slow rate). The rig's temperature
+drifts faster than the default so temperature-dependent physics is observable in a short session.
+This module is the only workbench file that imports the twin: diagnosis sees sessions only.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import shutil
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from runtime import paths
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    seed: int
+    pokes: int = 20
+    effects: tuple = ()                    # ((name, {param: value}), ...) switched on in truth
+    unit: str = "TWIN-WB01"
+    indenters: tuple = ("sphere5", "flat4")
+    kinds: tuple = ("poke", "press", "slide", "twist")
+    physics: str = "hertz-fallback"
+    fps: float = 2.0
+    temperature_drift: float = 0.05        # degC/s
+    model_size: int = 64
+    extra: dict = field(default_factory=dict)
+
+    def key(self) -> str:
+        d = {k: v for k, v in self.__dict__.items()}
+        if self.kinds == Scenario.kinds:  # keys of sessions recorded before `kinds` existed
+            d.pop("kinds")
+        d["effects"] = [[n, dict(p)] for n, p in self.effects]
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:14]
+
+
+def root() -> Path:
+    return paths.cache_dir() / "workbench" / "twin"
+
+
+def store_root(unit: str = "TWIN-WB01", model_size: int = 64) -> Path:
+    """A calibration store holding the unit's true calibration (written once)."""
+    from runtime.calibration import CalibrationStore
+    from tools.twin.unit import TwinUnit, write_true_calibration
+
+    folder = root() / f"store-{unit}-{model_size}"
+    if not CalibrationStore(folder).versions(unit):
+        write_true_calibration(TwinUnit(unit), folder, model_size)
+    return folder
+
+
+def fresh_store(dest: Path, unit: str = "TWIN-WB01", model_size: int = 64) -> Path:
+    """A private copy of the unit's store (tests and the bench add effects to it)."""
+    src = store_root(unit, model_size)
+    if dest.exists():
+        shutil.rmtree(dest)
+    shutil.copytree(src, dest)
+    return dest
+
+
+def record(sc: Scenario, progress=None) -> Path:
+    """The scenario's session folder (recorded on first use)."""
+    from tools.twin.record import RecordConfig, Recorder
+
+    out = root() / f"s-{sc.key()}"
+    if (out / "session.json").is_file():
+        return out
+    cfg = RecordConfig(serial=sc.unit, pokes=sc.pokes, seed=sc.seed,
+                       effects=[(n, dict(p)) for n, p in sc.effects], physics=sc.physics,
+                       frame_format="mjpg", model_size=sc.model_size)
+    cfg.rig = replace(cfg.rig, camera_fps=sc.fps, temperature_drift_c_per_s=sc.temperature_drift)
+    cfg.trajectory = replace(cfg.trajectory, indenters=tuple(sc.indenters), kinds=tuple(sc.kinds))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    log.info("recording twin scenario %s -> %s", sc, out)
+    Recorder(cfg, out, progress=progress).run()
+    return out

@@ -1,0 +1,109 @@
+"""The workbench's sample table: one row per (time, indenter) sample with the measured force, the
+model's raw prediction and every covariate. Built from a session by samples.py, or synthesized
+in tests. Stored as `.npz` (no pickle) for the cache and as `residuals.csv` for people.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from runtime.errors import SessionError
+
+log = logging.getLogger(__name__)
+
+# Scalar covariates scanned when no library effect explains the residual (name -> unit).
+SCAN_COVARIATES = {
+    "depth": "mm", "rate": "mm/s", "slip": "mm", "temperature": "degC", "time": "s",
+    "load_history": "mm", "max_depth": "mm", "theta": "rad", "phi": "rad", "rim_distance": "mm",
+    "brightness": "-", "force_n": "N", "force_t": "N",
+}
+REQUIRED = ("t", "series", "time")
+
+
+@dataclass
+class SampleTable:
+    """cols: 1-D per-sample arrays; meas/model: (N,3) N sensor frame; vec: (N,3)/(N,3,3) arrays."""
+
+    cols: dict[str, np.ndarray]
+    meas: np.ndarray
+    model: np.ndarray
+    vec: dict[str, np.ndarray] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        n = len(self.meas)
+        for k in REQUIRED:
+            if k not in self.cols:
+                raise SessionError(f"sample table: column {k!r} missing")
+        for name, arr in list(self.cols.items()) + list(self.vec.items()):
+            if len(arr) != n:
+                raise SessionError(f"sample table: column {name!r} has {len(arr)} rows, expected {n}")
+        if self.model.shape != (n, 3) or self.meas.shape != (n, 3):
+            raise SessionError("sample table: meas and model must both be (N, 3)")
+
+    def __len__(self) -> int:
+        return len(self.meas)
+
+    def cov(self) -> dict:
+        """Covariates for effects (scalar columns + vectors), derived force_n/force_t included."""
+        out = dict(self.cols)
+        out.update(self.vec)
+        if "force_n" not in out and "normal" in self.vec:
+            fn = np.sum(self.model * self.vec["normal"], axis=1)
+            out["force_n"] = np.abs(fn)
+            out["force_t"] = np.linalg.norm(self.model - fn[:, None] * self.vec["normal"], axis=1)
+        if "load_history" not in out and "max_depth" in out and "depth" in out:
+            out["load_history"] = np.clip(out["max_depth"] - out["depth"], 0.0, None)
+        return out
+
+    def with_model(self, model: np.ndarray) -> "SampleTable":
+        return SampleTable(self.cols, self.meas, np.asarray(model, dtype=np.float64), self.vec, self.meta)
+
+    # ----- storage -------------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        path = Path(path)
+        arrays = {f"col__{k}": v for k, v in self.cols.items()}
+        arrays.update({f"vec__{k}": v for k, v in self.vec.items()})
+        arrays["meas"], arrays["model"] = self.meas, self.model
+        arrays["meta_json"] = np.frombuffer(_json(self.meta).encode(), dtype=np.uint8)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SampleTable":
+        import json
+
+        with np.load(path, allow_pickle=False) as z:
+            cols = {k[5:]: z[k] for k in z.files if k.startswith("col__")}
+            vec = {k[5:]: z[k] for k in z.files if k.startswith("vec__")}
+            meta = json.loads(bytes(z["meta_json"]).decode())
+            return cls(cols, z["meas"], z["model"], vec, meta)
+
+
+def _json(obj) -> str:
+    import json
+
+    return json.dumps(obj, sort_keys=True, default=float)
+
+
+def write_residuals_csv(path: str | Path, table: SampleTable, pred: np.ndarray) -> None:
+    """One row per sample: measured, predicted, residual (N) and every scalar covariate."""
+    cov = table.cov()
+    names = [k for k in cov if np.ndim(cov[k]) == 1]
+    res = table.meas - pred
+    header = (["fx_meas", "fy_meas", "fz_meas", "fx_pred", "fy_pred", "fz_pred", "rx", "ry", "rz", "r_mag"]
+              + names)
+    data = np.column_stack([table.meas, pred, res, np.linalg.norm(res, axis=1)]
+                           + [np.asarray(cov[k], dtype=np.float64) for k in names])
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w") as fh:
+        fh.write(",".join(header) + "\n")
+        np.savetxt(fh, data, delimiter=",", fmt="%.6g")
+    tmp.replace(path)
