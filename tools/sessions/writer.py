@@ -46,14 +46,16 @@ def encode_video(staging: Path, out: Path, fourcc: str, fps: float, count: int, 
         except (OSError, ValueError):
             raise SessionError(f"{staging / f'{i:06d}.npy'}: staged frame missing or unreadable") from None
 
+    if fourcc == "MJPG":  # OpenCV ignores the quality setting for MJPG: own writer (tools/sessions/avi.py)
+        from tools.sessions.avi import write_mjpg_avi
+
+        return write_mjpg_avi(out, (load(i) for i in range(count)), fps, quality)
     first = load(0)
     h, w = first.shape[:2]
     tmp = out.with_name(".tmp-" + out.name)
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*fourcc), float(fps), (w, h))
     if not writer.isOpened():
         raise SessionError(f"{out}: OpenCV cannot open a {fourcc} video writer")
-    if fourcc == "MJPG":
-        writer.set(cv2.VIDEOWRITER_PROP_QUALITY, quality)
     for i in range(count):
         writer.write(first if i == 0 else load(i))
     writer.release()

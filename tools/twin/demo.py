@@ -2,8 +2,9 @@
 
     python -m tools.twin.demo [--out runtime/demo] [--store calibration_store]
 
-= `tensortouch twin record --unit TWIN-DEMO --pokes 3 --seed 7 --frames mjpg --calibration`, with
-FE physics (solves cached under cache/twin/fe), MJPG quality 80 to stay under ~5 MB. The new demo is
+= `tensortouch twin record --unit TWIN-DEMO --pokes 3 --seed 7 --frames mjpg --calibration` with
+shorter rests between pokes, FE physics (solves cached under cache/twin/fe), JPEG quality 65 so the
+session stays under ~5 MB. The new demo is
 recorded beside the old one and swapped in at the end, so an interrupted run leaves the old demo.
 """
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 from runtime import paths
 
 log = logging.getLogger(__name__)
-SERIAL, POKES, SEED, QUALITY = "TWIN-DEMO", 3, 7, 80
+SERIAL, POKES, SEED, QUALITY = "TWIN-DEMO", 3, 7, 65
 
 
 def main(argv=None) -> int:
@@ -33,6 +34,8 @@ def main(argv=None) -> int:
     staging = out.with_name(out.name + ".new")
     cfg = RecordConfig(serial=SERIAL, pokes=POKES, seed=SEED, physics="fe", frame_format="mjpg",
                        mjpg_quality=QUALITY)
+    cfg.trajectory.t_gap = (0.4, 0.7)   # short rests keep the demo under ~5 MB
+    cfg.trajectory.t_lead = 0.6
     rec = Recorder(cfg, staging, progress=_Bar())
     rec.run()
     old = out.with_name(out.name + ".old")

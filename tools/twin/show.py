@@ -1,5 +1,6 @@
-"""`twin show`: a contact sheet of a session -- frames, image change against the rest frame
-(in-plane and normal deformation both show up), and the force trace -- drawn with OpenCV only."""
+"""`twin show`: a contact sheet of a session -- frames, image motion against the rest frame
+(optical flow: in-plane sliding and the radial flow of a press both show up), and the F/T force
+trace -- drawn with OpenCV only."""
 from __future__ import annotations
 
 import logging
@@ -40,6 +41,21 @@ def pick_frames(session, n: int = 5) -> list[int]:
     return picks
 
 
+def flow_panel(rest: np.ndarray, frame: np.ndarray, full_px: float = 3.0) -> np.ndarray:
+    """Image motion rest -> frame (Farneback optical flow): hue = direction, brightness = magnitude
+    (full at `full_px`), so in-plane sliding and the radial flow of a press both show."""
+    a, b = (cv2.cvtColor(x, cv2.COLOR_BGR2GRAY) for x in (rest, frame))
+    flow = cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 15, 3, 5, 1.2, 0)
+    mag, ang = cv2.cartToPolar(flow[..., 0], flow[..., 1])
+    hsv = np.zeros(rest.shape, np.uint8)
+    hsv[..., 0] = (ang * 90 / np.pi).astype(np.uint8)
+    hsv[..., 1] = 255
+    hsv[..., 2] = np.clip(mag / full_px * 255, 0, 255).astype(np.uint8)
+    out = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+    _label(out, f"image motion, max {mag.max():.1f} px")
+    return out
+
+
 def _label(img, text, y=14):
     cv2.putText(img, text, (4, y), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
 
@@ -76,16 +92,12 @@ def contact_sheet(session_path, out_png, n: int = 5, scale: int = 1) -> Path:
     picks = sorted(set(pick_frames(s, n)))
     frames = dict(read_frames(s, sorted(set(picks))))
     times = s.table("frames")[:, 0]
-    rest = frames[0].astype(np.int16)
     top, mid = [], []
     for i in picks:
         f = frames[i].copy()
         _label(f, f"t={times[i]:.2f}s #{i}")
         top.append(f)
-        diff = np.abs(frames[i].astype(np.int16) - rest).max(axis=2)
-        d = cv2.applyColorMap(np.clip(diff * 4, 0, 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
-        _label(d, "|frame - rest| x4")
-        mid.append(d)
+        mid.append(flow_panel(frames[0], frames[i]))
     row1, row2 = np.hstack(top), np.hstack(mid)
     plot = force_plot(s, row1.shape[1], 170, [times[i] for i in picks])
     sheet = np.vstack([row1, row2, plot])
