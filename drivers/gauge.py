@@ -5,7 +5,7 @@ Two line protocols:
 - ``tt`` — TensorTouch gauge line protocol (streaming, e.g. a load-cell amplifier on a microcontroller
   or the twin gauge): one ASCII line per reading, NMEA-style checksum
 
-      F <newtons>*<XX>\\n        e.g.  b"F 2.3150*3A\\n"
+      F <newtons>*<XX>\\n        e.g.  b"F 2.3150*7D\\n"
 
   ``<newtons>`` is a decimal float (sign = direction along the gauge axis), ``XX`` two hex digits of
   the XOR of every byte before ``*``. Lines without a valid checksum are garbage and skipped.

@@ -54,7 +54,8 @@ def test_zero_constraint_no_contact_gives_exactly_zero(tmp_path):
     assert np.all(out[0] == 0.0) and np.all(out[2] == 0.0)
     assert out[1, 2] < -1.5   # stiffer gel: the correction raises the force
     # the forest itself predicts a non-zero gain at zero force: the constraint is what zeroes it
-    g0 = fit_forest(STIFF_SHIFTED.guided_pokes(rng, 6)).predict(np.array([[0.0, 0.5, 0.5]], np.float32))
+    zero = PokeSet(np.zeros((1, 3)), [0.0], [[0.5, 0.5]], [[0.0, 0.0]]).features(FitConfig().inputs)
+    g0 = fit_forest(STIFF_SHIFTED.guided_pokes(rng, 6)).predict(zero)
     assert g0[0] > 0.5
 
 
@@ -65,7 +66,7 @@ def test_correction_worse_than_the_active_one_is_refused(tmp_path):
     noisy = SyntheticUnit(stiffness_ratio=1.2, center_shift=(0.06, -0.04), radial_bias=0.25, gauge_rel_noise=0.05)
     cfg = FitConfig(max_depth=None)
     path = tmp_path / "bench.onnx"
-    path.write_bytes(to_onnx(fit_forest(STIFF_SHIFTED.held_out(rng, 400), cfg), 3, cfg))
+    path.write_bytes(to_onnx(fit_forest(STIFF_SHIFTED.held_out(rng, 400), cfg), len(cfg.inputs), cfg))
     active = ForceCorrection(path, {"inputs": list(cfg.inputs), "output": "gain"})
     pokes = noisy.guided_pokes(rng, 5)
     fit = fit_correction(pokes)

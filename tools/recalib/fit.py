@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 class FitConfig:
     """Forest and acceptance settings. Seed: 5–7 pokes; the gain clip matches the runtime's."""
 
-    inputs: tuple[str, ...] = ("fmag", "u", "v")   # feature columns (runtime FEATURES names)
+    # feature columns (runtime FEATURES names): magnitude and position (seed); θ lets a tree split on
+    # distance from the dome apex, where stiffness/thickness/centre errors of a dome mostly act
+    inputs: tuple[str, ...] = ("fmag", "theta", "u", "v")
     n_estimators: int = 50                        # DESIGN §10: 50 trees ≈ 10 µs/sample in onnxruntime
     max_depth: int | None = 3                     # shallow: 5–7 samples cannot support deeper trees
     min_samples_leaf: int = 1
