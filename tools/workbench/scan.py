@@ -1,11 +1,13 @@
-"""Which covariate best explains what remains? Held-out R² of smooth 1-D fits (pure core).
+"""Which covariate best explains what remains? Held-out partial R² of smooth 1-D fits (pure core).
 
 For every scalar covariate c the residual r (N,3) is explained in two ways by a piecewise-linear
 function of c (hat basis on quantile knots, light ridge):
     additive:        r_j ≈ s_j(c)               (an offset that depends on c)
     multiplicative:  r ≈ F_pred * s(c)           (a gain error that depends on c)
 each fitted on training blocks and scored on the held-out block (blocked CV). The score is the
-held-out R² = 1 - SSE_after / SSE_before over all held-out rows (0 = no better than nothing).
+held-out partial R² = 1 - SSE(c) / SSE(constant), where SSE(constant) is the better of "nothing"
+and the same two forms with a constant instead of a function of c: what c explains beyond a
+plain offset or gain error (0 = nothing more).
 """
 from __future__ import annotations
 
@@ -45,6 +47,30 @@ def _designs(B: np.ndarray, pred: np.ndarray) -> dict[str, np.ndarray]:
     return {"additive": add, "multiplicative": mul}
 
 
+def _cv_sse(B: np.ndarray, resid: np.ndarray, pred: np.ndarray, blocks: np.ndarray,
+            cfg: ScanConfig) -> dict[str, float]:
+    """Held-out SSE of both forms with basis B (blocked CV from per-block sufficient statistics)."""
+    y = resid.reshape(-1)
+    rowblock = np.repeat(blocks, 3)
+    out = {}
+    for form, X in _designs(B, pred).items():
+        stats = []
+        for b in np.unique(blocks):
+            m = rowblock == b
+            Xb, yb = X[m], y[m]
+            stats.append((Xb.T @ Xb, Xb.T @ yb, float(yb @ yb)))
+        XtX = sum(s[0] for s in stats)
+        Xty = sum(s[1] for s in stats)
+        sse = 0.0
+        for A_b, c_b, yy_b in stats:
+            A = XtX - A_b
+            A[np.diag_indices_from(A)] += cfg.ridge * max(float(np.mean(np.diag(A))), 1e-12)
+            w = np.linalg.solve(A, Xty - c_b)
+            sse += max(yy_b - 2.0 * float(w @ c_b) + float(w @ A_b @ w), 0.0)
+        out[form] = sse
+    return out
+
+
 def covariate_score(c: np.ndarray, resid: np.ndarray, pred: np.ndarray, blocks: np.ndarray,
                     cfg: ScanConfig | None = None) -> dict | None:
     """Held-out R² of the better of the two smooth forms; None when c cannot be scanned."""
@@ -57,29 +83,14 @@ def covariate_score(c: np.ndarray, resid: np.ndarray, pred: np.ndarray, blocks: 
     if len(knots) < 2:
         return None
     B = hat_basis(c, knots)
-    y = resid.reshape(-1)
-    rowblock = np.repeat(blocks, 3)
-    ids = np.unique(blocks)
+    const = _cv_sse(np.ones((len(c), 1)), resid, pred, blocks, cfg)
+    before = float(np.sum(resid ** 2))
+    ref = min(before, min(const.values()))
     best = None
-    for form, X in _designs(B, pred).items():
-        # sufficient statistics per block: the fold fits need only sums over the other blocks
-        stats = []
-        for b in ids:
-            m = rowblock == b
-            Xb, yb = X[m], y[m]
-            stats.append((Xb.T @ Xb, Xb.T @ yb, float(yb @ yb)))
-        XtX = sum(s[0] for s in stats)
-        Xty = sum(s[1] for s in stats)
-        sse_after = sse_before = 0.0
-        for A_b, c_b, yy_b in stats:
-            A = XtX - A_b
-            A[np.diag_indices_from(A)] += cfg.ridge * max(float(np.mean(np.diag(A))), 1e-12)
-            w = np.linalg.solve(A, Xty - c_b)
-            sse_after += max(yy_b - 2.0 * float(w @ c_b) + float(w @ A_b @ w), 0.0)
-            sse_before += yy_b
-        r2 = 1.0 - sse_after / max(sse_before, 1e-300)
-        if best is None or r2 > best["score"]:
-            best = {"score": r2, "form": form}
+    for form, sse in _cv_sse(B, resid, pred, blocks, cfg).items():
+        score = 1.0 - sse / max(ref, 1e-300)
+        if best is None or score > best["score"]:
+            best = {"score": score, "form": form}
     return best
 
 

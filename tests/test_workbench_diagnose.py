@@ -1,0 +1,140 @@
+"""Diagnosis core on synthetic sample tables (fast). The hidden effects are applied by an
+independent alteration script (tests/workbench_synth.py: e.g. viscoelasticity via scipy.signal.lsim),
+not by the model-side effect code the diagnosis fits."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.effects import EffectChain, Registry
+from tests.workbench_synth import synth_table
+from tools.workbench.diagnose import DiagnoseConfig, add_to_chain, diagnose, holm, sign_flip_pvalue, time_blocks
+from tools.workbench.scan import covariate_score
+
+PLUGINS = Path(__file__).parent / "workbench_plugins"
+HIDDEN = {
+    "temperature_softening": {"alpha": 0.03, "t_ref": 22.0},
+    "viscoelastic_relaxation": {"g1": 0.3, "tau": 1.5},
+    "mullins_softening": {"r": 0.3, "m": 0.5},
+    "strain_stiffening": {"k": 20.0},
+    "friction_mismatch": {"mu": 0.5},
+    "rim_stiffening": {"a": 1.5, "w": 3.0},
+    "ft_bias_drift": {"bx": 0.0, "by": 0.001, "bz": 0.003},
+    "led_drift": {"c": -0.002, "beta": 0.01, "t_ref": 25.0},
+}
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return Registry.default(entry_points=False)
+
+
+def small(seed, truth=None, **kw):
+    return synth_table(seed, n_pokes=30, rate=25.0, truth=truth or [], **kw)
+
+
+def test_sign_flip_pvalue_exact_values():
+    assert sign_flip_pvalue(np.ones(8)) == pytest.approx(1 / 256)
+    assert sign_flip_pvalue(-np.ones(8)) == 1.0
+    d = np.array([1.0, -1.0] * 4)
+    assert 0.5 < sign_flip_pvalue(d) < 0.7           # sum 0: about half of the flips reach it
+    d = np.array([3.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0])
+    # patterns with sum >= 8: flip nothing, or flip only the -1 (sum 10) ... count exactly
+    signs = np.array(np.meshgrid(*[[1, -1]] * 8)).reshape(8, -1).T
+    assert sign_flip_pvalue(d) == pytest.approx(np.mean(signs @ d >= d.sum() - 1e-12))
+
+
+def test_holm_adjustment():
+    assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+    assert holm([0.5]) == [0.5]
+
+
+def test_time_blocks_are_contiguous_and_balanced():
+    t = np.sort(np.random.default_rng(0).uniform(0, 100, 1000))
+    b = time_blocks(t, 10)
+    assert np.all(np.diff(b) >= 0) and set(b) == set(range(10))
+
+
+@pytest.mark.parametrize("name", list(HIDDEN))
+def test_hidden_single_effect_is_ranked_first_and_halves_the_error(name, registry):
+    table = small(1, [(name, HIDDEN[name])])
+    diag = diagnose(table, registry)
+    top = diag.ranking[0]
+    assert top.effect.name == name
+    assert diag.verdict is not None and diag.verdict.effect.name == name
+    assert top.reduction >= 0.5, (name, top.reduction)
+    assert "Missing physics" in diag.words()[0]
+
+
+def test_fitted_parameters_recover_the_hidden_values(registry):
+    diag = diagnose(small(2, [("viscoelastic_relaxation", {"g1": 0.3, "tau": 1.5})]), registry)
+    p = diag.verdict.params
+    assert p["g1"] == pytest.approx(0.3, abs=0.03) and p["tau"] == pytest.approx(1.5, rel=0.15)
+
+
+def test_null_sessions_say_no_significant_missing_effect(registry):
+    verdicts = [diagnose(small(100 + s), registry).verdict for s in range(10)]
+    assert sum(v is None for v in verdicts) >= 9, [v.effect.name for v in verdicts if v]
+
+
+def test_two_hidden_effects_are_found_one_after_the_other(registry):
+    truth = [("strain_stiffening", {"k": 20.0}), ("ft_bias_drift", {"bx": 0.0, "by": 0.0, "bz": 0.003})]
+    table = small(3, truth)
+    first = diagnose(table, registry)
+    assert first.verdict.effect.name in {"strain_stiffening", "ft_bias_drift"}
+    chain = add_to_chain(EffectChain(), first.verdict)
+    second = diagnose(table, registry, chain)
+    assert second.verdict is not None
+    assert {first.verdict.effect.name, second.verdict.effect.name} == {"strain_stiffening", "ft_bias_drift"}
+    assert second.verdict.reduction >= 0.5
+    third = diagnose(table, registry, add_to_chain(chain, second.verdict))
+    assert third.verdict is None
+
+
+def test_unknown_effect_names_its_covariate_and_a_user_plugin_fixes_it(registry):
+    table = small(4, [("azimuth_stiffness", {"a": 0.3, "phi0": 1.0})])
+    diag = diagnose(table, registry)
+    assert diag.verdict is None or diag.verdict.reduction < 0.5
+    assert diag.unexplained["covariate"] == "phi"
+    assert diag.unexplained["score"] > 0.5
+    assert sum(1 for _ in open(PLUGINS / "azimuth_stiffness.py")) <= 40
+    with_plugin = Registry.default(plugin_dirs=[PLUGINS], entry_points=False)
+    diag2 = diagnose(table, with_plugin)
+    assert diag2.verdict.effect.name == "azimuth_stiffness"
+    assert diag2.verdict.reduction >= 0.5
+    assert diag2.verdict.params["phi0"] == pytest.approx(1.0, abs=0.1)
+
+
+def test_enabled_effects_are_not_candidates_again(registry):
+    table = small(5, [("strain_stiffening", {"k": 20.0})])
+    chain = EffectChain.from_list([{"name": "strain_stiffening", "params": {"k": 20.0}}], registry)
+    diag = diagnose(table, registry, chain)
+    assert "strain_stiffening" not in [s.effect.name for s in diag.ranking]
+    assert diag.verdict is None
+
+
+def test_json_contract(registry):
+    out = diagnose(small(6, [("mullins_softening", HIDDEN["mullins_softening"])]), registry).to_json()
+    assert set(out) == {"verdict", "ranking", "unexplained"}
+    row = out["ranking"][0]
+    assert {"effect", "params", "heldout_error_before", "heldout_error_after", "reduction", "significant"} <= set(row)
+    assert set(out["unexplained"]) >= {"covariate", "score"}
+
+
+def test_covariate_scan_finds_a_gain_that_depends_on_depth():
+    rng = np.random.default_rng(0)
+    n = 2000
+    depth = rng.uniform(0, 2, n)
+    pred = np.column_stack([np.zeros(n), np.zeros(n), depth ** 1.5])
+    resid = pred * (0.2 * depth ** 2)[:, None] + rng.normal(0, 0.01, (n, 3))
+    blocks = np.repeat(np.arange(10), n // 10)
+    good = covariate_score(depth, resid, pred, blocks)
+    noise = covariate_score(rng.uniform(0, 1, n), resid, pred, blocks)
+    assert good["score"] > 0.9 and good["form"] == "multiplicative"
+    assert noise["score"] < 0.05
+
+
+def test_more_blocks_use_monte_carlo_flips():
+    cfg = DiagnoseConfig(n_blocks=20, n_perm=4000)
+    p = sign_flip_pvalue(np.ones(20), cfg)
+    assert p == pytest.approx(1 / 4001)
