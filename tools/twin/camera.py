@@ -152,7 +152,7 @@ def rest_view(model: FisheyeModel, gel: GelSurface, pattern: PatternConfig) -> R
     edge = np.clip((dist - pattern.dot_radius) / np.maximum(foot, 1e-3) + 0.5, 0.0, 1.0)
     albedo = np.full(mask.shape, pattern.background)
     albedo[mask] = pattern.dot_albedo + (pattern.skin_albedo - pattern.dot_albedo) * edge
-    return RestView(pts, normals, mask, albedo, grid.astype(np.float32))
+    return RestView(pts, normals, mask, albedo.astype(np.float32), grid.astype(np.float32))
 
 
 @dataclass
@@ -166,6 +166,7 @@ class Renderer:
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     led_brightness: np.ndarray | None = None
     iterations: int = 3
+    shading_step: int = 2           # LED shading evaluated on every 2nd pixel and upsampled
 
     def __post_init__(self):
         self.view = rest_view(self.model, self.gel, self.pattern)
@@ -189,33 +190,55 @@ class Renderer:
         n = np.cross(np.gradient(X, axis=1), np.gradient(X, axis=0))
         return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
 
+    def _rest_fd(self):
+        """Finite-difference normals of the rest grid (full frame, float32), oriented outward."""
+        if getattr(self, "_fd0", None) is None:
+            v = self.view
+            fd0 = self._fd_normals(v.points).astype(np.float32)
+            sign = np.where(np.sum(fd0 * v.normals, -1, keepdims=True) < 0, -1.0, 1.0).astype(np.float32)
+            self._fd0, self._sign = fd0 * sign, sign
+        return self._fd0, self._sign
+
     def _normals(self, X, box):
-        """Deformed normals: analytic rest normal + change of the finite-difference normal (the
-        difference cancels the grid's edge artefacts at the gel rim)."""
-        v = self.view
-        n0 = v.normals[box]
-        fd0 = self._fd_normals(v.points[box])
-        sign = np.where(np.sum(fd0 * n0, -1, keepdims=True) < 0, -1.0, 1.0)
-        n = n0 + sign * (self._fd_normals(X) - fd0)
-        return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+        """Deformed normals on `box`: analytic rest normal + change of the finite-difference normal
+        (the difference cancels the grid's edge artefacts at the gel rim). X is the deformed grid
+        on `box` padded by one pixel where the frame allows (central differences inside)."""
+        fd0, sign = self._rest_fd()
+        n = self.view.normals[box] + sign[box] * self._fd_normals(X) - fd0[box]
+        return (n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)).astype(np.float32)
+
+    def _padded(self, box):
+        H, W = self.view.mask.shape
+        r0, r1 = max(box[0].start - 1, 0), min(box[0].stop + 1, H)
+        c0, c1 = max(box[1].start - 1, 0), min(box[1].stop + 1, W)
+        inner = (slice(box[0].start - r0, box[0].stop - r0), slice(box[1].start - c0, box[1].stop - c0))
+        return (slice(r0, r1), slice(c0, c1)), inner
 
     def shade(self, u: np.ndarray, box=None) -> np.ndarray:
-        """Intensity (h,w,3) of the rest pixels in `box` (default: the gel's bounding box) for
-        surface displacement u (H,W,3) mm."""
+        """Intensity (h,w,3) float32 of the rest pixels in `box` (default: the gel's bounding box)
+        for surface displacement u (H,W,3) mm."""
         v = self.view
         box = self.box if box is None else box
-        X = v.points[box] + u[box]
-        n = self._normals(X, box)
-        nx, ny, nz = n[..., 0], n[..., 1], n[..., 2]
-        x, y, z = X[..., 0], X[..., 1], X[..., 2]
-        acc = np.zeros(X.shape, dtype=np.float64)
-        for pos, rgb in zip(self.led_pos, self.led_rgb):
-            wx, wy, wz = pos[0] - x, pos[1] - y, pos[2] - z
-            d2 = wx * wx + wy * wy + wz * wz
-            lam = np.clip(-(nx * wx + ny * wy + nz * wz), 0.0, None) * (self.leds.d_ref ** 2) / (d2 * np.sqrt(d2))
-            acc += lam[..., None] * rgb
-        inner = (self.leds.ambient + self.leds.gain * acc) * v.albedo[box][..., None]
-        return np.where(v.mask[box][..., None], inner, self.pattern.background)
+        pbox, inner = self._padded(box)
+        Xp = (v.points[pbox] + u[pbox]).astype(np.float32)
+        n = self._normals(Xp, pbox)[inner]
+        X = Xp[inner]
+        h, w = X.shape[:2]
+        k = max(1, int(self.shading_step))
+        if k > 1:  # LED shading is smooth at the mm scale: evaluate on every k-th pixel, upsample
+            X, n = X[::k, ::k], n[::k, ::k]
+        L = self.led_pos.astype(np.float32)
+        wx = L[:, 0, None, None] - X[None, ..., 0]
+        wy = L[:, 1, None, None] - X[None, ..., 1]
+        wz = L[:, 2, None, None] - X[None, ..., 2]
+        d2 = wx * wx + wy * wy + wz * wz
+        dot = -(n[None, ..., 0] * wx + n[None, ..., 1] * wy + n[None, ..., 2] * wz)
+        lam = np.maximum(dot, 0.0) * np.float32(self.leds.d_ref ** 2) / (d2 * np.sqrt(d2))
+        acc = (self.led_rgb.T.astype(np.float32) @ lam.reshape(len(L), -1)).reshape(3, *lam.shape[1:]).transpose(1, 2, 0)
+        if k > 1:
+            acc = cv2.resize(np.ascontiguousarray(acc), (w, h), interpolation=cv2.INTER_LINEAR)
+        inner_img = (np.float32(self.leds.ambient) + np.float32(self.leds.gain) * acc) * v.albedo[box][..., None]
+        return np.where(v.mask[box][..., None], inner_img, np.float32(self.pattern.background)).astype(np.float32)
 
     def active_box(self, u: np.ndarray, tol: float = 1e-3):
         """Bounding box (with a margin) of the pixels whose displacement exceeds `tol` mm."""
@@ -238,7 +261,7 @@ class Renderer:
         I0[box] = self.shade(u, box)
         flow = np.zeros(v.grid.shape, dtype=np.float32)
         Xb = v.points[box] + u[box]
-        flow[box] = np.where(v.mask[box][..., None], self.model.project(Xb) - v.grid[box], 0.0)
+        flow[box] = np.where(v.mask[box][..., None], self.model.project(Xb) - v.grid[box], 0.0).astype(np.float32)
         q = v.grid - flow
         for _ in range(self.iterations):
             d = cv2.remap(flow, q[..., 0], q[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
