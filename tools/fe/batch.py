@@ -13,6 +13,7 @@ import logging
 import os
 import sys
 import time
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
@@ -92,7 +93,8 @@ def run_batch(scenarios, out_dir=None, workers: int = 2, retry_failed: bool = Fa
     t0 = time.time()
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one BLAS thread per worker process
     workers = max(1, min(workers, len(todo) or 1))
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    # spawn, not fork: gmsh and BLAS thread pools deadlock in forked children
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = {pool.submit(_job, str(p), str(out / f"{h}.npz")): (p, h) for p, h in todo}
         for n, fut in enumerate(as_completed(futures), 1):
             p, h = futures[fut]

@@ -80,7 +80,7 @@ def mesh_gel(gel: GelGeometry, settings: MeshSettings, stl_path: str = "") -> Ge
         gmsh.option.setNumber("General.NumThreads", 1)
         gmsh.model.add("gel")
         if gel.kind == "stl":
-            _stl_gel(gmsh, stl_path)
+            _stl_gel(gmsh, stl_path or gel.stl_path)
         else:
             _occ_gel(gmsh, gel)
         boundary = gmsh.model.getBoundary(gmsh.model.getEntities(3), oriented=False)
