@@ -1,0 +1,119 @@
+"""compare -> diagnose -> effects add -> compare on real twin sessions, through the CLI.
+
+Twin sessions are recorded once into the cache (tools.workbench.scenarios; analytic physics, few
+frames) and reused. The calibration store and every output live in tmp_path."""
+import argparse
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from runtime.calibration import CalibrationStore
+from tests.workbench_alter import copy_without_truth
+from tools.workbench import cli
+from tools.workbench.scenarios import Scenario, fresh_store, record
+
+pytest.importorskip("tools.twin.record")
+SENSOR = "TWIN-WB01"
+
+
+def run(argv, capsys):
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    cli.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    code = args.func(args)
+    return code, capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    calib = record(Scenario(100, pokes=30))
+    hidden = record(Scenario(40, pokes=14, effects=(("strain_stiffening", {"k": 15.0}),)))
+    return calib, hidden
+
+
+@pytest.fixture
+def env(tmp_path, monkeypatch, sessions):
+    monkeypatch.setenv("TENSORTOUCH_CACHE", str(tmp_path / "cache"))
+    store = fresh_store(tmp_path / "store")
+    return sessions, store, tmp_path
+
+
+def test_compare_diagnose_add_compare_shows_the_error_falling(env, capsys):
+    (calib, hidden), store, tmp = env
+    common = ["--sensor", SENSOR, "--store", str(store)]
+    out = tmp / "cmp"
+    code, text = run(["compare", str(hidden), *common, "--out", str(out), "--model-from", str(calib)], capsys)
+    assert code == 0
+    for name in ("residuals.csv", "summary.json", "report.html", "residual_map.png", "residual_vs.png",
+                 "timeline.png", "worst.png"):
+        assert (out / name).is_file(), name
+    summary = json.loads((out / "summary.json").read_text())
+    header = (out / "residuals.csv").read_text().splitlines()[0].split(",")
+    assert {"rx", "depth", "rate", "slip", "temperature", "time", "theta", "phi", "brightness"} <= set(header)
+    before = summary["force_error"]["rms_vector"]
+
+    code, text = run(["diagnose", str(hidden), *common, "--json"], capsys)
+    assert code == 0
+    result = json.loads(text.strip().splitlines()[-1])
+    assert result["verdict"] == "strain_stiffening"
+    assert result["ranking"][0]["significant"] and result["ranking"][0]["reduction"] >= 0.5
+    assert "Missing physics" in text and "k = " in text
+
+    code, text = run(["effects", "add", "strain_stiffening", "--from-diagnosis", *common], capsys)
+    assert code == 0 and "calibration v0002" in text
+    cal = CalibrationStore(store).load(SENSOR)
+    assert cal.effects[0]["name"] == "strain_stiffening"
+    assert cal.effects[0]["params"]["k"] == pytest.approx(15.0, rel=0.15)
+
+    code, text = run(["compare", str(hidden), *common, "--out", str(out), "--before-after"], capsys)
+    assert code == 0 and "before -> after" in text
+    after = json.loads((out / "summary.json").read_text())
+    assert after["force_error"]["rms_vector"] <= 0.5 * before
+    assert after["before"]["force_error"]["rms_vector"] == pytest.approx(before)
+    assert (out / "before_after.png").is_file()
+
+    code, text = run(["diagnose", str(hidden), *common, "--json"], capsys)
+    assert json.loads(text.strip().splitlines()[-1])["verdict"] is None
+
+    code, text = run(["effects", "remove", "strain_stiffening", *common], capsys)
+    assert code == 0 and CalibrationStore(store).load(SENSOR).effects == []
+
+
+def test_diagnosis_sees_measurements_only(env, capsys):
+    """Same answer on a copy without truth/, provenance or effect list."""
+    (calib, hidden), store, tmp = env
+    blind = copy_without_truth(hidden, tmp / "blind")
+    assert not (blind / "truth").exists()
+    assert "strain_stiffening" not in (blind / "session.json").read_text()
+    common = ["--sensor", SENSOR, "--store", str(store), "--json"]
+    run(["compare", str(calib), "--sensor", SENSOR, "--store", str(store), "--out", str(tmp / "c"),
+         "--model-from", str(calib), "--no-pictures"], capsys)
+    a = json.loads(run(["diagnose", str(hidden), *common], capsys)[1].strip().splitlines()[-1])
+    b = json.loads(run(["diagnose", str(blind), *common], capsys)[1].strip().splitlines()[-1])
+    assert a["verdict"] == b["verdict"] == "strain_stiffening"
+    assert [r["effect"] for r in a["ranking"]] == [r["effect"] for r in b["ranking"]]
+    assert np.allclose([r["reduction"] for r in a["ranking"]], [r["reduction"] for r in b["ranking"]])
+
+
+def test_effects_list_json_names_parameters_with_units(capsys):
+    code, text = run(["effects", "list", "--json"], capsys)
+    rows = {r["name"]: r for r in json.loads(text)}
+    assert {"temperature_softening", "viscoelastic_relaxation", "mullins_softening", "strain_stiffening",
+            "friction_mismatch", "rim_stiffening", "ft_bias_drift", "led_drift"} <= set(rows)
+    tau = [p for p in rows["viscoelastic_relaxation"]["params"] if p["name"] == "tau"][0]
+    assert tau["unit"] == "s" and tau["lo"] < tau["hi"]
+
+
+def test_clear_errors(env, capsys):
+    (calib, hidden), store, tmp = env
+    from runtime.errors import TensorTouchError
+
+    with pytest.raises(TensorTouchError, match="no model for sensor"):
+        run(["diagnose", str(hidden), "--sensor", SENSOR, "--store", str(store)], capsys)
+    with pytest.raises(TensorTouchError, match="unknown effect"):
+        run(["effects", "add", "warp_drive", "--sensor", SENSOR, "--store", str(store)], capsys)
+    with pytest.raises(TensorTouchError, match="tau"):
+        run(["effects", "add", "viscoelastic_relaxation", "--param", "tau=1000", "--sensor", SENSOR,
+             "--store", str(store)], capsys)
