@@ -1,5 +1,6 @@
 """Serial force gauge driver through pyserial's loop:// and a real pseudo-terminal (unplug = master closed)."""
 import os
+import select
 import threading
 import time
 
@@ -98,6 +99,8 @@ def test_pty_mark10_request_reply():
     def gauge_side():     # answers each '?' like a Mark-10 Series 5
         buf = b""
         while not stop.is_set():
+            if not select.select([master], [], [], 0.05)[0]:
+                continue
             buf += os.read(master, 64)
             while b"?\r" in buf:
                 buf = buf.split(b"?\r", 1)[1]
@@ -111,6 +114,7 @@ def test_pty_mark10_request_reply():
         assert g.read().force_n == pytest.approx(-0.980665)
     finally:
         stop.set()
+        th.join(timeout=2)
         g.close()
         os.close(master)
         os.close(slave)
