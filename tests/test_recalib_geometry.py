@@ -94,3 +94,28 @@ def test_grid_camera_mapping_roundtrip_and_dome_angles():
     assert np.allclose(xy[0], C_NOMINAL, atol=2.0)
     th, ph = theta_phi_from_xyz(np.array([[0, 0, 16.0], [16.0, 0, 0], [0, 16 / np.sqrt(2), 16 / np.sqrt(2)]]))
     assert np.allclose(th, [0, np.pi / 2, np.pi / 4]) and np.allclose(ph[1:], [0, np.pi / 2])
+
+
+@pytest.mark.parametrize("serial", ["TWIN-0001", "TWIN-0005"])
+def test_twin_unit_fisheye_theta_within_half_a_degree(serial):
+    """The twin's camera (cv2.fisheye model, unit-specific centre offset and focal scale): 7 pokes
+    on the true gel, seen through the true camera, refresh the NOMINAL calibration's geometry."""
+    twin_unit = pytest.importorskip("tools.twin.unit")
+    unit = twin_unit.TwinUnit(serial)
+    nominal = twin_unit.TwinUnit(serial, variation=twin_unit.VariationConfig(0, 0, 0, 0))
+    gel, size, radius, c0 = unit.gel, (64, 64), nominal.gel_radius_px, nominal.gel_center_px
+    rng = np.random.default_rng(0)
+    theta = np.array([0.05, .85, .85, .85, .85, .5, .5]) * gel.rim_beta + rng.normal(0, 0.02, 7)
+    phi = np.r_[0.0, np.arange(1, 7) * np.pi / 2 + 0.6] + rng.normal(0, 0.1, 7)
+    pts = gel.point_at(theta, phi)
+    xy = unit.model.project(pts) + 0.3 * rng.standard_normal((7, 2))
+    th, ph = gel.theta_phi(pts)
+    fit = refresh_geometry(xy, th, ph, c0, radius, size)
+    assert np.hypot(*(np.array(fit.center) - unit.gel_center_px)) < 0.5
+    vv, uu = np.mgrid[0:size[0], 0:size[1]].astype(float)
+    x, y = Preprocessor(*fit.center, radius, size).to_raw(uu, vv)
+    dirs, fov = unit.model.rays(np.stack([x, y], -1))
+    surf, ok = gel.intersect(unit.model.center, dirs)
+    truth, _ = gel.theta_phi(surf)
+    sel = ok & fov & (truth <= th.max())
+    assert np.degrees(np.abs(fit.theta - truth)[sel]).max() < 0.5
