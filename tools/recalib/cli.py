@@ -43,7 +43,10 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_recalibrate)
 
 
-def _frames(camera, pipeline):
+def _frames(camera, pipeline, restamp: bool = False):
+    """(t, clusters) per frame; `restamp` puts a replay on the serial gauge's monotonic clock."""
+    import time
+
     from drivers.camera.camera import EndOfStream
 
     while True:
@@ -51,7 +54,8 @@ def _frames(camera, pipeline):
             frame = camera.read()
         except EndOfStream:
             return
-        yield frame.t, pipeline.process(frame.image, frame.t).clusters
+        t = time.monotonic() if restamp else frame.t
+        yield t, pipeline.process(frame.image, frame.t).clusters
 
 
 def _reference(args, session, say):
@@ -112,9 +116,12 @@ def cmd_recalibrate(args, say=None) -> int:
     reference, gauge = _reference(args, session, say)
     say(f"recalibrating {args.sensor} (active {cal.version}) with model {package.name}; reference: {reference.name}")
     try:
-        fast = {"realtime": False} if session is not None and "realtime=" not in query else {}
+        # a replay paired with a live serial gauge runs at its recorded pace on the gauge's clock
+        live_ref = gauge is not None
+        fast = {"realtime": False} if session is not None and not live_ref and "realtime=" not in query else {}
         with camera_from_uri(args.source, **fast) as cam:
-            outcome = run_guided(_frames(cam, pipeline), cal, reference, cfg, say)
+            outcome = run_guided(_frames(cam, pipeline, restamp=live_ref and session is not None), cal,
+                                 reference, cfg, say)
     except TensorTouchError as exc:
         raise TensorTouchError(f"{exc}\nsession aborted: nothing was stored, the active calibration is still "
                                f"{store.current(args.sensor)}") from None
