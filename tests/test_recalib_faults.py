@@ -247,3 +247,19 @@ def test_no_pickle_on_any_load_path(store, monkeypatch):
     for path in list((ROOT / "tools" / "recalib").glob("*.py")) + [ROOT / "drivers" / "gauge.py"]:
         text = path.read_text()
         assert "import pickle" not in text and "joblib" not in text, path
+
+
+def test_cli_silent_gauge_on_loop_url_times_out_clearly(tmp_path):
+    """`--gauge loop://` with nothing talking: 'not responding' after the gauge timeout, nothing stored."""
+    from tests.recalib_util import SENSOR as S, setup_env, write_recording
+    from tests.test_recalib_cli import parse
+    from tools.recalib import cli
+
+    package, store = setup_env(tmp_path)
+    session, _, _ = write_recording(tmp_path / "session", package, store, n_pokes=5)
+    before = snapshot(store.root / S)
+    args = parse(["recalibrate", "--sensor", S, "--source", f"replay:{session}", "--store", str(store.root),
+                  "--model", str(package.folder), "--precision", "fp32", "--gauge", "loop://"])
+    with pytest.raises(TensorTouchError, match=r"force gauge loop://: no valid reading for 2.0 s \(not responding"):
+        cli.cmd_recalibrate(args, say=lambda m: None)
+    assert snapshot(store.root / S) == before

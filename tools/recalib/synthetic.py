@@ -10,6 +10,7 @@ Clearly synthetic: the digital twin (tools/twin) replaces this for the acceptanc
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,8 @@ import numpy as np
 from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
 from tools.recalib.fit import PokeSet
 from tools.recalib.pokes import PokeRules, candidate_pixels, suggest_next
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
