@@ -47,6 +47,12 @@ def _record(args) -> int:
     cfg.rig.camera_fps = args.fps
     if args.hysteresis_tau is not None:
         cfg.rig.hysteresis_tau_s = args.hysteresis_tau
+    if args.hysteresis_fraction is not None:
+        cfg.rig.hysteresis_fraction = args.hysteresis_fraction
+    cfg.noise.jpeg_quality = args.jpeg
+    cfg.noise.exposure = args.exposure
+    if args.read_noise is not None:
+        cfg.noise.read_sigma = args.read_noise
     rec = Recorder(cfg, args.out, progress=_Bar())
     if args.calibration:
         from tools.twin.unit import write_true_calibration
@@ -92,6 +98,11 @@ def register(sub) -> None:
     r.add_argument("--fps", type=float, default=30.0)
     r.add_argument("--model-size", type=int, default=128)
     r.add_argument("--hysteresis-tau", type=float, help="gel recovery time constant, s (default 1.5)")
+    r.add_argument("--hysteresis-fraction", type=float, help="share of the deformation that recovers slowly (default 0.15)")
+    r.add_argument("--exposure", type=float, default=1.0, help="exposure gain on rendered intensities")
+    r.add_argument("--read-noise", type=float, help="camera read noise std on 0..1 intensities (default 0.006)")
+    r.add_argument("--jpeg", type=int, default=0, metavar="QUALITY",
+                   help="JPEG round trip of every frame inside the camera (0 = off), as a USB MJPG camera")
     r.add_argument("--calibration", action="store_true", help="also write the unit's true calibration")
     r.add_argument("--store", help="calibration store root (default: runtime.paths.calibration_dir())")
     r.set_defaults(func=_record)

@@ -21,6 +21,7 @@ import numpy as np
 from runtime.errors import SessionError
 from runtime.session import write_table
 from tools.sessions.writer import SessionWriter
+from tools.twin.camera import NoiseConfig
 from tools.twin.effects import FrictionMismatch, apply_stage, build_effects
 from tools.twin.physics import HertzFallbackPhysics, interpolate
 from tools.twin.signals import (Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track,
@@ -46,6 +47,7 @@ class RecordConfig:
     fe_mesh_inside: float = 2.5
     rig: RigConfig = field(default_factory=RigConfig)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -87,7 +89,7 @@ class Recorder:
     def __init__(self, cfg: RecordConfig, out, physics=None, progress=None):
         self.cfg, self.out = cfg, Path(out)
         self.progress = progress or (lambda stage, i, n: None)
-        self.unit = TwinUnit(cfg.serial)
+        self.unit = TwinUnit(cfg.serial, noise=cfg.noise)
         self.gel = self.unit.gel
         self.plan = plan_session(cfg.pokes, cfg.seed, self.gel, cfg.trajectory)
         self.modules = module_indenters(cfg.seed, cfg.trajectory)
