@@ -149,7 +149,7 @@ def cmd_recalibrate(args, say=None) -> int:
         prov = {"pokes": len(an.pokes), "source": args.source, "reference": reference.name,
                 "model": {"name": package.name, "sha256": package.sha256(args.precision)},
                 "errors": {"uncorrected": an.fit.loo["before"], "active": an.active, "held_out": an.fit.loo["after"]},
-                "forced": bool(args.force and "anyway" in an.decision.reason),
+                "forced": bool(args.force and an.decision.after_mae_n >= an.decision.before_mae_n),
                 "poke_data": [{"pred_force_n": p.pred_force.tolist(), "ref_force_n": p.ref_force_n,
                                "uv_px": p.uv_px.tolist()} for p in outcome.accepted]}
         version = store_recalibration(store, cal, prov, correction=(an.fit.spec, an.fit.onnx_bytes), geometry=geometry)
