@@ -111,3 +111,5 @@ def test_true_calibration_consistent(tmp_path):
     assert cal.version == version and cal.meta["provenance"]["method"] == "twin-truth"
     np.testing.assert_allclose(cal.gel_center_px, unit.gel_center_px)
     np.testing.assert_array_equal(cal.mask, m)
+    assert write_true_calibration(unit, tmp_path, 64) == version              # unchanged: kept
+    assert write_true_calibration(unit, tmp_path, 64, force=True) != version  # forced: new version

@@ -145,11 +145,24 @@ def calibration_meta(unit: TwinUnit, model_size: int = 128) -> dict:
                            "unit": unit.params.to_dict()}}
 
 
-def write_true_calibration(unit: TwinUnit, root=None, model_size: int = 128) -> str:
-    """Store the unit's true calibration as a new version under calibration_store/<serial>/."""
+def write_true_calibration(unit: TwinUnit, root=None, model_size: int = 128, force: bool = False) -> str:
+    """Store the unit's true calibration as a new version under calibration_store/<serial>/;
+    when the current version already holds exactly these tables, keep it (unless `force`)."""
     from runtime.calibration import CalibrationStore
+    from runtime.errors import CalibrationError
 
     store = CalibrationStore(root)
-    version = store.write(unit.serial, true_tables(unit, model_size), calibration_meta(unit, model_size))
+    tables = true_tables(unit, model_size)
+    if not force and unit.serial in store.sensors():
+        try:
+            cur = store.load(unit.serial)
+            same = all(np.array_equal(getattr(cur, k), np.asarray(v).astype(bool if k == "mask" else np.float32))
+                       for k, v in tables.items()) and cur.meta.get("provenance", {}).get("method") == "twin-truth"
+        except CalibrationError:
+            same = False
+        if same:
+            log.info("true calibration of %s unchanged (%s)", unit.serial, cur.version)
+            return cur.version
+    version = store.write(unit.serial, tables, calibration_meta(unit, model_size))
     log.info("true calibration of %s written as %s", unit.serial, version)
     return version
