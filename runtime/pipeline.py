@@ -46,6 +46,15 @@ class FrameResult:
     timings: dict[str, float]              # ms per stage
 
 
+def _same_geometry(a: Calibration, b: Calibration) -> bool:
+    """True when two calibration versions share the crop and every geometry table (same hashes)."""
+    keys = ("gel_center_px", "gel_radius_px", "model_size")
+    if any(a.meta.get(k) != b.meta.get(k) for k in keys):
+        return False
+    fa, fb = a.meta.get("files", {}), b.meta.get("files", {})
+    return all(fa.get(f) == fb.get(f) and fa.get(f) is not None for f in a.meta["tables"].values())
+
+
 class SensorPipeline:
     """Holds one sensor's model, calibration and per-sensor state."""
 
@@ -66,10 +75,13 @@ class SensorPipeline:
                 f"calibration {calibration.sensor_id}/{calibration.version}: model_size "
                 f"{list(calibration.model_size)} does not match model {self.model.package.name} "
                 f"input size {list(self.model.package.size)}")
+        previous = getattr(self, "cal", None)
         self.cal = calibration
+        self.correction = correction if correction is not None else ForceCorrection.from_calibration(calibration)
+        if previous is not None and _same_geometry(previous, calibration):
+            return  # only correction/effects changed: keep the baseline and the contact ids
         cx, cy = calibration.gel_center_px
         self.pre = Preprocessor(cx, cy, calibration.gel_radius_px, calibration.model_size)
-        self.correction = correction if correction is not None else ForceCorrection.from_calibration(calibration)
         self.baseline = BaselineTracker(self.cfg.baseline)
         self.tracker = ContactTracker(self.cfg.contacts)
         self._last_force = None
