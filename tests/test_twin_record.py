@@ -108,6 +108,10 @@ def test_zero_contact_frames_equal_rest_up_to_noise(fe_session):
     for i, f in read_frames(s, before):
         d = f.astype(np.float64) / 255 - rest
         assert abs(d.mean()) < 0.002 and d.std() < bound
+    keys = read_table(rec.out / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
+    inside = (t >= rec.plan[0].times[0]) & (t <= rec.plan[0].times[-1])
+    assert np.all(keys[inside, 2] == 0) and np.all(keys[~inside, 2] == -1)
+    assert np.all(np.diff(keys[inside, 3]) > 0) and keys[inside, 3].max() <= len(rec.plan[0].times) - 1
 
 
 def _small(serial="TWIN-R", **kw):

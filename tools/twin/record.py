@@ -26,7 +26,8 @@ from tools.twin.effects import FrictionMismatch, apply_stage, build_effects
 from tools.twin.physics import HertzFallbackPhysics, interpolate
 from tools.twin.signals import (Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track,
                                 temperature)
-from tools.twin.trajectory import TrajectoryConfig, module_indenters, plan_session, session_duration
+from tools.twin.trajectory import (TrajectoryConfig, module_indenters, plan_session, segment_phase,
+                                   session_duration)
 from tools.twin.unit import TwinUnit
 
 log = logging.getLogger(__name__)
@@ -250,11 +251,16 @@ class Recorder:
                             {"time": t_cam, "temperature": np.interp(t_cam, t_tmp, temp)})
         n_nodes = solves[0].nodes.shape[0] if solves else 0
         rendered = 0
+        keys = np.full((len(t_cam), 4), -1.0)  # t, index, poke, keypoint parameter sigma = j + s
         for i, t in enumerate(t_cam):
+            keys[i, :2] = t, i
             u = np.zeros((n_nodes, 3))
             nodes = solves[0].nodes if solves else np.zeros((0, 3))
-            for poke, sol in zip(self.plan, solves):
+            for pi, (poke, sol) in enumerate(zip(self.plan, solves)):
                 if poke.times[0] <= t <= poke.times[-1]:
+                    if keys[i, 2] < 0:
+                        j, ph = segment_phase(poke.times, np.array([t]))
+                        keys[i, 2:] = pi, float(j[0] + ph[0])
                     du = interpolate(sol, poke, np.array([t]), "U")[0]
                     ratio = min(float(np.interp(t, t_wr, shear[s])) for s in poke.slots)
                     if ratio < 1.0:
@@ -279,6 +285,7 @@ class Recorder:
             writer.frame(i, img)
             rendered += 1
             self.progress("frames", i + 1, len(t_cam))
+        write_table(self.out / "truth" / "frames.csv", ["t", "index", "poke", "sigma"], keys)
         return rendered
 
 
