@@ -96,3 +96,21 @@ def test_fe_result_conversion_uses_surface_nodes():
     assert isinstance(sol, PokeSolve) and sol.nodes.shape == (2, 3)
     assert sol.depth[1, 0] == pytest.approx(0.5) and sol.depth[0, 0] == 0
     np.testing.assert_allclose(sol.contact[1, 0], [0, 0, 8.0])
+
+
+def test_fe_nonconvergence_retries_with_half_increments_then_names_the_poke(tmp_path, monkeypatch):
+    """tools.fe.solve is replaced by a stub that never converges (the failure path only)."""
+    fe_mod = pytest.importorskip("tools.fe")
+    from tools.twin.fe_physics import FEPhysics
+
+    calls = []
+
+    def never(scenario, progress=None):
+        calls.append(scenario.solver.max_increment_mm)
+        raise fe_mod.FEConvergenceError("stub: no convergence")
+
+    monkeypatch.setattr(fe_mod, "solve", never)
+    p = _poke("press")
+    with pytest.raises(fe_mod.FEConvergenceError, match=r"twin poke press .*half increments"):
+        FEPhysics(cache=tmp_path).solve(p)
+    assert calls == [0.5, 0.25]

@@ -10,7 +10,7 @@ constants are all scaled: displacements are unchanged, forces scale).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +62,7 @@ class FEPhysics:
 
     def result(self, poke: Poke):
         """The FE result of a poke (from the cache, or solved and stored)."""
-        from tools.fe import load_result, save_result, solve
+        from tools.fe import FEConvergenceError, load_result, save_result, solve
 
         sc = self.scenario(poke)
         path = self.cache / f"{sc.hash()}.npz"
@@ -70,7 +70,18 @@ class FEPhysics:
             self.stats["cached"] += 1
             return load_result(path)
         log.info("FE solve %s (%d indenter(s), %d keypoints)", sc.hash(), len(sc.indenters), sc.n_keypoints)
-        res = solve(sc, progress=self.progress)
+        try:
+            res = solve(sc, progress=self.progress)
+        except FEConvergenceError as exc:  # one retry with half the increments, then give up clearly
+            log.warning("FE solve %s did not converge (%s); retrying with half the increment size", sc.hash(), exc)
+            sv = sc.solver
+            sc.solver = replace(sv, max_increment_mm=sv.max_increment_mm / 2, max_increment_rad=sv.max_increment_rad / 2)
+            try:
+                res = solve(sc, progress=self.progress)
+            except FEConvergenceError as exc2:
+                raise FEConvergenceError(f"twin poke {poke.kind} with {poke.indenters} (scenario {path.stem}): "
+                                         f"FE did not converge even with half increments ({exc2}); "
+                                         "record with another --seed or smaller TrajectoryConfig depths") from None
         save_result(res, path)
         self.stats["solved"] += 1
         self.stats["seconds"] += float(np.sum(res.seconds))
