@@ -195,3 +195,26 @@ def test_cli_record_show_calibration(tmp_path, capsys):
 
     sheet = cv2.imread(str(tmp_path / "sheet.png"))
     assert sheet is not None and sheet.shape[0] > 400
+
+
+def test_recorded_gel_returns_to_rest_slowly(tmp_path):
+    """After the last release the frames stay deformed and relax toward rest (hysteresis on);
+    with no slow part they are back at rest up to noise."""
+    def tail_diffs(fraction, out):
+        cfg = _small("TWIN-H")
+        cfg.pokes = 1
+        cfg.rig.hysteresis_fraction, cfg.rig.hysteresis_tau_s = fraction, 2.0
+        rec = Recorder(cfg, out)
+        rec.run()
+        s = load_session(out)
+        t = s.table("frames")[:, 0]
+        idx = np.flatnonzero(t > rec.plan[-1].times[-1] + 0.05)
+        rest = rec.unit.renderer.render_float(None)
+        return [np.abs(f.astype(np.float64) / 255 - rest).mean() for _, f in read_frames(s, idx)]
+
+    slow = tail_diffs(0.5, tmp_path / "slow")
+    none = tail_diffs(0.0, tmp_path / "none")
+    noise_floor = max(none)
+    assert slow[0] > 2 * noise_floor           # still visibly deformed after the release
+    assert slow[-1] < slow[0]                  # and relaxing
+    assert max(none) - min(none) < 0.002       # no slow part: at rest (noise only) right away
