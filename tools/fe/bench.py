@@ -2,7 +2,8 @@
 
 The standard gel (tools.fe.scenario.standard_dome) at the shipped mesh size (0.7 mm top / 2 mm
 inside), rigid sphere R 5 mm pressed 2 mm then slid 1 mm (5 keypoints, mu = 2.2). `--quick` uses
-a coarser mesh (1.2 mm top) and says so in its output.
+a coarser mesh (1.2 mm top) and says so in its output; `--order 2` times the locking-free quadratic
+u/p/J tets (top 1.4 mm / inside 3 mm, similar node count).
 """
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help=f"smaller run: mesh {QUICK_SIZE_TOP} mm at the top instead of 0.7 mm")
     parser.add_argument("--keypoints", type=int, default=5, help="keypoints in the trajectory (default 5)")
+    parser.add_argument("--order", type=int, choices=(1, 2), default=1,
+                        help="1 = linear tets (shipped default), 2 = quadratic u/p/J tets (locking-free, slower)")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
 
@@ -29,6 +32,8 @@ def run(args) -> int:
     from tools.fe.solver import build_mesh, solve
 
     mesh_kw = {"size_top": QUICK_SIZE_TOP} if args.quick else {}
+    if args.order == 2:
+        mesh_kw.update(order=2, size_top=max(mesh_kw.get("size_top", 0.7), 1.4), size_inside=3.0)
     scenario = standard_dome(n_keypoints=args.keypoints, **mesh_kw)
     t0 = time.perf_counter()
     mesh = build_mesh(scenario)
@@ -44,6 +49,7 @@ def run(args) -> int:
         "bench": "fe",
         "scenario": "standard_dome" + (" (quick: coarser mesh)" if args.quick else ""),
         "quick": bool(args.quick),
+        "order": args.order,
         "nodes": result.n_nodes,
         "tets": int(result.tets.shape[0]),
         "keypoints": n_frames,
@@ -58,6 +64,8 @@ def run(args) -> int:
         "cpu_count": os.cpu_count(), "machine": platform.machine(),
     }
     label = " (QUICK: coarser mesh than shipped)" if args.quick else ""
+    if args.order == 2:
+        label += " (order 2: quadratic u/p/J tets, top 1.4 mm)"
     print(f"FE bench{label}: standard dome, {out['nodes']} nodes, {out['tets']} tets, "
           f"{n_frames} keypoints, mu = 2.2")
     print(f"  mesh {t_mesh:.2f} s | {out['seconds_per_frame']:.2f} s per keypoint frame | "

@@ -112,11 +112,8 @@ def mesh_gel(gel: GelGeometry, settings: MeshSettings, stl_path: str = "") -> Ge
         gmsh.option.setNumber("Mesh.Algorithm3D", 1)
         gmsh.option.setNumber("Mesh.Optimize", 1)
         gmsh.model.mesh.generate(3)
-        if settings.order == 2:
-            gmsh.model.mesh.setOrder(2)
         tags, coords, _ = gmsh.model.mesh.getNodes()
-        etype = 4 if settings.order == 1 else 11
-        _, enodes = gmsh.model.mesh.getElementsByType(etype)
+        _, enodes = gmsh.model.mesh.getElementsByType(4)
     except Exception as exc:  # gmsh raises plain Exception
         raise ScenarioError(f"gel: gmsh could not mesh {gel.kind!r}: {exc}") from exc
     finally:
@@ -124,11 +121,12 @@ def mesh_gel(gel: GelGeometry, settings: MeshSettings, stl_path: str = "") -> Ge
     nodes_all = np.asarray(coords, float).reshape(-1, 3)
     index = np.full(int(tags.max()) + 1, -1, np.int64)
     index[tags] = np.arange(len(tags))
-    tets = index[np.asarray(enodes, np.int64).reshape(-1, 4 if settings.order == 1 else 10)]
+    tets = index[np.asarray(enodes, np.int64).reshape(-1, 4)]
     used = np.unique(tets)
     remap = np.full(len(nodes_all), -1, np.int64)
     remap[used] = np.arange(len(used))
-    return finish_mesh(nodes_all[used], remap[tets])
+    gm = finish_mesh(nodes_all[used], remap[tets])
+    return quadratic(gm) if settings.order == 2 else gm
 
 
 def finish_mesh(nodes: np.ndarray, tets: np.ndarray) -> GelMesh:
@@ -156,6 +154,31 @@ def finish_mesh(nodes: np.ndarray, tets: np.ndarray) -> GelMesh:
     surface_nodes = np.setdiff1d(np.unique(tris), fixed)
     log.info("gel mesh: %d nodes, %d tets, %d surface nodes", len(nodes), len(tets), len(surface_nodes))
     return GelMesh(nodes, tets, tris, surface_nodes, fixed, node_area)
+
+
+_EDGES = ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3))  # VTK tetra10 mid-edge order
+
+
+def quadratic(gm: GelMesh) -> GelMesh:
+    """10-node tets with straight-edge midpoints (VTK order) from a linear GelMesh. Contact areas
+    are lumped by splitting each surface triangle into 4: corners A/12, mid-edge nodes A/4."""
+    tets = gm.corner_tets
+    pairs = np.sort(tets[:, _EDGES].reshape(-1, 2), axis=1)
+    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+    n0 = len(gm.nodes)
+    nodes = np.vstack([gm.nodes, 0.5 * (gm.nodes[uniq[:, 0]] + gm.nodes[uniq[:, 1]])])
+    tets10 = np.hstack([tets, n0 + inv.reshape(-1, 6)])
+    lookup = {tuple(e): n0 + i for i, e in enumerate(uniq.tolist())}
+    tris = gm.surface_tris
+    mids = np.array([[lookup[tuple(sorted((t[a], t[b])))] for a, b in ((0, 1), (1, 2), (0, 2))]
+                     for t in tris.tolist()]).reshape(-1, 3)
+    p = gm.nodes[tris]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    node_area = np.bincount(tris.ravel(), np.repeat(area / 12, 3), minlength=len(nodes))
+    node_area += np.bincount(mids.ravel(), np.repeat(area / 4, 3), minlength=len(nodes))
+    fixed = np.flatnonzero(nodes[:, 2] < BASE_TOL)
+    surface_nodes = np.setdiff1d(np.unique(np.concatenate([tris.ravel(), mids.ravel()])), fixed)
+    return GelMesh(nodes, tets10, tris, surface_nodes, fixed, node_area)
 
 
 def graded(half: float, h_min: float, n: int, symmetric: bool = True) -> np.ndarray:

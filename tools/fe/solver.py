@@ -1,7 +1,7 @@
 """Quasi-static Newton-Raphson solver: felupe hyperelastic gel + rigid penalty contact with friction.
 
-felupe assembles the internal force vector and tangent of the gel (linear tets, closed-form Yeoh
-user material); tools.fe.contact adds the node-to-rigid-indenter forces and their exact 3x3
+felupe assembles the internal force vector and tangent of the gel (linear tets with the closed-form
+Yeoh user material, or quadratic tets with the mixed u/p/J formulation for mesh.order = 2); tools.fe.contact adds the node-to-rigid-indenter forces and their exact 3x3
 tangents; scipy's SuperLU solves. Each keypoint step is split into increments (cutback on failure).
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ import scipy.sparse.linalg as sla
 from tools.fe import contact as fc
 from tools.fe.errors import FEConvergenceError, ScenarioError
 from tools.fe.indenters import make_shape, pose_at, rotmat
-from tools.fe.materials import cauchy_from_P, effective_bulk, make_umat
+from tools.fe.materials import effective_bulk, make_umat
 from tools.fe.mesh import GelMesh, mesh_gel
 from tools.fe.result import FEResult
 from tools.fe.scenario import Scenario
@@ -39,17 +39,23 @@ class GelModel:
     def __init__(self, scenario: Scenario, gm: GelMesh):
         import felupe as fem
 
-        if scenario.mesh.order != 1:
-            raise ScenarioError("mesh.order: solve() supports linear tets (1) only; quadratic tets "
-                                "are used in the locking study (tools.fe.locking)")
         self.sc, self.gm = scenario, gm
-        mesh = fem.Mesh(gm.nodes, gm.tets, "tetra")
-        self.region = fem.RegionTetra(mesh)
+        self.order = 2 if gm.tets.shape[1] == 10 else 1
+        self.bulk = effective_bulk(scenario.material, self.order, scenario.solver.max_bulk_ratio)
+        if self.order == 2:  # P2/P0 mixed u/p/J (hybrid-like): no volumetric locking
+            mesh = fem.Mesh(gm.nodes, gm.tets, "tetra10")
+            self.region = fem.RegionQuadraticTetra(mesh)
+        else:
+            mesh = fem.Mesh(gm.nodes, gm.tets, "tetra")
+            self.region = fem.RegionTetra(mesh)
         self.u = fem.Field(self.region, dim=3)
         self.field = fem.FieldContainer([self.u])
-        self.bulk = effective_bulk(scenario.material, 1, scenario.solver.max_bulk_ratio)
-        self.umat = make_umat(scenario.material, self.bulk)
-        self.solid = fem.SolidBody(self.umat, self.field)
+        if self.order == 2:
+            self.umat = make_umat(scenario.material, 0.0)
+            self.solid = fem.SolidBodyNearlyIncompressible(self.umat, self.field, bulk=self.bulk)
+        else:
+            self.umat = make_umat(scenario.material, self.bulk)
+            self.solid = fem.SolidBody(self.umat, self.field)
         n = len(gm.nodes)
         self.ndof = 3 * n
         fixed = (3 * gm.fixed_nodes[:, None] + np.arange(3)).ravel()
@@ -91,19 +97,23 @@ class GelModel:
         Kc = sp.csr_matrix((-ce.K.ravel(), (self._crow, self._ccol)), shape=K.shape)
         return (K + Kc)[self.free][:, self.free].tocsc()
 
+    def reset_state(self, U):
+        """Mixed u/p/J only: re-initialise the cell fields from U (after a cutback)."""
+        self.set_u(U)
+        if self.order == 2:
+            self.solid.restore(self.solid.checkpoint(), restore_state=False)
+
     def cauchy_nodal(self, U) -> np.ndarray:
         self.set_u(U)
-        F = self.field.extract()[0]  # (3,3,q,c)
-        P = self.umat.gradient([F, np.zeros((0, *F.shape[2:]))])[0]
-        sig = cauchy_from_P(F, P).mean(axis=2)  # (3,3,c)
+        sig = np.asarray(self.solid.evaluate.cauchy_stress(self.field)).mean(axis=2)  # (3,3,c)
         voigt = np.stack([sig[0, 0], sig[1, 1], sig[2, 2], sig[0, 1], sig[0, 2], sig[1, 2]], axis=1)
         vol = self.region.dV.sum(axis=0)
         tets = self.gm.tets
-        n = len(self.gm.nodes)
-        w = np.bincount(tets.ravel(), np.repeat(vol, 4), minlength=n)
+        n, per = len(self.gm.nodes), tets.shape[1]
+        w = np.bincount(tets.ravel(), np.repeat(vol, per), minlength=n)
         out = np.zeros((n, 6))
         for c in range(6):
-            out[:, c] = np.bincount(tets.ravel(), np.repeat(vol * voigt[:, c], 4), minlength=n)
+            out[:, c] = np.bincount(tets.ravel(), np.repeat(vol * voigt[:, c], per), minlength=n)
         return out / np.maximum(w, 1e-300)[:, None]
 
 
@@ -204,6 +214,7 @@ def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FER
                     raise FEConvergenceError(msg, partial=partial) from exc
                 ds *= 0.5
                 dU_last = None
+                model.reset_state(U)
                 log.info("step %d: cutback %d (%s), increment %.4f", j, cut, exc, ds)
                 continue
             dU_last, ds_last = U_new - U, s_try - s_done
@@ -251,7 +262,8 @@ def _record(out, j, model: GelModel, U, ce, seconds):
 def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FEResult:
     import felupe
 
-    info = {"solver": "tools.fe (felupe %s, P1 tets, penalty contact)" % felupe.__version__,
+    elem = "P1 tets" if model.order == 1 else "P2/P0 u-p-J tets"
+    info = {"solver": f"tools.fe (felupe {felupe.__version__}, {elem}, penalty contact)", "order": model.order,
             "bulk_modulus_used": model.bulk, "penalty_N_per_mm3": model.penalty,
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
