@@ -47,7 +47,7 @@ def test_compare_diagnose_add_compare_shows_the_error_falling(env, capsys):
     code, text = run(["compare", str(hidden), *common, "--out", str(out), "--model-from", str(calib)], capsys)
     assert code == 0
     for name in ("residuals.csv", "summary.json", "report.html", "residual_map.png", "residual_vs.png",
-                 "timeline.png", "worst.png"):
+                 "timeline.png", "worst.jpg"):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     header = (out / "residuals.csv").read_text().splitlines()[0].split(",")

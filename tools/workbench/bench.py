@@ -21,7 +21,7 @@ TARGET_S = 60.0
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--pokes", type=int, default=45, help="pokes in the test session (45 ≈ 10k samples)")
+    p.add_argument("--pokes", type=int, default=30, help="pokes in the test session (30 ≈ 10k samples)")
     p.add_argument("--seed", type=int, default=77)
     p.add_argument("--effect", default="viscoelastic_relaxation:g1=0.3,tau=1.0",
                    help="hidden effect NAME:p=v,... switched on in the twin's truth")

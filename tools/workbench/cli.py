@@ -65,6 +65,10 @@ def register(sub) -> None:
     ea.add_argument("--from-diagnosis", nargs="?", const="", metavar="FILE",
                     help="take the fitted parameters from a diagnosis (default: the sensor's last one)")
     ea.add_argument("--param", action="append", default=[], metavar="P=V")
+    ea.add_argument("--no-refit", action="store_true",
+                    help="keep the enabled effects' parameters (default with --from-diagnosis: refit all "
+                         "enabled effects jointly with the new one on the diagnosed session)")
+    ea.add_argument("--model", help="contact-law model JSON for the refit (default: the sensor's)")
     ea.set_defaults(func=cmd_effects_add)
     er = esub.add_parser("remove", help="disable an effect for a sensor (new calibration version)")
     er.add_argument("name")
@@ -184,7 +188,7 @@ def cmd_diagnose(args) -> int:
     registry = _registry(args)
     diag = diagnose(comp.table, registry, comp.chain, cfg)
     result = diag.to_json()
-    result.update({"session": str(args.session), "sensor_id": comp.summary["sensor_id"],
+    result.update({"session": str(Path(args.session).resolve()), "sensor_id": comp.summary["sensor_id"],
                    "enabled": diag.enabled, "n_samples": diag.n_samples, "n_blocks": diag.n_blocks,
                    "seconds": round(diag.seconds, 2)})
     text = json.dumps(result, default=float)
@@ -253,14 +257,44 @@ def cmd_effects_add(args) -> int:
     store = _store(args)
     current = [e for e in store.load(sensor).effects if e.get("name") != args.name]
     entry = EnabledEffect(eff, params).to_dict(source)
+    if args.from_diagnosis is not None and not args.no_refit and current:
+        current, entry = _refit(args, sensor, store, reg, current, entry, diag.get("session"))
     version = store.derive(sensor, {"effects": current + [entry]},
                            provenance={"method": "workbench effects add", "effect": args.name, "source": source})
+    params = entry["params"]
     words = eff.describe(params)
     print(f"{sensor}: {words} -> calibration {version}")
     if eff.stage == "force":
         spec = ",".join(f"{k}={v:.6g}" for k, v in params.items())
         print(f"twin/FE configuration: --effect {eff.name}:{spec}")
     return 0
+
+
+def _refit(args, sensor, store, reg, current, entry, session):
+    """Joint refit of the enabled effects + the new one on the diagnosed session."""
+    from runtime.effects import EffectChain
+    from tools.workbench.compare import load_table, predict_cached
+    from tools.workbench.fit import refit_chain
+
+    path = Path(args.model) if args.model else default_model_path(sensor)
+    if not session or not Path(session, "session.json").is_file() or not path.is_file():
+        print("note: parameters not refitted jointly (diagnosed session or model not found)")
+        return current, entry
+    from tools.workbench.models import ContactLaw
+
+    model = ContactLaw.load(path)
+    table, folder = load_table(session, store.load(sensor))
+    table = table.with_model(predict_cached(table, model, folder))
+    chain = EffectChain.from_list(current + [entry], reg)
+    new, before, after = refit_chain(table, chain)
+    print(f"joint refit of {', '.join(chain.names)} on {session}: rms |r| {before:.4f} -> {after:.4f} N")
+    for old_it, it in zip(chain.items, new.items):
+        if old_it.params != it.params:
+            print(f"  {it.effect.describe(it.params)}")
+    out = new.to_list()
+    for o, c in zip(out, current + [entry]):
+        o.update({k: v for k, v in c.items() if k not in ("name", "params")})
+    return out[:-1], out[-1]
 
 
 def cmd_effects_remove(args) -> int:

@@ -46,8 +46,11 @@ def session_key(session_path: Path, cal, cfg: CompareConfig) -> str:
         if p.is_file():
             st = p.stat()
             h.update(f"{name}:{st.st_size}:{st.st_mtime_ns}".encode())
-    h.update(json.dumps({"cal": f"{cal.sensor_id}/{cal.version}", "gel": cal.meta.get("gel"),
-                         "cfg": asdict(cfg)}, sort_keys=True, default=str).encode())
+    # only what the table depends on: gel geometry and image circle (not the version, so adding
+    # an effect -- a new calibration version -- reuses the table and the raw predictions)
+    geometry = {k: cal.meta.get(k) for k in ("gel", "gel_center_px", "gel_radius_px")}
+    h.update(json.dumps({"sensor": cal.sensor_id, "geometry": geometry, "cfg": asdict(cfg)},
+                        sort_keys=True, default=str).encode())
     return h.hexdigest()[:16]
 
 

@@ -165,3 +165,40 @@ class Scout:
     ids: np.ndarray
     costs: np.ndarray      # (grid points, blocks) SSE
     active: np.ndarray     # rows some grid point changes
+
+
+def refit_chain(table: SampleTable, chain: EffectChain, cfg: FitConfig | None = None) -> tuple[EffectChain, float, float]:
+    """Jointly refit the free parameters of every force/measurement-stage effect of `chain` on the
+    whole table (bounded least squares from the current values): effects found one after the
+    other were each fitted while the others were still missing. Returns (chain, rms before, after)."""
+    from runtime.effects import EnabledEffect
+
+    cfg = cfg or FitConfig()
+    items = [it for it in chain.items if it.effect.stage in ("force", "measurement")]
+    slots = [(i, q) for i, it in enumerate(chain.items) if it in items for q in it.effect.free_params]
+    if not slots:
+        return chain, float("nan"), float("nan")
+    cov = table.cov()
+    x0 = np.array([chain.items[i].params[q.name] for i, q in slots])
+    lo = np.array([q.lo for _, q in slots])
+    hi = np.array([q.hi for _, q in slots])
+
+    def build(theta) -> EffectChain:
+        new = [EnabledEffect(it.effect, dict(it.params)) for it in chain.items]
+        for (i, q), v in zip(slots, np.clip(theta, lo, hi)):
+            new[i].params[q.name] = float(v)
+        return EffectChain(new)
+
+    def resid(theta):
+        return (table.meas - build(theta).apply(table.model, cov, ("force", "measurement"))).ravel()
+
+    span = np.maximum(hi - lo, 1e-12)
+    start = np.clip(x0, lo + 1e-6 * span, hi - 1e-6 * span)
+    r0 = resid(x0)
+    sol = least_squares(resid, start, bounds=(lo, hi), x_scale=span, diff_step=cfg.diff_step,
+                        max_nfev=cfg.max_nfev * 2, method="dogbox")
+    before = float(np.sqrt(np.mean(r0 ** 2) * 3))
+    after = float(np.sqrt(np.mean(sol.fun ** 2) * 3))
+    if after >= before:
+        return chain, before, before
+    return build(sol.x), before, after

@@ -4,7 +4,7 @@ residual_map.png   signed normal-force residual over the gel (θ/φ, polar view)
 residual_vs.png    residual vs depth, loading rate, slip, temperature, time, load history,
                    brightness
 timeline.png       measured vs predicted |F| and residual over the session
-worst.png          the worst samples with their camera frames
+worst.jpg          the worst samples with their camera frames
 before_after.png   error per axis before/after (when a previous comparison is given)
 """
 from __future__ import annotations
@@ -20,6 +20,7 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 DPI = 72
+MAX_POINTS = 2500
 PANELS = (("depth", "depth (mm)"), ("rate", "loading rate (mm/s)"), ("slip", "slip (mm)"),
           ("temperature", "temperature (°C)"), ("time", "time (s)"), ("load_history", "max depth − depth (mm)"),
           ("brightness", "frame brightness (rel.)"), ("rim_distance", "distance to rim (mm)"))
@@ -35,8 +36,9 @@ def _plt():
 
 
 def _save(fig, path: Path) -> str:
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=DPI)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    kw = {"pil_kwargs": {"quality": 80}} if path.suffix == ".jpg" else {}
+    fig.savefig(tmp, dpi=DPI, **kw)
     tmp.replace(path)
     _plt().close(fig)
     return path.name
@@ -83,7 +85,10 @@ def residual_vs(comp, path: Path) -> str:
             ax.set_ylabel("brightness residual")
             continue
         sel = contact if key not in ("time",) else np.ones_like(contact)
-        ax.plot(v[sel], rn[sel], ".", ms=1.5, alpha=0.4)
+        show = np.flatnonzero(sel)
+        if len(show) > MAX_POINTS:  # keep the PNG small: plot a fixed subsample, bin all points
+            show = show[np.linspace(0, len(show) - 1, MAX_POINTS).astype(int)]
+        ax.plot(v[show], rn[show], ".", ms=1.5, alpha=0.4)
         if sel.sum() > 20:
             edges = np.unique(np.quantile(v[sel], np.linspace(0, 1, 13)))
             idx = np.clip(np.searchsorted(edges, v[sel], side="right") - 1, 0, len(edges) - 2)
@@ -152,13 +157,15 @@ def worst(comp, path: Path, session_path: Path | None, k: int = 6) -> tuple[str,
             times.append(t)
         if len(picked) >= k:
             break
-    fig, axes = plt.subplots(1, len(picked), figsize=(2.2 * max(len(picked), 1), 2.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(picked), figsize=(1.8 * max(len(picked), 1), 2.0), squeeze=False)
     rows = []
     for ax, i in zip(axes[0], picked):
         c = comp.table.cols
         img = _frame_at(session_path, float(c["t"][i])) if session_path else None
         if img is not None:
-            ax.imshow(img)
+            h, w = img.shape[:2]
+            r = min(h, w) // 2
+            ax.imshow(img[h // 2 - r:h // 2 + r:2, w // 2 - r:w // 2 + r:2])
         ax.set_title(f"t={c['time'][i]:.1f}s |r|={err[i]:.2f}N", fontsize=7)
         ax.axis("off")
         rows.append({"time": float(c["time"][i]), "indenter": int(c["series"][i]), "error_n": float(err[i]),
@@ -195,7 +202,7 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
     out.mkdir(parents=True, exist_ok=True)
     pics = [residual_map(comp, out / "residual_map.png"), residual_vs(comp, out / "residual_vs.png"),
             timeline(comp, out / "timeline.png")]
-    wname, wrows = worst(comp, out / "worst.png", session_path)
+    wname, wrows = worst(comp, out / "worst.jpg", session_path)
     pics.append(wname)
     comp.summary["worst_samples"] = wrows
     parts = [f"<h1>TensorTouch compare: {html.escape(str(comp.summary.get('session', '')))}</h1>",
@@ -214,7 +221,7 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
                        if isinstance(v, float) and previous["force_error"].get(k))
         parts += ["<h2>Before / after</h2><table border=1 cellpadding=3><tr><th>error</th><th>before</th>"
                   f"<th>after</th><th>change</th></tr>{rows}</table>"]
-    parts += [f'<h2>{html.escape(p[:-4].replace("_", " "))}</h2><img src="{p}">' for p in pics]
+    parts += [f'<h2>{html.escape(p.rsplit(".", 1)[0].replace("_", " "))}</h2><img src="{p}">' for p in pics]
     page = "<!doctype html><meta charset=utf-8><title>compare</title>" + "\n".join(parts)
     tmp = out / f".report.{os.getpid()}.tmp"
     tmp.write_text(page)
