@@ -159,3 +159,14 @@ def test_fit_refuses_to_resume_a_different_config(tiny_dataset, tmp_path):
     fit(tiny_dataset, tmp_path / "r", FitConfig(arch="unet", epochs=1, batch_size=8, threads=1))
     with pytest.raises(DatasetError, match="config.json"):
         fit(tiny_dataset, tmp_path / "r", FitConfig(arch="unet", epochs=1, batch_size=4, threads=1))
+
+
+@pytest.mark.parametrize("arch", ["hiera_qup", "unet", "vit"])
+def test_heads_start_at_the_mean_target(arch):
+    torch.manual_seed(0)
+    m = build_model(arch, 64)
+    mean = torch.linspace(0.1, 0.9, 15)
+    m.heads.set_output_bias(mean)
+    with torch.no_grad():
+        y = m(torch.rand(2, 6, 64, 64)).mean((0, 2, 3))
+    assert (y - mean).abs().max() < 0.1

@@ -117,6 +117,15 @@ class Heads(nn.Module):
                                                  nn.Conv2d(hidden, 3 * shuffle ** 2, 1), nn.PixelShuffle(shuffle))
                                    for _ in self.names)
 
+    @torch.no_grad()
+    def set_output_bias(self, mean: torch.Tensor) -> None:
+        """Start every head at the dataset's per-channel mean target (15,), so training begins at the
+        constant-mean predictor instead of at 0 (targets are min/max-normalized, mostly ≈ 0.3–0.7)."""
+        for i, head in enumerate(self.heads):
+            last = head[-2] if isinstance(head[-1], nn.PixelShuffle) else head[-1]
+            reps = last.out_channels // 3
+            last.bias.copy_(mean[3 * i:3 * i + 3].repeat_interleave(reps))
+
     def forward(self, x):
         return torch.cat([h(x) for h in self.heads], 1)
 

@@ -217,6 +217,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     bounds = read_bounds(data / "bounds.json")
     torch.manual_seed(cfg.seed)
     model = build_model(cfg.arch, size)
+    model.heads.set_output_bias(torch.from_numpy(y_tr.mean(axis=(0, 2, 3))).float())
     if encoder_init is not None and not (out / "checkpoint.pt").exists():
         state = torch.load(encoder_init, weights_only=True, map_location="cpu")
         model.encoder.load_state_dict(state, strict=True)
