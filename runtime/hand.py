@@ -4,8 +4,8 @@ Each finger runs the single-sensor frame loop (runtime/loop.py SensorLoop over S
 its own thread, with its own camera, baseline state, calibration, key space
 (`tensortouch/<serial>/...`) and liveliness token. onnxruntime releases the GIL, so the threads
 run inference in parallel; `inference_workers` bounds how many do at once (= cores: more only
-thrashes). The fingers share one zenoh session and either one onnxruntime session (`share_model`)
-or one each (measured faster on our 2-core machine, docs/BENCHMARKS.md "Whole hand").
+thrashes). The fingers share one zenoh session and either one onnxruntime session (`share_model`,
+less memory) or one each (equally fast here within noise: docs/BENCHMARKS.md "Whole hand").
 
 Faults stay inside their finger: a camera that stops (unplugged) makes that finger publish
 `camera_lost` in its status while it reconnects every `reconnect_s`; after `offline_after_s` its

@@ -74,7 +74,7 @@ class HandConfig:
     model: str | None = None
     precision: str = "int8"
     threads: int = 1                   # onnxruntime intra-op threads per session
-    share_model: bool = False          # measured: separate sessions were faster on 2 cores (BENCHMARKS.md)
+    share_model: bool = False          # measured: no consistent speed difference; shared saves ~7 MB/finger
     inference_workers: int = field(default_factory=lambda: os.cpu_count() or 2)
     calibration_store: str | None = None
     publish_fields: bool = True
