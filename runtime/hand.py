@@ -339,10 +339,10 @@ class Hand:
         self._model_sig = sig
         try:
             pkg = load_package(self.package.folder)           # verifies manifest and hashes
-            new = [FieldModel(pkg, self.cfg.precision, self.cfg.threads) for _ in self.models]
             if pkg.size != self.package.size:
                 raise TensorTouchError(f"{pkg.folder}: input size {list(pkg.size)} differs from the running "
                                        f"model's {list(self.package.size)} (calibrations are per size)")
+            new = [FieldModel(pkg, self.cfg.precision, self.cfg.threads) for _ in self.models]
         except TensorTouchError as exc:
             log.error("hand %s: model files changed but the new package is rejected, keeping the running "
                       "model %s: %s", self.cfg.name, self.package.sha256(self.cfg.precision)[:12], exc)

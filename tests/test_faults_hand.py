@@ -336,7 +336,15 @@ def test_model_file_replaced_by_corrupt_one_while_running(rig, tmp_path):
         for name in ("model.int8.onnx", "model.fp32.onnx", "manifest.json"):
             shutil.copyfile(tmp_path / "new" / name, model_dir / name)
         assert wait_until(lambda: all("model_invalid" not in col.flags(s) for s in SERIALS), 10)
-        assert query_info(sub, "TT-C")["model_hash"] != old_hash
+        new_hash = query_info(sub, "TT-C")["model_hash"]
+        assert new_hash != old_hash
+        write_difference_package(tmp_path / "big", 64)                       # valid, but the wrong size
+        for name in ("model.int8.onnx", "model.fp32.onnx", "manifest.json"):
+            shutil.copyfile(tmp_path / "big" / name, model_dir / name)
+        assert wait_until(lambda: all("model_invalid" in col.flags(s) for s in SERIALS), 10)
+        before = snapshot(col, SERIALS)
+        assert_kept_publishing(col, before, sids=SERIALS)
+        assert query_info(sub, "TT-C")["model_hash"] == new_hash
     finally:
         sub.close()
         hand.stop()
