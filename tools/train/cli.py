@@ -170,6 +170,7 @@ def register(sub) -> None:
     b.add_argument("--runs", type=int, default=60, help="latency runs per model")
     b.add_argument("--out", help="also write the JSON here")
     b.set_defaults(func=cmd_bench)
+    __import__("tools.train.build", fromlist=["register_build"]).register_build(ts)  # all, dataset, evaluate
 
 
 def main(argv=None) -> int:

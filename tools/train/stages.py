@@ -1,0 +1,242 @@
+"""Stage shells of `tensortouch train all` (tools/train/build.py): each reads the build folder, writes its
+outputs there and returns a small dict stored in its stamp. Twin sessions are read through
+runtime.session; the twin's plan and FE results are reconstructed from the same RecordConfig the
+sessions stage used (so the FE scenario hash is checked against truth/truth.json)."""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shlex
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from runtime.errors import TensorTouchError
+
+log = logging.getLogger(__name__)
+
+
+def _atomic_json(obj, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1))
+    os.replace(tmp, path)
+
+
+def recorder(b, spec):
+    """The twin Recorder of a session spec (not run): plan, unit, modules, physics config."""
+    from tools.twin.record import RecordConfig, Recorder
+
+    rcfg = RecordConfig(serial=spec.serial, pokes=spec.pokes, seed=spec.seed, physics=b.cfg.physics,
+                        frame_format=spec.frames, mjpg_quality=spec.quality, model_size=b.cfg.size)
+    return Recorder(rcfg, b.session(spec))
+
+
+def fe_results(b, spec) -> list:
+    """FE results (tools.fe.FEResult) of every poke of a session, from the FE cache (solved if missing).
+    With hertz-fallback physics (smoke tests only) the twin's PokeSolve stands in."""
+    from tools.twin.record import make_physics
+
+    rec = recorder(b, spec)
+    physics = make_physics(rec.cfg, rec.unit)
+    if b.cfg.physics != "fe":
+        return [_fallback_result(physics.solve(p)) for p in rec.plan]
+    return [physics.result(p) for p in rec.plan]
+
+
+def _fallback_result(ps):
+    """A PokeSolve of the analytic fallback shaped like an FEResult (no stress, contact forces from the
+    reaction spread over the touched nodes) — only so the smoke test can run the chain without FE."""
+    J, N = ps.U.shape[:2]
+    K = ps.RF.shape[1]
+    from tools.twin.geometry import GelSurface
+
+    n0 = GelSurface().normals(ps.nodes)
+    cn = np.zeros((J, N, 3))
+    owner = np.full((J, N), -1)
+    for j in range(J):
+        for k in range(K):
+            depth = -np.sum(ps.U[j] * n0, 1)
+            sel = (depth > 0.3 * ps.depth[j, k]) & (ps.depth[j, k] > 0)
+            if np.isfinite(ps.contact[j, k]).all():
+                sel &= np.linalg.norm(ps.nodes - ps.contact[j, k], axis=1) < 4.0
+            if sel.any():
+                cn[j, sel] += ps.RF[j, k] / sel.sum()
+                owner[j, sel] = k
+    from scipy.spatial import Delaunay
+
+    from tools.train.fields import _disc, surface_angles
+
+    tris = Delaunay(_disc(*surface_angles(ps.nodes))).simplices
+    return SimpleNamespace(nodes=ps.nodes, surface_nodes=np.arange(N), surface_tris=tris, U=ps.U,
+                           S=np.zeros((J, N, 6)), CNORMF=cn, CSHEAR=np.zeros_like(cn), contact_owner=owner,
+                           RF=ps.RF, pose_position=np.zeros((J, K, 3)), scenario_hash=ps.key)
+
+
+def unit_calibration(b, serial: str):
+    """The calibration the dataset and evaluation use for a unit (stage 3's choice)."""
+    from runtime.calibration import CalibrationStore
+
+    info = json.loads((b.root / "correspondence" / f"{serial}.json").read_text())
+    return CalibrationStore(b.store_root).load(serial, info["version"])
+
+
+# ------------------------------------------------------------------------------------------- stages
+
+def stage_keypoints(b) -> dict:
+    """Stage 1 on every session (measured F/T + mocap) → keypoints/<session>.json."""
+    from tools.train.cli import cmd_keypoints
+
+    out = {}
+    for spec in b.all_sessions():
+        path = b.root / "keypoints" / f"{spec.name}.json"
+        cmd_keypoints(SimpleNamespace(session=str(b.session(spec)), out=str(path), image_rate=30.0, max_keypoints=12))
+        doc = json.loads(path.read_text())
+        plan = recorder(b, spec).plan
+        out[spec.name] = {"periods": len(doc["periods"]), "keypoints": sum(len(p["t"]) for p in doc["periods"]),
+                          "planned_pokes": len(plan), "planned_keypoints": int(sum(len(p.times) for p in plan))}
+    return {"sessions": out}
+
+
+def stage_fe(b) -> dict:
+    """Stage 2: the FE result of every poke (the twin's cached solves of the session's plan, re-solved
+    when missing from the cache); checks each scenario hash against the session's truth."""
+    out = {}
+    for spec in b.all_sessions():
+        truth = json.loads((b.session(spec) / "truth" / "truth.json").read_text())
+        res = fe_results(b, spec)
+        hashes = [str(r.scenario_hash) for r in res]
+        if b.cfg.physics == "fe" and hashes != truth["fe_scenarios"]:
+            raise TensorTouchError(f"{b.session(spec)}/truth/truth.json: fe_scenarios {truth['fe_scenarios']} "
+                                   f"differ from the rebuilt scenarios {hashes}")
+        doc = {"session": spec.name, "scenarios": hashes, "frames": [int(r.U.shape[0]) for r in res]}
+        _atomic_json(doc, b.root / "fe" / f"{spec.name}.json")
+        out[spec.name] = doc["frames"]
+    return {"fe_frames": out}
+
+
+def stage_correspondence(b) -> dict:
+    from tools.train.correspondence import build_unit_calibrations
+
+    return build_unit_calibrations(b)
+
+
+def stage_simreal(b) -> dict:
+    """Stage 5: sim-to-real ratios per session and indenter → simreal/<session>.json."""
+    from runtime.session import load_session
+    from tools.train.simreal import session_ratios
+
+    out = {}
+    for spec in b.all_sessions():
+        rec = recorder(b, spec)
+        res = fe_results(b, spec)
+        r = session_ratios(load_session(b.session(spec), check_frames=False), rec.plan,
+                           [p.slots for p in rec.plan], [x.RF for x in res])
+        doc = {"session": spec.name, "ratios": {str(k): v for k, v in r.items()},
+               "twin_stiffness_scale": rec.unit.params.stiffness_scale}
+        _atomic_json(doc, b.root / "simreal" / f"{spec.name}.json")
+        out[spec.name] = {"magnitude": {k: round(v["magnitude"], 4) for k, v in doc["ratios"].items()},
+                          "twin_stiffness_scale": round(rec.unit.params.stiffness_scale, 4)}
+    return {"ratios": out}
+
+
+def stage_dataset(b) -> dict:
+    """Stage 4 + sample selection: training sessions → dataset/ (per-session parts cached in .work/)."""
+    from tools.train.dataset import DatasetConfig, session_samples, split_pokes, write_dataset
+
+    work = b.dataset / ".work"
+    work.mkdir(parents=True, exist_ok=True)
+    dcfg = DatasetConfig(size=b.cfg.size, contact_stride=b.cfg.contact_stride, rest_fraction=b.cfg.rest_fraction)
+    parts = []
+    for si, spec in enumerate(b.cfg.train):
+        part = work / f"{spec.name}.npz"
+        if not part.is_file():
+            t0 = time.monotonic()
+            rec = recorder(b, spec)
+            ratios = json.loads((b.root / "simreal" / f"{spec.name}.json").read_text())["ratios"]
+            last = [0.0]
+
+            def prog(i, n, name=spec.name):
+                if time.monotonic() - last[0] > 10 or i == n:
+                    last[0] = time.monotonic()
+                    log.info("dataset %s: %d/%d samples", name, i, n)
+            d = session_samples(b.session(spec), unit_calibration(b, spec.serial), rec.plan, fe_results(b, spec),
+                                [p.slots for p in rec.plan], {int(k): v for k, v in ratios.items()}, dcfg, prog)
+            tmp = part.with_suffix(".tmp.npz")
+            np.savez(tmp, **d)
+            os.replace(tmp, part)
+            log.info("dataset %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
+        with np.load(part) as z:
+            d = {k: z[k] for k in z.files}
+        val_pokes = split_pokes(spec.pokes, si)
+        d["val"] = np.isin(d["poke"], list(val_pokes)) & (d["poke"] >= 0)
+        parts.append(d)
+    source = (f"twin sessions {[s.name for s in b.cfg.train]} (FE physics={b.cfg.physics}, tables={b.cfg.tables}); "
+              f"tools.train.build {b.cfg.build}")
+    h = write_dataset(b.dataset, parts, b.cfg.size, source)
+    n = sum(len(p["frame"]) for p in parts)
+    return {"data_hash": h, "samples": n, "val": int(sum(p["val"].sum() for p in parts)),
+            "rest": int(sum((p["poke"] < 0).sum() for p in parts))}
+
+
+def stage_pretrain(b) -> dict:
+    if b.cfg.pretrain_epochs <= 0:
+        return {"skipped": True}
+    from tools.train.model.train import PretrainConfig, pretrain
+
+    res = pretrain(b.dataset, b.root / "runs" / "pretrain",
+                   PretrainConfig(epochs=b.cfg.pretrain_epochs, batch_size=b.cfg.batch, threads=b.cfg.threads))
+    return {"samples_per_s": res.get("samples_per_s")}
+
+
+def stage_fit(b) -> dict:
+    from tools.train.model.train import FitConfig, fit
+
+    enc = b.root / "runs" / "pretrain" / "encoder.pt"
+    res = fit(b.dataset, b.root / "runs" / "fit",
+              FitConfig(arch=b.cfg.arch, epochs=b.cfg.epochs, batch_size=b.cfg.batch, lr=b.cfg.lr,
+                        threads=b.cfg.threads),
+              encoder_init=enc if (b.cfg.pretrain_epochs > 0 and enc.is_file() and b.cfg.arch == "hiera_qup") else None)
+    return {"params": res["params"], "metrics": res["metrics"]["mean"], "samples_per_s": res.get("samples_per_s")}
+
+
+def build_wall_time(b, extra: float = 0.0) -> float:
+    from tools.train.build import STAGES
+
+    return float(sum(b.read_stamp(s).get("seconds", 0.0) for s in STAGES) + extra)
+
+
+def stage_export(b) -> dict:
+    from runtime.paths import models_dir
+    from tools.train.export import ExportConfig, export_run
+
+    root = Path(b.cfg.models_dir) if b.cfg.models_dir else models_dir()
+    t0 = time.monotonic()
+    cmd = b.command or shlex.join(["tensortouch", "train", "all", "--name", b.cfg.name])
+    man = export_run(b.root / "runs" / "fit", b.dataset, b.cfg.name, root, cmd,
+                     ExportConfig(calibration_samples=b.cfg.calibration_samples, latency_runs=b.cfg.latency_runs),
+                     wall_time_s=build_wall_time(b, 0.0))
+    m = man["metrics"]
+    # the manifest's wall time is the whole build up to and including export: rewrite it once known
+    total = build_wall_time(b, time.monotonic() - t0)
+    _set_wall_time(root / b.cfg.name, total)
+    return {"package": str(root / b.cfg.name), "psnr_fp32": m["fp32"]["psnr"], "psnr_int8": m["int8"]["psnr"],
+            "latency_ms": {"fp32": m["latency_ms"]["fp32"], "int8": m["latency_ms"]["int8"]},
+            "wall_time_s": total}
+
+
+def _set_wall_time(folder: Path, seconds: float) -> None:
+    """Record the build's wall time in the manifest (manifest.json is not itself hashed)."""
+    p = folder / "manifest.json"
+    man = json.loads(p.read_text())
+    man["training"]["wall_time_s"] = round(float(seconds), 1)
+    _atomic_json(man, p)
+
+
+def stage_evaluate(b) -> dict:
+    from tools.train.evaluate import evaluate_build
+
+    return evaluate_build(b)
