@@ -82,6 +82,7 @@ class Effect:
     off: dict = {}               # parameter values for which the effect is the identity
     sequential: bool = False     # forward needs one series (indenter) in time order per call
     fixed: tuple[str, ...] = ()  # parameters held at their default when fitting (not identifiable)
+    linear: bool = False         # hint: output is affine in the free parameters (exact linear fit)
 
     # ----- to be written by subclasses -------------------------------------------------------
     def forward(self, x: np.ndarray, cov: dict, p: dict) -> np.ndarray:  # pragma: no cover

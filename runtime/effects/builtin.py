@@ -154,6 +154,7 @@ class FTBiasDrift(Effect):
               Param("bz", "N/s", 0.004, -0.02, 0.02, "z bias drift rate (F/T frame)", "b_z"))
     covariates = ("time",)
     off = {"bx": 0.0, "by": 0.0, "bz": 0.0}
+    linear = True
 
     def forward(self, x, cov, p):
         t = need(cov, "time", self.name)
@@ -175,6 +176,7 @@ class LEDDrift(Effect):
     covariates = ("time", "temperature")
     off = {"c": 0.0, "beta": 0.0}
     fixed = ("t_ref",)   # only the gain relative to the baseline frames is observable
+    linear = True
 
     def gain(self, cov, p):
         t = need(cov, "time", self.name)

@@ -14,7 +14,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, lsq_linear
 
 from runtime.effects import Effect, EffectChain
 from tools.workbench.table import SampleTable
@@ -106,8 +106,10 @@ class Candidate:
     def scout(self, blk: np.ndarray) -> "Scout":
         """Evaluate the grid once: per grid point and block, the SSE; plus the rows the effect
         can change at all. Fold fits then pick their start from training-block sums only."""
-        grid = self._grid() if self.free else [np.zeros(0)]
         ids = np.unique(blk)
+        if self.effect.linear:  # fitted exactly, no start point needed
+            return Scout([], ids, np.zeros((0, len(ids))), np.ones(len(blk), bool))
+        grid = self._grid() if self.free else [np.zeros(0)]
         r0 = self.residual(grid[0])
         costs = np.zeros((len(grid), len(ids)))
         active = np.zeros(len(r0), bool)
@@ -125,6 +127,8 @@ class Candidate:
         Returns (theta, cost = sum of squared residuals on rows)."""
         if not self.free:
             return np.zeros(0), float(np.sum(self.residual(np.zeros(0))[rows] ** 2))
+        if self.effect.linear:
+            return self._fit_linear(rows)
 
         def cost(th):
             return float(np.sum(self.residual(th)[rows] ** 2))
@@ -157,6 +161,23 @@ class Candidate:
         if best > float(np.min(costs)):  # never return something worse than the best grid point
             theta, best = grid[int(np.argmin(costs))], float(np.min(costs))
         return np.asarray(theta, dtype=np.float64), best
+
+
+    def _fit_linear(self, rows: np.ndarray) -> tuple[np.ndarray, float]:
+        """Affine effects: residual(θ) = r0 - J (θ - θ0) exactly; bounded linear least squares."""
+        if not hasattr(self, "_lin"):
+            th0 = np.array([self.effect.identity_params()[q.name] for q in self.free])
+            r0 = self.residual(th0)
+            span = np.maximum(self.hi - self.lo, 1e-12)
+            J = np.stack([(r0 - self.residual(th0 + 0.1 * span * np.eye(len(th0))[i])).ravel() / (0.1 * span[i])
+                          for i in range(len(th0))], axis=1)
+            self._lin = (th0, r0, J)
+        th0, r0, J = self._lin
+        k = r0.shape[1]
+        idx = (rows[:, None] * k + np.arange(k)).ravel()
+        sol = lsq_linear(J[idx], r0.ravel()[idx], bounds=(self.lo - th0, self.hi - th0))
+        theta = th0 + sol.x
+        return theta, float(np.sum(self.residual(theta)[rows] ** 2))
 
 
 @dataclass

@@ -184,7 +184,7 @@ def before_after(prev: dict, cur: dict, path: Path) -> str:
     x = np.arange(len(keys))
     ax.bar(x - 0.2, a, 0.4, label=f"before ({len(prev.get('effects', []))} effects)")
     ax.bar(x + 0.2, b, 0.4, label=f"after ({len(cur.get('effects', []))} effects)")
-    ax.set_xticks(x, keys)
+    ax.set_xticks(x, ["rms x", "rms y", "rms z", "rms |r|", "mean ||F|-|F'||"], fontsize=8)
     ax.set_ylabel("force error (N)")
     ax.legend(fontsize=8)
     fig.tight_layout()
