@@ -221,6 +221,11 @@ class CalibrationStore:
                 fh.flush()
                 os.fsync(fh.fileno())
             os.rename(tmp, versions_dir / version)
+        except OSError as exc:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise CalibrationError(f"{versions_dir / version}: could not write the new calibration "
+                                   f"({exc.strerror or exc}); nothing was stored, the active version is "
+                                   f"unchanged") from exc
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -50,7 +50,7 @@ def test_failed_write_leaves_previous_version_active(calib_store, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("runtime.calibration.json.dump", disk_full)
-    with pytest.raises(OSError):
+    with pytest.raises(CalibrationError, match="No space left on device.*nothing was stored"):
         calib_store.derive("TT-TEST", {"effects": []})
     monkeypatch.undo()
     assert calib_store.current("TT-TEST") == before.version

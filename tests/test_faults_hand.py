@@ -389,10 +389,12 @@ DISK_FULL_WRITE = textwrap.dedent("""
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)          # get EFBIG instead of being killed
     resource.setrlimit(resource.RLIMIT_FSIZE, (2048, 2048))
     from tests.conftest import dome_calibration
+    from runtime.errors import CalibrationError
     try:
         dome_calibration(sys.argv[1], "TT-B", size=32, image=(160, 120), radius_px=47.0)
-    except OSError as exc:
-        print("OSError", exc.errno, exc)
+    except CalibrationError as exc:
+        cause = exc.__cause__
+        print(type(cause).__name__, getattr(cause, "errno", None), exc)
         sys.exit(3)
     print("written")
 """)
@@ -432,10 +434,12 @@ def test_disk_full_during_calibration_write(rig, tmp_path):
                 assert exc.errno == 28
             finally:
                 os.close(fd)
-            with pytest.raises(OSError) as info:
+            from runtime.errors import CalibrationError
+
+            with pytest.raises(CalibrationError, match="nothing was stored") as info:
                 dome_calibration(store_root, SICK, size=32, image=(160, 120), radius_px=47.0)
             # ENOSPC, or numpy's own "N requested and M written" OSError (errno None) from np.save
-            assert info.value.errno in (28, None), info.value
+            assert isinstance(info.value.__cause__, OSError) and info.value.__cause__.errno in (28, None)
         else:
             r = subprocess.run([sys.executable, "-c", DISK_FULL_WRITE, str(store_root),
                                 os.path.dirname(os.path.dirname(__file__))], capture_output=True, text=True)

@@ -125,7 +125,7 @@ class _ProcLatency:
 
     def __call__(self, finger, result):
         t = result.timings
-        self.ms[finger.cfg.name].append(t.get("total", 0.0) - t.get("capture", 0.0))
+        self.ms[finger.cfg.name].append(t.get("total", 0.0))  # total excludes capture (waiting)
 
     def take(self, name) -> tuple[float, float]:
         a, self.ms[name] = self.ms[name], []

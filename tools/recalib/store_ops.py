@@ -64,6 +64,10 @@ def store_recalibration(store: CalibrationStore, cal: Calibration, provenance: d
             version = store.write(sid, {k: tables[k] for k in TABLES}, meta, files=files)
     except OSError as exc:
         raise _explain(exc, store, sid, active) from None
+    except CalibrationError as exc:  # the store wraps I/O errors; explain them the same way
+        if isinstance(exc.__cause__, OSError):
+            raise _explain(exc.__cause__, store, sid, active) from None
+        raise
     try:  # verify what was written before leaving it active
         new = store.load(sid, version)
         ForceCorrection.from_calibration(new)

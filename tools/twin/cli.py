@@ -17,8 +17,12 @@ log = logging.getLogger(__name__)
 class _Bar:
     """One-line progress on stderr (no dependency)."""
 
-    def __init__(self, stream=sys.stderr):
-        self.stream, self.t0, self.last = stream, time.perf_counter(), 0.0
+    def __init__(self, stream=None):
+        self._stream, self.t0, self.last = stream, time.perf_counter(), 0.0
+
+    @property
+    def stream(self):
+        return self._stream or sys.stderr  # looked up per write: stderr may be replaced meanwhile
 
     def __call__(self, stage: str, i: int, n: int) -> None:
         now = time.perf_counter()
