@@ -113,6 +113,8 @@ class ReplayCamera(Camera):
                                "readable here: MJPG .avi, mp4v .mp4)")
         self._cap, self._pos = cap, 0
         if self._times is None:  # plain video: its own frame rate is the clock
+            declared = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+            self._declared = int(declared) if declared and math.isfinite(declared) and declared > 0 else None
             fps = cap.get(cv2.CAP_PROP_FPS)
             self._fps = self.config.fps or (fps if fps and fps > 0 and math.isfinite(fps) else DEFAULT_VIDEO_FPS)
 
@@ -174,6 +176,12 @@ class ReplayCamera(Camera):
         if idx == 0:
             raise CaptureError(f"{self._video}: no frame could be decoded (unreadable or corrupt video)")
         self._count = idx  # plain video: now we know its length
+        declared = getattr(self, "_declared", None)
+        if declared is not None and idx < declared - 1:
+            # the container announces more frames: this is a corrupt frame, not the end. Say so once;
+            # the next read goes on as if the video ended here (loops or ends).
+            raise CaptureError(f"{self._video}: frame {idx} of {declared} cannot be decoded (garbled or "
+                               "truncated video); continuing as if the video ended there")
         if not self.config.loop:
             raise EndOfStream(f"{self.name}: end of video after {idx} frames")
         return self._decode(k)
