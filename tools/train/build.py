@@ -62,8 +62,8 @@ class BuildConfig:
     val_fraction: float = 0.1
     arch: str = "hiera_qup"
     pretrain_epochs: int = 0                      # MAE pretraining epochs (0: skip)
-    epochs: int = 8
-    batch: int = 8
+    epochs: int = 3
+    batch: int = 4
     lr: float = 1e-3
     threads: int = 2
     calibration_samples: int = 32                 # int8 calibration inputs

@@ -182,12 +182,21 @@ def stage_dataset(b) -> dict:
             "rest": int(sum((p["poke"] < 0).sum() for p in parts))}
 
 
+def pretrain_dir(b) -> Path:
+    """Run folder of the MAE pretraining (one per configuration, so a changed budget starts anew)."""
+    return b.root / "runs" / f"pretrain-{b.keys['pretrain']}"
+
+
+def fit_dir(b) -> Path:
+    return b.root / "runs" / f"fit-{b.keys['fit']}"
+
+
 def stage_pretrain(b) -> dict:
     if b.cfg.pretrain_epochs <= 0:
         return {"skipped": True}
     from tools.train.model.train import PretrainConfig, pretrain
 
-    res = pretrain(b.dataset, b.root / "runs" / "pretrain",
+    res = pretrain(b.dataset, pretrain_dir(b),
                    PretrainConfig(epochs=b.cfg.pretrain_epochs, batch_size=b.cfg.batch, threads=b.cfg.threads))
     return {"samples_per_s": res.get("samples_per_s")}
 
@@ -195,8 +204,8 @@ def stage_pretrain(b) -> dict:
 def stage_fit(b) -> dict:
     from tools.train.model.train import FitConfig, fit
 
-    enc = b.root / "runs" / "pretrain" / "encoder.pt"
-    res = fit(b.dataset, b.root / "runs" / "fit",
+    enc = pretrain_dir(b) / "encoder.pt"
+    res = fit(b.dataset, fit_dir(b),
               FitConfig(arch=b.cfg.arch, epochs=b.cfg.epochs, batch_size=b.cfg.batch, lr=b.cfg.lr,
                         threads=b.cfg.threads),
               encoder_init=enc if (b.cfg.pretrain_epochs > 0 and enc.is_file() and b.cfg.arch == "hiera_qup") else None)
@@ -216,7 +225,7 @@ def stage_export(b) -> dict:
     root = Path(b.cfg.models_dir) if b.cfg.models_dir else models_dir()
     t0 = time.monotonic()
     cmd = b.command or shlex.join(["tensortouch", "train", "all", "--name", b.cfg.name])
-    man = export_run(b.root / "runs" / "fit", b.dataset, b.cfg.name, root, cmd,
+    man = export_run(fit_dir(b), b.dataset, b.cfg.name, root, cmd,
                      ExportConfig(calibration_samples=b.cfg.calibration_samples, latency_runs=b.cfg.latency_runs),
                      wall_time_s=build_wall_time(b, 0.0))
     m = man["metrics"]

@@ -1,0 +1,154 @@
+"""Stages 3, 4 (dataset shell), 5 and 8 cores of `tensortouch train all` (tools/train/*)."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from runtime.fields import CHANNELS
+from tools.train.correspondence import image_change_centroid, project_to_cap, tables_from_theta_phi
+from tools.train.dataset import DatasetConfig, FieldProjector, select_frames, write_dataset
+from tools.train.evaluate import frame_errors, summarize
+from tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
+from tools.train.model.data import load_split, read_index
+from tools.train.simreal import SimRealError, apply_ratios, fit_ratios, ft_to_sensor
+
+
+# ---------------------------------------------------------------- stage 4 shell: sample selection
+
+def test_select_frames_strides_pokes_and_keeps_rest_samples():
+    fp = np.array([-1] * 10 + [0] * 9 + [-1] * 8 + [1] * 7 + [-1] * 6)
+    cfg = DatasetConfig(contact_stride=3, rest_fraction=0.25, master_baseline_share=0.0)
+    picks = select_frames(fp, cfg)
+    contact = [p for p in picks if p[2] >= 0]
+    rest = [p for p in picks if p[2] < 0]
+    assert {i for i, _, p in contact if p == 0} == {10, 13, 16, 18}          # stride 3, first and last kept
+    assert {i for i, _, p in contact if p == 1} == {27, 30, 33}
+    assert all(b == 9 for _, b, p in contact if p == 0)                     # last rest frame before poke 0
+    assert all(b == 26 for _, b, p in contact if p == 1)
+    assert len(rest) == round(0.25 * len(contact)) and all(fp[i] < 0 for i, _, _ in rest)
+    assert all(fp[b] < 0 for _, b, _ in picks)                              # baselines are rest frames
+    master = select_frames(fp, DatasetConfig(master_baseline_share=1.0))
+    assert {b for _, b, _ in master} == {DatasetConfig().master_frame}
+
+
+def _dome_nodes(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    th = np.arccos(1 - rng.random(n) * (1 - np.cos(0.9)))
+    ph = rng.uniform(-np.pi, np.pi, n)
+    R, zc = 15.0, -7.0
+    return np.stack([R * np.sin(th) * np.cos(ph), R * np.sin(th) * np.sin(ph), zc + R * np.cos(th)], 1)
+
+
+def test_field_projector_equals_fe_to_fields():
+    xyz = _dome_nodes()
+    rng = np.random.default_rng(1)
+    u, s = rng.normal(size=(len(xyz), 3)), rng.normal(size=(len(xyz), 6))
+    cn, cs = rng.normal(size=(len(xyz), 3)), rng.normal(size=(len(xyz), 3))
+    S = 24
+    yy, xx = (np.mgrid[0:S, 0:S] + 0.5 - S / 2) / (S / 2)
+    d = np.hypot(xx, yy)
+    tables = {"theta": d * 0.85, "phi": np.arctan2(yy, xx), "pixel_area": np.where(d <= 1, 0.3, 0.0)}
+    cfg = FieldConfig(center_mm=(0.0, 0.0, -7.0))
+    area = tributary_area(xyz, cfg=cfg)
+    ref = fe_to_fields(xyz, u, s, cn, cs, tables["theta"], tables["phi"], tables["pixel_area"], node_area=area, cfg=cfg)
+    got = FieldProjector(xyz, area, tables, cfg).project(u, s, cn, cs)
+    assert got.shape == (15, S, S)
+    np.testing.assert_allclose(got, ref, atol=1e-5 * np.abs(ref).max())
+
+
+def test_write_dataset_contract(tmp_path):
+    rng = np.random.default_rng(2)
+    parts = []
+    for k in range(2):
+        tgt = rng.normal(size=(5, 15, 16, 16)).astype(np.float32)
+        tgt[0] = 0.0                                                         # a rest sample
+        parts.append({"input": rng.integers(0, 255, (5, 6, 16, 16), dtype=np.uint8), "target": tgt,
+                      "val": np.array([False, False, False, True, k == 1])})
+    h = write_dataset(tmp_path, parts, 16, "test")
+    idx = read_index(tmp_path)
+    assert len(idx["samples"]) == 10 and sum(e["split"] == "val" for e in idx["samples"]) == 3
+    assert len(h) == 64
+    b = read_bounds(tmp_path / "bounds.json")
+    x, y = load_split(tmp_path, "train")
+    assert x.shape == (7, 6, 16, 16) and y.min() >= 0 and y.max() <= 1
+    lo = np.array([b[c][0] for c in CHANNELS])
+    hi = np.array([b[c][1] for c in CHANNELS])
+    np.testing.assert_allclose(y[0].reshape(15, -1).mean(1), (0 - lo) / (hi - lo), rtol=1e-5)   # zeros → 0 N
+
+
+# ---------------------------------------------------------------- stage 5: sim-to-real ratios
+
+def test_ft_to_sensor_rotations():
+    f_ft = np.array([[1.0, 0.0, 0.0]])
+    ft_rot = Rotation.from_euler("z", 90, degrees=True).as_quat()[[3, 0, 1, 2]]   # wxyz
+    pose = Rotation.from_euler("x", 90, degrees=True).as_quat()[[3, 0, 1, 2]]
+    got = ft_to_sensor(f_ft, pose[None], ft_rot)
+    np.testing.assert_allclose(got, [[0.0, 0.0, 1.0]], atol=1e-12)                # x → y (ft→ind) → z (ind→sensor)
+
+
+def test_fit_ratios_recovers_per_component_scale_and_falls_back():
+    rng = np.random.default_rng(3)
+    fe = np.column_stack([rng.uniform(0.5, 2, 50), rng.uniform(-0.01, 0.01, 50), -rng.uniform(2, 6, 50)])
+    true = np.array([1.1, 0.7, 0.9])
+    sensor = -(fe * true) + rng.normal(0, 0.01, fe.shape)                           # F/T reads −RF
+    r = fit_ratios(sensor, fe)
+    assert abs(r["ratio"][0] - 1.1) < 0.02 and abs(r["ratio"][2] - 0.9) < 0.01
+    assert r["component_fitted"] == [True, False, True] and r["ratio"][1] == r["magnitude"]
+    with pytest.raises(SimRealError):
+        fit_ratios(sensor * 0.0, fe * 0.01)
+    forces = np.ones((4, 3))
+    out = apply_ratios(forces, np.array([0, 1, -1, 1]), np.array([[2.0, 2, 2], [0.5, 1, 1.5]]))
+    np.testing.assert_allclose(out, [[2, 2, 2], [0.5, 1, 1.5], [1, 1, 1], [0.5, 1, 1.5]])
+
+
+# ---------------------------------------------------------------- stage 3: correspondence cores
+
+def test_image_change_centroid_finds_a_blob():
+    base = np.full((120, 160, 3), 100, np.uint8)
+    cur = base.copy()
+    yy, xx = np.mgrid[0:120, 0:160]
+    blob = 60 * np.exp(-((xx - 101.3) ** 2 + (yy - 47.6) ** 2) / (2 * 4.0 ** 2))
+    cur = np.clip(cur + blob[..., None], 0, 255).astype(np.uint8)
+    x, y = image_change_centroid(base, cur)
+    assert abs(x - 101.3) < 0.5 and abs(y - 47.6) < 0.5
+    assert np.isnan(image_change_centroid(base, base)[0])
+
+
+def test_project_to_cap_and_tables_match_the_twin_truth():
+    from tools.twin.unit import TwinUnit, true_tables
+
+    p = project_to_cap(np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 5.0]]), -7.0, 15.0)
+    np.testing.assert_allclose(np.linalg.norm(p - [0, 0, -7.0], axis=1), 15.0)
+    np.testing.assert_allclose(p[0], [0, 0, 8.0])
+    unit = TwinUnit("TWIN-TEST-TABLES")
+    truth = true_tables(unit, 48)
+    got = tables_from_theta_phi(truth["theta"], truth["phi"], unit.gel, truth["mask"])
+    m = truth["mask"] & (truth["theta"] < 0.7)
+    np.testing.assert_allclose(got["surface_xyz"][m], truth["surface_xyz"][m], atol=1e-6)
+    np.testing.assert_allclose(got["normals"][m], truth["normals"][m], atol=1e-6)
+    rel = np.abs(got["pixel_area"][m] - truth["pixel_area"][m]) / truth["pixel_area"][m]
+    assert np.median(rel) < 0.02                                                   # central vs ±0.5 px differences
+
+
+# ---------------------------------------------------------------- stage 8: matching and summary
+
+class _C:
+    def __init__(self, pos, force):
+        self.centroid_mm, self.force_n = pos, force
+
+
+def test_frame_errors_match_nearest_cluster_and_count_misses():
+    tips = np.array([[0.0, 0.0, 8.0], [5.0, 0.0, 6.0]])
+    forces = np.array([[0.0, 0.0, -3.0], [0.5, 0.0, -2.0]])
+    cl = [_C((5.2, 0.1, 6.0), (0.4, 0.0, -1.8)), _C((0.1, -0.1, 7.9), (0.0, 0.1, -2.5))]
+    rows = frame_errors(cl, tips, forces)
+    assert [r["indenter"] for r in rows] == [0, 1]
+    assert rows[0]["pred_force"] == [0.0, 0.1, -2.5] and rows[1]["pred_pos"] == [5.2, 0.1, 6.0]
+    miss = frame_errors([], tips, forces)
+    assert all(r["miss"] for r in miss)
+    s = summarize(rows + miss, [0.0, 0.3])
+    assert s["contact_samples"] == 4 and s["detected_fraction"] == 0.5
+    assert abs(s["position_mae_mm"]["x"] - 0.15) < 1e-9
+    assert abs(s["force_mag_mae_n"] - np.mean([0.5, np.linalg.norm([.5, 0, -2]) - np.linalg.norm([.4, 0, -1.8]),
+                                               3.0, np.linalg.norm([.5, 0, -2])])) < 1e-3
+    assert s["rest_force_mean_n"] == 0.15 and s["rest_false_contact_fraction"] == 0.5
+    assert frame_errors(cl, tips, forces * 0.1) == []                            # below the contact threshold
