@@ -177,3 +177,21 @@ def test_chain_from_calibration_store(calib_store):
     json.dumps(chain.to_list())
     with pytest.raises(ValueError, match="unknown effect"):
         EffectChain.from_list([{"name": "nope"}], Registry.default(entry_points=False))
+
+
+def test_streaming_chain_equals_batch_for_sequential_effects():
+    """The runtime applies effects frame by frame per contact track; must equal the batch form."""
+    reg = Registry.default(entry_points=False)
+    chain = EffectChain.from_list([{"name": "viscoelastic_relaxation", "params": {"g1": 0.3, "tau": 0.5}},
+                                   {"name": "strain_stiffening", "params": {"k": 8.0}}], reg)
+    t = np.cumsum(np.random.default_rng(3).uniform(0.01, 0.05, 300))   # irregular frame times
+    depth = np.clip(np.sin(t * 3) * 2, 0, None)
+    f = np.column_stack([0 * t, 0.1 * depth, depth ** 1.5])
+    cov = {"time": t, "depth": depth, "gel_height": np.full(len(t), 8.0)}
+    batch = chain.apply(f, cov)
+    tracks = {}
+    stream = np.vstack([chain.stream(tracks, [7], t[i], f[i:i + 1],
+                                     {k: v[i:i + 1] for k, v in cov.items()}) for i in range(len(t))])
+    assert np.allclose(stream, batch, atol=1e-9)
+    chain.stream(tracks, [], t[-1] + 0.1, np.zeros((0, 3)), {})
+    assert tracks == {}                                                   # lifted contacts forgotten

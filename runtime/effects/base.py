@@ -24,7 +24,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from runtime.errors import TensorTouchError
+
 log = logging.getLogger(__name__)
+
+
+class EffectError(TensorTouchError, ValueError):
+    """An effect, its parameters, a plugin or an effect list is wrong (names the culprit)."""
+
+
+class MissingCovariate(EffectError, KeyError):
+    """An effect needs a covariate the caller did not provide."""
 
 STAGES = ("force", "measurement", "image")
 
@@ -64,7 +74,7 @@ class Param:
     def check(self, value: float, effect: str) -> float:
         value = float(value)
         if not np.isfinite(value) or not (self.lo <= value <= self.hi):
-            raise ValueError(f"effect {effect}: parameter {self.name}={value} {self.unit} outside "
+            raise EffectError(f"effect {effect}: parameter {self.name}={value} {self.unit} outside "
                              f"[{self.lo}, {self.hi}]")
         return value
 
@@ -88,6 +98,11 @@ class Effect:
     def forward(self, x: np.ndarray, cov: dict, p: dict) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError(f"effect {self.name}: forward not written")
 
+    def step(self, state: dict, t: float, x: np.ndarray, p: dict) -> np.ndarray:  # sequential only
+        """Streaming form of a sequential effect: one sample (3,) of one track at time t; `state`
+        is the track's dict, kept by the caller between calls (see EffectChain.stream)."""
+        raise NotImplementedError(f"effect {self.name}: sequential effect without a streaming step()")
+
     def gain(self, cov: dict, p: dict) -> np.ndarray:  # image effects only
         raise NotImplementedError(f"effect {self.name}: stage {self.stage} has no image gain")
 
@@ -96,7 +111,7 @@ class Effect:
         for p in self.params:
             if p.name == name:
                 return p
-        raise KeyError(f"effect {self.name}: no parameter {name!r} (has {self.param_names})")
+        raise EffectError(f"effect {self.name}: no parameter {name!r} (has {self.param_names})")
 
     @property
     def param_names(self) -> list[str]:
@@ -111,7 +126,7 @@ class Effect:
         values = dict(values or {})
         unknown = set(values) - set(self.param_names)
         if unknown:
-            raise ValueError(f"effect {self.name}: unknown parameter(s) {sorted(unknown)} "
+            raise EffectError(f"effect {self.name}: unknown parameter(s) {sorted(unknown)} "
                              f"(has {self.param_names})")
         return {p.name: p.check(values.get(p.name, p.default), self.name) for p in self.params}
 
@@ -154,7 +169,7 @@ class Effect:
 def need(cov: dict, name: str, effect: str) -> np.ndarray:
     """A covariate as a float array, or a clear error naming the effect that needs it."""
     if name not in cov:
-        raise KeyError(f"effect {effect}: covariate {name!r} missing (have {sorted(cov)})")
+        raise MissingCovariate(f"effect {effect}: covariate {name!r} missing (have {sorted(cov)})")
     return np.asarray(cov[name], dtype=np.float64)
 
 

@@ -72,6 +72,18 @@ class ViscoelasticRelaxation(Effect):
     off = {"g1": 0.0}
     sequential = True
 
+    def step(self, state: dict, t: float, x: np.ndarray, p: dict) -> np.ndarray:
+        """One new sample of one contact track (runtime, frame by frame); same recursion as forward."""
+        x = np.asarray(x, dtype=np.float64)
+        if "h" not in state:
+            state["h"] = x.copy()
+        else:
+            dt = max(t - state["t"], 1e-12)
+            e = math.exp(-dt / p["tau"])
+            state["h"] = e * state["h"] + (x - state["x"]) * (p["tau"] * (1.0 - e) / dt)
+        state["t"], state["x"] = t, x
+        return (1.0 - p["g1"]) * x + p["g1"] * state["h"]
+
     def forward(self, x, cov, p):
         t = need(cov, "time", self.name)
         if p["g1"] == 0.0:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.effects.base import Effect
+from runtime.effects.base import Effect, EffectError
 from runtime.effects.registry import Registry
 
 log = logging.getLogger(__name__)
@@ -40,13 +40,13 @@ class EffectChain:
 
     @classmethod
     def from_list(cls, entries: list[dict], registry: Registry | None = None) -> "EffectChain":
-        """From calibration.json's "effects" list; unknown names/parameters raise ValueError."""
+        """From calibration.json's "effects" list; unknown names/parameters raise EffectError."""
         registry = registry or Registry.default()
         items = []
         for i, entry in enumerate(entries or []):
             name = entry.get("name") if isinstance(entry, dict) else None
             if name not in registry:
-                raise ValueError(f"effects[{i}]: unknown effect {name!r} (known: {', '.join(registry.names())}; "
+                raise EffectError(f"effects[{i}]: unknown effect {name!r} (known: {', '.join(registry.names())}; "
                                  "is its plugin installed?)")
             eff = registry.get(name)
             items.append(EnabledEffect(eff, eff.resolve(entry.get("params") or {})))
@@ -68,6 +68,27 @@ class EffectChain:
         x = np.asarray(forces, dtype=np.float64)
         for it in self.items:
             if it.effect.stage in stages:
+                x = it.effect.apply(x, cov, it.params)
+        return x
+
+    def stream(self, tracks: dict, track_ids, t: float, forces: np.ndarray, cov: dict,
+               stages: tuple[str, ...] = ("force",)) -> np.ndarray:
+        """Frame-by-frame form for the runtime: forces (N,3) of the N contacts of one frame at time
+        t, `track_ids` their stable ids, `tracks` a dict the caller keeps between frames (state of
+        sequential effects per track; ids no longer present are dropped)."""
+        x = np.asarray(forces, dtype=np.float64).reshape(-1, 3)
+        ids = list(track_ids)
+        for k in [k for k in tracks if k not in ids]:
+            del tracks[k]
+        if len(x) == 0:
+            return x
+        for j, it in enumerate(self.items):
+            if it.effect.stage not in stages:
+                continue
+            if it.effect.sequential:
+                x = np.array([it.effect.step(tracks.setdefault(tid, {}).setdefault(j, {}), t, x[i], it.params)
+                              for i, tid in enumerate(ids)]).reshape(-1, 3)
+            else:
                 x = it.effect.apply(x, cov, it.params)
         return x
 

@@ -16,7 +16,7 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-from runtime.effects.base import COVARIATES, STAGES, Effect
+from runtime.effects.base import COVARIATES, STAGES, Effect, EffectError
 from runtime.effects.builtin import BUILTIN
 
 log = logging.getLogger(__name__)
@@ -29,21 +29,21 @@ def check_effect_class(cls) -> None:
     """Raise ValueError naming what a plugin class gets wrong."""
     where = getattr(cls, "__module__", "?") + "." + getattr(cls, "__name__", "?")
     if not (inspect.isclass(cls) and issubclass(cls, Effect)):
-        raise ValueError(f"{where}: not a subclass of runtime.effects.Effect")
+        raise EffectError(f"{where}: not a subclass of runtime.effects.Effect")
     if not cls.name or not isinstance(cls.name, str):
-        raise ValueError(f"{where}: class attribute `name` must be a non-empty string")
+        raise EffectError(f"{where}: class attribute `name` must be a non-empty string")
     if cls.stage not in STAGES:
-        raise ValueError(f"{where}: stage {cls.stage!r} not in {STAGES}")
+        raise EffectError(f"{where}: stage {cls.stage!r} not in {STAGES}")
     if not cls.params:
-        raise ValueError(f"{where}: needs at least one Param in `params`")
+        raise EffectError(f"{where}: needs at least one Param in `params`")
     for p in cls.params:
         if not (p.lo <= p.default <= p.hi):
-            raise ValueError(f"{where}: parameter {p.name} default {p.default} outside [{p.lo}, {p.hi}]")
+            raise EffectError(f"{where}: parameter {p.name} default {p.default} outside [{p.lo}, {p.hi}]")
     unknown = [c for c in cls.covariates if c not in COVARIATES]
     if unknown:
-        raise ValueError(f"{where}: unknown covariates {unknown} (known: {sorted(COVARIATES)})")
+        raise EffectError(f"{where}: unknown covariates {unknown} (known: {sorted(COVARIATES)})")
     if cls.forward is Effect.forward:
-        raise ValueError(f"{where}: forward() not written")
+        raise EffectError(f"{where}: forward() not written")
     cls().resolve(cls.off)  # the identity values must be within bounds
 
 
@@ -58,7 +58,7 @@ class Registry:
     def add(self, cls, origin: str = "library") -> Effect:
         check_effect_class(cls)
         if cls.name in self._effects and self.origin[cls.name] != origin:
-            raise ValueError(f"effect name {cls.name!r} from {origin} is already taken "
+            raise EffectError(f"effect name {cls.name!r} from {origin} is already taken "
                              f"(by {self.origin[cls.name]})")
         self._effects[cls.name] = cls()
         self.origin[cls.name] = origin
@@ -66,7 +66,7 @@ class Registry:
 
     def get(self, name: str) -> Effect:
         if name not in self._effects:
-            raise KeyError(f"unknown effect {name!r}; known: {', '.join(self.names())}")
+            raise EffectError(f"unknown effect {name!r}; known: {', '.join(self.names())}")
         return self._effects[name]
 
     def __contains__(self, name: str) -> bool:
@@ -90,14 +90,14 @@ class Registry:
         mod_name = f"tensortouch_effect_plugin_{path.stem}_{abs(hash(str(path.resolve()))) % 10**8}"
         spec = importlib.util.spec_from_file_location(mod_name, path)
         if spec is None or spec.loader is None:
-            raise ValueError(f"{path}: cannot import as a Python module")
+            raise EffectError(f"{path}: cannot import as a Python module")
         module = importlib.util.module_from_spec(spec)
         sys.modules[mod_name] = module
         try:
             spec.loader.exec_module(module)
         except Exception as exc:
             sys.modules.pop(mod_name, None)
-            raise ValueError(f"{path}: plugin failed to import ({type(exc).__name__}: {exc})") from None
+            raise EffectError(f"{path}: plugin failed to import ({type(exc).__name__}: {exc})") from None
         return self._add_module_classes(module, str(path))
 
     def _add_module_classes(self, module, origin: str) -> list[str]:
@@ -113,7 +113,7 @@ class Registry:
         """Add the effects of every `*.py` file in `folder` (files starting with '_' skipped)."""
         folder = Path(folder)
         if not folder.is_dir():
-            raise ValueError(f"{folder}: effect plugin folder does not exist")
+            raise EffectError(f"{folder}: effect plugin folder does not exist")
         added = []
         for path in sorted(folder.glob("*.py")):
             if path.name.startswith("_"):

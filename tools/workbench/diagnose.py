@@ -38,6 +38,7 @@ class DiagnoseConfig:
     n_blocks: int = 16
     alpha: float = 0.05
     min_reduction: float = 0.05
+    min_unexplained: float = 0.02   # partial R² below which "nothing systematic remains"
     max_exact_blocks: int = 16
     n_perm: int = 20000           # Monte-Carlo sign flips when there are more blocks
     seed: int = 0
@@ -115,6 +116,7 @@ class Diagnosis:
     n_samples: int
     n_blocks: int
     seconds: float
+    min_unexplained: float = 0.02
 
     @property
     def verdict(self) -> EffectScore | None:
@@ -141,9 +143,12 @@ class Diagnosis:
                          + (f" (best candidate {best.effect.name}: {100 * best.reduction:+.1f} % "
                             f"held-out error reduction, p = {best.p_adjusted:.2g})" if best else ""))
         u = self.unexplained
-        if u.get("covariate"):
+        if u.get("covariate") and u["score"] >= self.min_unexplained:
             lines.append(f"What remains is best explained by {u['covariate']} "
-                         f"(held-out R² = {u['score']:.3f}, {u.get('form', '')} error)")
+                         f"(held-out partial R² = {u['score']:.3f}, {u.get('form', '')} error)")
+        elif u.get("covariate"):
+            lines.append(f"Nothing systematic remains (best covariate {u['covariate']}: "
+                         f"held-out partial R² = {u['score']:.3f})")
         return lines
 
 
@@ -206,7 +211,7 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
                     "form": scanned[0]["form"], "unit": scanned[0]["unit"]}
                    if scanned else {"covariate": None, "score": 0.0})
     return Diagnosis(scores, unexplained, scanned, chain.names, len(table), cfg.n_blocks,
-                     time.perf_counter() - t0)
+                     time.perf_counter() - t0, cfg.min_unexplained)
 
 
 def add_to_chain(chain: EffectChain, score: EffectScore) -> EffectChain:
