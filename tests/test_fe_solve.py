@@ -152,3 +152,30 @@ def test_hertz_mesh_convergence_three_levels(capsys):
     assert errs[-1] < 0.10 and errs[-1] <= errs[0] + 0.01
     forces = [f for _, _, f, _ in rows]
     assert abs(forces[2] - forces[1]) < abs(forces[1] - forces[0]) + 0.005 * forces[2]
+
+
+def _press_pad(order, size_top, bulk_cap, depth=0.6):
+    pad = GelGeometry(kind="flat_pad", size_x=10.0, size_y=10.0, thickness=4.0)
+    sc = Scenario(gel=pad, mesh=MeshSettings(size_top=size_top, size_inside=1.5, refine_depth=0.8, order=order),
+                  indenters=[_sphere(keypoints=[(0, 0, -depth)], radius=3.0)], friction=0.0)
+    sc.indenters[0].position = [0.0, 0.0, 4.0]
+    sc.solver.max_bulk_ratio = bulk_cap
+    return solve(sc)
+
+
+def test_quadratic_upj_tets_solve_small():
+    r = _press_pad(2, 1.5, 0.0, depth=0.4)
+    assert r.tets.shape[1] == 10 and r.converged.all()
+    assert _eq_error(r, 0) < 0.01 and -r.RF[0, 0, 2] > 0
+    assert json.loads(r.solver_info)["order"] == 2 and r.S.shape == (1, r.n_nodes, 6)
+
+
+@pytest.mark.slow
+def test_linear_tet_locking_compensation_against_upj(capsys):
+    ref = -_press_pad(2, 1.0, 0.0).RF[0, 0, 2]        # locking-free, material bulk/shear = 50
+    comp = -_press_pad(1, 0.5, 5.0).RF[0, 0, 2]       # shipped default: P1 with bulk/shear capped at 5
+    locked = -_press_pad(1, 0.5, 0.0).RF[0, 0, 2]     # P1 at the material's 50: locks
+    with capsys.disabled():
+        print(f"\nlocking: P2-upj {ref:.4f} N, P1@5 {comp:.4f} N, P1@50 {locked:.4f} N")
+    assert comp == pytest.approx(ref, rel=0.10)
+    assert locked > 1.2 * ref

@@ -137,8 +137,9 @@ class SolverSettings:
     """Newton-Raphson with increments, cutback and penalty contact (units in field names).
     penalty_scale: contact stiffness per unit area = penalty_scale * mu0 / size_top (N/mm^3).
     friction_stiffness_ratio: tangential (stick) penalty / normal penalty (elastic slip allowance).
-    max_bulk_ratio: for linear tets the bulk modulus is capped at max_bulk_ratio * mu0 (locking,
-    docs/fe.md); 0 disables the cap."""
+    max_bulk_ratio: with linear tets the bulk modulus is capped at max_bulk_ratio * mu0 (locking
+    compensation calibrated against quadratic u/p/J tets, docs/fe.md); 0 disables the cap.
+    Quadratic u/p/J tets (mesh.order = 2) always use the material's D1."""
 
     max_increment_mm: float = 0.5
     max_increment_rad: float = 0.05
@@ -149,7 +150,7 @@ class SolverSettings:
     tol_rel: float = 1e-6
     penalty_scale: float = 100.0
     friction_stiffness_ratio: float = 0.1
-    max_bulk_ratio: float = 50.0
+    max_bulk_ratio: float = 5.0
     threads: int = 2
 
 
