@@ -153,3 +153,17 @@ def test_standard_dome_contract():
     s = standard_dome()
     assert s.gel.kind == "flattened_dome" and s.gel.radius == 12.0 and s.gel.top_z == 8.0
     assert s.n_keypoints == 5 and s.friction == 2.2 and s.mesh.size_top == 0.7 and s.mesh.size_inside == 2.0
+
+
+def test_bench_quick_json_last_line(capsys):
+    from tools.fe import bench
+
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    assert bench.run(parser.parse_args(["--quick", "--json"])) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    data = json.loads(out[-1])
+    assert data["quick"] and "QUICK" in out[0]
+    for key in ("seconds_per_frame", "seconds_per_trajectory", "nodes"):
+        assert data[key] > 0
+    assert data["equilibrium_error_max"] < 0.01 and data["final_force_N"][2] < 0

@@ -18,6 +18,14 @@ log = logging.getLogger(__name__)
 QUICK_SIZE_TOP = 1.2
 
 
+def _equilibrium_error(result) -> float:
+    import numpy as np
+
+    total = result.RF.sum(axis=1)
+    err = np.linalg.norm(total + result.base_reaction, axis=1) / np.maximum(np.linalg.norm(total, axis=1), 1e-12)
+    return float(err.max())
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help=f"smaller run: mesh {QUICK_SIZE_TOP} mm at the top instead of 0.7 mm")
@@ -61,6 +69,7 @@ def run(args) -> int:
         "load_average_1min": round(os.getloadavg()[0], 2),
         "increments": info["increments"], "newton_iterations": info["iterations"],
         "final_force_N": [round(float(v), 4) for v in result.RF[-1, 0]],
+        "equilibrium_error_max": float(f"{_equilibrium_error(result):.2e}"),
         "cpu_count": os.cpu_count(), "machine": platform.machine(),
     }
     label = " (QUICK: coarser mesh than shipped)" if args.quick else ""
@@ -73,7 +82,8 @@ def run(args) -> int:
           f"({info['increments']} increments, {info['iterations']} Newton iterations)")
     print(f"  process CPU time {out['cpu_seconds_per_trajectory']:.2f} s per trajectory; load average "
           f"{out['load_average_1min']} on {os.cpu_count()} cores (wall time grows when the machine is shared)")
-    print(f"  final reaction RF = {out['final_force_N']} N")
+    print(f"  final reaction RF = {out['final_force_N']} N; max |sum RF + base reaction| / |sum RF| = "
+          f"{out['equilibrium_error_max']:.1e}")
     if args.json:
         print(json.dumps(out))
     return 0
