@@ -153,7 +153,7 @@ def newton(model: GelModel, U0, poses, state, sv):
             raise FloatingPointError("inverted elements (non-finite residual)")
         dmax = np.abs(step * du).max()
         log.debug("  it %d: |r|max %.3e N, |du|max %.3e mm, step %.2f", it, res, dmax, step)
-        if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 1e-3 * model.sc.mesh.size_top:
+        if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 0.02 * model.sc.mesh.size_top:
             return U, ce, it, res
     raise FloatingPointError(f"no convergence in {sv.max_iterations} iterations (|r|max {res:.3e} N)")
 
@@ -166,6 +166,15 @@ def _n_increments(model: GelModel, s0: float, s1: float) -> int:
         n = max(n, math.ceil(np.linalg.norm(p1 - p0) / sv.max_increment_mm - 1e-9),
                 math.ceil(np.linalg.norm(r1 - r0) / sv.max_increment_rad - 1e-9))
     return n
+
+
+def _motion(model: GelModel, s0: float, s1: float) -> np.ndarray:
+    """Concatenated pose change (translation mm, rotation vector rad) of all indenters."""
+    parts = []
+    for ind in model.sc.indenters:
+        (p0, r0), (p1, r1) = pose_at(ind, s0), pose_at(ind, s1)
+        parts += [p1 - p0, r1 - r0]
+    return np.concatenate(parts)
 
 
 def check_initial(model: GelModel) -> None:
@@ -193,15 +202,21 @@ def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FER
     state = fc.ContactState.empty(K, gm.nodes[model.surf])
     s_done = -1.0
     stats = {"increments": 0, "iterations": 0, "cutbacks": 0}
+    dU_last, m_last = None, None
     for j in range(F):
         t0 = time.time()
         n_inc = _n_increments(model, s_done, float(j))
         ds = (j - s_done) / n_inc
         cut = 0
-        dU_last, ds_last = None, 0.0  # predictor: extrapolate the last increment of this step
         while s_done < j - 1e-12:
             s_try = min(s_done + ds, float(j))
-            U0 = U if dU_last is None else U + dU_last * ((s_try - s_done) / ds_last)
+            m_new = _motion(model, s_done, s_try)
+            U0 = U  # predictor: extrapolate the last increment when the motion continues
+            if dU_last is not None:
+                c = float(m_new @ m_last) / max(float(m_last @ m_last), 1e-30)
+                cos = float(m_new @ m_last) / max(np.linalg.norm(m_new) * np.linalg.norm(m_last), 1e-30)
+                if cos > 0.9:
+                    U0 = U + c * dU_last
             try:
                 U_new, ce, its, _ = newton(model, U0, model.poses(s_try), state, sv)
             except FloatingPointError as exc:
@@ -217,7 +232,7 @@ def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FER
                 model.reset_state(U)
                 log.info("step %d: cutback %d (%s), increment %.4f", j, cut, exc, ds)
                 continue
-            dU_last, ds_last = U_new - U, s_try - s_done
+            dU_last, m_last = U_new - U, m_new
             U, s_done = U_new, s_try
             state = fc.ContactState(np.where(ce.gap[:, :, None] >= 0, np.nan, ce.new_anchors),
                                     gm.nodes[model.surf] + U[model.surf])
