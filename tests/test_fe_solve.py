@@ -69,6 +69,11 @@ def test_frictionless_slide_has_no_tangential_force(pad_mesh):
     # the only tangential resultant comes from the tilted contact normals of the deformed pad
     assert abs(r.RF[1, 0, 0]) < 0.05 * fz and abs(r.RF[1, 0, 1]) < 0.02 * fz
     assert _eq_error(r, 1) < 0.01
+    # frictionless sphere: every contact force points through the centre, so the moment about the
+    # reference point (tip) is (centre - tip) x RF
+    centre = r.pose_position[1, 0] + np.array([0.0, 0.0, 4.0])
+    expected = np.cross(centre - r.pose_position[1, 0], r.RF[1, 0])
+    assert np.allclose(r.RM[1, 0], expected, atol=1e-3 * np.linalg.norm(expected) + 1e-9)
 
 
 def test_two_indenters_two_patches(pad_mesh):
@@ -179,3 +184,17 @@ def test_linear_tet_locking_compensation_against_upj(capsys):
         print(f"\nlocking: P2-upj {ref:.4f} N, P1@5 {comp:.4f} N, P1@50 {locked:.4f} N")
     assert comp == pytest.approx(ref, rel=0.10)
     assert locked > 1.2 * ref
+
+
+@pytest.mark.slow
+def test_fit_material_to_indentation_forces():
+    from tools.fe.fitting import fit_to_indentation
+
+    truth = _pad([_sphere(keypoints=[(0, 0, -0.6)])], 0.0)
+    truth.mesh = MeshSettings(size_top=1.2, size_inside=1.5, refine_depth=0.8)
+    truth.material.C10 = 0.04
+    measured = solve(truth).RF
+    guess = _pad([_sphere(keypoints=[(0, 0, -0.6)])], 0.0)
+    guess.mesh = truth.mesh
+    fit = fit_to_indentation(guess, measured, names=("C10",))
+    assert fit["params"]["C10"] == pytest.approx(0.04, rel=0.02)
