@@ -272,3 +272,14 @@ def test_mesh_shape_matches_analytic_sphere():
     d_ref, g_ref = Sphere(3.0).sdf(pts)
     assert np.abs(d_mesh - d_ref).max() < 0.02  # faceting error of a level-4 icosphere
     assert np.median(np.einsum("ij,ij->i", g_mesh, g_ref)) > 0.999
+
+
+def test_docs_toml_example_is_a_valid_scenario():
+    import re
+    import tomllib
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "fe.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    s = scenario_from_dict(tomllib.loads(block))
+    assert s.n_keypoints == 2 and s.indenters[0].keypoints[1].rotation == [0.0, 0.0, 0.1]
