@@ -198,3 +198,33 @@ def test_fit_material_to_indentation_forces():
     guess.mesh = truth.mesh
     fit = fit_to_indentation(guess, measured, names=("C10",))
     assert fit["params"]["C10"] == pytest.approx(0.04, rel=0.02)
+
+
+@pytest.mark.parametrize("shape, params", [
+    ("cylinder", {"radius": 2.0, "length": 6.0}),
+    ("box_edge", {"length": 6.0, "width": 3.0}),
+    ("flat", {"radius": 2.0, "fillet": 0.5}),
+    ("torus", {"major_radius": 3.0, "minor_radius": 1.0}),
+])
+def test_every_analytic_shape_presses_and_slides(pad_mesh, shape, params):
+    ind = Indenter(name=shape, shape=shape, params=params, position=[0.0, 0.0, 6.0],
+                   keypoints=[Keypoint([0, 0, -0.5]), Keypoint([0.3, 0.2, -0.5], [0.0, 0.0, 0.1])])
+    r = solve(_pad([ind], 2.2), mesh=pad_mesh)
+    assert r.converged.all() and -r.RF[0, 0, 2] > 0 and r.CAREA[0, 0] > 0
+    assert max(_eq_error(r, f) for f in range(2)) < 0.01
+
+
+def test_twist_about_the_vertical_axis_gives_friction_torque(pad_mesh):
+    def twist(mu):
+        ind = Indenter(name="punch", shape="flat", params={"radius": 2.5, "fillet": 0.5},
+                       position=[0.0, 0.0, 6.0],
+                       keypoints=[Keypoint([0, 0, -0.5]), Keypoint([0, 0, -0.5], [0.0, 0.0, 0.15])])
+        return solve(_pad([ind], mu), mesh=pad_mesh)
+
+    r = twist(1.0)
+    # the indenter twists +z: the gel resists, so the moment the indenter applies to the gel is +z
+    # (it drags the gel along), Abaqus RM convention as RF; and its pose follows the keypoint
+    assert r.RM[1, 0, 2] > 0.02 * abs(r.RF[1, 0, 2]) * 2.5
+    assert np.allclose(r.pose_rotation[1, 0], [0, 0, 0.15])
+    r0 = twist(0.0)
+    assert abs(r0.RM[1, 0, 2]) < 0.02 * abs(r.RM[1, 0, 2])
