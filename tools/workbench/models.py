@@ -4,8 +4,9 @@
 Until the trained network is wired in, the default is `ContactLaw`, the nominal quasi-static
 contact mechanics of each indenter fitted once on a calibration session (no effects in it):
 
-    F = Fn(depth) * normal + c_t * sqrt(depth) * slip_vec,   |tangential| <= mu * Fn
+    F = Fn(depth) * g(theta) * normal + c_t * sqrt(depth) * slip_vec,   |tangential| <= mu * Fn
     Fn = monotone piecewise-linear in depth (non-negative hat weights, Fn(0) = 0)
+    g  = piecewise-linear positive gain over the contact angle θ (FE gels are stiffer near the rim)
 
 per indenter name (Hertz/Mindlin-like, but the force-depth curve is learned, so an FE-made or a
 real gel's curve fits too). Stored as JSON; the workbench caches raw predictions by fingerprint.
@@ -32,6 +33,8 @@ log = logging.getLogger(__name__)
 @dataclass
 class LawConfig:
     knots: int = 10
+    theta_knots: int = 4          # smooth stiffness change over the gel (θ); 1 = none
+    iterations: int = 4           # alternating fits of the depth curve and the θ gain
     mu: float = 2.2               # the model's friction coefficient (seed's mu)
 
 
@@ -67,15 +70,32 @@ class ContactLaw:
                 continue
             knots = np.concatenate([[0.0], np.quantile(d[m], np.linspace(0.1, 1.0, cfg.knots - 1))])
             knots = np.unique(knots)
+            th = table.cols["theta"][m]
+            tknots = np.unique(np.quantile(th, np.linspace(0.0, 1.0, cfg.theta_knots)))
+            T = hat_basis(th, tknots) if len(tknots) > 1 else np.ones((len(th), 1))
             B = hat_basis(d[m], knots)[:, 1:]                       # Fn(0) = 0
-            X = np.concatenate([B[:, None, :] * n[m][:, :, None],
-                                (np.sqrt(d[m])[:, None] * sv[m])[:, :, None]], axis=2).reshape(-1, B.shape[1] + 1)
+            tang = np.sqrt(d[m])[:, None] * sv[m]
             y = table.meas[m].reshape(-1)
-            lo = np.r_[np.zeros(B.shape[1]), -np.inf]
-            sol = lsq_linear(X, y, bounds=(lo, np.full(B.shape[1] + 1, np.inf)))
-            w = np.maximum.accumulate(sol.x[:-1])                   # monotone force-depth curve
-            laws[str(kind)] = {"knots": knots.tolist(), "w": [0.0] + w.tolist(), "ct": float(sol.x[-1])}
-            log.info("contact law %s: Fn(%.2f mm) = %.3f N, ct = %.3f", kind, knots[-1], w[-1], sol.x[-1])
+            gain = np.ones(len(th))
+            for _ in range(cfg.iterations):  # alternate: force-depth curve, then gain over θ
+                X = np.concatenate([(B * gain[:, None])[:, None, :] * n[m][:, :, None], tang[:, :, None]],
+                                   axis=2).reshape(-1, B.shape[1] + 1)
+                lo = np.r_[np.zeros(B.shape[1]), -np.inf]
+                sol = lsq_linear(X, y, bounds=(lo, np.full(B.shape[1] + 1, np.inf)))
+                w, ct = np.maximum.accumulate(sol.x[:-1]), float(sol.x[-1])  # monotone curve
+                if T.shape[1] == 1:
+                    break
+                fn0 = B @ w
+                Xg = (T * fn0[:, None])[:, None, :] * n[m][:, :, None]
+                yg = (table.meas[m] - ct * tang).reshape(-1)
+                v = lsq_linear(Xg.reshape(-1, T.shape[1]), yg, bounds=(0.0, np.inf)).x
+                v = v / max(float(np.mean(T @ v)), 1e-12)           # gain averages 1 on the data
+                gain = T @ v
+            law = {"knots": knots.tolist(), "w": [0.0] + w.tolist(), "ct": ct}
+            if T.shape[1] > 1:
+                law.update({"theta_knots": tknots.tolist(), "theta_gain": v.tolist()})
+            laws[str(kind)] = law
+            log.info("contact law %s: Fn(%.2f mm) = %.3f N, ct = %.3f", kind, knots[-1], w[-1], ct)
         if not laws:
             raise TensorTouchError("contact law: no indenter has enough contact samples to fit")
         return cls(laws, cfg.mu, source)
@@ -99,6 +119,8 @@ class ContactLaw:
             if over.any():
                 slope = (law["w"][-1] - law["w"][-2]) / max(knots[-1] - knots[-2], 1e-9)
                 fn[over] = law["w"][-1] + slope * (dm[over] - knots[-1])
+            if "theta_knots" in law:
+                fn = fn * np.interp(table.cols["theta"][m], law["theta_knots"], law["theta_gain"])
             ft = law["ct"] * np.sqrt(dm)[:, None] * sv[m]
             ftm = np.linalg.norm(ft, axis=1)
             cap = self.mu * fn
