@@ -283,3 +283,18 @@ def test_docs_toml_example_is_a_valid_scenario():
     block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
     s = scenario_from_dict(tomllib.loads(block))
     assert s.n_keypoints == 2 and s.indenters[0].keypoints[1].rotation == [0.0, 0.0, 0.1]
+
+
+def test_mesh_shape_sign_at_edges_and_corners_of_a_box(tmp_path):
+    import trimesh
+
+    from tools.fe.indenters import _box_sdf, load_mesh_shape
+
+    box = trimesh.creation.box([6.0, 4.0, 2.0])  # 12 large triangles: edges and corners dominate
+    box.apply_translation([0, 0, 1.0])
+    box.export(tmp_path / "box.stl")
+    shape = load_mesh_shape(tmp_path / "box.stl")
+    pts = np.random.default_rng(7).uniform([-6, -5, -3], [6, 5, 5], size=(2000, 3))
+    d, _ = shape.sdf(pts)
+    d_ref, _ = _box_sdf(pts - [0, 0, 1.0], np.array([3.0, 2.0, 1.0]))
+    assert np.abs(d - d_ref).max() < 1e-6

@@ -144,15 +144,53 @@ class Torus(Shape):
 
 
 class MeshShape(Shape):
-    """Closed triangle mesh; exact point-triangle distance over k nearest candidate faces."""
+    """Closed triangle mesh: exact point-triangle distance over the k faces with the nearest
+    centroids; sign from angle-weighted pseudonormals of the closest feature (face, edge or
+    vertex; Baerentzen & Aanaes 2005), which is exact for closed meshes."""
 
     def __init__(self, vertices, faces, k=24):
+        import trimesh
+
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
         self.v = np.asarray(vertices, float)
         self.f = np.asarray(faces, np.int64)
         tri = self.v[self.f]
         self.n = _safe_unit(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))[0]
+        self.vn = np.asarray(mesh.vertex_normals, float)  # angle-weighted
+        edges = np.sort(self.f[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
+        key = edges[:, 0] * len(self.v) + edges[:, 1]
+        uniq, inv = np.unique(key, return_inverse=True)
+        en = np.zeros((len(uniq), 3))
+        np.add.at(en, inv, np.repeat(self.n, 3, axis=0))
+        self.edge_key, self.edge_n = uniq, _safe_unit(en)[0]
         self.tree = cKDTree(tri.mean(axis=1))
         self.k = min(k, len(self.f))
+
+    def _pseudonormal(self, face, cp):
+        """Pseudonormal at the closest points cp (n,3) on faces `face` (n,)."""
+        tri = self.v[self.f[face]]
+        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+        v0, v1, v2 = b - a, c - a, cp - a
+        d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+        d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+        den = np.maximum(d00 * d11 - d01 * d01, 1e-300)
+        w1 = (d11 * d20 - d01 * d21) / den
+        w2 = (d00 * d21 - d01 * d20) / den
+        bary = np.column_stack([1 - w1 - w2, w1, w2])
+        zero = bary < 1e-7
+        nz = zero.sum(1)
+        out = self.n[face].copy()
+        vtx = nz >= 2  # at a vertex: the corner with the largest weight
+        if np.any(vtx):
+            out[vtx] = self.vn[self.f[face[vtx], np.argmax(bary[vtx], axis=1)]]
+        edg = nz == 1  # on an edge: the two corners with non-zero weight
+        if np.any(edg):
+            fv = self.f[face[edg]]
+            zi = np.argmax(zero[edg], axis=1)
+            i, j = fv[np.arange(len(zi)), (zi + 1) % 3], fv[np.arange(len(zi)), (zi + 2) % 3]
+            key = np.minimum(i, j) * len(self.v) + np.maximum(i, j)
+            out[edg] = self.edge_n[np.searchsorted(self.edge_key, key)]
+        return out
 
     def sdf(self, xi):
         _, cand = self.tree.query(xi, k=self.k)
@@ -164,14 +202,13 @@ class MeshShape(Shape):
         rows = np.arange(len(xi))
         cpb = cp[rows, best]
         dv = xi - cpb
-        # sign: angle-robust vote of the normals of all candidate faces touching the closest point
-        near = dist <= dist[rows, best][:, None] + 1e-9
-        nsum = np.einsum("nk,nkj->nj", near.astype(float), self.n[cand])
-        sign = np.where(np.einsum("nj,nj->n", dv, nsum) >= 0, 1.0, -1.0)
+        pn = self._pseudonormal(cand[rows, best], cpb)
+        sign = np.where(np.einsum("nj,nj->n", dv, pn) >= 0, 1.0, -1.0)
         g, dmag = _safe_unit(dv)
         small = dmag < 1e-9
-        g[small] = self.n[cand[rows, best]][small]
-        return sign * dmag, g * sign[:, None] * np.where(small, sign, 1.0)[:, None]
+        g = g * sign[:, None]
+        g[small] = pn[small]
+        return sign * dmag, g
 
 
 def _closest_on_triangles(p, tri):
@@ -201,13 +238,18 @@ def _closest_on_triangles(p, tri):
     return res
 
 
-def load_mesh_shape(path) -> MeshShape:
+MAX_EDGE = 0.75  # mm: mesh indenters are subdivided so the k nearest face centroids contain the
+                 # closest face of any nearby point (large faces would defeat the candidate search)
+
+
+def load_mesh_shape(path, max_edge: float = MAX_EDGE) -> MeshShape:
     import trimesh
 
     mesh = trimesh.load(str(path), force="mesh")
     if not mesh.is_watertight:
         log.warning("indenter mesh %s is not watertight; signed distance may be wrong", path)
-    return MeshShape(mesh.vertices, mesh.faces)
+    v, f = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=max_edge, max_iter=20)
+    return MeshShape(v, f)
 
 
 def make_shape(ind: Indenter, resolve=lambda p: p) -> Shape:
