@@ -16,13 +16,14 @@ from runtime.baseline import BaselineConfig, BaselineTracker
 from runtime.calibration import Calibration
 from runtime.contacts import Cluster, ContactConfig, ContactTracker, find_clusters, pixel_forces
 from runtime.correction import ForceCorrection
+from runtime.effect_stage import EffectStage
 from runtime.geometry import sample_bilinear
 from runtime.model import FieldModel
 from runtime.preprocess import Preprocessor
 
 log = logging.getLogger(__name__)
 
-STAGES = ("preprocess", "baseline", "inference", "contacts", "correction")
+STAGES = ("preprocess", "baseline", "inference", "contacts", "effects", "correction")
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,9 @@ class SensorPipeline:
         previous = getattr(self, "cal", None)
         self.cal = calibration
         self.correction = correction if correction is not None else ForceCorrection.from_calibration(calibration)
+        temperature = self.effects.temperature if previous is not None else None
+        self.effects = EffectStage(calibration)
+        self.effects.temperature = temperature
         if previous is not None and _same_geometry(previous, calibration):
             return  # only correction/effects changed: keep the baseline and the contact ids
         cx, cy = calibration.gel_center_px
@@ -104,7 +108,7 @@ class SensorPipeline:
         timings["baseline"] = (t2 - t1) * 1e3
         self.seq += 1
         if step.baseline is None:                        # still collecting startup frames
-            timings.update(inference=0.0, contacts=0.0, correction=0.0)
+            timings.update(inference=0.0, contacts=0.0, effects=0.0, correction=0.0)
             return FrameResult(self.seq, t, None, [], np.zeros(3), np.zeros(3), step.state.name, flags, timings)
         x = np.concatenate([step.baseline, img], axis=0)
         fields = self.model(x)
@@ -115,8 +119,11 @@ class SensorPipeline:
         clusters = find_clusters(fp, cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask,
                                  disp=fields[0:3], cfg=self.cfg.contacts)
         clusters = self.tracker.update(clusters)
+        t35 = time.perf_counter()
+        timings["contacts"] = (t35 - t3) * 1e3
+        flags += self.effects.apply(clusters, t)
         t4 = time.perf_counter()
-        timings["contacts"] = (t4 - t3) * 1e3
+        timings["effects"] = (t4 - t35) * 1e3
         if clusters and self.correction.enabled:
             forces = np.array([c.force_n for c in clusters])
             uv = np.array([c.centroid_px for c in clusters]) * self._uv_scale
@@ -134,6 +141,10 @@ class SensorPipeline:
         self._last_force = float(np.linalg.norm(force))
         timings["correction"] = (time.perf_counter() - t4) * 1e3
         return FrameResult(self.seq, t, fields, clusters, force, torque, step.state.name, flags, timings)
+
+    def set_temperature(self, celsius: float | None) -> None:
+        """Gel temperature from a sensor (°C), for effects that need it (None = unknown)."""
+        self.effects.temperature = celsius
 
     def _health(self, frame: np.ndarray) -> list[str]:
         flags = []

@@ -1,0 +1,89 @@
+"""The runtime's physical-effect stage: enabled effects (calibration store) on cluster forces.
+
+Runs between contact clustering and the force correction (DESIGN §4). Per contact it derives the
+covariates the workbench uses (runtime/effects/base.py COVARIATES) from what the runtime knows:
+the cluster's deformed 3D centroid against the calibrated gel cap (depth, θ, φ, normal, distance to
+the rim), time since start, the largest depth this contact id reached, normal/tangential force, and
+the temperature when a sensor provides one. An effect whose covariate is not available here (e.g.
+temperature without a thermistor) is skipped with a status flag instead of failing the frame.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from runtime.effects import EffectChain, EffectError, MissingCovariate
+
+log = logging.getLogger(__name__)
+
+
+class EffectStage:
+    def __init__(self, calibration):
+        self.flags: list[str] = []
+        self.chain = EffectChain()
+        try:
+            self.chain = EffectChain.from_calibration(calibration)
+        except EffectError as exc:
+            log.error("%s/%s: enabled effects not usable (%s); running without them",
+                      calibration.sensor_id, calibration.version, exc)
+            self.flags.append("effects_invalid")
+        gel = calibration.meta.get("gel") or {}
+        self.radius = float(gel.get("radius_mm", 0.0))
+        self.center_z = float(gel.get("center_z_mm", 0.0))
+        self.skirt = float(gel.get("skirt_mm", 0.0))
+        self.tracks: dict = {}
+        self.max_depth: dict[int, float] = {}
+        self.t0: float | None = None
+        self.temperature: float | None = None
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.chain.items)
+
+    def covariates(self, clusters, t: float) -> dict:
+        p = np.array([c.centroid_mm for c in clusters], dtype=np.float64).reshape(-1, 3)
+        f = np.array([c.force_n for c in clusters], dtype=np.float64).reshape(-1, 3)
+        v = p - np.array([0.0, 0.0, self.center_z])
+        dist = np.linalg.norm(v, axis=1)
+        n = v / np.maximum(dist, 1e-9)[:, None]
+        depth = np.clip(self.radius - dist, 0.0, None) if self.radius > 0 else np.zeros(len(p))
+        theta = np.arccos(np.clip(n[:, 2], -1.0, 1.0))
+        theta_rim = float(np.arccos(np.clip((self.skirt - self.center_z) / self.radius, -1, 1))) if self.radius else 0.0
+        ids = [c.id for c in clusters]
+        maxd = np.array([max(self.max_depth.get(i, 0.0), d) for i, d in zip(ids, depth)])
+        for i, d in zip(ids, maxd):
+            self.max_depth[i] = float(d)
+        fn = np.abs(np.sum(f * n, axis=1))
+        cov = {"time": t - self.t0, "depth": depth, "max_depth": maxd, "normal": n, "theta": theta,
+               "phi": np.arctan2(n[:, 1], n[:, 0]),
+               "rim_distance": self.radius * np.clip(theta_rim - theta, 0.0, None) + self.skirt,
+               "gel_height": np.full(len(p), self.center_z + self.radius), "force_n": fn,
+               "force_t": np.sqrt(np.maximum(np.sum(f * f, axis=1) - fn ** 2, 0.0)),
+               "series": np.array(ids)}
+        if self.temperature is not None:
+            cov["temperature"] = np.full(len(p), float(self.temperature))
+        return cov
+
+    def apply(self, clusters, t: float) -> list[str]:
+        """Correct the clusters' forces in place; returns status flags for this frame."""
+        if self.t0 is None:
+            self.t0 = t
+        if not self.enabled:
+            return list(self.flags)
+        live = {c.id for c in clusters}
+        self.max_depth = {k: v for k, v in self.max_depth.items() if k in live}
+        if not clusters:
+            self.chain.stream(self.tracks, [], t, np.zeros((0, 3)), {})
+            return list(self.flags)
+        try:
+            forces = np.array([c.force_n for c in clusters], dtype=np.float64)
+            out = self.chain.stream(self.tracks, [c.id for c in clusters], t, forces, self.covariates(clusters, t))
+        except MissingCovariate as exc:
+            if "effect_covariate_missing" not in self.flags:
+                log.warning("enabled effects skipped: %s", exc)
+            return self.flags + ["effect_covariate_missing"]
+        for c, f in zip(clusters, out):
+            c.force_n = tuple(map(float, f))
+            c.force_mag_n = float(np.linalg.norm(f))
+        return list(self.flags)

@@ -1,0 +1,56 @@
+"""The runtime applies the calibration's enabled effects to cluster forces (DESIGN §4), in order,
+before the force correction; a covariate the runtime lacks gives a status flag, not a crash."""
+import numpy as np
+
+from runtime.calibration import CalibrationStore
+from runtime.effects import EffectChain
+from runtime.model import FieldModel, load_package
+from runtime.pipeline import SensorPipeline
+from tests.conftest import dome_calibration
+from tests.test_e2e_runtime import H, SENSOR, SIZE, W
+from tools.bench.models import write_difference_package
+
+
+def frames(n=60, poke_from=35):
+    yy, xx = np.mgrid[0:H, 0:W]
+    rest = np.full((H, W, 3), 120.0)
+    out = []
+    for k in range(n):
+        img = rest.copy()
+        if k >= poke_from:
+            img += 90 * np.exp(-((xx - W / 2 - 20) ** 2 + (yy - H / 2) ** 2) / 72.0)[..., None]
+        out.append(np.clip(img, 0, 255).astype(np.uint8))
+    return out
+
+
+def run(tmp_path, effects, temperature=None):
+    store = CalibrationStore(tmp_path / "calib")
+    if not store.sensors():
+        dome_calibration(store.root, SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    store.derive(SENSOR, {"effects": effects})
+    pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
+    pipe = SensorPipeline(SENSOR, FieldModel(pkg, "fp32"), store.load(SENSOR))
+    if temperature is not None:
+        pipe.set_temperature(temperature)
+    results = [pipe.process(f, k / 30.0) for k, f in enumerate(frames())]
+    return results[-1]
+
+
+def test_temperature_softening_applied_when_temperature_known(tmp_path):
+    plain = run(tmp_path / "a", [])
+    assert plain.clusters and "effects" in plain.timings
+    eff = [{"name": "temperature_softening", "params": {"alpha": 0.02, "t_ref": 20.0}}]
+    hot = run(tmp_path / "b", eff, temperature=35.0)
+    f0 = np.array([c.force_n for c in plain.clusters])
+    f1 = np.array([c.force_n for c in hot.clusters])
+    chain = EffectChain.from_list(eff)
+    expect = chain.apply(f0, {"temperature": np.full(len(f0), 35.0)})
+    assert np.allclose(f1, expect, rtol=1e-6) and not np.allclose(f1, f0)
+
+
+def test_missing_covariate_flags_and_keeps_forces(tmp_path):
+    plain = run(tmp_path / "a", [])
+    eff = [{"name": "temperature_softening", "params": {"alpha": 0.02, "t_ref": 20.0}}]
+    r = run(tmp_path / "b", eff)
+    assert "effect_covariate_missing" in r.flags
+    assert np.allclose([c.force_n for c in r.clusters], [c.force_n for c in plain.clusters])
