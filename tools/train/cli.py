@@ -57,7 +57,7 @@ def cmd_keypoints(args) -> int:
 def cmd_synth(args) -> int:
     from tools.train.model.data import write_synthetic_dataset
 
-    h = write_synthetic_dataset(args.out, args.n, args.size, args.seed)
+    h = write_synthetic_dataset(args.out, args.n, args.size, args.seed, min_contacts=args.min_contacts)
     print(f"synthetic dataset ({args.n} samples, {args.size}²) → {args.out}  data hash {h}")
     return 0
 
@@ -130,6 +130,7 @@ def register(sub) -> None:
     s.add_argument("--n", type=int, default=200)
     s.add_argument("--size", type=int, default=96)
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--min-contacts", type=int, default=0, help="contacts per sample at least (0..2)")
     s.set_defaults(func=cmd_synth)
 
     def common(q, epochs, batch):

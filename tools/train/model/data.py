@@ -114,13 +114,13 @@ def _baseline(size: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def synthetic_sample(rng: np.random.Generator, size: int = 128, base: np.ndarray | None = None,
-                     max_contacts: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """One (input uint8 (6,H,W), target physical float32 (15,H,W)) pair with 0..max_contacts contacts."""
+                     max_contacts: int = 2, min_contacts: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """One (input uint8 (6,H,W), target physical float32 (15,H,W)) pair with min..max_contacts contacts."""
     base = _baseline(size, rng) if base is None else base
     yy, xx = np.mgrid[0:size, 0:size] + 0.5
     fields = np.zeros((N_CHANNELS, size, size))
     px_per_mm = size / 32.0
-    for _ in range(rng.integers(0, max_contacts + 1)):
+    for _ in range(rng.integers(min_contacts, max_contacts + 1)):
         rad = rng.uniform(0, 0.6) * size / 2
         ang = rng.uniform(-np.pi, np.pi)
         cx, cy = size / 2 + rad * np.cos(ang), size / 2 + rad * np.sin(ang)
@@ -153,7 +153,7 @@ def synthetic_sample(rng: np.random.Generator, size: int = 128, base: np.ndarray
 
 
 def write_synthetic_dataset(root: str | Path, n: int, size: int = 128, seed: int = 0,
-                            val_fraction: float = 0.1) -> str:
+                            val_fraction: float = 0.1, min_contacts: int = 0) -> str:
     """Generate n synthetic samples (one baseline per 'session' of 20 samples); returns the data hash."""
     from tools.train.fields import compute_bounds, normalize_global, write_bounds
 
@@ -163,7 +163,7 @@ def write_synthetic_dataset(root: str | Path, n: int, size: int = 128, seed: int
     for i in range(n):
         if i % 20 == 0:
             base = _baseline(size, rng)
-        pairs.append(synthetic_sample(rng, size, base))
+        pairs.append(synthetic_sample(rng, size, base, min_contacts=min_contacts))
     bounds = compute_bounds(p[1] for p in pairs)
     write_bounds(root / "bounds.json", bounds)
     n_val = max(1, int(round(n * val_fraction))) if n > 1 else 0
