@@ -56,15 +56,16 @@ class BuildConfig:
     train: list = field(default_factory=_train_sessions)
     heldout: list = field(default_factory=_heldout_sessions)
     physics: str = "fe"                           # twin physics (fe; hertz-fallback only for smoke tests)
-    tables: str = "gpr"                           # θ/φ tables for the targets: gpr (stage 3) | truth
+    tables: str = "truth"                         # θ/φ tables of the targets: truth (twin) | gpr (stage 3)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
     rest_fraction: float = 0.15                   # rest (no contact) samples relative to contact samples
     val_fraction: float = 0.1
     arch: str = "hiera_qup"
-    pretrain_epochs: int = 0                      # MAE pretraining epochs (0: skip)
-    epochs: int = 3
+    pretrain_epochs: int = 8                      # MAE pretraining epochs (0: skip)
+    epochs: int = 30
     batch: int = 4
     lr: float = 1e-3
+    fg_weight: float = 20.0                       # foreground-weighted L1 (FitConfig.fg_weight)
     threads: int = 2
     calibration_samples: int = 32                 # int8 calibration inputs
     latency_runs: int = 50
@@ -92,7 +93,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "keypoints": [], "fe": [], "correspondence": [], "simreal": [],
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
-            "fit": ["arch", "epochs", "batch", "lr"],
+            "fit": ["arch", "epochs", "batch", "lr", "fg_weight"],
             "export": ["name", "calibration_samples"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     keys, acc = {}, {}
