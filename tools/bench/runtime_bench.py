@@ -158,6 +158,6 @@ def run(args) -> int:
 
 def add_arguments(p) -> None:
     p.add_argument("--sizes", default="96,128", help="model input sizes, comma separated")
-    p.add_argument("--frames", type=int, default=300, help="timed frames per configuration")
+    p.add_argument("--frames", type=int, default=200, help="timed frames per configuration")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
