@@ -34,7 +34,7 @@ def fig11(eval_doc: dict, title: str, out: Path) -> Path:
     meas = np.array([r["meas"] for r in tr])
     pred = np.array([r["pred"] for r in tr])
     rows = eval_doc["rows"]
-    fig, ax = plt.subplots(4, 2, figsize=(11, 8.5), sharex=True)
+    fig, ax = plt.subplots(4, 2, figsize=(11, 8.5))
     names = ["$F_x$", "$F_y$", "$F_z$", "$|F|$"]
     for i in range(4):
         m = meas[:, i] if i < 3 else np.linalg.norm(meas, axis=1)
@@ -60,8 +60,10 @@ def fig11(eval_doc: dict, title: str, out: Path) -> Path:
         ax[3, 1].plot([0, lim], [0, lim], "k--", lw=0.8)
         ax[3, 1].set_xlabel("measured |F| (N)   [contact frames: predicted vs measured]")
         ax[3, 1].set_ylabel("predicted |F| (N)")
-    for a in ax[:, 0]:
+    for a in list(ax[:, 0]) + list(ax[:3, 1]):
         a.grid(alpha=0.3)
+        a.set_xlim(float(t.min()), float(t.max()))
+    ax[2, 1].set_xlabel("t (s)")
     ax[3, 0].set_xlabel("t (s)")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
