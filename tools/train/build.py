@@ -142,9 +142,18 @@ class Build:
         if not p.is_file():
             return False
         try:
-            return json.loads(p.read_text()).get("key") == self.keys[stage]
+            doc = json.loads(p.read_text())
         except ValueError:
             return False
+        if doc.get("key") != self.keys[stage]:
+            return False
+        if stage == "export":   # the package may have been deleted or replaced since
+            man = Path(doc.get("package", "")) / "manifest.json"
+            try:
+                return json.loads(man.read_text())["training"]["data_hash"] == self.read_stamp("dataset").get("data_hash")
+            except (OSError, ValueError, KeyError):
+                return False
+        return True
 
     def stamp(self, stage: str, info: dict, seconds: float) -> None:
         doc = {"stage": stage, "key": self.keys[stage], "seconds": round(seconds, 2),
