@@ -227,7 +227,8 @@ def tiny_config(name: str = "tiny-smoke", build: str = "tiny") -> BuildConfig:
     return BuildConfig(name=name, build=build, size=64, physics="hertz-fallback", tables="truth",
                        train=[SessionSpec("TWIN-S01", 11, 2, "png", 90)],
                        heldout=[SessionSpec("TWIN-S02", 12, 1, "png", 90)], contact_stride=3,
-                       epochs=1, batch=4, calibration_samples=4, latency_runs=5, eval_demo=False, figures=False,
+                       epochs=1, pretrain_epochs=1, batch=4, calibration_samples=4, latency_runs=5,
+                       eval_demo=False, figures=False,
                        eval_contact_n=0.2)
 
 
