@@ -152,3 +152,23 @@ def test_frame_errors_match_nearest_cluster_and_count_misses():
                                                3.0, np.linalg.norm([.5, 0, -2])])) < 1e-3
     assert s["rest_force_mean_n"] == 0.15 and s["rest_false_contact_fraction"] == 0.5
     assert frame_errors(cl, tips, forces * 0.1) == []                            # below the contact threshold
+
+
+def test_gpr_tables_recover_the_twin_lens_from_exact_pokes():
+    """Stage 3 without the image detector: 12 pokes whose 2D positions are the twin lens's exact
+    projections → GPR θ within 0.5° of the unit's truth on the poked region (θ ≤ 0.6 rad)."""
+    from tools.train.correspondence import gpr_tables, truth_errors
+    from tools.twin.unit import TwinUnit, VariationConfig
+
+    unit = TwinUnit("TWIN-TEST-GPR")
+    nominal = TwinUnit("TWIN-TEST-GPR", variation=VariationConfig(0.0, 0.0, 0.0, 0.0))
+    rng = np.random.default_rng(4)
+    th = np.arccos(1 - rng.random(12) * (1 - np.cos(0.6)))
+    ph = rng.uniform(-np.pi, np.pi, 12)
+    pts = unit.gel.point_at(th, ph)
+    xy = unit.model.project(pts)
+    fit, tables, x, y = gpr_tables(xy, th, ph, unit.gel, nominal.gel_center_px, nominal.gel_radius_px, (48, 48))
+    assert np.hypot(*(np.array(fit.center) - unit.gel_center_px)) < 0.5          # the unit's offset centre
+    err = truth_errors(unit, tables, x, y)
+    assert err["theta_err_deg"]["p95"] < 0.5 and err["phi_err_deg"]["p95"] < 0.5
+    assert tables["mask"].sum() > 0.6 * 48 * 48 and np.all(tables["pixel_area"][tables["mask"]] > 0)

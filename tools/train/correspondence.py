@@ -128,10 +128,37 @@ def correspondences(session_dir, gel, cfg: CorrespondenceConfig = Correspondence
     return {"xy": np.array(xy).reshape(-1, 2), "theta": theta, "phi": phi, "points": pts}
 
 
+def gpr_tables(xy, theta, phi, gel, center0: tuple[float, float], radius: float, size: tuple[int, int]):
+    """Poke correspondences → (GeometryFit, store tables, valid-pixel camera coordinates x, y):
+    GPR θ(dist) + φ from `refresh_geometry`, completed on the gel by `tables_from_theta_phi`."""
+    from runtime.preprocess import Preprocessor
+    from tools.recalib.gpr_geometry import refresh_geometry
+
+    fit = refresh_geometry(xy, theta, phi, center0, radius, size)
+    vv, uu = np.mgrid[0:size[0], 0:size[1]].astype(float)
+    x, y = Preprocessor(fit.center[0], fit.center[1], radius, size).to_raw(uu, vv)
+    valid = np.hypot(x - fit.center[0], y - fit.center[1]) <= radius
+    tables = tables_from_theta_phi(fit.theta.astype(float), fit.phi.astype(float), gel, valid)
+    return fit, tables, x, y
+
+
+def truth_errors(unit, tables: dict, x: np.ndarray, y: np.ndarray, theta_max: float = 0.6) -> dict:
+    """θ/φ errors (deg) of recovered tables against a twin unit's true lens at the same camera px
+    (pixels on the gel with θ ≤ theta_max, where the pokes are)."""
+    dirs, fov = unit.model.rays(np.stack([x, y], -1))
+    tp, ok = unit.gel.intersect(unit.model.center, dirs)
+    th_true, ph_true = unit.gel.theta_phi(tp)
+    cmp = ok & fov & tables["mask"] & (th_true <= theta_max)
+    err_t = np.degrees(np.abs(tables["theta"] - th_true))[cmp]
+    err_p = np.degrees(np.abs((tables["phi"] - ph_true + np.pi) % (2 * np.pi) - np.pi))[cmp & (th_true > 0.1)]
+    return {"theta_err_deg": {"mean": float(err_t.mean()), "p95": float(np.percentile(err_t, 95)),
+                              "max": float(err_t.max())},
+            "phi_err_deg": {"mean": float(err_p.mean()), "p95": float(np.percentile(err_p, 95))}}
+
+
 def fit_unit(b, spec_serial: str, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:
     """GPR calibration of one unit → new store version; returns diagnostics (vs the twin truth)."""
     from runtime.calibration import CalibrationStore
-    from tools.recalib.gpr_geometry import refresh_geometry
     from tools.twin.unit import TwinUnit, VariationConfig, calibration_meta
 
     unit = TwinUnit(spec_serial)
@@ -140,33 +167,16 @@ def fit_unit(b, spec_serial: str, cfg: CorrespondenceConfig = CorrespondenceConf
     c = correspondences(path, unit.gel, cfg)
     S = (b.cfg.size, b.cfg.size)
     radius = nominal.gel_radius_px
-    fit = refresh_geometry(c["xy"], c["theta"], c["phi"], nominal.gel_center_px, radius, S)
-    from runtime.preprocess import Preprocessor
-
-    vv, uu = np.mgrid[0:S[0], 0:S[1]].astype(float)
-    x, y = Preprocessor(fit.center[0], fit.center[1], radius, S).to_raw(uu, vv)
-    valid = np.hypot(x - fit.center[0], y - fit.center[1]) <= radius
-    tables = tables_from_theta_phi(fit.theta.astype(float), fit.phi.astype(float), unit.gel, valid)
+    fit, tables, x, y = gpr_tables(c["xy"], c["theta"], c["phi"], unit.gel, nominal.gel_center_px, radius, S)
     meta = calibration_meta(unit, b.cfg.size)
     meta["gel_center_px"] = [float(fit.center[0]), float(fit.center[1])]
     meta["gel_radius_px"] = float(radius)
     meta["provenance"] = {"method": "gpr-pokes", "pokes": int(len(c["xy"])),
                           "notes": f"tools.train.correspondence: {len(c['xy'])} twin calibration pokes, GPR θ(dist)",
                           "fit": {k: v for k, v in fit.fit.items() if k != "trend"}}
-    store = CalibrationStore(b.store_root)
-    version = store.write(spec_serial, tables, meta)
-    # twin only: the unit's truth at the same model pixels (camera px → true θ by the twin lens)
-    dirs, fov = unit.model.rays(np.stack([x, y], -1))
-    tp, ok = unit.gel.intersect(unit.model.center, dirs)
-    th_true, ph_true = unit.gel.theta_phi(tp)
-    cmp = ok & fov & tables["mask"] & (th_true <= 0.6)
-    err_t = np.degrees(np.abs(fit.theta - th_true))[cmp]
-    err_p = np.degrees(np.abs((fit.phi - ph_true + np.pi) % (2 * np.pi) - np.pi))[cmp & (th_true > 0.1)]
+    version = CalibrationStore(b.store_root).write(spec_serial, tables, meta)
     return {"version": version, "pokes": int(len(c["xy"])), "center_px": list(fit.center),
-            "true_center_px": list(unit.gel_center_px),
-            "theta_err_deg": {"mean": float(err_t.mean()), "p95": float(np.percentile(err_t, 95)),
-                              "max": float(err_t.max())},
-            "phi_err_deg": {"mean": float(err_p.mean()), "p95": float(np.percentile(err_p, 95))},
+            "true_center_px": list(unit.gel_center_px), **truth_errors(unit, tables, x, y),
             "poke_residual_theta_deg_rms": float(np.sqrt(np.mean(np.square(fit.residual_deg["theta"]))))}
 
 
