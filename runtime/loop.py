@@ -145,7 +145,6 @@ class SensorLoop:
             self.publisher.publish_fields(r.fields, r.seq, r.t)
         self.publisher.publish_contacts(to_wire_contacts(r), r.seq, r.t)
         self.publisher.publish_wrench(r.force_n, r.torque_nmm, r.seq, r.t)
-        self._last = r
 
     def _status(self, now: float, fps: float, result: FrameResult | None = None, force: bool = False) -> None:
         if self.publisher is None:

@@ -23,9 +23,6 @@ from runtime.preprocess import Preprocessor
 
 log = logging.getLogger(__name__)
 
-STAGES = ("preprocess", "baseline", "inference", "contacts", "effects", "correction")
-
-
 @dataclass(frozen=True)
 class PipelineConfig:
     contacts: ContactConfig = field(default_factory=ContactConfig)

@@ -1,5 +1,4 @@
 """Publisher + Subscriber over a REAL zenoh session pair on loopback (peer mode, tcp, no multicast)."""
-import socket
 import subprocess
 import sys
 import textwrap
@@ -16,19 +15,12 @@ from runtime.publisher import Publisher, open_session, zenoh_config
 from runtime.subscriber import Subscriber, alive_sensors, query_info, watch_alive
 
 
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+from tests.hand_util import free_endpoint
+from tests.hand_util import wait_until as _wait_until
 
 
 def wait_until(pred, timeout=5.0, step=0.02):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(step)
-    return pred()
+    return _wait_until(pred, timeout, step)
 
 
 def make_contact(i, f, p):
