@@ -38,15 +38,20 @@ def test_library_has_the_canonical_eight_with_identity_values():
         assert not np.allclose(e.apply(x, cov, e.resolve(far)), x), name
 
 
-def test_parameter_names_units_bounds_match_the_twin_specs():
+def test_twin_specs_are_the_runtime_definitions():
+    """One vocabulary: the twin's specs are read from the runtime's effect classes (no second copy),
+    and the twin has a truth form for every library effect."""
     specs = pytest.importorskip("tools.twin.effect_specs")
+    twin = pytest.importorskip("tools.twin.effects")
     reg = Registry.default(entry_points=False)
+    assert tuple(specs.CANONICAL) == tuple(CANONICAL)
     for name in CANONICAL:
         spec, e = specs.SPECS[name], reg.get(name)
-        assert e.stage == spec.stage, name
-        assert [(p.name, p.unit, p.lo, p.hi, p.default) for p in e.params] == \
-               [(p.name, p.unit, p.lo, p.hi, p.default) for p in spec.params], name
+        assert name in twin.EFFECTS, name
+        assert e.stage == spec.stage and tuple(e.covariates) == spec.covariates, name
+        assert all(a is b for a, b in zip(e.params, spec.params)) and len(e.params) == len(spec.params), name
         assert e.resolve(e.off) == spec.resolve(spec.off), name
+        assert set(spec.covariates) <= set(specs.COVARIATES), name
 
 
 @pytest.mark.parametrize("name,params", [

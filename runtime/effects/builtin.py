@@ -1,8 +1,9 @@
 """The eight library effects, model side (cheap numpy forms).
 
-Names, parameter names, units and bounds match the digital twin's specs of the same effect
-(tools/twin/effect_specs.py); tests/test_effects_model.py checks that they stay in step. The
-equations are written here independently of the twin's code (docs/effects-model.md).
+These classes are the canonical definitions of the library effects (names, parameters, units,
+bounds, covariates); the digital twin reads its specs from them (tools/twin/effect_specs.py). The
+forward forms are written here independently of the twin's truth forms (docs/effects-model.md);
+tests/test_effects_model.py checks that the two agree.
 """
 from __future__ import annotations
 

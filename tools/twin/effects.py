@@ -1,7 +1,8 @@
 """Physical effects in *truth*: the forward forms the digital twin applies (numpy).
 
-Specs (names, parameters, units, bounds, covariates, equations) live in effect_specs.py, shared
-with the model side; this module only holds the twin's forward functions. The model never sees
+Specs (names, parameters, units, bounds, covariates, equations) are the runtime's canonical
+definitions (runtime/effects/builtin.py, seen through effect_specs.py); this module only holds the
+twin's own forward functions, written independently of the runtime's. The model never sees
 which effects are on except through the measurements they change. See docs/effects.md.
 
 Stages (where in the twin's signal chain an effect acts):
@@ -9,8 +10,9 @@ Stages (where in the twin's signal chain an effect acts):
   measurement  on the F/T reading of one indenter, F/T frame: x (T,6)
   image        returns the LED intensity gain (T,) applied to rendered frames
 
-A plugin adds an effect with one class: subclass TruthEffect, set `spec` (register it with
-effect_specs.register_spec) and write `forward`; decorate with @register.
+A twin plugin adds an effect with one class: subclass TruthEffect, set `spec` (an EffectSpec
+registered with effect_specs.register_spec, or EffectSpec.from_effect(<runtime Effect plugin>))
+and write `forward`; decorate with @register.
 """
 from __future__ import annotations
 
