@@ -56,6 +56,7 @@ class BuildConfig:
     train: list = field(default_factory=_train_sessions)
     heldout: list = field(default_factory=_heldout_sessions)
     physics: str = "fe"                           # twin physics (fe; hertz-fallback only for smoke tests)
+    fe: str = "resolve"                           # stage 2: resolve (FE from measured keypoints) | twin (twin's solves)
     tables: str = "truth"                         # θ/φ tables of the targets: truth (twin) | gpr (stage 3)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
     rest_fraction: float = 0.15                   # rest (no contact) samples relative to contact samples
@@ -90,7 +91,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     """Config key per stage: the fields that stage (and the stages before it) depend on."""
     d = cfg.to_dict()
     deps = {"sessions": ["train", "heldout", "physics", "size"],
-            "keypoints": [], "fe": [], "correspondence": [], "simreal": [],
+            "keypoints": [], "fe": ["fe"], "correspondence": [], "simreal": [],
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight"],
@@ -236,7 +237,7 @@ def config_from_args(args) -> BuildConfig:
     cfg = tiny_config() if args.tiny else BuildConfig()
     if args.config:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **json.loads(Path(args.config).read_text())})
-    for k in ("name", "build", "size", "epochs", "batch", "tables", "threads", "models_dir", "arch"):
+    for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch"):
         v = getattr(args, k, None)
         if v is not None:
             setattr(cfg, k, v)
@@ -290,6 +291,9 @@ def register_build(ts) -> None:
         q.add_argument("--threads", type=int)
         q.add_argument("--arch", choices=("hiera_qup", "unet", "vit"))
         q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets (stage 3 GPR or truth)")
+        q.add_argument("--fe", choices=("resolve", "twin"),
+                       help="stage 2 FE labels: resolve = FE re-solved from the measured keypoints (default); "
+                            "twin = the twin's own solves of its plan")
         q.add_argument("--models-dir", help="root of model packages (default: exported_models/)")
         q.add_argument("--force", nargs="+", choices=STAGES, default=[], help="rerun these stages even if stamped")
         q.add_argument("--no-demo", action="store_true", help="do not evaluate on runtime/demo")

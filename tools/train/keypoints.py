@@ -259,3 +259,17 @@ def _slerp_rows(t_src: np.ndarray, quat: np.ndarray, t_dst: np.ndarray) -> np.nd
     rot = Rotation.from_quat(quat, scalar_first=True)
     t_dst = np.clip(t_dst, t_src[0], t_src[-1])
     return Slerp(t_src, rot)(t_dst).as_quat(scalar_first=True)
+
+
+def keypoints_doc(session, kps: list[Keypoints], cfg: KeypointConfig, session_path: str = "") -> dict:
+    """The stage-1 output document (`tensortouch.keypoints` v1, docs/train.md) of one session."""
+    return {"schema": "tensortouch.keypoints", "schema_version": 1, "session": session_path,
+            "sensor_id": session.sensor_id, "units": {"t": "s", "position": "mm", "angle": "rad", "force": "N",
+                                                      "torque": "N*mm"},
+            "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+            "periods": [{"t_start": float(k.period.t_start), "t_end": float(k.period.t_end),
+                         "t_contact": float(k.period.t_contact), "indenters": list(k.period.indenters),
+                         "indenter_ids": list(k.indenter_ids), "t": k.t.tolist(),
+                         "position": k.position.tolist(), "quaternion_wxyz": k.quaternion.tolist(),
+                         "rel_pose": k.rel_pose.tolist(), "force": k.force.tolist(), "torque": k.torque.tolist(),
+                         "frame_index": k.frame_index.tolist()} for k in kps]}

@@ -35,11 +35,11 @@ def recorder(b, spec):
 
 
 def fe_results(b, spec) -> list:
-    """FE results (tools.fe.FEResult) of every poke of a session: the very solves the twin recorded
-    with (truth/truth.json `fe_scenarios`, loaded from the FE cache), so labels, images and F/T come
-    from one physics even if tools/fe changed since; a solve missing from the cache is redone with the
-    current FE (its hash then differs and a warning says so). With hertz-fallback physics (smoke tests
-    only) the twin's PokeSolve stands in."""
+    """Twin mode (`--fe twin`): the FE results (tools.fe.FEResult) of every poke of a session: the very
+    solves the twin recorded with (truth/truth.json `fe_scenarios`, loaded from the FE cache), so labels,
+    images and F/T come from one physics even if tools/fe changed since; a solve missing from the cache is
+    redone with the current FE (its hash then differs and a warning says so). With hertz-fallback physics
+    (smoke tests only) the twin's PokeSolve stands in."""
     from tools.fe import load_result
     from tools.twin.record import make_physics
 
@@ -59,6 +59,24 @@ def fe_results(b, spec) -> list:
                         "current FE (labels may differ from the recorded physics)", spec.name, key, res.scenario_hash)
             out.append(res)
     return out
+
+
+def fe_mode(b) -> str:
+    return getattr(b.cfg, "fe", "twin")
+
+
+def label_sources(b, spec) -> list:
+    """The FE label sources of a session, one per poke (twin mode) or per resolved stage-1 contact
+    period (resolve mode): SimpleNamespace(times (J,) s of the FE frames, slots (session indenter ids),
+    result (FEResult-like), t_init, is_keypoint (J,), poke (twin Poke or None))."""
+    if fe_mode(b) == "twin":
+        rec = recorder(b, spec)
+        return [SimpleNamespace(times=np.asarray(p.times, float), slots=list(p.slots), result=r, poke=p,
+                                t_init=float(p.times[0]), is_keypoint=np.ones(len(p.times), bool))
+                for p, r in zip(rec.plan, fe_results(b, spec))]
+    from tools.train.resolve_stage import resolved_sources
+
+    return resolved_sources(b, spec)
 
 
 def _fallback_result(ps):
@@ -90,6 +108,14 @@ def _fallback_result(ps):
                            RF=ps.RF, pose_position=np.zeros((J, K, 3)), scenario_hash=ps.key)
 
 
+def unit_meta(b, serial: str) -> dict:
+    """The unit's current calibration metadata (gel design geometry `gel`, camera) — what a real rig's
+    calibration store holds before any training stage runs."""
+    from runtime.calibration import CalibrationStore
+
+    return CalibrationStore(b.store_root).load(serial).meta
+
+
 def unit_calibration(b, serial: str):
     """The calibration the dataset and evaluation use for a unit (stage 3's choice)."""
     from runtime.calibration import CalibrationStore
@@ -100,30 +126,45 @@ def unit_calibration(b, serial: str):
 
 # ------------------------------------------------------------------------------------------- stages
 
+# hertz-fallback twin physics (smoke tests only) gives ~5x smaller forces than FE: scaled contact thresholds
+FALLBACK_CONTACT_N = (0.3, 0.22)
+
+
 def stage_keypoints(b) -> dict:
     """Stage 1 on every session (measured F/T + mocap) → keypoints/<session>.json."""
-    from tools.train.cli import cmd_keypoints
+    from runtime.session import load_session
+    from tools.train.keypoints import KeypointConfig, extract_keypoints, keypoints_doc
 
+    kcfg = KeypointConfig()
+    if b.cfg.physics != "fe":
+        kcfg = KeypointConfig(contact_force_n=FALLBACK_CONTACT_N[0], detach_force_n=FALLBACK_CONTACT_N[1])
     out = {}
     for spec in b.all_sessions():
         path = b.root / "keypoints" / f"{spec.name}.json"
-        cmd_keypoints(SimpleNamespace(session=str(b.session(spec)), out=str(path), image_rate=30.0, max_keypoints=12))
-        doc = json.loads(path.read_text())
-        plan = recorder(b, spec).plan
+        ses = load_session(b.session(spec), check_frames=False)
+        kps = extract_keypoints(ses.table("poses"), ses.table("wrench"), ses.table("frames"), kcfg)
+        doc = keypoints_doc(ses, kps, kcfg, str(b.session(spec).resolve()))
+        _atomic_json(doc, path)
+        plan = recorder(b, spec).plan   # reported only (periods vs the twin's plan), never used downstream
         out[spec.name] = {"periods": len(doc["periods"]), "keypoints": sum(len(p["t"]) for p in doc["periods"]),
                           "planned_pokes": len(plan), "planned_keypoints": int(sum(len(p.times) for p in plan))}
     return {"sessions": out}
 
 
 def stage_fe(b) -> dict:
-    """Stage 2: the FE result of every poke (the twin's cached solves of the session's plan, re-solved
-    when missing from the cache); lists any poke whose recorded solve had to be redone."""
+    """Stage 2. resolve (default): FE scenarios from the stage-1 keypoints of the measured streams,
+    solved by tools.fe's batch runner (tools/train/resolve_stage.py). twin: the twin's cached solves of
+    the session's plan (re-solved when missing from the cache); lists any poke whose solve was redone."""
+    if fe_mode(b) != "twin":
+        from tools.train.resolve_stage import stage_fe_resolve
+
+        return stage_fe_resolve(b)
     out = {}
     for spec in b.all_sessions():
         truth = json.loads((b.session(spec) / "truth" / "truth.json").read_text())
         res = fe_results(b, spec)
         hashes = [str(r.scenario_hash) for r in res]
-        doc = {"session": spec.name, "scenarios": hashes, "frames": [int(r.U.shape[0]) for r in res],
+        doc = {"session": spec.name, "mode": "twin", "scenarios": hashes, "frames": [int(r.U.shape[0]) for r in res],
                "recorded_scenarios": truth.get("fe_scenarios", []),
                "resolved": [h for h in hashes if h not in truth.get("fe_scenarios", [])]}
         _atomic_json(doc, b.root / "fe" / f"{spec.name}.json")
@@ -145,10 +186,10 @@ def stage_simreal(b) -> dict:
     out = {}
     for spec in b.all_sessions():
         rec = recorder(b, spec)
-        res = fe_results(b, spec)
-        r = session_ratios(load_session(b.session(spec), check_frames=False), rec.plan,
-                           [p.slots for p in rec.plan], [x.RF for x in res])
-        doc = {"session": spec.name, "ratios": {str(k): v for k, v in r.items()},
+        src = label_sources(b, spec)
+        r = session_ratios(load_session(b.session(spec), check_frames=False), src,
+                           [x.slots for x in src], [x.result.RF for x in src])
+        doc = {"session": spec.name, "fe": fe_mode(b), "ratios": {str(k): v for k, v in r.items()},
                "twin_stiffness_scale": rec.unit.params.stiffness_scale}
         _atomic_json(doc, b.root / "simreal" / f"{spec.name}.json")
         out[spec.name] = {"magnitude": {k: round(v["magnitude"], 4) for k, v in doc["ratios"].items()},
@@ -160,12 +201,12 @@ def stage_dataset(b) -> dict:
     """Stage 4 + sample selection: training sessions → dataset/ (per-session parts cached in .work/)."""
     from tools.train.dataset import DatasetConfig, session_samples, split_pokes, write_dataset
 
-    work = b.dataset / ".work"
+    work = b.dataset / ".work" / b.keys["dataset"]   # per configuration: a changed label source starts anew
     work.mkdir(parents=True, exist_ok=True)
     dcfg = DatasetConfig(size=b.cfg.size, contact_stride=b.cfg.contact_stride, rest_fraction=b.cfg.rest_fraction)
     parts = []
     for si, spec in enumerate(b.cfg.train):
-        part = work / f"{spec.name}.npz"
+        part = work / f"{spec.name}-{_inputs_hash(b, spec)}.npz"
         if not part.is_file():
             t0 = time.monotonic()
             rec = recorder(b, spec)
@@ -176,23 +217,43 @@ def stage_dataset(b) -> dict:
                 if time.monotonic() - last[0] > 10 or i == n:
                     last[0] = time.monotonic()
                     log.info("dataset %s: %d/%d samples", name, i, n)
-            d = session_samples(b.session(spec), unit_calibration(b, spec.serial), rec.plan, fe_results(b, spec),
-                                [p.slots for p in rec.plan], {int(k): v for k, v in ratios.items()}, dcfg, prog)
+            rat = {int(k): v for k, v in ratios.items()}
+            if fe_mode(b) == "twin":
+                d = session_samples(b.session(spec), unit_calibration(b, spec.serial), rec.plan, fe_results(b, spec),
+                                    [p.slots for p in rec.plan], rat, dcfg, prog)
+            else:
+                from tools.train.labels import session_samples_measured
+
+                d = session_samples_measured(b.session(spec), unit_calibration(b, spec.serial),
+                                             label_sources(b, spec), rat, dcfg, progress=prog)
             tmp = part.with_suffix(".tmp.npz")
             np.savez(tmp, **d)
             os.replace(tmp, part)
             log.info("dataset %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
         with np.load(part) as z:
             d = {k: z[k] for k in z.files}
-        val_pokes = split_pokes(spec.pokes, si)
+        n_src = spec.pokes if fe_mode(b) == "twin" else int(d["poke"].max() + 1) if len(d["poke"]) else 1
+        val_pokes = split_pokes(n_src, si)
         d["val"] = np.isin(d["poke"], list(val_pokes)) & (d["poke"] >= 0)
         parts.append(d)
-    source = (f"twin sessions {[s.name for s in b.cfg.train]} (FE physics={b.cfg.physics}, tables={b.cfg.tables}); "
+    source = (f"twin sessions {[s.name for s in b.cfg.train]} (FE physics={b.cfg.physics}, labels fe={fe_mode(b)}, "
+              f"tables={b.cfg.tables}); "
               f"tools.train.build {b.cfg.build}")
     h = write_dataset(b.dataset, parts, b.cfg.size, source)
     n = sum(len(p["frame"]) for p in parts)
     return {"data_hash": h, "samples": n, "val": int(sum(p["val"].sum() for p in parts)),
             "rest": int(sum((p["poke"] < 0).sum() for p in parts))}
+
+
+def _inputs_hash(b, spec) -> str:
+    """Hash of a session's stage 2/3/5 outputs: a dataset part is reused only for the same inputs."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for f in (b.root / "fe" / f"{spec.name}.json", b.root / "simreal" / f"{spec.name}.json",
+              b.root / "correspondence" / f"{spec.serial}.json"):
+        h.update(f.read_bytes() if f.is_file() else b"-")
+    return h.hexdigest()[:10]
 
 
 def pretrain_dir(b) -> Path:

@@ -1,0 +1,155 @@
+"""Stage 4 from re-solved FE (real-rig path): which camera frames get labels, and their fields.
+
+No twin truth is read. Per session, the stage-2 sources (one re-solved FE scenario per stage-1 contact
+period: FE frame times, indenter ids, result) define:
+- **contact frames**: camera frames inside an FE frame span [first, last FE frame] of a period; their
+  FE parameter σ = j + s comes from the measured motion (`resolve.frame_sigma`: projection of the
+  smoothed mocap pose onto the segment between FE frames j and j+1) and the fields are the linear
+  interpolation of the two FE frames (`resolve.interp_frames`); frames within half a camera period of
+  an FE frame are (up to that half period) the FE frame itself. `LabelConfig.keypoint_frames_only`
+  keeps only the camera frames nearest each stage-1 keypoint (the seed's labels at keypoint frames);
+- **busy frames**: outside those spans but with a measured |F| above `rest_force_n` on some indenter
+  (light contact before 1.5 N / after 1.1 N) or between a period's initial FE pose and its first
+  frame: neither contact samples nor rest samples;
+- **rest frames**: the others (all-zero fields), chosen by `dataset.select_frames` like the twin path.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from runtime.fields import N_CHANNELS
+
+log = logging.getLogger(__name__)
+
+BUSY_ID = 100000     # frame labels ≥ this mark busy frames (dropped after frame selection)
+
+
+@dataclass(frozen=True)
+class LabelConfig:
+    rest_force_n: float = 0.1             # |F| above this outside a labelled span: not a rest frame
+    keypoint_frames_only: bool = False    # True: contact labels only at stage-1 keypoint frames (seed)
+
+
+def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.ndarray,
+                 rcfg=None, lcfg: LabelConfig = LabelConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """Per camera frame: label (source index, −1 rest, ≥ BUSY_ID busy) and σ (NaN unless labelled).
+
+    sources[p]: .times (J,), .t_init, .slots, .is_keypoint (J,); tracks: {slot: resolve.PoseTrack};
+    wrench: session wrench table (t, indenter, fx, fy, fz, ...)."""
+    from tools.train.resolve import ResolveConfig, frame_sigma
+
+    rcfg = rcfg or ResolveConfig()
+    t = np.asarray(frame_t, float)
+    lab = np.full(len(t), -1, int)
+    sig = np.full(len(t), np.nan)
+    busy = np.zeros(len(t), bool)
+    w = np.asarray(wrench, float)
+    for k in np.unique(w[:, 1]).astype(int):
+        wk = w[w[:, 1] == k]
+        busy |= np.interp(t, wk[:, 0], np.linalg.norm(wk[:, 2:5], axis=1)) > lcfg.rest_force_n
+    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    for p, src in enumerate(sources):
+        times = np.asarray(src.times, float)
+        busy |= (t >= src.t_init) & (t <= times[-1])
+        inside = np.flatnonzero((t >= times[0]) & (t <= times[-1]))
+        if lcfg.keypoint_frames_only:
+            kt = times[np.asarray(src.is_keypoint, bool)]
+            near = [i for i in inside if np.min(np.abs(kt - t[i])) <= half + 1e-9]
+            inside = np.array(near, int)
+        if len(inside):
+            lab[inside] = p
+            sig[inside] = frame_sigma(t[inside], times, [tracks[s] for s in src.slots], rcfg)
+    free = busy & (lab < 0)
+    runs = np.cumsum(np.diff(np.concatenate([[0], free.astype(int)])) == 1)
+    lab[free] = BUSY_ID + runs[free]
+    return lab, sig
+
+
+def keypoint_frame_share(frame_t: np.ndarray, label: np.ndarray, sources: list) -> dict:
+    """How many labelled frames there are and how many sit at a stage-1 keypoint / any FE frame
+    (within half a camera period): the cost of labelling only keypoint frames (seed)."""
+    t = np.asarray(frame_t, float)
+    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    n, at_key, at_fe = 0, 0, 0
+    for p, src in enumerate(sources):
+        idx = np.flatnonzero(label == p)
+        times = np.asarray(src.times, float)
+        kt = times[np.asarray(src.is_keypoint, bool)]
+        n += len(idx)
+        at_key += int(sum(np.min(np.abs(kt - t[i])) <= half + 1e-9 for i in idx))
+        at_fe += int(sum(np.min(np.abs(times - t[i])) <= half + 1e-9 for i in idx))
+    return {"labelled_frames": n, "at_keypoint": at_key, "at_fe_frame": at_fe}
+
+
+def source_fields(view, sigma: float, ratios: np.ndarray, stress_scale: float, projector) -> np.ndarray:
+    """(15, S, S) fields of one frame at FE parameter σ of a source (view = dataset.surface_view)."""
+    from tools.train.fields import attribute_contacts
+    from tools.train.resolve import interp_frames
+    from tools.train.simreal import apply_ratios
+
+    u = interp_frames(view.U, sigma)
+    s = interp_frames(view.S, sigma) * stress_scale
+    cn, cs = interp_frames(view.CNORMF, sigma), interp_frames(view.CSHEAR, sigma)
+    owner = np.full(len(u), -1)
+    touch = np.flatnonzero(np.linalg.norm(cn, axis=1) + np.linalg.norm(cs, axis=1) > 1e-9)
+    if len(touch):
+        K = ratios.shape[0]
+        owner[touch] = 0 if K == 1 else attribute_contacts(view.xyz[touch], interp_frames(view.pose_position, sigma))
+    return projector.project(u, s, apply_ratios(cn, owner, ratios), apply_ratios(cs, owner, ratios))
+
+
+def session_samples_measured(session_dir: Path, calibration, sources: list, ratios: dict, dcfg,
+                             lcfg: LabelConfig = LabelConfig(), rcfg=None, progress=None) -> dict:
+    """All samples of one session from re-solved FE (same output as dataset.session_samples):
+    {'input' (n,6,S,S) u8, 'target' (n,15,S,S) f32 physical, 'frame', 'baseline', 'poke' (n,)}."""
+    from runtime.preprocess import Preprocessor
+    from runtime.session import load_session
+    from tools.train.dataset import FieldProjector, crops, select_frames, surface_view
+    from tools.train.fields import FieldConfig
+    from tools.train.resolve import PoseTrack
+
+    ses = load_session(session_dir)
+    frames = ses.table("frames")
+    poses = ses.table("poses")
+    tracks = {int(k): PoseTrack.from_table(poses, int(k)) for k in np.unique(poses[:, 1])}
+    lab, sig = frame_labels(frames[:, 0], sources, tracks, ses.table("wrench"), rcfg, lcfg)
+    picks = [pk for pk in select_frames(lab, dcfg) if pk[2] < BUSY_ID]
+    contact = [pk for pk in picks if pk[2] >= 0]
+    rest = [pk for pk in picks if pk[2] < 0]
+    n_rest = min(len(rest), int(round(dcfg.rest_fraction * len(contact))))   # busy picks inflated the count
+    rest = [rest[i] for i in np.linspace(0, len(rest) - 1, n_rest).round().astype(int)] if n_rest else []
+    picks = sorted(contact + rest)
+    cx, cy = calibration.gel_center_px
+    pre = Preprocessor(cx, cy, calibration.gel_radius_px, calibration.model_size)
+    images = crops(ses, pre, sorted({i for i, _, _ in picks} | {b for _, b, _ in picks}))
+    gel = calibration.meta.get("gel", {})
+    fcfg = FieldConfig(center_mm=(0.0, 0.0, float(gel.get("center_z_mm", 0.0))))
+    tables = {"theta": calibration.theta, "phi": calibration.phi, "pixel_area": calibration.pixel_area}
+    stress_scale = float(np.mean([v["magnitude"] for v in ratios.values()] or [1.0]))
+    S = calibration.model_size
+    inp = np.zeros((len(picks), 6) + tuple(S), np.uint8)
+    tgt = np.zeros((len(picks), N_CHANNELS) + tuple(S), np.float32)
+    views, projectors = {}, {}
+    for n, (i, b, p) in enumerate(picks):
+        inp[n, :3] = images[b].transpose(2, 0, 1)
+        inp[n, 3:] = images[i].transpose(2, 0, 1)
+        if p >= 0:
+            if p not in views:
+                views[p] = v = surface_view(sources[p].result)
+                key = (len(v.xyz), float(np.round(v.xyz.sum(), 6)))
+                if key not in projectors:
+                    projectors[key] = FieldProjector(v.xyz, v.area, tables, fcfg)
+                v.projector = projectors[key]
+            r = np.array([ratios.get(int(sl), {"ratio": [1.0] * 3})["ratio"] for sl in sources[p].slots])
+            tgt[n] = source_fields(views[p], float(sig[i]), r, stress_scale, views[p].projector)
+        if progress:
+            progress(n + 1, len(picks))
+    arr = np.array(picks, int).reshape(-1, 3)
+    share = keypoint_frame_share(frames[:, 0], lab, sources)
+    log.info("%s: %d samples (%d contact); labelled frames %s", Path(session_dir).name, len(picks),
+             int((arr[:, 2] >= 0).sum()), share)
+    return {"input": inp, "target": tgt, "frame": arr[:, 0], "baseline": arr[:, 1], "poke": arr[:, 2]}

@@ -1,0 +1,194 @@
+"""Stage 2 shell (real-rig path, `--fe resolve`, the default): stage-1 keypoints → FE scenarios →
+tools.fe batch runner (shared on-disk cache keyed by scenario hash, resume, progress) → fe/<session>.json.
+
+Inputs per session — all things a real rig has, none of the twin's truth: the measured `poses` and
+`wrench` streams, the stage-1 keypoint file, the mounted indenters' names (`streams.poses.indenters`)
+looked up in the indenter catalog (the FE indenter set of tools.twin.trajectory.INDENTER_SET: shape and
+size per name), and the unit's gel design geometry from its calibration (`meta.gel`).
+
+fe/<session>.json (`tensortouch.train_fe` v2, mode "resolve"): per contact period the scenario file
+and hash, its FE frame times, which are stage-1 keypoints, the initial-pose time, the indenter ids,
+and the status (solved / failed / skipped with the reason). Results live in `<cache>/fe/<hash>.npz`
+(tools.fe.batch default folder), shared by every build: a rebuild with the same sessions solves nothing.
+With hertz-fallback physics (smoke test only) the analytic twin solver stands in for tools.fe.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import replace
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+SCHEMA = "tensortouch.train_fe"
+
+
+def fe_cache_dir() -> Path:
+    from tools.fe.batch import default_dir
+
+    return default_dir()
+
+
+def _gel(calibration_meta: dict):
+    """tools.fe GelGeometry + tools.twin GelSurface of the unit's gel design (calibration meta.gel)."""
+    from tools.fe import GelGeometry
+    from tools.twin.geometry import GelSurface
+
+    g = calibration_meta.get("gel", {})
+    shape = g.get("shape", "flattened_dome")
+    base, cap, skirt = float(g.get("base_radius_mm", 12.0)), float(g.get("cap_height_mm", 6.0)), float(g.get("skirt_mm", 2.0))
+    gel = GelGeometry(kind=shape, radius=base, cap_height=cap, skirt=skirt)
+    return gel, GelSurface.from_fe(gel)
+
+
+def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: dict, catalog=None, cfg=None):
+    """[(period index, PeriodScenario | None, error str)] of one session."""
+    from runtime.session import load_session
+    from tools.train.resolve import PoseTrack, ResolveConfig, ResolveError, period_scenario
+    from tools.twin.trajectory import INDENTER_SET
+
+    cfg = cfg or ResolveConfig()
+    catalog = catalog or INDENTER_SET
+    ses = load_session(session_dir, check_frames=False)
+    names = {int(k): v for k, v in ses.streams["poses"].get("indenters", {}).items()}
+    poses = ses.table("poses")
+    doc = json.loads(Path(keypoint_file).read_text())
+    gel, surf = _gel(calibration_meta)
+    out = []
+    for i, per in enumerate(doc["periods"]):
+        slots = [int(k) for k in per["indenters"]]
+        try:
+            missing = [k for k in slots if k not in names]
+            if missing:
+                raise ResolveError(f"{session_dir}/session.json: streams.poses.indenters names no indenter {missing}")
+            tracks = [PoseTrack.from_table(poses, k) for k in slots]
+            ps = period_scenario(tracks, slots, [names[k] for k in slots], np.asarray(per["t"], float), catalog,
+                                 gel, surf, cfg)
+            out.append((i, ps, ""))
+        except ResolveError as exc:
+            log.warning("%s period %d: no FE scenario (%s)", Path(session_dir).name, i, exc)
+            out.append((i, None, str(exc)))
+    return out
+
+
+def _fallback_solve(ps, gel_surface):
+    """Analytic (hertz-fallback) stand-in for tools.fe on a period scenario — smoke tests only."""
+    from tools.train.stages import _fallback_result
+    from tools.twin.physics import HertzFallbackPhysics
+    from tools.twin.trajectory import Poke
+
+    sc = ps.scenario
+    K = len(sc.indenters)
+    poke = Poke("resolved", list(ps.names), list(ps.slots),
+                np.array([i.position for i in sc.indenters], float), np.array([i.rotation for i in sc.indenters], float),
+                np.array([[k.translation for k in i.keypoints] for i in sc.indenters], float).reshape(K, -1, 3),
+                np.array([[k.rotation for k in i.keypoints] for i in sc.indenters], float).reshape(K, -1, 3),
+                np.asarray(ps.times, float), float(ps.t_init), float(ps.times[-1]))
+    res = _fallback_result(HertzFallbackPhysics(gel_surface).solve(poke))
+    res.scenario_hash = sc.hash()
+    res.pose_position = np.transpose(poke.position[:, None, :] + poke.translation, (1, 0, 2))
+    return res
+
+
+def stage_fe_resolve(b, cfg=None) -> dict:
+    """Stage 2 (resolve) over every session of the build; returns counts for the stamp."""
+    from tools.fe import save_scenario
+    from tools.fe.batch import run_batch
+    from tools.train.resolve import ResolveConfig
+    from tools.train.stages import _atomic_json, unit_meta
+
+    cfg = cfg or ResolveConfig()
+    docs, jobs = {}, []
+    for spec in b.all_sessions():
+        meta = unit_meta(b, spec.serial)
+        items = session_scenarios(b.session(spec), b.root / "keypoints" / f"{spec.name}.json", meta, cfg=cfg)
+        periods = []
+        for i, ps, err in items:
+            if ps is None:
+                periods.append({"period": i, "status": "skipped", "error": err})
+                continue
+            f = b.root / "fe" / "scenarios" / spec.name / f"p{i:02d}.json"
+            save_scenario(ps.scenario, f)
+            periods.append({"period": i, "status": "pending", "file": str(f), "scenario": ps.scenario.hash(),
+                            "indenters": ps.slots, "names": ps.names, "t_init": ps.t_init,
+                            "times": [round(float(x), 6) for x in ps.times],
+                            "is_keypoint": [bool(x) for x in ps.is_keypoint],
+                            "frames": len(ps.times), "keypoints": int(np.sum(ps.is_keypoint))})
+            jobs.append((spec.name, len(periods) - 1, f, ps))
+        docs[spec.name] = {"schema": SCHEMA, "schema_version": 2, "session": spec.name, "mode": "resolve",
+                           "physics": b.cfg.physics, "cache": str(fe_cache_dir()), "periods": periods}
+    if b.cfg.physics == "fe" and jobs:
+        cache = fe_cache_dir()
+        log.info("stage fe: %d period scenarios over %d sessions → tools.fe batch (cache %s, %d worker(s))",
+                 len(jobs), len(docs), cache, cfg.workers)
+        run_batch([str(f) for _, _, f, _ in jobs], cache, workers=cfg.workers)
+        retry = []
+        for name, j, f, ps in jobs:
+            h = ps.scenario.hash()
+            if not (cache / f"{h}.npz").is_file():   # one retry with smaller increments (new hash)
+                sc = ps.scenario
+                sv = sc.solver
+                sc2 = replace(sc, solver=replace(sv, max_increment_mm=sv.max_increment_mm * cfg.retry_increment_factor,
+                                                 max_increment_rad=sv.max_increment_rad * cfg.retry_increment_factor))
+                f2 = f.with_name(f.stem + "-retry.json")
+                save_scenario(sc2, f2)
+                retry.append((name, j, f2, sc2.hash(), h))
+        if retry:
+            log.warning("stage fe: %d scenario(s) failed; retrying with smaller increments", len(retry))
+            run_batch([str(f2) for _, _, f2, _, _ in retry], cache, workers=cfg.workers)
+        fixed = {(n, j): (f2, h2, h) for n, j, f2, h2, h in retry}
+        for name, j, f, ps in jobs:
+            per = docs[name]["periods"][j]
+            if (name, j) in fixed:
+                f2, h2, h = fixed[(name, j)]
+                if (cache / f"{h2}.npz").is_file():
+                    per.update(file=str(f2), scenario=h2, retried_from=h)
+                else:
+                    failed = cache / f"{h2}.failed.json"
+                    per.update(status="failed", error=json.loads(failed.read_text()).get("error", "") if failed.is_file() else "no result")
+                    continue
+            per["status"] = "solved"
+    else:
+        for name, j, f, ps in jobs:
+            docs[name]["periods"][j]["status"] = "solved"
+    out = {}
+    for name, doc in docs.items():
+        _atomic_json(doc, b.root / "fe" / f"{name}.json")
+        st = [p["status"] for p in doc["periods"]]
+        out[name] = {"periods": len(st), "solved": st.count("solved"), "failed": st.count("failed"),
+                     "skipped": st.count("skipped"),
+                     "fe_frames": sum(p.get("frames", 0) for p in doc["periods"] if p["status"] == "solved")}
+    return {"mode": "resolve", "sessions": out}
+
+
+def resolved_sources(b, spec) -> list:
+    """Label sources of a session from fe/<session>.json (resolve mode), solved periods only."""
+    from tools.fe import load_result, load_scenario
+    from tools.train.stages import unit_meta
+
+    doc = json.loads((b.root / "fe" / f"{spec.name}.json").read_text())
+    if doc.get("mode") != "resolve":
+        raise ValueError(f"{b.root / 'fe' / (spec.name + '.json')}: mode {doc.get('mode')!r}, expected 'resolve' "
+                         "(rerun stage fe)")
+    out = []
+    surf = None
+    for per in doc["periods"]:
+        if per["status"] != "solved":
+            continue
+        if b.cfg.physics == "fe":
+            res = load_result(fe_cache_dir() / f"{per['scenario']}.npz")
+        else:
+            if surf is None:
+                surf = _gel(unit_meta(b, spec.serial))[1]
+            sc = load_scenario(per["file"])
+            ps = SimpleNamespace(scenario=sc, names=per["names"], slots=per["indenters"], times=per["times"],
+                                 t_init=per["t_init"])
+            res = _fallback_solve(ps, surf)
+        out.append(SimpleNamespace(times=np.asarray(per["times"], float), slots=list(per["indenters"]), result=res,
+                                   t_init=float(per["t_init"]), is_keypoint=np.asarray(per["is_keypoint"], bool),
+                                   poke=None, period=int(per["period"]), scenario=per["scenario"]))
+    return out
