@@ -173,7 +173,7 @@ class Finger:
         p = self.pipeline
         self.publisher.publish_status(
             {"state": "CAMERA_LOST", "flags": sorted({"camera_lost"} | self.extra_flags), "fps": 0.0,
-             "frames": self.frames, "error": self.last_error, "finger": self.cfg.name,
+             "frames": self.frames, "error": self.last_error,
              "model": p.model.package.name, "model_hash": p.model.package.sha256(p.model.precision),
              "calibration_version": p.cal.version}, seq=p.seq, t=time.time())
 
@@ -247,7 +247,8 @@ class Hand:
     def make_publisher(self, finger: Finger):
         from runtime.publisher import Publisher
 
-        return Publisher(finger.sensor_id, session=self.session, info=finger.info)
+        return Publisher(finger.sensor_id, session=self.session, info=finger.info,
+                         status_extra={"finger": finger.cfg.name, "hand": self.cfg.name})
 
     # ------------------------------------------------------------------ lifetime
     def start(self) -> "Hand":

@@ -86,15 +86,17 @@ class Publisher:
     Pass an open `session` to share one zenoh session between several sensors (it is then not
     closed by `close()`), or a `zenoh_config` / `listen` / `connect` to open one.
     `info` is a callable returning a dict (model name/hash, calibration version, bounds, ...)
-    answered on `tensortouch/<sensor_id>/info`.
+    answered on `tensortouch/<sensor_id>/info`. `status_extra` members (e.g. `finger`) go into
+    every status unless the status dict itself carries them.
     """
 
     def __init__(self, sensor_id: str, zenoh_config: zenoh.Config | None = None, *,
                  session: zenoh.Session | None = None, listen: Sequence[str] = (),
                  connect: Sequence[str] = (), info: Callable[[], dict] | None = None,
-                 config: PublisherConfig | None = None):
+                 config: PublisherConfig | None = None, status_extra: dict | None = None):
         self.sensor_id = wire.check_sensor_id(sensor_id)
         self.config = config or PublisherConfig()
+        self.status_extra = dict(status_extra or {})  # members every status carries (e.g. finger)
         self.stats = WireStats()
         self._info = info or (lambda: {})
         self._lock = threading.Lock()
@@ -165,7 +167,7 @@ class Publisher:
         `fields_clipped` when errors / clipping happened since the previous status.
         """
         try:
-            body = dict(status)
+            body = {**self.status_extra, **status}
             seq = int(body.pop("seq", 0) if seq is None else seq)
             t = float(body.pop("t", time.time()) if t is None else t)
             with self._lock:

@@ -361,11 +361,11 @@ def decode_wrench(payload: bytes | bytearray | str, encoding: Any = None) -> Wre
 
 # --------------------------------------------------------------------------- status and info
 
-STATUS_FIELDS = ("state", "flags", "fps", "timings_ms", "model_hash", "calibration_version")
+STATUS_FIELDS = ("state", "flags", "fps", "timings_ms", "model_hash", "calibration_version", "finger")
 
 
 def encode_status(status: dict, seq: int, t: float, sensor_id: str) -> bytes:
-    """Status dict (state, flags, fps, timings_ms, model_hash, calibration_version, ...) -> JSON.
+    """Status dict (state, flags, fps, timings_ms, model_hash, calibration_version, finger, ...) -> JSON.
 
     Missing standard fields are sent as null / empty; extra keys pass through. Non-finite numbers
     become null (a status must always go out).

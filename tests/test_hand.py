@@ -91,13 +91,19 @@ def test_three_fingers_publish_independently_with_can_summary(rig):
                    can={"interface": "virtual", "channel": channel, "id_base": 0x320, "rate_hz": 100})
     rx = can.Bus(interface="virtual", channel=channel)
     contacts = {s: [] for s in SERIALS}
+    statuses = {s: [] for s in SERIALS}
     with Hand(cfg) as hand, Subscriber("*", connect=list(cfg.listen),
-                                       on_contacts=lambda m: contacts[m.sensor_id].append(m)) as sub:
+                                       on_contacts=lambda m: contacts[m.sensor_id].append(m),
+                                       on_status=lambda m: statuses[m["sensor_id"]].append(m)) as sub:
         assert wait_until(lambda: set(alive_sensors(sub, 0.5)) == set(SERIALS), 10)
         assert wait_until(lambda: all(any(m.contacts for m in contacts[s]) for s in SERIALS), 20), \
             {s: len(v) for s, v in contacts.items()}
         info = query_info(sub, "TT-B")
         assert info["finger"] == "f1" and info["hand"] == "test-hand" and info["can_slot"] == 1
+        # every running status names its finger (wire status member `finger`, docs/wire.md)
+        assert wait_until(lambda: all(statuses[s] for s in SERIALS), 5)
+        for i, s in enumerate(SERIALS):
+            assert {(m["finger"], m["hand"]) for m in statuses[s]} == {(f"f{i}", "test-hand")}, s
         fields = sub.wait_for("fields", 5.0)
         assert fields.data.shape == (15, 32, 32)
         from runtime.can_summary import SummaryDecoder

@@ -87,6 +87,11 @@ def test_page_and_sensor_list(live):
                                if s["has_fields"]} == {"TT-A", "TT-B"}, 15)
     sensors = json.loads(_get(base + "/api/sensors")[2])
     assert all(s["status"]["state"] for s in sensors)
+    # every status names its finger from the hand config (TT-A is f0, TT-B is f1)
+    assert wait_until(lambda: {s["sensor_id"]: (s["status"] or {}).get("finger")
+                               for s in json.loads(_get(base + "/api/sensors")[2])} == {"TT-A": "f0", "TT-B": "f1"}, 5)
+    assert all(s["status"]["hand"] == "test-hand" for s in json.loads(_get(base + "/api/sensors")[2]))
+    assert b"st.finger" in body                                          # the page shows it
 
 
 def test_frame_api_colour_map_contacts_and_geometry(live):

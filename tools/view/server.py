@@ -74,7 +74,7 @@ class ViewState:
             return [{"sensor_id": s, "has_fields": s in self.fields,
                      "age_s": round(now - self.received.get(s, now), 2),
                      "status": {k: self.status[s].get(k) for k in ("state", "flags", "fps", "calibration_version",
-                                                                  "model", "finger")} if s in self.status else None}
+                                                                  "model", "finger", "hand")} if s in self.status else None}
                     for s in ids]
 
     def geometry(self, sensor: str) -> dict:
