@@ -12,17 +12,22 @@ every `--log-every` s it logs resident memory (VmRSS), per-finger frames/s and l
 JSON-lines file under cache/ (latency there = pipeline + publish, without the wait for the next
 frame) and prints the drift (linear fit of RSS, first vs last p99) at the end.
 
-The network is the shipped model at that size when installed, else the synthetic ~1.9 M-parameter
-conv U-Net (random weights: timing only — said in the output).
+Network (`--model`): a package name in exported_models/ or a path to a package folder; default =
+the newest shipped package (its own input size), or, when none is installed, the synthetic
+~2.1 M-parameter conv U-Net. `--model synthetic` asks for the synthetic net explicitly (random
+weights: timing only — said in the output; `--size` sets its input size, for tests).
 """
 from __future__ import annotations
 
 import json
+import logging
 import os
 import time
 from pathlib import Path
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 MODES = {  # name: (share_model, inference_workers or None = --workers)
     "separate": (False, None),
@@ -39,10 +44,37 @@ def rss_mb() -> float:
     return float("nan")
 
 
-def _setup(work: Path, n: int, size: int, width: int = 320, height: int = 240):
-    from tools.bench.runtime_bench import _calibration, _package_for, synthetic_frames, write_video
+SYNTHETIC = "synthetic"
+DEFAULT_SYNTHETIC_SIZE = 128  # input size of the synthetic net when --size is not given
 
-    pkg, synthetic = _package_for(size, work)
+
+def resolve_model(model: str | None, size: int | None, work: Path):
+    """(package, synthetic?) for `--model`: a name/path, `synthetic`, or None = newest shipped one.
+
+    A named package whose size differs from an explicit `--size` is an error (the calibration is
+    built at the package's size)."""
+    from runtime.errors import ModelPackageError
+    from runtime.model import find_package, installed_packages, load_package
+    from tools.bench.models import write_package
+
+    if model != SYNTHETIC and (model or installed_packages()):
+        pkg = find_package(model)
+        if pkg.manifest.get("synthetic"):
+            log.info("package %s is a synthetic network (timing only)", pkg.folder)
+        if size is not None and pkg.size != (size, size):
+            raise ModelPackageError(f"{pkg.folder}: input size {pkg.size[0]}x{pkg.size[1]}, but --size {size} "
+                                    "was given (drop --size, or use --model synthetic)")
+        return pkg, bool(pkg.manifest.get("synthetic"))
+    size = size or DEFAULT_SYNTHETIC_SIZE
+    folder = write_package(work / f"synthetic-{size}", size=size, width=32, depth=3, stem=4)
+    return load_package(folder), True
+
+
+def _setup(work: Path, n: int, model: str | None, size: int | None, width: int = 320, height: int = 240):
+    from tools.bench.runtime_bench import _calibration, synthetic_frames, write_video
+
+    pkg, synthetic = resolve_model(model, size, work)
+    size = pkg.size[0]
     videos, serials = [], []
     for i in range(n):
         serial = f"bench-{i}"
@@ -122,10 +154,23 @@ class _ProcLatency:
         from collections import defaultdict
 
         self.ms = defaultdict(list)
+        self.first: dict[str, float] = {}          # monotonic time of each finger's first frame
+        self.count: dict[str, int] = defaultdict(int)
 
     def __call__(self, finger, result):
         t = result.timings
-        self.ms[finger.cfg.name].append(t.get("total", 0.0))  # total excludes capture (waiting)
+        name = finger.cfg.name
+        self.first.setdefault(name, time.monotonic())
+        self.count[name] += 1
+        self.ms[name].append(t.get("total", 0.0))  # total excludes capture (waiting)
+
+    def behind(self, name, fps: float, now: float) -> float:
+        """Frames a camera at `fps` would have delivered since this finger's first frame that it has
+        not processed yet (a paced replay's read() never skips: a slow loop falls behind instead;
+        a live camera would have dropped these)."""
+        if name not in self.first:
+            return 0.0
+        return max(0.0, fps * (now - self.first[name]) - self.count[name] + 1)
 
     def take(self, name) -> tuple[float, float]:
         a, self.ms[name] = self.ms[name], []
@@ -134,7 +179,7 @@ class _ProcLatency:
         return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
 
-def soak(cfg, seconds: float, log_every: float, log_path: Path) -> dict:
+def soak(cfg, seconds: float, log_every: float, log_path: Path, fps: float) -> dict:
     from runtime.hand import Hand
 
     lat = _ProcLatency()
@@ -148,18 +193,20 @@ def soak(cfg, seconds: float, log_every: float, log_path: Path) -> dict:
             while time.monotonic() - t_start < seconds:
                 time.sleep(log_every)
                 now = time.monotonic()
-                row = {"t_s": round(now - t_start, 1), "rss_mb": round(rss_mb(), 2), "fingers": {}}
+                row = {"t_s": round(now - t_start, 1), "rss_mb": round(rss_mb(), 2),
+                       "load1": round(os.getloadavg()[0], 2), "fingers": {}}
                 for n, f in hand.fingers.items():
                     frames = f.loop.frames if f.loop else 0
                     p50, p99 = lat.take(n)
                     row["fingers"][n] = {"hz": round((frames - last[n]) / (now - t_last), 2),
-                                         "p50_ms": round(p50, 3), "p99_ms": round(p99, 3), "state": f.state}
+                                         "p50_ms": round(p50, 3), "p99_ms": round(p99, 3), "state": f.state,
+                                         "frames": frames, "behind": round(lat.behind(n, fps, now), 1)}
                     last[n] = frames
                 t_last = now
                 rows.append(row)
                 log.write(json.dumps(row) + "\n")
                 log.flush()
-                print(f"  soak t={row['t_s']:7.1f} s  RSS {row['rss_mb']:7.1f} MB  " + "  ".join(
+                print(f"  soak t={row['t_s']:7.1f} s  RSS {row['rss_mb']:7.1f} MB  load {row['load1']:5.2f}  " + "  ".join(
                     f"{n} {v['hz']:5.1f} Hz p99 {v['p99_ms']:6.1f} ms" for n, v in row["fingers"].items()),
                     flush=True)
     finally:
@@ -170,7 +217,11 @@ def soak(cfg, seconds: float, log_every: float, log_path: Path) -> dict:
     skip = max(1, len(rows) // 10)                    # ignore the first 10 % (allocator warm-up)
     slope = float(np.polyfit(t[skip:], rss[skip:], 1)[0] * 3600) if len(rows) - skip >= 3 else float("nan")
     q = max(1, len(rows) // 4)
-    return {"duration_s": float(t[-1]) if len(t) else 0.0, "windows": len(rows),
+    last = rows[-1]["fingers"] if rows else {}
+    mean_hz = {n: v["frames"] / t[-1] for n, v in last.items()} if len(t) else {}
+    return {"duration_s": float(t[-1]) if len(t) else 0.0, "windows": len(rows), "fps_target": fps,
+            "mean_hz": mean_hz, "behind_frames": {n: v["behind"] for n, v in last.items()},
+            "load1_median": float(np.median([r["load1"] for r in rows])) if rows else float("nan"),
             "rss_first_mb": float(rss[skip]) if len(rss) > skip else float("nan"),
             "rss_last_mb": float(rss[-1]) if len(rss) else float("nan"),
             "rss_slope_mb_per_h": slope, "p99_first_quarter_ms": float(np.median(p99[:q])),
@@ -185,11 +236,11 @@ def run(args) -> int:
     workers = args.workers or os.cpu_count() or 2
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        pkg, synthetic, videos, serials = _setup(work, args.sensors, args.size)
+        pkg, synthetic, videos, serials = _setup(work, args.sensors, args.model, args.size)
         params = pkg.manifest.get("metrics", {}).get("params")
         tag = " (synthetic weights, timing only)" if synthetic else ""
         print(f"hand benchmark — {args.sensors} replayed sensors in one process, model {pkg.name}{tag}, "
-              f"params {params}, {args.precision}, {args.size}², cpu count {os.cpu_count()}, inference gate "
+              f"params {params}, {args.precision}, {pkg.size[0]}², cpu count {os.cpu_count()}, inference gate "
               f"{workers}; capture = MJPG 320x240 decode, publish = Zenoh loopback with a counting subscriber")
         results = {}
         if not args.soak_only:
@@ -204,19 +255,25 @@ def run(args) -> int:
                       + f" frames/s (total {r['total_hz']:.1f}), end-to-end p50 "
                       + ", ".join(f"{v['p50_ms']:.1f}" for v in r["fingers"].values())
                       + f" ms, worst p99 {r['p99_ms']:.1f} ms, subscriber got {r['received_msgs_per_s']:.0f} msg/s")
-        summary = {"sensors": args.sensors, "size": args.size, "precision": args.precision,
+        summary = {"sensors": args.sensors, "model": pkg.name, "model_folder": str(pkg.folder), "size": pkg.size[0], "precision": args.precision,
                    "synthetic_weights": synthetic, "params": params, "modes": results}
         if args.soak:
             camera = {"realtime": True, "loop": True, "fps": args.soak_fps}
-            cfg = _config(pkg, work, videos, serials, False, workers, args.precision, camera, _free_endpoint())
+            share, gate = MODES[args.soak_mode]
+            cfg = _config(pkg, work, videos, serials, share, workers if gate is None else gate, args.precision,
+                          camera, _free_endpoint())
             log_path = paths.cache_dir() / "hand" / f"soak-{time.strftime('%Y%m%d-%H%M%S')}.jsonl"
             log_path.parent.mkdir(parents=True, exist_ok=True)
-            print(f"\nsoak: {args.soak:.0f} s at {args.soak_fps} frames/s per sensor, log {log_path}")
-            s = soak(cfg, args.soak, args.log_every, log_path)
-            summary["soak"] = s
+            print(f"\nsoak: {args.soak:.0f} s at {args.soak_fps} frames/s per sensor, mode {args.soak_mode}, "
+                  f"log {log_path}")
+            s = soak(cfg, args.soak, args.log_every, log_path, args.soak_fps)
+            summary["soak"] = dict(s, mode=args.soak_mode)
             print(f"soak done: {s['duration_s']:.0f} s, RSS {s['rss_first_mb']:.1f} → {s['rss_last_mb']:.1f} MB "
                   f"(fit {s['rss_slope_mb_per_h']:+.2f} MB/h), worst-finger p99 first quarter "
-                  f"{s['p99_first_quarter_ms']:.1f} ms, last quarter {s['p99_last_quarter_ms']:.1f} ms")
+                  f"{s['p99_first_quarter_ms']:.1f} ms, last quarter {s['p99_last_quarter_ms']:.1f} ms; mean rate "
+                  + ", ".join(f"{v:.2f}" for v in s["mean_hz"].values()) + f" Hz (target {args.soak_fps:g}), "
+                  f"frames behind at the end " + ", ".join(f"{v:.0f}" for v in s["behind_frames"].values())
+                  + f", median load {s['load1_median']:.2f}")
     if args.json:
         print(json.dumps(summary))
     return 0
@@ -224,7 +281,12 @@ def run(args) -> int:
 
 def add_arguments(p) -> None:
     p.add_argument("--sensors", type=int, default=4)
-    p.add_argument("--size", type=int, default=128, help="model input size")
+    p.add_argument("--model", default=None,
+                   help="model package name in exported_models/ or a folder; 'synthetic' = the synthetic "
+                        "net (timing only); default: the newest shipped package, else synthetic")
+    p.add_argument("--size", type=int, default=None,
+                   help=f"input size of the synthetic net (default {DEFAULT_SYNTHETIC_SIZE}); with a package: "
+                        "must match it")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     p.add_argument("--seconds", type=float, default=20.0, help="timed seconds per mode")
     p.add_argument("--warmup", type=float, default=5.0, help="seconds before timing (baseline startup)")
@@ -233,5 +295,6 @@ def add_arguments(p) -> None:
     p.add_argument("--soak", type=float, default=0.0, help="then soak this many seconds at --soak-fps")
     p.add_argument("--soak-only", action="store_true", help="skip the throughput modes")
     p.add_argument("--soak-fps", type=float, default=10.0, help="camera rate per sensor during the soak")
+    p.add_argument("--soak-mode", choices=tuple(MODES), default="separate", help="scheduling mode of the soak")
     p.add_argument("--log-every", type=float, default=10.0, help="soak log period, s")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
