@@ -88,12 +88,13 @@ class FieldProjector:
 
     The (θ, φ) linear interpolation (with φ padding and the nearest-value fill) is linear in the node
     values, so interpolating the identity gives a sparse pixel × node matrix W; each frame then costs
-    one sparse product plus the Gaussian smoothing (the same `interpolate_to_grid` / `smooth_fields`)."""
+    one sparse product plus the Gaussian smoothing (the same `interpolate_to_grid` / `smooth_fields`).
+    Contact forces are divided by `fields.contact_area` (force-conserving with `conserve_force`)."""
 
     def __init__(self, xyz: np.ndarray, area: np.ndarray, tables: dict, field_cfg):
         from scipy import sparse
 
-        from tools.train.fields import interpolate_to_grid, surface_angles
+        from tools.train.fields import contact_area, interpolate_to_grid, surface_angles
 
         self.xyz, self.cfg = np.asarray(xyz, float), field_cfg
         self.mask = np.asarray(tables["pixel_area"]) > 0
@@ -101,7 +102,9 @@ class FieldProjector:
         eye = np.eye(len(self.xyz), dtype=np.float32)
         w = interpolate_to_grid(th, ph, eye, tables["theta"], tables["phi"], self.mask, field_cfg)
         self.W = sparse.csr_matrix(w[:, self.mask].T.astype(np.float64))
-        self.inv_area = 1.0 / np.where(area > 0, area, np.inf)
+        seen = self.W.T @ np.asarray(tables["pixel_area"], float)[self.mask]   # node kernel area on the grid
+        self.contact_area = contact_area(np.asarray(area, float), seen, field_cfg)
+        self.inv_area = 1.0 / np.where(self.contact_area > 0, self.contact_area, np.inf)
         self.key = (len(self.xyz), float(np.round(self.xyz.sum(), 6)))
 
     def project(self, u, s, cn, cs) -> np.ndarray:

@@ -53,6 +53,13 @@ class FieldConfig:
     center_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)   # origin of θ/φ (dome sphere centre)
     bounds_margin: float = 0.0            # relative widening of global bounds (0 = exact min/max)
     min_bound_span: float = 1e-9          # lo == hi is widened to this span
+    # Force-conserving contact tractions: a node's contact force is divided by the area its linear
+    # interpolation kernel covers on the pixel grid (Σ_pixels weight·pixel_area) instead of its mesh
+    # tributary area, so Σ traction·pixel_area over the image equals Σ node force exactly before the
+    # smoothing (the mesh-area quotient scattered the image total by ~2.5 % rms around the FE force).
+    conserve_force: bool = True
+    conserve_min_ratio: float = 0.25      # a node seeing less than this fraction of its mesh area (the
+                                          # mask rim) keeps the mesh area (no traction spikes)
 
 
 def surface_angles(xyz: np.ndarray, cfg: FieldConfig = FieldConfig()) -> tuple[np.ndarray, np.ndarray]:
@@ -147,6 +154,16 @@ def smooth_fields(images: np.ndarray, mask: np.ndarray, cfg: FieldConfig = Field
     return out
 
 
+def contact_area(mesh_area: np.ndarray, seen_area: np.ndarray, cfg: FieldConfig = FieldConfig()) -> np.ndarray:
+    """Per-node area (mm²) that contact forces are divided by: the pixel-grid area of the node's
+    interpolation kernel (`seen_area`) when `cfg.conserve_force`, else (and for rim nodes seeing less
+    than `conserve_min_ratio` of it) the mesh tributary area."""
+    mesh_area, seen_area = np.asarray(mesh_area, float), np.asarray(seen_area, float)
+    if not cfg.conserve_force:
+        return mesh_area
+    return np.where(seen_area >= cfg.conserve_min_ratio * mesh_area, seen_area, mesh_area)
+
+
 def fe_to_fields(node_xyz: np.ndarray, u: np.ndarray, s: np.ndarray, contact_normal: np.ndarray,
                  contact_shear: np.ndarray, theta: np.ndarray, phi: np.ndarray, pixel_area: np.ndarray,
                  node_area: np.ndarray | None = None, triangles: np.ndarray | None = None,
@@ -158,6 +175,7 @@ def fe_to_fields(node_xyz: np.ndarray, u: np.ndarray, s: np.ndarray, contact_nor
     from the calibration tables (pixels with area 0 are off the gel). node_area (N,) mm² (e.g. the FE's
     nodal contact area) or `triangles` to compute it; surface_xyz (M, 3): optional denser surface mesh
     that receives the nodal values by nearest node (k-d tree) before interpolation.
+    With `cfg.conserve_force` (and no surface_xyz) contact forces are divided by `contact_area`.
     """
     node_xyz = np.asarray(node_xyz, dtype=float)
     n = node_xyz.shape[0]
@@ -168,6 +186,17 @@ def fe_to_fields(node_xyz: np.ndarray, u: np.ndarray, s: np.ndarray, contact_nor
     area = tributary_area(node_xyz, triangles, cfg) if node_area is None else np.asarray(node_area, float)
     if area.shape != (n,) or np.any(area < 0):
         raise FieldDataError(f"fe_to_fields: node_area must be (N={n},) and ≥ 0")
+    pixel_area = np.asarray(pixel_area, dtype=float)
+    mask = pixel_area > 0
+    touched = np.flatnonzero(np.abs(np.asarray(contact_normal, float)).sum(1)
+                             + np.abs(np.asarray(contact_shear, float)).sum(1) > 0)
+    if cfg.conserve_force and surface_xyz is None and len(touched):
+        area = area.copy()
+        th0, ph0 = surface_angles(node_xyz, cfg)
+        eye = np.zeros((n, len(touched)))
+        eye[touched, np.arange(len(touched))] = 1.0
+        kernel = interpolate_to_grid(th0, ph0, eye, theta, phi, mask, cfg)      # (m, H, W)
+        area[touched] = contact_area(area[touched], (kernel * pixel_area).sum((1, 2)), cfg)
     safe = np.where(area > 0, area, np.inf)
     values = np.concatenate([np.asarray(u, float), np.asarray(s, float),
                              np.asarray(contact_normal, float) / safe[:, None],
@@ -178,8 +207,6 @@ def fe_to_fields(node_xyz: np.ndarray, u: np.ndarray, s: np.ndarray, contact_nor
         pts = np.asarray(surface_xyz, dtype=float)
         log.debug("k-d transfer: max node distance %.3f mm", float(dist.max()))
     th, ph = surface_angles(pts, cfg)
-    pixel_area = np.asarray(pixel_area, dtype=float)
-    mask = pixel_area > 0
     img = interpolate_to_grid(th, ph, values, theta, phi, mask, cfg)
     return smooth_fields(img, mask, cfg).astype(np.float32)
 

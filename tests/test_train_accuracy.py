@@ -1,0 +1,84 @@
+"""Force accuracy of the label path (docs/BENCHMARKS.md "Shipped model", error budget):
+FE node forces → field image → the runtime's contact clusters must keep the total force."""
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from runtime.contacts import ContactConfig, find_clusters, pixel_forces
+from tools.train.dataset import FieldProjector
+from tools.train.fields import FieldConfig, contact_force_from_image, fe_to_fields, tributary_area
+
+R = 16.0
+
+
+def _coarse_dome(step_mm=1.0):
+    """FE-like surface nodes about `step_mm` apart on a 16 mm hemisphere cap (θ ≤ 1.2 rad)."""
+    rows = []
+    for th in np.arange(0.0, 1.2, step_mm / R):
+        m = max(1, int(round(2 * np.pi * R * np.sin(th) / step_mm)))
+        ph = np.linspace(-np.pi, np.pi, m, endpoint=False) + 0.37 * th
+        rows.append(np.stack([R * np.sin(th) * np.cos(ph), R * np.sin(th) * np.sin(ph),
+                              R * np.cos(th) * np.ones(m)], 1))
+    return np.concatenate(rows)
+
+
+def _tables(size=64, theta_max=1.25):
+    c = (size / 2) / theta_max
+    yy, xx = np.mgrid[0:size, 0:size] + 0.5 - size / 2
+    theta = np.hypot(xx, yy) / c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        area = np.where(theta > 0, R ** 2 * np.sin(theta) / (c ** 2 * theta), R ** 2 / c ** 2)
+    return {"theta": theta, "phi": np.arctan2(yy, xx), "pixel_area": np.where(theta <= 1.2, area, 0.0)}
+
+
+def _contact(nodes, theta_c, phi_c, radius=2.0, total=4.0):
+    """Per-node normal forces (N) of a small contact patch (few nodes: a coarse FE mesh's view)."""
+    c = R * np.array([np.sin(theta_c) * np.cos(phi_c), np.sin(theta_c) * np.sin(phi_c), np.cos(theta_c)])
+    d = np.linalg.norm(nodes - c, axis=1)
+    w = np.clip(1 - (d / radius) ** 2, 0, None)
+    n = nodes / np.linalg.norm(nodes, axis=1, keepdims=True)
+    return -n * (total * w / w.sum())[:, None]
+
+
+@pytest.mark.parametrize("where", [(0.3, 0.2), (0.7, 2.0), (0.9, np.pi)])
+def test_force_conserving_projection_keeps_the_node_force_total(where):
+    nodes = _coarse_dome()
+    area = tributary_area(nodes)
+    tables = _tables()
+    fn = _contact(nodes, *where)
+    z3, z6 = np.zeros_like(nodes), np.zeros((len(nodes), 6))
+    expected = fn.sum(0)
+    errs = {}
+    for conserve in (False, True):
+        cfg = FieldConfig(conserve_force=conserve, gaussian_sigma_px=0.0)
+        img = FieldProjector(nodes, area, tables, cfg).project(z3, z6, fn, z3)
+        ref = fe_to_fields(nodes, z3, z6, fn, z3, tables["theta"], tables["phi"], tables["pixel_area"],
+                           node_area=area, cfg=cfg)
+        np.testing.assert_allclose(img, ref, atol=1e-5 * np.abs(ref).max())   # projector == fe_to_fields
+        f_img, _ = contact_force_from_image(img, tables["pixel_area"])
+        errs[conserve] = np.linalg.norm(f_img - expected) / np.linalg.norm(expected)
+    assert errs[True] < 1e-3                      # exact up to float32, before smoothing
+    assert errs[True] < errs[False]               # the mesh-area quotient does not conserve
+
+
+def test_runtime_clusters_keep_the_smoothed_tails():
+    """A 4 N contact smoothed with σ = 2 px (the label's Gaussian): the cluster's force (core above the
+    0.005 N threshold + the grown support) keeps ≥ 99 % of the image total with the runtime defaults."""
+    tables = _tables(128)
+    pa = tables["pixel_area"]
+    mask = pa > 0
+    yy, xx = np.mgrid[0:128, 0:128]
+    disc = ((xx - 80) ** 2 + (yy - 60) ** 2 <= 4 ** 2).astype(float)
+    trac = ndimage.gaussian_filter(disc, 2.0)
+    trac *= 4.0 / (trac * pa).sum()               # |F| = 4 N
+    fields = np.zeros((15, 128, 128))
+    fields[11] = -trac
+    fp = pixel_forces(fields, pa)
+    xyz = np.zeros((128, 128, 3))
+    normals = np.zeros((128, 128, 3))
+    normals[..., 2] = 1
+    (c,) = find_clusters(fp, xyz, normals, pa, mask)
+    assert c.force_mag_n == pytest.approx(4.0, rel=0.01)
+    old = ContactConfig(support_floor_n=0.0005, support_radius_px=6.0)
+    (c_old,) = find_clusters(fp, xyz, normals, pa, mask, cfg=old)
+    assert c_old.force_mag_n < c.force_mag_n
