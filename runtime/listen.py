@@ -17,7 +17,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
+
+from runtime.errors import SessionError
 
 log = logging.getLogger(__name__)
 
@@ -101,11 +103,15 @@ def format_line(kind: str, msg: Any) -> str:
 # --------------------------------------------------------------------------- saving
 
 class Saver:
-    """Writes decoded messages under DIR/<sensor>/ (fields .npy atomically, others as JSONL)."""
+    """Writes decoded messages under DIR/<sensor>/ (fields .npy atomically, others as JSONL).
+
+    A failed write (disk full, ...) raises SessionError naming the file, and leaves nothing
+    half-written: a partial .npy temp file is removed, a JSONL file is cut back to its last
+    complete line."""
 
     def __init__(self, root: Path):
         self.root = Path(root)
-        self._files: dict[tuple[str, str], TextIO] = {}
+        self._files: dict[tuple[str, str], int] = {}   # (sensor, kind) -> fd opened for append
         self._meta_written: set[str] = set()
 
     def save(self, kind: str, msg: Any) -> Path:
@@ -122,10 +128,7 @@ class Saver:
                      "layout": "(C, H, W)"}, indent=1).encode())
                 self._meta_written.add(sensor)
             path = fdir / f"{msg.seq:08d}.npy"
-            fd, tmp = tempfile.mkstemp(dir=fdir, suffix=".npy.tmp")
-            with os.fdopen(fd, "wb") as fh:
-                np.save(fh, msg.data)
-            os.replace(tmp, path)
+            _atomic_write(path, lambda fh: np.save(fh, msg.data), suffix=".npy.tmp")
             return path
         if kind == "contacts":
             record = {"seq": msg.seq, "t": msg.t, "contacts": [c.to_dict() for c in msg.contacts]}
@@ -134,25 +137,48 @@ class Saver:
                       "torque_nmm": list(msg.torque_nmm)}
         else:
             record = msg
-        fh = self._files.get((sensor, kind))
-        if fh is None:
-            folder.mkdir(parents=True, exist_ok=True)
-            fh = self._files[(sensor, kind)] = open(folder / f"{kind}.jsonl", "a", encoding="utf-8")
-        fh.write(json.dumps(record, separators=(",", ":")) + "\n")
-        fh.flush()
-        return folder / f"{kind}.jsonl"
+        path = folder / f"{kind}.jsonl"
+        data = (json.dumps(record, separators=(",", ":")) + "\n").encode("utf-8")
+        fd = self._files.get((sensor, kind))
+        try:
+            if fd is None:
+                folder.mkdir(parents=True, exist_ok=True)
+                fd = self._files[(sensor, kind)] = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            end = os.lseek(fd, 0, os.SEEK_END)
+            done = 0
+            try:
+                while done < len(data):
+                    done += os.write(fd, data[done:])
+            except OSError:
+                os.ftruncate(fd, end)                       # no partial line stays behind
+                raise
+        except OSError as exc:
+            raise SessionError(f"{path}: cannot save a {kind} message ({exc}); the file keeps its complete "
+                               "lines (disk full?)") from exc
+        return path
 
     def close(self) -> None:
-        for fh in self._files.values():
-            fh.close()
+        for fd in self._files.values():
+            os.close(fd)
         self._files.clear()
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
+def _atomic_write(path: Path, data, suffix: str = ".tmp") -> None:
+    """Write bytes (or call `data(fh)`) to a temp file beside `path`, then rename; on failure the
+    temp file is removed and SessionError names `path`."""
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=suffix)
+        with os.fdopen(fd, "wb") as fh:
+            data(fh) if callable(data) else fh.write(data)
+        os.replace(tmp, path)
+    except OSError as exc:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+        raise SessionError(f"{path}: cannot save ({exc}); nothing half-written was kept (disk full?)") from exc
 
 
 # --------------------------------------------------------------------------- shell

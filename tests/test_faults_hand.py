@@ -460,3 +460,73 @@ def test_disk_full_during_calibration_write(rig, tmp_path):
         hand.stop()
         if mounted:
             subprocess.run(["umount", str(disk)], capture_output=True)
+
+
+# ------------------------------------------------------------------------------------- recording
+
+def _recording_disk(tmp_path, free_kb=None):
+    """(folder, preexec, mounted): a 512 KB tmpfs (optionally filled to `free_kb` left) where
+    mounting is allowed, else a plain folder and a file-size limit (`free_kb` or 256 KB) for the recorder."""
+    import resource
+    import signal
+
+    disk = tmp_path / "recdisk"
+    if _mount_tmpfs(disk, "512k"):
+        if free_kb is not None:
+            st = os.statvfs(disk)
+            left = st.f_bavail * st.f_frsize - free_kb * 1024
+            (disk / "filler").write_bytes(b"\0" * max(0, left))
+        return disk, None, True
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)          # EFBIG instead of being killed
+        cap = (free_kb or 256) * 1024
+        resource.setrlimit(resource.RLIMIT_FSIZE, (cap, cap))
+    return disk, limit, False
+
+
+@pytest.mark.parametrize("kinds, free_kb", [("fields,contacts,wrench,status", None), ("contacts,wrench,status", 8)],
+                         ids=["fields", "jsonl-only"])
+def test_disk_full_while_recording(rig, tmp_path, kinds, free_kb):
+    """`tensortouch listen --save` (a real separate process) records a running hand onto a disk
+    that fills up: the recorder stops with a clear message naming the file, what it saved stays
+    readable (no temp files, no partial .npy, no partial JSONL line), and the hand keeps
+    publishing to its other subscribers without errors."""
+    tmp, pkg, videos = rig
+    disk, preexec, mounted = _recording_disk(tmp_path, free_kb)
+    cfg = hand_cfg(tmp, pkg, {s: f"file:{videos[s]}" for s in SERIALS})
+    col = Collector()
+    hand, sub = running_hand(cfg, col)
+    rec = disk / "rec"
+    try:
+        r = subprocess.run([sys.executable, "-m", "runtime.cli", "listen", "--connect", cfg.listen[0],
+                            "--save", str(rec), "--kinds", kinds, "--timeout", "60", "--json"],
+                           capture_output=True, text=True, timeout=90, preexec_fn=preexec,
+                           cwd=os.path.dirname(os.path.dirname(__file__)))
+        assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+        assert "Traceback" not in r.stderr, r.stderr[-2000:]
+        msg = [ln for ln in r.stderr.splitlines() if ln.startswith("tensortouch listen:")]
+        assert msg and str(rec) in msg[-1] and "cannot save" in msg[-1], r.stderr[-2000:]
+        assert ("No space left" in msg[-1] or "requested and" in msg[-1]) if mounted else "File too large" in msg[-1]
+        assert not [p for p in rec.rglob("*") if ".tmp" in p.name]          # no temp files left behind
+        saved = list(rec.rglob("*.npy"))
+        for p in saved:                                                      # every .npy is complete
+            assert np.load(p).shape == (15, 32, 32), p
+        assert bool(saved) == kinds.startswith("fields")
+        lines = 0
+        for p in rec.rglob("*.jsonl"):                                       # every JSONL line is whole
+            text = p.read_text()
+            assert text == "" or text.endswith("\n"), p
+            for ln in text.splitlines():
+                assert json.loads(ln)["seq"] >= 0
+                lines += 1
+        assert lines > 0
+        before = snapshot(col, SERIALS)
+        assert_kept_publishing(col, before, sids=SERIALS)                    # the hand did not notice
+        errs = [f.publisher.stats.errors for f in hand.fingers.values()]
+        assert all(sum(e.values()) == 0 for e in errs), errs
+    finally:
+        sub.close()
+        hand.stop()
+        if mounted:
+            subprocess.run(["umount", str(disk)], capture_output=True)
