@@ -65,20 +65,28 @@ class EffectStage:
             cov["temperature"] = np.full(len(p), float(self.temperature))
         return cov
 
+    def frame_covariates(self, clusters, t: float) -> dict:
+        """The covariates of this frame's clusters, advancing the per-contact state exactly as
+        `apply` does (the workbench uses it to see the runtime's covariates)."""
+        if self.t0 is None:
+            self.t0 = t
+        live = {c.id for c in clusters}
+        self.max_depth = {k: v for k, v in self.max_depth.items() if k in live}
+        return self.covariates(clusters, t) if clusters else {}
+
     def apply(self, clusters, t: float) -> list[str]:
         """Correct the clusters' forces in place; returns status flags for this frame."""
         if self.t0 is None:
             self.t0 = t
         if not self.enabled:
             return list(self.flags)
-        live = {c.id for c in clusters}
-        self.max_depth = {k: v for k, v in self.max_depth.items() if k in live}
+        cov = self.frame_covariates(clusters, t)
         if not clusters:
             self.chain.stream(self.tracks, [], t, np.zeros((0, 3)), {})
             return list(self.flags)
         try:
             forces = np.array([c.force_n for c in clusters], dtype=np.float64)
-            out = self.chain.stream(self.tracks, [c.id for c in clusters], t, forces, self.covariates(clusters, t))
+            out = self.chain.stream(self.tracks, [c.id for c in clusters], t, forces, cov)
         except MissingCovariate as exc:
             if "effect_covariate_missing" not in self.flags:
                 log.warning("enabled effects skipped: %s", exc)

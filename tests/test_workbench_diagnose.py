@@ -9,6 +9,7 @@ import pytest
 from runtime.effects import EffectChain, Registry
 from tests.workbench_synth import synth_table
 from tools.workbench.diagnose import DiagnoseConfig, add_to_chain, diagnose, holm, sign_flip_pvalue, time_blocks
+from tools.workbench.fit import refit_chain
 from tools.workbench.scan import covariate_score
 
 PLUGINS = Path(__file__).parent / "workbench_plugins"
@@ -87,7 +88,11 @@ def test_two_hidden_effects_are_found_one_after_the_other(registry):
     assert second.verdict is not None
     assert {first.verdict.effect.name, second.verdict.effect.name} == {"strain_stiffening", "ft_bias_drift"}
     assert second.verdict.reduction >= 0.5
-    third = diagnose(table, registry, add_to_chain(chain, second.verdict))
+    # as `effects add --from-diagnosis` does: refit both jointly (the first was fitted while the
+    # second was still missing), then nothing significant remains
+    both, before, after = refit_chain(table, add_to_chain(chain, second.verdict))
+    assert after < before
+    third = diagnose(table, registry, both)
     assert third.verdict is None
 
 

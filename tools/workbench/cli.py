@@ -6,9 +6,12 @@
     tensortouch effects add NAME --sensor ID [--from-diagnosis [FILE]] [--param p=v ...]
     tensortouch effects remove NAME --sensor ID
 
-The model side: `--model FILE` (a contact-law JSON), else the sensor's default model
-(cache/workbench/models/<sensor>.json), which `--model-from CALIB_SESSION` fits on a calibration
-session (no hidden effects) and stores. Effect plugins: `--plugins DIR` (repeatable), the
+The model side: the deployed network (`--model PATH|NAME`, default: the installed model package when
+the sensor's calibration is made for its input size and the session has frames) run over the
+session's frames through the runtime's code, with the sensor's enabled effects and correction; or
+the nominal contact law (`--model contact-law` / a JSON file; `--model-from CALIB_SESSION` fits it
+and makes it the sensor's default). `--correction-from CALIB_SESSION` fits and stores the sensor's
+correction for the network on a calibration session. Effect plugins: `--plugins DIR` (repeatable), the
 TENSORTOUCH_EFFECTS_PATH folders and the `tensortouch.effects` entry points.
 """
 from __future__ import annotations
@@ -30,9 +33,17 @@ def _common(p, session: bool = True) -> None:
 
 
 def _model_args(p) -> None:
-    p.add_argument("--model", help="contact-law model JSON (default: the sensor's stored default)")
+    p.add_argument("--model", metavar="PATH|NAME|contact-law",
+                   help="the model: a model package (folder or name under exported_models/; default: the "
+                        "installed one when the calibration matches its size and the session has frames), "
+                        "'contact-law' (the sensor's stored nominal contact law) or a contact-law JSON file")
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision (default int8)")
     p.add_argument("--model-from", metavar="CALIB_SESSION",
-                   help="fit the nominal contact law on this calibration session and make it the sensor's default")
+                   help="contact law: fit it on this calibration session and make it the sensor's default")
+    p.add_argument("--correction-from", metavar="CALIB_SESSION",
+                   help="network: fit the sensor's force correction (zero-constrained gain forest, as "
+                        "`tensortouch recalibrate` stores) on this calibration session, store it as a new "
+                        "calibration version, then compare")
     p.add_argument("--no-cache", action="store_true", help="rebuild the sample table and predictions")
 
 
@@ -68,7 +79,8 @@ def register(sub) -> None:
     ea.add_argument("--no-refit", action="store_true",
                     help="keep the enabled effects' parameters (default with --from-diagnosis: refit all "
                          "enabled effects jointly with the new one on the diagnosed session)")
-    ea.add_argument("--model", help="contact-law model JSON for the refit (default: the sensor's)")
+    ea.add_argument("--model", metavar="PATH|NAME|contact-law", help="the model for the refit (as compare)")
+    ea.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     ea.set_defaults(func=cmd_effects_add)
     er = esub.add_parser("remove", help="disable an effect for a sensor (new calibration version)")
     er.add_argument("name")
@@ -115,31 +127,75 @@ def last_diagnosis_path(sensor: str) -> Path:
     return cache_root() / f"diagnosis-{sensor}.json"
 
 
-def _model(args, sensor: str, store):
+def _contact_law(args, sensor: str, store, path=None):
     from runtime.errors import TensorTouchError
     from tools.workbench.compare import load_table
     from tools.workbench.models import ContactLaw
 
-    if args.model_from:
+    if getattr(args, "model_from", None):
         table, _ = load_table(args.model_from, store.load(sensor), cache=not args.no_cache)
         law = ContactLaw.fit(table, source=f"fitted on {args.model_from}")
         law.save(default_model_path(sensor))
         print(f"nominal contact law fitted on {args.model_from} -> {default_model_path(sensor)}")
         return law
-    path = Path(args.model) if args.model else default_model_path(sensor)
+    path = Path(path) if path else default_model_path(sensor)
     if not path.is_file():
-        raise TensorTouchError(f"{path}: no model for sensor {sensor}; fit one on a calibration session "
-                               "with --model-from CALIB_SESSION (or give --model FILE)")
+        raise TensorTouchError(f"{path}: no model for sensor {sensor} (no contact law fitted); fit one on a calibration "
+                               "session with --model-from CALIB_SESSION (or give --model FILE)")
     return ContactLaw.load(path)
 
 
-def _compare(args):
+def _model(args, sensor: str, store):
+    """--model: package (path/name) -> the deployed network; 'contact-law' or a .json -> contact law;
+    default: the installed package when it fits the calibration and the session has frames."""
+    from runtime.errors import ModelPackageError
+    from runtime.model import find_package
+    from tools.workbench.network import NetworkConfig, NetworkModel
+
+    choice = getattr(args, "model", None)
+    cfg = NetworkConfig(precision=getattr(args, "precision", "int8"))
+    if choice == "contact-law" or (choice and choice.endswith(".json")) or getattr(args, "model_from", None):
+        return _contact_law(args, sensor, store, None if choice in (None, "contact-law") else choice)
+    if choice:
+        return NetworkModel(find_package(choice), cfg)
+    cal = store.load(sensor)
+    session = getattr(args, "session", None)
+    has_frames = bool(session) and "frames" in json.loads((Path(session) / "session.json").read_text()).get("streams", {})
+    try:
+        package = find_package()
+    except ModelPackageError as exc:
+        why = str(exc).split(".")[0]
+    else:
+        if tuple(package.size) == tuple(cal.model_size) and (has_frames or not session):
+            return NetworkModel(package, cfg)
+        why = (f"calibration {sensor}/{cal.version} is for {list(cal.model_size)} px, model {package.name} for "
+               f"{list(package.size)} px" if tuple(package.size) != tuple(cal.model_size) else "the session has no frames")
+    print(f"note: model = the nominal contact law ({why}); use --model PATH|NAME for the network")
+    return _contact_law(args, sensor, store)
+
+
+def _progress(i: int, n: int, seconds: float) -> None:
+    print(f"\r  network pass: frame {i}/{n} ({seconds:.0f} s)", end="\n" if i == n else "", flush=True)
+
+
+def _compare(args, store=None, sensor=None):
     from tools.workbench.compare import run_compare
 
-    sensor = _sensor(args)
-    store = _store(args)
+    sensor = sensor or _sensor(args)
+    store = store or _store(args)
     model = _model(args, sensor, store)
-    return run_compare(args.session, sensor, store, model, _registry(args), cache=not args.no_cache)
+    if getattr(args, "correction_from", None):
+        from tools.workbench.nominal import fit_and_store_correction
+
+        if not hasattr(model, "build_table"):
+            from runtime.errors import TensorTouchError
+
+            raise TensorTouchError("--correction-from needs the network model (the contact law has no correction)")
+        version, text = fit_and_store_correction(args.correction_from, sensor, store, model, _registry(args),
+                                                 cache=not args.no_cache, progress=_progress)
+        print(text)
+    return run_compare(args.session, sensor, store, model, _registry(args), cache=not args.no_cache,
+                       progress=_progress)
 
 
 # ----- commands --------------------------------------------------------------------------------
@@ -167,6 +223,15 @@ def cmd_compare(args) -> int:
           f"{', '.join(x['name'] for x in comp.summary['effects']) or 'none'}")
     print(f"force error (N): rms x/y/z {e['rms_x']:.4f}/{e['rms_y']:.4f}/{e['rms_z']:.4f}, "
           f"rms |r| {e['rms_vector']:.4f}, mean ||F|-|F'|| {e['mae_magnitude']:.4f}")
+    pe = comp.summary.get("position_error")
+    if pe and pe.get("n"):
+        print(f"position error (mm): mean |x|/|y|/|z| {pe['mae_x']:.3f}/{pe['mae_y']:.3f}/{pe['mae_z']:.3f} "
+              f"over {pe['n']} matched contact samples (detected {100 * comp.summary.get('detected_fraction', 0):.0f} %)")
+    if comp.summary.get("network_pass"):
+        npass = comp.summary["network_pass"]
+        took = "cached" if npass["cached"] else f"{npass['seconds']:.1f} s"
+        corr = comp.summary.get("correction")
+        print(f"network pass: {took}; correction: {corr.get('kind', 'on') if corr else 'none'}")
     if previous:
         b = previous["force_error"]["rms_vector"]
         print(f"before -> after: rms |r| {b:.4f} -> {e['rms_vector']:.4f} N ({100 * (e['rms_vector'] / b - 1):+.0f} %)")
@@ -186,7 +251,7 @@ def cmd_diagnose(args) -> int:
     if args.alpha:
         cfg = replace(cfg, alpha=args.alpha)
     registry = _registry(args)
-    diag = diagnose(comp.table, registry, comp.chain, cfg)
+    diag = diagnose(comp.table, registry, comp.chain, cfg, post=comp.post)
     result = diag.to_json()
     result.update({"session": str(Path(args.session).resolve()), "sensor_id": comp.summary["sensor_id"],
                    "enabled": diag.enabled, "n_samples": diag.n_samples, "n_blocks": diag.n_blocks,
@@ -271,22 +336,25 @@ def cmd_effects_add(args) -> int:
 
 
 def _refit(args, sensor, store, reg, current, entry, session):
-    """Joint refit of the enabled effects + the new one on the diagnosed session."""
+    """Joint refit of the enabled effects + the new one on the diagnosed session (same model and
+    deployed order as compare/diagnose: force-stage effects, then the sensor's correction)."""
     from runtime.effects import EffectChain
-    from tools.workbench.compare import load_table, predict_cached
+    from runtime.errors import TensorTouchError
+    from tools.workbench.compare import run_compare
     from tools.workbench.fit import refit_chain
 
-    path = Path(args.model) if args.model else default_model_path(sensor)
-    if not session or not Path(session, "session.json").is_file() or not path.is_file():
-        print("note: parameters not refitted jointly (diagnosed session or model not found)")
+    if not session or not Path(session, "session.json").is_file():
+        print("note: parameters not refitted jointly (diagnosed session not found)")
         return current, entry
-    from tools.workbench.models import ContactLaw
-
-    model = ContactLaw.load(path)
-    table, folder = load_table(session, store.load(sensor))
-    table = table.with_model(predict_cached(table, model, folder))
+    args.session = session
+    try:
+        model = _model(args, sensor, store)
+        comp = run_compare(session, sensor, store, model, reg, progress=_progress)
+    except TensorTouchError as exc:
+        print(f"note: parameters not refitted jointly ({exc})")
+        return current, entry
     chain = EffectChain.from_list(current + [entry], reg)
-    new, before, after = refit_chain(table, chain)
+    new, before, after = refit_chain(comp.table, chain, post=comp.post)
     print(f"joint refit of {', '.join(chain.names)} on {session}: rms |r| {before:.4f} -> {after:.4f} N")
     for old_it, it in zip(chain.items, new.items):
         if old_it.params != it.params:

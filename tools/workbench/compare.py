@@ -1,8 +1,11 @@
-"""`compare`: the model as deployed (raw prediction + enabled effects) against the measurements.
+"""`compare`: the model as deployed (raw prediction -> enabled effects -> correction) against the
+measurements.
 
 Shell around pure pieces: the sample table of a session (samples.py, cached), the model's raw
-prediction (models.py, cached by the model's fingerprint: re-comparing after `effects add` only
-re-applies the cheap effect chain), the effect chain of the sensor's calibration, errors.
+prediction -- the deployed network over the session's frames (network.py: raw clusters cached by
+frames/model/geometry, effects and correction replayed with the runtime's own code) or the nominal
+contact law (models.py, cached by fingerprint) -- the sensor's effect chain and correction, errors.
+Re-comparing after `effects add` only re-applies the cheap effect chain and correction.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from runtime.calibration import CalibrationStore
 from runtime.effects import EffectChain, Registry
 from runtime.errors import TensorTouchError
 from runtime.session import load_session
+from tools.workbench.fit import deployed_prediction
 from tools.workbench.samples import SampleConfig, build_table
 from tools.workbench.table import SampleTable
 
@@ -109,32 +113,64 @@ class Comparison:
     chain: EffectChain
     summary: dict
     folder: Path | None = None     # cache folder of the session
+    post: object = None            # the sensor's correction on table rows (None = none)
 
 
-def compare_table(table: SampleTable, chain: EffectChain, cfg: CompareConfig | None = None) -> Comparison:
-    """Pure core: apply the enabled chain to the raw prediction and measure the errors."""
+def position_errors(table: SampleTable) -> dict | None:
+    """Cluster centroid - mocap tip (mm) over matched contact rows; None without positions."""
+    pos = table.vec.get("position_residual")
+    if pos is None:
+        return None
+    ok = np.all(np.isfinite(pos), axis=1) & (table.cols.get("mocap_depth", table.cols["depth"]) > 0)
+    if not ok.any():
+        return {"n": 0}
+    out = {"n": int(ok.sum())}
+    for j, ax in enumerate("xyz"):
+        out[f"mae_{ax}"] = float(np.mean(np.abs(pos[ok, j])))
+        out[f"bias_{ax}"] = float(np.mean(pos[ok, j]))
+        out[f"rms_{ax}"] = float(np.sqrt(np.mean(pos[ok, j] ** 2)))
+    out["rms_distance"] = float(np.sqrt(np.mean(np.sum(pos[ok] ** 2, axis=1))))
+    return out
+
+
+def compare_table(table: SampleTable, chain: EffectChain, cfg: CompareConfig | None = None,
+                  post=None, deployed: np.ndarray | None = None) -> Comparison:
+    """Pure core: the deployed prediction (raw model -> enabled effects -> correction; or `deployed`,
+    the runtime's own numbers, + measurement-stage effects) against the measurements."""
     cfg = cfg or CompareConfig()
     cov = table.cov()
-    pred = chain.apply(table.model, cov, stages=("force", "measurement"))
-    contact = table.cols["depth"] > cfg.contact_depth
+    if deployed is not None:
+        pred = chain.apply(deployed, cov, stages=("measurement",))
+    else:
+        pred = deployed_prediction(table.model, cov, chain, post)
+    depth = table.cols.get("mocap_depth", table.cols["depth"])
+    contact = depth > cfg.contact_depth
     summary = {"n_samples": int(len(table)), "contact_samples": int(contact.sum()),
                "duration_s": float(np.ptp(table.cols["time"])) if len(table) else 0.0,
                "effects": chain.to_list(),
                "force_error": errors(table.meas, pred),
                "force_error_contact": errors(table.meas[contact], pred[contact]),
-               "position_error": None,
-               "position_note": "the nominal model takes the contact position from mocap; position "
-                                "errors need the network path"}
+               "position_error": position_errors(table)}
+    if summary["position_error"] is None:
+        summary["position_note"] = ("the contact-law model takes the contact position from mocap; position "
+                                    "errors need the network path")
+    if "matched" in table.cols:
+        summary["detected_fraction"] = float(np.mean(table.cols["matched"][contact] > 0)) if contact.any() else 0.0
     if "brightness" in cov:
         ok = np.isfinite(cov["brightness"])
         g = chain.image_gain(cov, len(table))
         if ok.any():
             summary["brightness_error"] = {"n": int(ok.sum()), "rms": float(np.sqrt(np.mean((cov["brightness"][ok] - g[ok]) ** 2)))}
-    return Comparison(table, pred, chain, summary)
+    comp = Comparison(table, pred, chain, summary)
+    comp.post = post
+    if deployed is not None:   # the batch form diagnosis fits vs the runtime's frame-by-frame replay
+        batch = deployed_prediction(table.model, cov, chain, post)
+        summary["batch_vs_runtime_max_n"] = float(np.max(np.abs(batch - pred))) if len(pred) else 0.0
+    return comp
 
 
 def run_compare(session_path, sensor: str | None, store: CalibrationStore, model, registry: Registry,
-                cfg: CompareConfig | None = None, cache: bool = True) -> Comparison:
+                cfg: CompareConfig | None = None, cache: bool = True, progress=None) -> Comparison:
     """Shell: load session/calibration, cached table and prediction, enabled effects, errors."""
     cfg = cfg or CompareConfig()
     t0 = time.perf_counter()
@@ -145,18 +181,31 @@ def run_compare(session_path, sensor: str | None, store: CalibrationStore, model
     cal = store.load(sensor)
     table, folder = load_table(session_path, cal, cfg, cache)
     t1 = time.perf_counter()
-    raw = predict_cached(table, model, folder if cache else None)
-    t2 = time.perf_counter()
-    table = table.with_model(raw)
     try:
         chain = EffectChain.from_calibration(cal, registry)
     except ValueError as exc:
         raise TensorTouchError(f"{cal.folder / 'calibration.json'}: {exc}") from None
-    comp = compare_table(table, chain, cfg)
+    extra = {}
+    if hasattr(model, "build_table"):   # the deployed network: frames through the runtime's code
+        from tools.workbench.network import correction_post
+
+        session = load_session(session_path)
+        table = model.build_table(session, cal, table, folder if cache else None,
+                                  cache_root() / "net" if cache else None, progress)
+        t2 = time.perf_counter()
+        deployed, info = model.deployed(session, table, cal)
+        comp = compare_table(table, chain, cfg, post=correction_post(table, cal), deployed=deployed)
+        extra = {"network_pass": dict(model.info), "runtime_flags": info["flags"],
+                 "correction": cal.meta.get("correction")}
+    else:
+        raw = predict_cached(table, model, folder if cache else None)
+        t2 = time.perf_counter()
+        table = table.with_model(raw)
+        comp = compare_table(table, chain, cfg)
     comp.folder = folder
     comp.summary.update({"session": str(session_path), "sensor_id": sensor,
                          "calibration_version": cal.version,
                          "model": {"name": model.name, "fingerprint": model.fingerprint(),
-                                   "source": getattr(model, "source", "")},
+                                   "source": getattr(model, "source", "")}, **extra,
                          "seconds": {"table": t1 - t0, "model": t2 - t1, "total": time.perf_counter() - t0}})
     return comp

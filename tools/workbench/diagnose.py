@@ -177,12 +177,13 @@ def _score_candidate(effect: Effect, ch: Channels, blocks: np.ndarray, cfg: Diag
 
 
 def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None = None,
-             cfg: DiagnoseConfig | None = None, candidates: list[str] | None = None) -> Diagnosis:
-    """Rank every candidate effect by held-out error reduction (see module docstring)."""
+             cfg: DiagnoseConfig | None = None, candidates: list[str] | None = None, post=None) -> Diagnosis:
+    """Rank every candidate effect by held-out error reduction (see module docstring). `post`: the
+    sensor's correction on table rows (applied after the force-stage effects, as deployed)."""
     t0 = time.perf_counter()
     cfg = cfg or DiagnoseConfig()
     chain = enabled or EffectChain()
-    ch = Channels(table, chain)
+    ch = Channels(table, chain, post)
     blocks = time_blocks(table.cols["time"], cfg.n_blocks)
     names = candidates if candidates is not None else [n for n in registry.names() if n not in chain.names]
     scores = []
@@ -204,8 +205,9 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
     resid, pred = table.meas - ch.base_force, ch.base_force
     sig = [s for s in scores if s.significant]
     if sig and sig[0].channel == "force":  # what remains once the verdict is in
-        pred = sig[0].effect.apply(ch.base_force, ch.cov, sig[0].params)
-        resid = table.meas - pred
+        resid = Candidate(sig[0].effect, ch, cfg.fit).residual(
+            np.array([sig[0].params[q.name] for q in sig[0].effect.free_params]))
+        pred = table.meas - resid
     scanned = scan(ch.cov, SCAN_COVARIATES, resid, pred, blocks, cfg.scan)
     unexplained = ({"covariate": scanned[0]["covariate"], "score": float(scanned[0]["score"]),
                     "form": scanned[0]["form"], "unit": scanned[0]["unit"]}

@@ -31,6 +31,16 @@ class FitConfig:
     log_ratio: float = 20.0       # a positive range wider than this ratio is gridded in log
 
 
+def deployed_prediction(model: np.ndarray, cov: dict, chain: EffectChain, post=None) -> np.ndarray:
+    """Batch form of the deployed order on table rows: force-stage effects -> correction (`post`,
+    the sensor's correction; None = none) -> measurement-stage effects (those model the reference
+    instrument and are applied to the model side of the comparison)."""
+    x = chain.apply(model, cov, stages=("force",))
+    if post is not None:
+        x = post(x)
+    return chain.apply(x, cov, stages=("measurement",))
+
+
 def channel_of(effect: Effect) -> str:
     """Which measurement an effect changes: 'force' or 'brightness'."""
     return "brightness" if effect.stage == "image" else "force"
@@ -39,11 +49,13 @@ def channel_of(effect: Effect) -> str:
 class Channels:
     """Base prediction (model + enabled chain) and the measurements, per channel."""
 
-    def __init__(self, table: SampleTable, chain: EffectChain):
+    def __init__(self, table: SampleTable, chain: EffectChain, post=None):
         self.table = table
         self.cov = table.cov()
         self.chain = chain
-        self.base_force = chain.apply(table.model, self.cov, stages=("force", "measurement"))
+        self.post = post
+        self.pre = chain.apply(table.model, self.cov, stages=("force",))
+        self.base_force = self.finish(self.pre)
         n = len(table)
         bright = self.cov.get("brightness")
         ok = self.cov.get("bright_ok")
@@ -54,6 +66,12 @@ class Channels:
         self.bright_rows = np.flatnonzero(mask)
         self.bright_meas = np.asarray(bright)[self.bright_rows] if bright is not None else np.zeros(0)
         self.base_gain = chain.image_gain(self.cov, n)[self.bright_rows]
+
+    def finish(self, x: np.ndarray) -> np.ndarray:
+        """Force-stage output -> correction -> measurement-stage effects (the deployed order)."""
+        if self.post is not None:
+            x = self.post(x)
+        return self.chain.apply(x, self.cov, stages=("measurement",))
 
     def rows(self, channel: str) -> np.ndarray:
         return np.arange(len(self.table)) if channel == "force" else self.bright_rows
@@ -86,6 +104,8 @@ class Candidate:
         p = self.params(theta)
         ch = self.ch
         if self.channel == "force":
+            if self.effect.stage == "force":   # inserted before the correction, as the runtime runs it
+                return ch.table.meas - ch.finish(self.effect.apply(ch.pre, ch.cov, p))
             return ch.table.meas - self.effect.apply(ch.base_force, ch.cov, p)
         gain = self.effect.gain(ch.cov, p)[ch.bright_rows]
         return (ch.bright_meas - ch.base_gain * gain)[:, None]
@@ -188,7 +208,8 @@ class Scout:
     active: np.ndarray     # rows some grid point changes
 
 
-def refit_chain(table: SampleTable, chain: EffectChain, cfg: FitConfig | None = None) -> tuple[EffectChain, float, float]:
+def refit_chain(table: SampleTable, chain: EffectChain, cfg: FitConfig | None = None,
+                post=None) -> tuple[EffectChain, float, float]:
     """Jointly refit the free parameters of every force/measurement-stage effect of `chain` on the
     whole table (bounded least squares from the current values): effects found one after the
     other were each fitted while the others were still missing. Returns (chain, rms before, after)."""
@@ -211,7 +232,7 @@ def refit_chain(table: SampleTable, chain: EffectChain, cfg: FitConfig | None = 
         return EffectChain(new)
 
     def resid(theta):
-        return (table.meas - build(theta).apply(table.model, cov, ("force", "measurement"))).ravel()
+        return (table.meas - deployed_prediction(table.model, cov, build(theta), post)).ravel()
 
     span = np.maximum(hi - lo, 1e-12)
     start = np.clip(x0, lo + 1e-6 * span, hi - 1e-6 * span)

@@ -82,3 +82,14 @@ def record(sc: Scenario, progress=None) -> Path:
     log.info("recording twin scenario %s -> %s", sc, out)
     Recorder(cfg, out, progress=progress).run()
     return out
+
+
+# ----- the deployed-network path: FE physics (what the network was trained on), 30 fps frames at
+# the shipped model's size (128 px calibration tables), a unit outside the network's training set.
+NET_CALIB_SEED = 100          # calibration session (no hidden physics): the network's nominal correction
+NET_TEST_SEED = 101           # the plan shared by the hidden-effect sessions (FE solves cached per poke)
+
+
+def net_scenario(seed: int, pokes: int = 16, effects: tuple = (), fps: float = 30.0, **kw) -> Scenario:
+    """A twin scenario for the network path (FE physics, frames at `fps`, 128 px calibration)."""
+    return Scenario(seed, pokes=pokes, effects=effects, physics="fe", fps=fps, model_size=128, **kw)
