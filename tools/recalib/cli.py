@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 
 log = logging.getLogger(__name__)
@@ -31,6 +32,9 @@ def register(sub) -> None:
                    help="tt: 'F <newtons>*<xor>' stream; mark10: '?' request, '<value> <unit>' reply")
     p.add_argument("--baud", type=int, default=None, help="gauge baud rate (default 115200 tt, 9600 mark10)")
     p.add_argument("--pokes", type=int, default=6, choices=range(5, 8), metavar="{5,6,7}")
+    p.add_argument("--reach-deg", type=float, default=None,
+                   help="suggest pokes only up to this angle from the dome apex (deg), e.g. the range the model "
+                        "was trained on (default: 85 %% of the gel's θ range)")
     p.add_argument("--geometry", action="store_true",
                    help="also refresh θ/φ tables and gel centre (needs true poke positions: twin truth or mocap poses)")
     p.add_argument("--force", action="store_true", help="store even if the held-out error does not improve")
@@ -99,6 +103,7 @@ def cmd_recalibrate(args, say=None) -> int:
     from runtime.model import FieldModel, find_package
     from runtime.pipeline import SensorPipeline
     from runtime.session import load_session
+    from tools.recalib.pokes import PokeRules
     from tools.recalib.session import SessionConfig, analyse, run_guided, session_truth_xyz
     from tools.recalib.store_ops import store_recalibration
 
@@ -112,7 +117,8 @@ def cmd_recalibrate(args, say=None) -> int:
     session = load_session(path.split(":", 1)[1]) if path.startswith("replay:") else None
     model = FieldModel(package, args.precision, threads=args.threads)
     pipeline = SensorPipeline(args.sensor, model, cal, correction=ForceCorrection(None, None))  # raw model force
-    cfg = SessionConfig(pokes=args.pokes)
+    reach = getattr(args, "reach_deg", None)
+    cfg = SessionConfig(pokes=args.pokes, rules=PokeRules(reach_theta_rad=None if reach is None else math.radians(reach)))
     reference, gauge = _reference(args, session, say)
     say(f"recalibrating {args.sensor} (active {cal.version}) with model {package.name}; reference: {reference.name}")
     try:

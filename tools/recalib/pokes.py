@@ -28,6 +28,7 @@ class PokeRules:
     min_separation_mm: float = 4.0     # "too close" to an accepted poke (3D distance on the gel)
     second_contact_ratio: float = 0.15  # a 2nd cluster above this share of the main one → not single
     reach_fraction: float = 0.85       # suggestions stay inside this fraction of the gel's θ range
+    reach_theta_rad: float | None = None  # and inside this θ (e.g. the model's trained contact range)
 
 
 @dataclass
@@ -141,6 +142,8 @@ def candidate_pixels(mask: np.ndarray, theta: np.ndarray, rules: PokeRules = Pok
     """(K, 2) integer (row, col) of pixels a probe can reach: on the gel, θ ≤ reach_fraction·θmax."""
     th = np.where(mask, theta, np.nan)
     limit = rules.reach_fraction * np.nanmax(th)
+    if rules.reach_theta_rad is not None:
+        limit = min(limit, rules.reach_theta_rad)
     return np.argwhere(mask & (np.nan_to_num(th, nan=np.inf) <= limit))
 
 

@@ -9,18 +9,37 @@ constants are all scaled: displacements are unchanged, forces scale).
 """
 from __future__ import annotations
 
+import json
 import logging
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from runtime import paths
+from runtime.errors import TensorTouchError
 from tools.twin.geometry import GelSurface
 from tools.twin.physics import PokeSolve
 from tools.twin.trajectory import INDENTER_SET, Poke
 
 log = logging.getLogger(__name__)
+
+
+class PokeSolveFailed(TensorTouchError):
+    """Every FE attempt for a poke failed; `last_keypoint` = the last keypoint frame any attempt
+    reached (-1: none), so the recorder can shorten the poke to it (record.py)."""
+
+    def __init__(self, message: str, last_keypoint: int = -1):
+        super().__init__(message)
+        self.last_keypoint = int(last_keypoint)
+
+
+def _write_json(path: Path, obj: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1))
+    os.replace(tmp, path)
 
 
 @dataclass
@@ -35,7 +54,8 @@ class FEPhysics:
     cache: Path | None = None
     progress: object = None            # callable(frame, n_frames, message) passed to tools.fe.solve
     name: str = "fe"
-    stats: dict = field(default_factory=lambda: {"solved": 0, "cached": 0, "seconds": 0.0})
+    refine: tuple = (0.5,)             # retries with the increments scaled by these factors
+    stats: dict = field(default_factory=lambda: {"solved": 0, "cached": 0, "failed": 0, "seconds": 0.0})
 
     def __post_init__(self):
         from tools.fe import GelGeometry, Material, MeshSettings, SolverSettings
@@ -60,32 +80,58 @@ class FEPhysics:
         return Scenario(gel=self.gel, material=self.material, mesh=self.mesh, indenters=inds,
                         friction=self.friction, solver=self.solver, name=f"twin-{poke.kind}").validate()
 
+    def attempts(self, poke: Poke) -> list:
+        """The scenarios tried for a poke, in order: as planned, then each increment refinement."""
+        sc = self.scenario(poke)
+        out = [sc]
+        for f in self.refine:
+            sv = sc.solver
+            out.append(replace(sc, solver=replace(sv, max_increment_mm=sv.max_increment_mm * f,
+                                                  max_increment_rad=sv.max_increment_rad * f)))
+        return out
+
     def result(self, poke: Poke):
-        """The FE result of a poke (from the cache, or solved and stored)."""
+        """The FE result of a poke (from the cache, or solved and stored). A scenario that did not
+        converge leaves `<hash>.failed.json` (message, last converged keypoint) beside the cache so a
+        resumed recording does not solve it again; when every attempt fails, PokeSolveFailed says
+        which keypoint was the last one reached."""
         from tools.fe import FEConvergenceError, load_result, save_result, solve
 
-        sc = self.scenario(poke)
-        path = self.cache / f"{sc.hash()}.npz"
-        if path.is_file():
-            self.stats["cached"] += 1
-            return load_result(path)
-        log.info("FE solve %s (%d indenter(s), %d keypoints)", sc.hash(), len(sc.indenters), sc.n_keypoints)
-        try:
-            res = solve(sc, progress=self.progress)
-        except FEConvergenceError as exc:  # one retry with half the increments, then give up clearly
-            log.warning("FE solve %s did not converge (%s); retrying with half the increment size", sc.hash(), exc)
-            sv = sc.solver
-            sc.solver = replace(sv, max_increment_mm=sv.max_increment_mm / 2, max_increment_rad=sv.max_increment_rad / 2)
+        last, reasons = -1, []
+        for k, sc in enumerate(self.attempts(poke)):
+            key = sc.hash()
+            path, failed = self.cache / f"{key}.npz", self.cache / f"{key}.failed.json"
+            if path.is_file():
+                self.stats["cached"] += 1
+                return load_result(path)
+            if failed.is_file():
+                info = json.loads(failed.read_text())
+                last = max(last, int(info.get("last_keypoint", -1)))
+                reasons.append(info.get("message", ""))
+                log.warning("FE scenario %s did not converge earlier (%s); skipping it", key, failed.name)
+                continue
+            log.info("FE solve %s (%d indenter(s), %d keypoints, increments %.3g mm / %.3g rad)", key,
+                     len(sc.indenters), sc.n_keypoints, sc.solver.max_increment_mm, sc.solver.max_increment_rad)
             try:
                 res = solve(sc, progress=self.progress)
-            except FEConvergenceError as exc2:
-                raise FEConvergenceError(f"twin poke {poke.kind} with {poke.indenters} (scenario {path.stem}): "
-                                         f"FE did not converge even with half increments ({exc2}); "
-                                         "record with another --seed or smaller TrajectoryConfig depths") from None
-        save_result(res, path)
-        self.stats["solved"] += 1
-        self.stats["seconds"] += float(np.sum(res.seconds))
-        return res
+            except FEConvergenceError as exc:
+                conv = np.asarray(exc.partial.converged, bool) if exc.partial is not None else np.zeros(0, bool)
+                reached = int(np.argmin(conv)) - 1 if not conv.all() else len(conv) - 1
+                last = max(last, reached)
+                reasons.append(str(exc))
+                log.warning("FE solve %s of twin poke %s %s did not converge (%s)%s", key, poke.kind, poke.indenters,
+                            exc, "; retrying with smaller increments" if k < len(self.refine) else "")
+                _write_json(failed, {"scenario": key, "message": str(exc), "last_keypoint": reached,
+                                     "keypoints": sc.n_keypoints, "max_increment_mm": sc.solver.max_increment_mm,
+                                     "max_increment_rad": sc.solver.max_increment_rad})
+                self.stats["failed"] = self.stats.get("failed", 0) + 1
+                continue
+            save_result(res, path)
+            self.stats["solved"] += 1
+            self.stats["seconds"] += float(np.sum(res.seconds))
+            return res
+        raise PokeSolveFailed(f"twin poke {poke.kind} with {poke.indenters}: FE did not converge in "
+                              f"{len(reasons)} attempt(s) (last: {reasons[-1] if reasons else '?'})", last)
 
     def solve(self, poke: Poke) -> PokeSolve:
         return from_fe_result(self.result(poke), GelSurface.from_fe(self.gel), self.name)

@@ -26,8 +26,9 @@ from tools.twin.effects import FrictionMismatch, apply_stage, build_effects
 from tools.twin.physics import HertzFallbackPhysics, interpolate
 from tools.twin.signals import (Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track,
                                 temperature)
-from tools.twin.trajectory import (TrajectoryConfig, module_indenters, plan_session, segment_phase,
-                                   session_duration)
+from tools.twin.fe_physics import PokeSolveFailed
+from tools.twin.trajectory import (GuidedConfig, TrajectoryConfig, apply_replans, module_indenters, plan_guided,
+                                   plan_session, segment_phase, session_duration, shorten)
 from tools.twin.unit import TwinUnit
 
 log = logging.getLogger(__name__)
@@ -49,10 +50,15 @@ class RecordConfig:
     rig: RigConfig = field(default_factory=RigConfig)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
+    unit: dict | None = None         # explicit unit variation (unit.py UNIT_OVERRIDES keys), else from the serial
+    guided: GuidedConfig | None = None  # guided presses at given points instead of a random plan (pokes ignored)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["effects"] = [[n, dict(p)] for n, p in self.effects]
+        for k in ("unit", "guided"):     # absent when unset: keys of earlier recordings stay valid
+            if d[k] is None:
+                d.pop(k)
         return json.loads(json.dumps(d))
 
     def key(self) -> str:
@@ -90,10 +96,21 @@ class Recorder:
     def __init__(self, cfg: RecordConfig, out, physics=None, progress=None):
         self.cfg, self.out = cfg, Path(out)
         self.progress = progress or (lambda stage, i, n: None)
-        self.unit = TwinUnit(cfg.serial, noise=cfg.noise)
+        self.unit = TwinUnit(cfg.serial, noise=cfg.noise, override=cfg.unit)
         self.gel = self.unit.gel
-        self.plan = plan_session(cfg.pokes, cfg.seed, self.gel, cfg.trajectory)
-        self.modules = module_indenters(cfg.seed, cfg.trajectory)
+        if cfg.guided is not None:
+            g = cfg.guided if isinstance(cfg.guided, GuidedConfig) else GuidedConfig(**cfg.guided)
+            self.plan = plan_guided(g, self.gel, cfg.trajectory)
+            self.modules = [g.indenter]
+        else:
+            self.plan = plan_session(cfg.pokes, cfg.seed, self.gel, cfg.trajectory)
+            self.modules = module_indenters(cfg.seed, cfg.trajectory)
+        self.planned = list(self.plan)
+        self.events: list[dict] = []     # physics replans (shortened / skipped pokes)
+        truth = self.out / "truth" / "truth.json"
+        if (self.out / "session.json").is_file() and truth.is_file():   # a finished recording: its final plan
+            self.events = json.loads(truth.read_text()).get("physics_events", [])
+            self.plan = apply_replans(self.planned, self.events, cfg.trajectory)
         self.physics = physics
         self.effects = build_effects(cfg.effects)
         self.timing: dict = {}
@@ -119,11 +136,7 @@ class Recorder:
         resumed = self._claim()
         t_start = time.perf_counter()
         physics = self.physics or make_physics(cfg, self.unit)
-        solves = []
-        for i, poke in enumerate(self.plan):
-            self.progress("physics", i, len(self.plan))
-            solves.append(physics.solve(poke))
-        self.progress("physics", len(self.plan), len(self.plan))
+        solves = self._solve_all(physics)
         self.timing["physics_s"] = time.perf_counter() - t_start
         writer = SessionWriter(self.out, cfg.serial, cfg.frame_format)
         dur = session_duration(self.plan, cfg.trajectory)
@@ -206,7 +219,9 @@ class Recorder:
         self.timing["frames_rendered"] = rendered
         writer.finish_frames(t_cam, rig.camera_fps, quality=cfg.mjpg_quality)
         self.timing["total_s"] = time.perf_counter() - t_start
-        prov = {"source": "twin", "unit": cfg.serial, "seed": cfg.seed, "pokes": cfg.pokes,
+        prov = {"source": "twin", "unit": cfg.serial, "seed": cfg.seed, "pokes": len(self.plan),
+                "planned_pokes": len(self.planned),
+                "replanned": [{k: e[k] for k in ("poke", "action")} for e in self.events],
                 "generator": "tensortouch twin record", "resumed": resumed,
                 "command": " ".join(sys.argv) if sys.argv and "tensortouch" in sys.argv[0] else ""}
         writer.finish(prov, {"source": "simulated", "t0": 0.0, "unit": "s"},
@@ -218,6 +233,38 @@ class Recorder:
             pass
         log.info("session %s: %.1f s recorded, %s", self.out, dur, self.timing)
         return self.out
+
+    def _solve_all(self, physics) -> list:
+        """Solve every planned poke; a poke the physics cannot solve is shortened to the last keypoint
+        reached (then released), else skipped — recorded in self.events, never fatal."""
+        plan, solves, self.events = [], [], []
+        n = len(self.planned)
+        for i, poke in enumerate(self.planned):
+            self.progress("physics", i, n)
+            try:
+                solves.append(physics.solve(poke))
+                plan.append(poke)
+                continue
+            except PokeSolveFailed as exc:
+                first, last = str(exc), exc.last_keypoint
+            short = shorten(poke, last, self.cfg.trajectory)
+            if short is not None:
+                try:
+                    solves.append(physics.solve(short))
+                    plan.append(short)
+                    self.events.append({"poke": i, "action": "shortened", "last_keypoint": last,
+                                        "planned_keypoints": int(poke.translation.shape[1]), "reason": first})
+                    log.warning("%s: poke %d (%s) shortened to keypoint %d of %d: %s", self.out, i, poke.kind,
+                                last, poke.translation.shape[1] - 1, first)
+                    continue
+                except PokeSolveFailed as exc2:
+                    first = f"{first}; shortened to keypoint {last}: {exc2}"
+            self.events.append({"poke": i, "action": "skipped", "reason": first})
+            log.warning("%s: poke %d (%s with %s) skipped, the physics could not solve it: %s", self.out, i,
+                        poke.kind, poke.indenters, first)
+        self.progress("physics", n, n)
+        self.plan = plan
+        return solves
 
     def _truth(self, t_pose, true_pose, t_wr, truth_rows, fe_rows, contact_rows, solves) -> None:
         d = self.out / "truth"
@@ -232,6 +279,7 @@ class Recorder:
                 "unit": self.unit.describe(), "effects": [e.to_dict() for e in self.effects],
                 "modules": self.modules, "physics": solves[0].backend if solves else "",
                 "fe_scenarios": [s.key for s in solves], "plan": [p.to_dict() for p in self.plan],
+                "physics_events": self.events,
                 "reaction": "true force the indenter applies to the gel (FE RF convention), sensor frame, "
                             "moment about the tip; reaction_fe.csv = nominal material, no effects",
                 "hysteresis": {"fraction": self.cfg.rig.hysteresis_fraction, "tau_s": self.cfg.rig.hysteresis_tau_s},

@@ -242,3 +242,85 @@ def poke_pose(poke: Poke, k: int, t: np.ndarray, hover: float) -> tuple[np.ndarr
         pos[c] = poke.position[k] + tr
         rot[c] = (Rotation.from_rotvec(rv) * R0).as_rotvec()
     return pos, rot
+
+
+@dataclass
+class GuidedConfig:
+    """A guided session (e.g. field recalibration): single-indenter presses along the surface normal
+    at given points, in order, as a person follows on-screen prompts with a gauge probe."""
+
+    points_mm: list                  # [[x, y, z]] rest-surface points (sensor frame, mm)
+    depths_mm: list                  # press depth per point (mm)
+    indenter: str = "sphere5"        # the gauge probe tip (INDENTER_SET name)
+    hold_s: float = 1.0              # hold at depth ("hold ~1 s" in the recalibration prompt)
+    seed: int = 0                    # timing jitter (approach/press/release durations, gaps)
+
+    def to_dict(self) -> dict:
+        return {"points_mm": [[float(v) for v in p] for p in self.points_mm],
+                "depths_mm": [float(d) for d in self.depths_mm], "indenter": self.indenter,
+                "hold_s": float(self.hold_s), "seed": int(self.seed)}
+
+
+def plan_guided(g: GuidedConfig, gel: GelSurface, cfg: TrajectoryConfig | None = None) -> list[Poke]:
+    """Presses of one indenter (module 0) at g.points_mm, perpendicular to the surface, with the
+    same keypoint spacing, approach, hold and release rules as plan_session."""
+    cfg = cfg or TrajectoryConfig()
+    if len(g.points_mm) != len(g.depths_mm):
+        raise ValueError(f"guided plan: {len(g.points_mm)} points but {len(g.depths_mm)} depths")
+    if g.indenter not in INDENTER_SET:
+        raise ValueError(f"guided plan: indenter {g.indenter!r} not in {sorted(INDENTER_SET)}")
+    rng = np.random.default_rng([g.seed, 7])
+    U = lambda r: float(rng.uniform(*r))  # noqa: E731
+    t, pokes = cfg.t_lead, []
+    for p, depth in zip(np.asarray(g.points_mm, float), g.depths_mm):
+        n = gel.normals(p[None])[0]
+        n_press, n_rel = _steps(depth, cfg.max_step_mm), _steps(depth, 2 * cfg.max_step_mm)
+        trans = [np.zeros(3)] + [-n * depth * i / n_press for i in range(1, n_press + 1)]
+        trans.append(trans[-1].copy())                                            # hold
+        trans += [trans[n_press] + n * (depth + 2 * cfg.approach_gap) * i / n_rel for i in range(1, n_rel + 1)]
+        start_t = t + U(cfg.t_approach)
+        seg_t = [U(cfg.t_press) / n_press] * n_press + [g.hold_s] + [U(cfg.t_release) / n_rel] * n_rel
+        times = start_t + np.concatenate([[0.0], np.cumsum(seg_t)])
+        tr = np.array([trans], dtype=np.float64)
+        poke = Poke("press", [g.indenter], [0], (p + n * cfg.approach_gap)[None], _align_z(n)[None], tr,
+                    np.zeros_like(tr), times, t, float(times[-1]) + (start_t - t), float(depth), {"guided": True})
+        pokes.append(poke)
+        t = poke.t_retreat_end + U(cfg.t_gap)
+    return pokes
+
+
+def shorten(poke: Poke, last: int, cfg: TrajectoryConfig | None = None) -> Poke | None:
+    """The poke cut at keypoint `last` (the last one the physics could reach), followed by a release
+    along each indenter's approach normal to just above the rest surface (keeping any slide/twist
+    reached). Keypoint times up to `last` are unchanged; the release takes the planned release time.
+    None when nothing in contact would remain (last < 1)."""
+    cfg = cfg or TrajectoryConfig()
+    if last < 1 or last >= poke.translation.shape[1] - 1:
+        return None
+    K = poke.translation.shape[0]
+    normals = np.array([Rotation.from_rotvec(poke.rotation[k]).apply([0.0, 0.0, 1.0]) for k in range(K)])
+    tr, rv = poke.translation[:, :last + 1], poke.rotvec[:, :last + 1]
+    down = np.array([-float(tr[k, -1] @ normals[k]) for k in range(K)])         # depth along the normal
+    n_rel = _steps(max(down.max(), cfg.approach_gap), 2 * cfg.max_step_mm)
+    lift = [(down + 2 * cfg.approach_gap)[:, None] * normals * i / n_rel for i in range(1, n_rel + 1)]
+    tr = np.concatenate([tr, np.stack([tr[:, -1] + d for d in lift], 1)], 1)
+    rv = np.concatenate([rv, np.repeat(rv[:, -1:], n_rel, 1)], 1)
+    seg = min(float(poke.times[-1] - poke.times[-2]), float(poke.times[-1] - poke.times[last]) / n_rel)  # ends in time
+    times = np.concatenate([poke.times[:last + 1], poke.times[last] + seg * np.arange(1, n_rel + 1)])
+    extra = {**poke.extra, "replanned": "shortened", "planned_keypoints": int(poke.translation.shape[1]),
+             "kept_keypoints": int(last + 1)}
+    return Poke(poke.kind, list(poke.indenters), list(poke.slots), poke.position.copy(), poke.rotation.copy(), tr, rv,
+                times, poke.t_approach, float(times[-1]) + (poke.t_start - poke.t_approach), poke.depth, extra)
+
+
+def apply_replans(plan: list[Poke], events: list[dict], cfg: TrajectoryConfig | None = None) -> list[Poke]:
+    """Re-apply a recording's physics replans (truth.json `physics_events`) to its original plan:
+    {"poke": i, "action": "shortened", "last_keypoint": j} or {"poke": i, "action": "skipped"}."""
+    out = list(plan)
+    for ev in events:
+        i = int(ev["poke"])
+        if ev["action"] == "shortened":
+            out[i] = shorten(plan[i], int(ev["last_keypoint"]), cfg)
+        elif ev["action"] == "skipped":
+            out[i] = None
+    return [p for p in out if p is not None]

@@ -43,6 +43,9 @@ class UnitParams:
         return asdict(self)
 
 
+UNIT_OVERRIDES = ("stiffness_scale", "center_offset_px", "focal_scale", "led_brightness")
+
+
 def serial_seed(serial: str) -> int:
     return int(hashlib.sha256(serial.encode()).hexdigest()[:12], 16)
 
@@ -70,9 +73,17 @@ class TwinUnit:
     pattern: PatternConfig = field(default_factory=PatternConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     variation: VariationConfig = field(default_factory=VariationConfig)
+    override: dict | None = None   # explicit values for UNIT_OVERRIDES keys (e.g. an acceptance unit)
 
     def __post_init__(self):
         self.params = unit_params(self.serial, self.variation, self.leds.count)
+        if self.override:
+            bad = sorted(set(self.override) - set(UNIT_OVERRIDES))
+            if bad:
+                raise ValueError(f"TwinUnit {self.serial}: override keys {bad} not in {UNIT_OVERRIDES}")
+            o = {k: (tuple(float(x) for x in v) if k == "center_offset_px" else
+                     [float(x) for x in v] if k == "led_brightness" else float(v)) for k, v in self.override.items()}
+            self.params = replace(self.params, **o)
         p = self.params
         self.camera_true = replace(self.camera, cx=self.camera.cx + p.center_offset_px[0],
                                    cy=self.camera.cy + p.center_offset_px[1],
