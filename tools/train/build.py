@@ -67,6 +67,8 @@ class BuildConfig:
     batch: int = 4
     lr: float = 1e-3
     fg_weight: float = 20.0                       # foreground-weighted L1 (FitConfig.fg_weight)
+    force_weight: float = 0.0                     # total-force loss term per N (FitConfig.force_weight)
+    init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     threads: int = 2
     calibration_samples: int = 32                 # int8 calibration inputs
     latency_runs: int = 50
@@ -94,12 +96,15 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "keypoints": [], "fe": ["fe"], "correspondence": [], "simreal": [],
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
-            "fit": ["arch", "epochs", "batch", "lr", "fg_weight"],
+            "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from"],
             "export": ["name", "calibration_samples"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
+    optional = {"force_weight": 0.0, "init_from": ""}   # in the key only when set (older stamps stay valid)
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:
+            if k in optional and d[k] == optional[k]:
+                continue
             acc[k] = d[k]
         keys[st] = hashlib.sha256(json.dumps(acc, sort_keys=True).encode()).hexdigest()[:16]
     return keys
@@ -237,7 +242,8 @@ def config_from_args(args) -> BuildConfig:
     cfg = tiny_config() if args.tiny else BuildConfig()
     if args.config:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **json.loads(Path(args.config).read_text())})
-    for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch"):
+    for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
+              "contact_stride", "force_weight", "init_from"):
         v = getattr(args, k, None)
         if v is not None:
             setattr(cfg, k, v)
@@ -288,6 +294,10 @@ def register_build(ts) -> None:
         q.add_argument("--epochs", type=int)
         q.add_argument("--pretrain-epochs", type=int)
         q.add_argument("--batch", type=int)
+        q.add_argument("--lr", type=float, help="fit learning rate (default 1e-3)")
+        q.add_argument("--contact-stride", type=int, help="every n-th in-contact frame becomes a sample (default 2)")
+        q.add_argument("--force-weight", type=float, help="total-force loss term per N (default 0 = off)")
+        q.add_argument("--init-from", help="fine-tune: start the fit from this state dict (a run's best.pt)")
         q.add_argument("--threads", type=int)
         q.add_argument("--arch", choices=("hiera_qup", "unet", "vit"))
         q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets (stage 3 GPR or truth)")

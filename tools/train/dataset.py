@@ -205,15 +205,20 @@ def split_pokes(n_pokes: int, session_index: int, every: int = 2) -> set[int]:
     return {session_index % max(1, n_pokes)} if session_index % every == 0 else set()
 
 
-def write_dataset(root: Path, parts: list[dict], size: int, source: str) -> str:
+def write_dataset(root: Path, parts: list[dict], size: int, source: str, pixel_area: np.ndarray | None = None) -> str:
     """parts: per session {'input', 'target' (physical), 'val' (bool per sample)} → dataset directory
-    (index.json, bounds.json, samples/); returns the data hash (SHA-256 of index.json)."""
+    (index.json, bounds.json, samples/, and pixel_area.npy = the units' mean pixel area in mm² when
+    given, for the fit's total-force term); returns the data hash (SHA-256 of index.json)."""
     from tools.train.fields import compute_bounds, normalize_global, write_bounds
     from tools.train.model.data import write_index, write_sample
 
     root = Path(root)
     bounds = compute_bounds(t for p in parts for t in p["target"])
     write_bounds(root / "bounds.json", bounds)
+    if pixel_area is not None:
+        tmp = root / "pixel_area.tmp.npy"
+        np.save(tmp, np.asarray(pixel_area, np.float32))
+        tmp.replace(root / "pixel_area.npy")
     entries, i = [], 0
     for p in parts:
         for inp, tgt, val in zip(p["input"], p["target"], p["val"]):

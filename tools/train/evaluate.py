@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -163,3 +164,182 @@ def evaluate_build(b) -> dict:
 
         write_figures(b, package)
     return {"summary": summary}
+
+
+# ------------------------------------------------------------------------------------ error budget
+# Where the force error comes from (docs/BENCHMARKS.md "Shipped model", error budget):
+#   label ceiling  — the ground-truth label fields of a session's frames pushed through the runtime's
+#                    contact integration (runtime.contacts, the unit's pixel area) vs the F/T;
+#   network        — a model's fields vs those labels on train / validation / held-out frames, by force
+#                    level and number of indenters.
+
+FORCE_BINS = (1.5, 3.0, 5.0, 7.0, np.inf)
+
+
+def sample_forces(fields: np.ndarray, calibration, tips: np.ndarray, forces: np.ndarray,
+                  cfg: EvalConfig = EvalConfig(), contacts=None) -> dict:
+    """One frame's (15, S, S) physical fields → image-integral force (3,) N and the matched cluster rows
+    (`frame_errors`) against the measured tips/forces (K, 3), with the runtime's contact clustering."""
+    from runtime.contacts import ContactConfig, find_clusters, pixel_forces
+
+    fp = pixel_forces(fields, calibration.pixel_area)
+    cl = find_clusters(fp, calibration.surface_xyz, calibration.normals, calibration.pixel_area, calibration.mask,
+                       disp=fields[0:3], cfg=contacts or ContactConfig())
+    return {"integral": fp.reshape(3, -1).sum(1), "rows": frame_errors(cl, tips, forces, cfg)}
+
+
+def budget_table(items: list[dict], key: str = "label") -> dict:
+    """items: per sample {'meas' (3,), 'n_contact', key: sample_forces(...)} → |F| errors of the image
+    integral (vs the summed measured force) and of the matched clusters (vs each indenter), overall, per
+    |F| bin (of the summed measured force) and per number of indenters in contact."""
+    def block(sel):
+        its = [it for it, s in zip(items, sel) if s]
+        if not its:
+            return {"n": 0}
+        d = np.array([np.linalg.norm(it[key]["integral"]) - np.linalg.norm(it["meas"]) for it in its])
+        out = {"n": len(its), "integral_mae_n": float(np.abs(d).mean()), "integral_bias_n": float(d.mean())}
+        s = summarize([r for it in its for r in it[key]["rows"]], [])
+        out.update({k: s[k] for k in ("contact_samples", "detected_fraction", "force_mag_mae_n",
+                                      "force_mag_bias_n") if k in s})
+        if "position_mae_mm" in s:
+            out["position_mae_mm"] = s["position_mae_mm"]
+        return out
+
+    mag = np.array([np.linalg.norm(it["meas"]) for it in items])
+    nc = np.array([it["n_contact"] for it in items])
+    contact = nc > 0
+    out = {"all": block(contact)}
+    for lo, hi in zip(FORCE_BINS[:-1], FORCE_BINS[1:]):
+        out[f"F {lo:g}-{hi:g} N"] = block(contact & (mag >= lo) & (mag < hi))
+    for k in sorted(set(nc[contact].tolist())):
+        out[f"{k} indenter(s)"] = block(nc == k)
+    return out
+
+
+def session_label_samples(b, spec, stride: int = 1):
+    """(samples dict as the dataset builds them + 'nind', calibration) of one session: the build's own
+    label path (twin solves or re-solved FE, stage-5 ratios, the unit's tables), every `stride`-th frame."""
+    from tools.train import stages
+    from tools.train.dataset import DatasetConfig, session_samples
+
+    src = stages.label_sources(b, spec)
+    ratios = {int(k): v for k, v in json.loads((b.root / "simreal" / f"{spec.name}.json").read_text())["ratios"].items()}
+    cal = stages.unit_calibration(b, spec.serial)
+    dcfg = DatasetConfig(size=b.cfg.size, contact_stride=stride, rest_fraction=b.cfg.rest_fraction)
+    if stages.fe_mode(b) == "twin":
+        d = session_samples(b.session(spec), cal, [s.poke for s in src], [s.result for s in src],
+                            [s.slots for s in src], ratios, dcfg)
+    else:
+        from tools.train.labels import session_samples_measured
+
+        d = session_samples_measured(b.session(spec), cal, src, ratios, dcfg)
+    return d, cal
+
+
+def budget_items(b, spec, d: dict, cal, predict=None, bounds: dict | None = None, cfg: EvalConfig = EvalConfig()) -> list[dict]:
+    """Per sample of one session: measured force, label forces (after the bounds' clipping when given) and,
+    with `predict` ((n, 6, S, S) uint8 → (n, 15, S, S) physical), the model's forces."""
+    from runtime.session import load_session
+    from tools.train.fields import denormalize, normalize_global
+
+    ses = load_session(b.session(spec))
+    meas = measured_at(ses, ses.table("frames")[:, 0])
+    ids = sorted(meas)
+    pred = predict(d["input"]) if predict is not None else None
+    items = []
+    for n, i in enumerate(d["frame"]):
+        tips = np.array([meas[k]["tip"][i] for k in ids])
+        forces = np.array([meas[k]["force"][i] for k in ids])
+        lab = d["target"][n] if bounds is None else denormalize(normalize_global(d["target"][n], bounds), bounds)
+        it = {"frame": int(i), "poke": int(d["poke"][n]), "meas": forces.sum(0),
+              "n_contact": int((np.linalg.norm(forces, axis=1) > cfg.contact_n).sum()),
+              "label": sample_forces(lab, cal, tips, forces, cfg)}
+        if pred is not None:
+            it["pred"] = sample_forces(pred[n], cal, tips, forces, cfg)
+        items.append(it)
+    return items
+
+
+def run_budget(b, predict=None, stride: int = 1, with_train: bool = True) -> dict:
+    """The error budget of a build: label ceiling on the held-out sessions, and (with `predict`) the
+    network's errors on train / validation / held-out samples. Returns nested tables (JSON-able)."""
+    from tools.train.dataset import split_pokes
+    from tools.train.fields import read_bounds
+
+    bounds = read_bounds(b.dataset / "bounds.json") if (b.dataset / "bounds.json").is_file() else None
+    out = {"label_ceiling": {}, "network": {}}
+    groups: dict[str, list] = {"train": [], "val": [], "heldout": []}
+    specs = [(s, "heldout") for s in b.cfg.heldout] + ([(s, "train") for s in b.cfg.train] if with_train else [])
+    for spec, split in specs:
+        t0 = time.monotonic()
+        d, cal = session_label_samples(b, spec, stride if split == "heldout" else b.cfg.contact_stride)
+        items = budget_items(b, spec, d, cal, predict, bounds)
+        if split == "heldout":
+            out["label_ceiling"][spec.name] = budget_table(items, "label")
+            groups["heldout"] += items
+        else:
+            si = [s.name for s in b.cfg.train].index(spec.name)
+            val = split_pokes(int(max(d["poke"].max() + 1, 1)) if len(d["poke"]) else 1, si)
+            for it in items:
+                groups["val" if it["poke"] in val else "train"].append(it)
+        log.info("budget %s: %d samples in %.0f s", spec.name, len(items), time.monotonic() - t0)
+    if predict is not None:
+        out["network"] = {g: budget_table(its, "pred") for g, its in groups.items() if its}
+    return out
+
+
+def _predictor(run: str | None, package: str | None, precision: str = "int8"):
+    if run:
+        import torch
+
+        from tools.train.fields import denormalize, read_bounds
+        from tools.train.model.train import load_trained, predict
+
+        model, _ = load_trained(run)
+        torch.set_num_threads(2)
+        bounds = read_bounds(Path(run).parent.parent / "dataset" / "bounds.json")
+        return lambda x: np.stack([denormalize(y, bounds) for y in predict(model, x)])
+    if package:
+        from runtime.model import FieldModel, load_package
+        from runtime.paths import models_dir
+
+        m = FieldModel(load_package(Path(package) if "/" in package else models_dir() / package), precision, 2)
+        return lambda x: np.stack([m(xi.astype(np.float32) / 255.0) for xi in x])
+    return None
+
+
+def main(argv=None) -> int:
+    """`python -m tools.train.evaluate budget …`: print (and save) the error budget of a build."""
+    import argparse
+
+    from tools.train.build import Build, BuildConfig
+
+    ap = argparse.ArgumentParser(prog="python -m tools.train.evaluate budget")
+    ap.add_argument("what", choices=["budget"])
+    ap.add_argument("--build", default="main")
+    ap.add_argument("--fe", choices=("resolve", "twin"), help="label source of the build (BuildConfig.fe)")
+    ap.add_argument("--run", help="torch fit run folder (best.pt) to score")
+    ap.add_argument("--package", help="model package name or folder to score (ONNX, --precision)")
+    ap.add_argument("--precision", default="int8", choices=("int8", "fp32"))
+    ap.add_argument("--stride", type=int, default=1, help="every n-th contact frame of the held-out sessions")
+    ap.add_argument("--heldout-only", action="store_true")
+    ap.add_argument("--out", help="JSON file for the tables (default <build>/eval/budget.json)")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    cfg = BuildConfig(build=args.build)
+    if args.fe and hasattr(cfg, "fe"):
+        cfg.fe = args.fe
+    b = Build(cfg)
+    res = run_budget(b, _predictor(args.run, args.package, args.precision), args.stride, not args.heldout_only)
+    out = Path(args.out) if args.out else b.root / "eval" / "budget.json"
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(res, indent=1))
+    tmp.replace(out)
+    print(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

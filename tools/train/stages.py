@@ -239,7 +239,8 @@ def stage_dataset(b) -> dict:
     source = (f"twin sessions {[s.name for s in b.cfg.train]} (FE physics={b.cfg.physics}, labels fe={fe_mode(b)}, "
               f"tables={b.cfg.tables}); "
               f"tools.train.build {b.cfg.build}")
-    h = write_dataset(b.dataset, parts, b.cfg.size, source)
+    area = np.mean([unit_calibration(b, spec.serial).pixel_area for spec in b.cfg.train], axis=0)
+    h = write_dataset(b.dataset, parts, b.cfg.size, source, pixel_area=area)
     n = sum(len(p["frame"]) for p in parts)
     return {"data_hash": h, "samples": n, "val": int(sum(p["val"].sum() for p in parts)),
             "rest": int(sum((p["poke"] < 0).sum() for p in parts))}
@@ -281,7 +282,8 @@ def stage_fit(b) -> dict:
     enc = pretrain_dir(b) / "encoder.pt"
     res = fit(b.dataset, fit_dir(b),
               FitConfig(arch=b.cfg.arch, epochs=b.cfg.epochs, batch_size=b.cfg.batch, lr=b.cfg.lr,
-                        threads=b.cfg.threads, fg_weight=b.cfg.fg_weight),
+                        threads=b.cfg.threads, fg_weight=b.cfg.fg_weight, force_weight=b.cfg.force_weight,
+                        init_from=b.cfg.init_from),
               encoder_init=enc if (b.cfg.pretrain_epochs > 0 and enc.is_file() and b.cfg.arch == "hiera_qup") else None)
     return {"params": res["params"], "metrics": res["metrics"]["mean"], "samples_per_s": res.get("samples_per_s")}
 

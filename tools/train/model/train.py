@@ -49,6 +49,11 @@ class FitConfig:
     # sparse: with plain L1 a short CPU run collapses to the background). 0 = plain L1 (seed).
     fg_weight: float = 0.0
     fg_eps: float = 0.005                # |y − y(0)| above this (normalized units) counts as foreground
+    # Total-force term: weight (per N) of |Σ_pixels (pred − target)·pixel_area| of the contact channels
+    # (fn + fs, physical units via the bounds; the dataset's pixel_area.npy), i.e. the error of the force
+    # the runtime integrates. 0 = off. Needs pixel_area.npy in the dataset directory.
+    force_weight: float = 0.0
+    init_from: str = ""                  # fine-tune: start from this state dict (e.g. a shipped run's best.pt)
 
 
 @dataclass
@@ -222,7 +227,10 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     torch.manual_seed(cfg.seed)
     model = build_model(cfg.arch, size)
     model.heads.set_output_bias(torch.from_numpy(y_tr.mean(axis=(0, 2, 3))).float())
-    if encoder_init is not None and not (out / "checkpoint.pt").exists():
+    if cfg.init_from and not (out / "checkpoint.pt").exists():
+        model.load_state_dict(torch.load(cfg.init_from, weights_only=True, map_location="cpu"), strict=True)
+        log.info("model initialised from %s (fine-tuning)", cfg.init_from)
+    elif encoder_init is not None and not (out / "checkpoint.pt").exists():
         state = torch.load(encoder_init, weights_only=True, map_location="cpu")
         model.encoder.load_state_dict(state, strict=True)
         log.info("encoder initialised from %s", encoder_init)
@@ -236,11 +244,20 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         y0 = np.clip(-lo / np.where(hi > lo, hi - lo, 1.0), 0.0, 1.0)
         zero = torch.tensor(y0, dtype=torch.float32).view(1, -1, 1, 1)
 
+    force_scale = None
+    if cfg.force_weight > 0:
+        force_scale = _force_scale(data, bounds)
+
     def loss_fn(m, xb, yb):
+        pred = m(xb)
         if zero is None:
-            return torch.nn.functional.l1_loss(m(xb), yb)
-        w = 1.0 + cfg.fg_weight * (torch.abs(yb - zero) > cfg.fg_eps).float()
-        return (w * torch.abs(m(xb) - yb)).sum() / w.sum()
+            loss = torch.nn.functional.l1_loss(pred, yb)
+        else:
+            w = 1.0 + cfg.fg_weight * (torch.abs(yb - zero) > cfg.fg_eps).float()
+            loss = (w * torch.abs(pred - yb)).sum() / w.sum()
+        if force_scale is not None:
+            loss = loss + cfg.force_weight * total_force_error(pred, yb, force_scale).mean()
+        return loss
 
     def on_epoch(epoch, extra):
         pred = predict(model, x_va, cfg.eval_batch)
@@ -258,6 +275,26 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
               "metrics": metrics, "val_samples": int(x_va.shape[0]), **extra}
     _atomic_json(result, out / "metrics.json")
     return result
+
+
+def _force_scale(data: Path, bounds: dict) -> torch.Tensor:
+    """(6, H, W) tensor: channel span (MPa per normalized unit) × pixel area (mm²) of the contact channels
+    (fn_x … fs_z), so Σ_pixels Δy·scale is a force in N."""
+    from runtime.fields import CHANNELS
+
+    path = data / "pixel_area.npy"
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing; force_weight > 0 needs the dataset's mean pixel area (mm², (H, W))")
+    area = np.load(path).astype(np.float32)
+    span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
+    return torch.from_numpy(span[:, None, None] * area[None])
+
+
+def total_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """(B,) |ΔF| in N: the error of the total contact force (normal + shear) the runtime integrates,
+    from normalized predictions/targets (B, 15, H, W) and `_force_scale`."""
+    d = ((pred[:, 9:15] - target[:, 9:15]) * scale).sum(dim=(2, 3))        # (B, 6) N per channel
+    return torch.linalg.vector_norm(d[:, :3] + d[:, 3:], dim=1)
 
 
 def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainConfig()) -> dict:
