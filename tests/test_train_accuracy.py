@@ -82,3 +82,44 @@ def test_runtime_clusters_keep_the_smoothed_tails():
     old = ContactConfig(support_floor_n=0.0005, support_radius_px=6.0)
     (c_old,) = find_clusters(fp, xyz, normals, pa, mask, cfg=old)
     assert c_old.force_mag_n < c.force_mag_n
+
+
+def test_total_force_error_is_the_integrated_contact_force_difference():
+    import torch
+
+    from runtime.fields import CHANNELS
+    from tools.train.model.train import total_force_error
+
+    bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit
+    area = np.full((8, 8), 0.25, np.float32)                   # mm² per pixel
+    span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
+    scale = torch.from_numpy(span[:, None, None] * area[None])
+    y = torch.full((2, 15, 8, 8), 0.5)
+    p = y.clone()
+    p[0, 11, :2, :2] += 0.1                                    # fn_z: 4 px × 0.1 MPa × 0.25 mm² = 0.1 N
+    p[1, 9, :, :] += 0.01                                      # fn_x: 64 × 0.01 × 0.25 = 0.16 N ...
+    p[1, 12, :, :] -= 0.01                                     # ... cancelled by fs_x (the runtime sums fn + fs)
+    err = total_force_error(p, y, scale)
+    assert err[0].item() == pytest.approx(0.1, rel=1e-5) and err[1].item() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_fit_fine_tunes_from_a_state_dict_with_the_force_term(tmp_path):
+    import torch
+
+    from tools.train.model.data import write_synthetic_dataset
+    from tools.train.model.train import FitConfig, fit
+
+    data = tmp_path / "ds"
+    write_synthetic_dataset(data, 12, size=64, seed=3)
+    cfg = FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, fg_weight=5.0)
+    fit(data, tmp_path / "base", cfg)
+    with pytest.raises(Exception, match="pixel_area.npy"):
+        fit(data, tmp_path / "nf", FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, force_weight=0.1))
+    np.save(data / "pixel_area.npy", np.full((64, 64), 0.05, np.float32))
+    tuned = FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, fg_weight=5.0, force_weight=0.1,
+                      lr=0.0, init_from=str(tmp_path / "base" / "best.pt"))
+    fit(data, tmp_path / "ft", tuned)                           # lr 0: the weights stay those loaded
+    a = torch.load(tmp_path / "base" / "best.pt", weights_only=True)
+    b = torch.load(tmp_path / "ft" / "best.pt", weights_only=True)
+    for k in a:
+        torch.testing.assert_close(a[k], b[k])
