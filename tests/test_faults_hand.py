@@ -103,7 +103,7 @@ def _factory(hand_cfg_obj, overrides):
 
 # ------------------------------------------------------------------------------------- camera faults
 
-def test_camera_unplugged_and_replugged(rig):
+def test_camera_unplugged_and_replugged_injected_around_real_replay(rig):
     from drivers.camera import camera_from_uri
 
     tmp, pkg, videos = rig

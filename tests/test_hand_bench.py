@@ -77,3 +77,42 @@ def test_hand_bench_small(capsys):
     assert soak["windows"] >= 2 and soak["rss_last_mb"] > 0 and soak["fps_target"] == 10
     assert set(soak["mean_hz"]) == {"f0", "f1"} and all(0 < v <= 11 for v in soak["mean_hz"].values())
     assert all(v >= 0 for v in soak["behind_frames"].values()) and soak["load1_median"] >= 0
+
+
+def _rows(n=40, leak_mb_per_h=0.0, p99_ms=20.0):
+    rows = []
+    for i in range(1, n + 1):
+        t = 30.0 * i
+        rows.append({"t_s": t, "rss_mb": 250.0 + leak_mb_per_h * t / 3600, "load1": 2.0 + (i % 3),
+                     "fingers": {f"f{k}": {"hz": 30.0, "p50_ms": 8.0, "p99_ms": p99_ms + k, "state": "running",
+                                           "frames": int(30 * t) - 3 * k, "behind": float(3 * k)}
+                                 for k in range(4)}})
+    return rows
+
+
+def test_soak_summary_measures_drift_rate_and_backlog():
+    from tools.bench.hand_bench import summarize_soak
+
+    flat = summarize_soak(_rows(), 30.0)
+    assert flat["rss_slope_mb_per_h"] == pytest.approx(0.0, abs=1e-6)
+    leak = summarize_soak(_rows(leak_mb_per_h=12.0), 30.0)
+    assert leak["rss_slope_mb_per_h"] == pytest.approx(12.0, rel=1e-6)
+    assert flat["mean_hz"]["f0"] == pytest.approx(30.0) and flat["mean_hz"]["f3"] < 30.0
+    assert flat["behind_frames"] == {"f0": 0.0, "f1": 3.0, "f2": 6.0, "f3": 9.0}
+    assert flat["p99_first_quarter_ms"] == pytest.approx(23.0) and flat["load1_median"] == pytest.approx(3.0)
+    assert flat["duration_s"] == 1200.0 and flat["windows"] == 40
+
+
+def test_soak_plot_and_from_log(tmp_path, capsys):
+    import cv2
+
+    log = tmp_path / "soak.jsonl"
+    log.write_text("".join(json.dumps(r) + "\n" for r in _rows(12, leak_mb_per_h=6.0)))
+    png = tmp_path / "soak.png"
+    from tools.bench import hand_bench
+
+    assert hand_bench.run(_args(["--from-log", str(log), "--soak-fps", "30", "--plot", str(png), "--json"])) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["soak"]
+    assert out["windows"] == 12 and out["rss_slope_mb_per_h"] == pytest.approx(6.0, rel=1e-6)
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[0] > 200 and img.shape[1] > 300

@@ -140,7 +140,7 @@ def run_mode(cfg, seconds: float, warmup: float) -> dict:
         counter.sub.undeclare()
         listener.close()
         hand.stop()
-    return {"fingers": per, "received_msgs_per_s": received,
+    return {"fingers": per, "received_msgs_per_s": received, "load1_end": round(os.getloadavg()[0], 2),
             "min_hz": min(v["hz"] for v in per.values()),
             "total_hz": sum(v["hz"] for v in per.values()),
             "p99_ms": max(v["p99_ms"] or 0 for v in per.values())}
@@ -211,21 +211,91 @@ def soak(cfg, seconds: float, log_every: float, log_path: Path, fps: float) -> d
                     flush=True)
     finally:
         hand.stop()
+    return summarize_soak(rows, fps, log_path)
+
+
+def read_soak_log(path: Path) -> list[dict]:
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
+def summarize_soak(rows: list[dict], fps: float, log_path=None) -> dict:
+    """Drift summary of soak windows: RSS linear fit (after the first 10 %), worst-finger p99 in the
+    first vs last quarter, mean rate and frames behind per finger, median load average."""
+    if not rows:
+        return {"duration_s": 0.0, "windows": 0, "fps_target": fps, "log": str(log_path)}
     t = np.array([r["t_s"] for r in rows])
     rss = np.array([r["rss_mb"] for r in rows])
     p99 = np.array([max(v["p99_ms"] for v in r["fingers"].values()) for r in rows])
     skip = max(1, len(rows) // 10)                    # ignore the first 10 % (allocator warm-up)
     slope = float(np.polyfit(t[skip:], rss[skip:], 1)[0] * 3600) if len(rows) - skip >= 3 else float("nan")
     q = max(1, len(rows) // 4)
-    last = rows[-1]["fingers"] if rows else {}
-    mean_hz = {n: v["frames"] / t[-1] for n, v in last.items()} if len(t) else {}
-    return {"duration_s": float(t[-1]) if len(t) else 0.0, "windows": len(rows), "fps_target": fps,
-            "mean_hz": mean_hz, "behind_frames": {n: v["behind"] for n, v in last.items()},
-            "load1_median": float(np.median([r["load1"] for r in rows])) if rows else float("nan"),
-            "rss_first_mb": float(rss[skip]) if len(rss) > skip else float("nan"),
-            "rss_last_mb": float(rss[-1]) if len(rss) else float("nan"),
+    last = rows[-1]["fingers"]
+    return {"duration_s": float(t[-1]), "windows": len(rows), "fps_target": fps,
+            "mean_hz": {n: v.get("frames", 0) / t[-1] for n, v in last.items()},
+            "behind_frames": {n: v.get("behind", 0.0) for n, v in last.items()},
+            "load1_median": float(np.median([r.get("load1", np.nan) for r in rows])),
+            "rss_first_mb": float(rss[skip]) if len(rss) > skip else float(rss[0]),
+            "rss_last_mb": float(rss[-1]), "rss_max_mb": float(rss.max()),
             "rss_slope_mb_per_h": slope, "p99_first_quarter_ms": float(np.median(p99[:q])),
             "p99_last_quarter_ms": float(np.median(p99[-q:])), "log": str(log_path)}
+
+
+def plot_soak(rows: list[dict], png: Path, title: str = "") -> Path:
+    """Small PNG: RSS, worst-finger window p99 and per-sensor rate vs time (needs matplotlib)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.array([r["t_s"] for r in rows]) / 60.0
+    fig, ax = plt.subplots(3, 1, figsize=(6.4, 5.2), sharex=True, dpi=80)
+    ax[0].plot(t, [r["rss_mb"] for r in rows], color="k")
+    ax[0].set_ylabel("RSS (MB)")
+    ax[1].plot(t, [max(v["p99_ms"] for v in r["fingers"].values()) for r in rows], color="tab:red",
+               label="worst-finger p99")
+    ax[1].plot(t, [np.median([v["p50_ms"] for v in r["fingers"].values()]) for r in rows], color="tab:blue",
+               label="median p50")
+    ax[1].set_ylabel("latency (ms)")
+    ax[1].legend(fontsize=7, loc="upper right")
+    for name in rows[0]["fingers"]:
+        ax[2].plot(t, [r["fingers"][name]["hz"] for r in rows], lw=0.8, label=name)
+    if "load1" in rows[0]:
+        ax2 = ax[2].twinx()
+        ax2.plot(t, [r["load1"] for r in rows], color="0.6", ls=":", label="load average (1 min)")
+        ax2.set_ylabel("load avg", color="0.4")
+    ax[2].set_ylabel("frames/s")
+    ax[2].set_xlabel("time (min)")
+    ax[2].legend(fontsize=7, loc="upper left", ncol=4)
+    if title:
+        ax[0].set_title(title, fontsize=9)
+    fig.tight_layout()
+    png = Path(png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    tmp = png.with_name(".tmp-" + png.name)
+    fig.savefig(tmp, format="png")
+    plt.close(fig)
+    tmp.replace(png)
+    return png
+
+
+def _print_soak(s: dict) -> None:
+    print(f"soak done: {s['duration_s']:.0f} s, RSS {s['rss_first_mb']:.1f} → {s['rss_last_mb']:.1f} MB "
+          f"(fit {s['rss_slope_mb_per_h']:+.2f} MB/h), worst-finger p99 first quarter "
+          f"{s['p99_first_quarter_ms']:.1f} ms, last quarter {s['p99_last_quarter_ms']:.1f} ms; mean rate "
+          + ", ".join(f"{v:.2f}" for v in s["mean_hz"].values()) + f" Hz (target {s['fps_target']:g}), "
+          "frames behind at the end " + ", ".join(f"{v:.0f}" for v in s["behind_frames"].values())
+          + f", median load {s['load1_median']:.2f}")
+
+
+def from_log(args) -> int:
+    rows = read_soak_log(args.from_log)
+    s = summarize_soak(rows, args.soak_fps, args.from_log)
+    _print_soak(s)
+    if args.plot:
+        print(f"plot: {plot_soak(rows, args.plot, args.plot_title)}")
+    if args.json:
+        print(json.dumps({"soak": s}))
+    return 0
 
 
 def run(args) -> int:
@@ -233,6 +303,8 @@ def run(args) -> int:
 
     from runtime import paths
 
+    if args.from_log:
+        return from_log(args)
     workers = args.workers or os.cpu_count() or 2
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -254,9 +326,11 @@ def run(args) -> int:
                 print(f"\n{mode}: per sensor " + ", ".join(f"{v['hz']:.1f}" for v in r["fingers"].values())
                       + f" frames/s (total {r['total_hz']:.1f}), end-to-end p50 "
                       + ", ".join(f"{v['p50_ms']:.1f}" for v in r["fingers"].values())
-                      + f" ms, worst p99 {r['p99_ms']:.1f} ms, subscriber got {r['received_msgs_per_s']:.0f} msg/s")
-        summary = {"sensors": args.sensors, "model": pkg.name, "model_folder": str(pkg.folder), "size": pkg.size[0], "precision": args.precision,
-                   "synthetic_weights": synthetic, "params": params, "modes": results}
+                      + f" ms, worst p99 {r['p99_ms']:.1f} ms, subscriber got {r['received_msgs_per_s']:.0f} msg/s"
+                      + f" (load average {r['load1_end']:.2f})")
+        summary = {"sensors": args.sensors, "model": pkg.name, "model_folder": str(pkg.folder),
+                   "size": pkg.size[0], "precision": args.precision, "synthetic_weights": synthetic,
+                   "params": params, "modes": results}
         if args.soak:
             camera = {"realtime": True, "loop": True, "fps": args.soak_fps}
             share, gate = MODES[args.soak_mode]
@@ -268,12 +342,9 @@ def run(args) -> int:
                   f"log {log_path}")
             s = soak(cfg, args.soak, args.log_every, log_path, args.soak_fps)
             summary["soak"] = dict(s, mode=args.soak_mode)
-            print(f"soak done: {s['duration_s']:.0f} s, RSS {s['rss_first_mb']:.1f} → {s['rss_last_mb']:.1f} MB "
-                  f"(fit {s['rss_slope_mb_per_h']:+.2f} MB/h), worst-finger p99 first quarter "
-                  f"{s['p99_first_quarter_ms']:.1f} ms, last quarter {s['p99_last_quarter_ms']:.1f} ms; mean rate "
-                  + ", ".join(f"{v:.2f}" for v in s["mean_hz"].values()) + f" Hz (target {args.soak_fps:g}), "
-                  f"frames behind at the end " + ", ".join(f"{v:.0f}" for v in s["behind_frames"].values())
-                  + f", median load {s['load1_median']:.2f}")
+            _print_soak(s)
+            if args.plot:
+                print(f"plot: {plot_soak(read_soak_log(log_path), args.plot, args.plot_title)}")
     if args.json:
         print(json.dumps(summary))
     return 0
@@ -297,4 +368,8 @@ def add_arguments(p) -> None:
     p.add_argument("--soak-fps", type=float, default=10.0, help="camera rate per sensor during the soak")
     p.add_argument("--soak-mode", choices=tuple(MODES), default="separate", help="scheduling mode of the soak")
     p.add_argument("--log-every", type=float, default=10.0, help="soak log period, s")
+    p.add_argument("--plot", type=Path, default=None, help="after the soak: PNG of RSS, p99 and rate vs time")
+    p.add_argument("--plot-title", default="", help="title of the --plot figure")
+    p.add_argument("--from-log", type=Path, default=None,
+                   help="summarize (and --plot) an existing soak log instead of running (--soak-fps = its rate)")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
