@@ -1,23 +1,31 @@
 """Stage 3 — 2D–3D correspondence (seed §III.G): pokes at known 3D points → GPR θ/φ tables per unit.
 
-Per unit a short calibration session is recorded with the twin: single-indenter pokes (sphere R3) at
-random places of the cap. The poke plan is the same for every unit (so its FE solves are shared
-through the FE cache); each unit renders it with its own camera. For each contact period found by
-stage 1 on the measured F/T:
-- 3D point: the mocap tip position at the force peak, projected radially onto the rest cap sphere
-  (the indenter approaches along the surface normal) → true (θ, φ);
-- 2D point: centroid of the image change between the rest frame before the period and the peak frame
-  (|Δ| summed over RGB, Gaussian-blurred, weights above `diff_level` of its maximum), camera px.
+Per unit a short calibration session is recorded with the twin: light single-indenter pokes
+(sphere R3, 0.8–1.2 mm, < 1 N) at random places of the cap. The poke plan is the same for every unit
+(so its FE solves are shared through the FE cache); each unit renders it with its own camera. For each
+contact found on the measured F/T (stage 1 with the calibration thresholds `contact_force_n` /
+`detach_force_n`: light pokes never reach the seed's 1.5 N):
+- 3D point: the mocap tip (smoothed, `resolve.fit_pose`) at the deepest moment of the poke (smallest
+  clearance to the rest gel), projected radially onto the rest cap sphere (the indenter approaches
+  along the surface normal) → true (θ, φ);
+- FE: the poke re-solved from the measured poses (clear initial pose → that deepest pose, one FE
+  frame; `resolve.period_scenario`, tools.fe batch runner and shared cache) → surface displacement;
+- 2D point: `tools.train.pokes2d` — the dot motion between the rest frame before the poke and the
+  camera frame nearest the deepest moment, matched with the motion predicted from the FE
+  displacement and the sensor design's nominal lens → sub-pixel image of the 3D point.
 `tools.recalib.gpr_geometry.refresh_geometry` fits the gel centre, φ rotation and θ = f_GPR(dist) from
 the nominal design centre/radius; dense tables (θ, φ, surface_xyz, normals, pixel_area, mask) on the
 model grid are then stored as a new version (`provenance.method = "gpr-pokes"`) in the build's
-calibration store. For twin units the result is checked against the unit's true tables.
+calibration store. For twin units the result is checked against the unit's true tables (diagnostics
+only: nothing downstream reads them). `image_change_centroid` is session 1's detector (kept for
+comparison: 1.6–9 px off).
 """
 from __future__ import annotations
 
 import json
 import logging
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
@@ -34,6 +42,8 @@ class CorrespondenceConfig:
     diff_blur_px: float = 2.0
     diff_level: float = 0.5          # weights: blurred |Δ| above this fraction of its maximum
     quality: int = 90                # MJPG quality of the calibration recordings
+    contact_force_n: float = 0.3     # stage-1 thresholds for the light calibration pokes (F/T noise 0.02 N)
+    detach_force_n: float = 0.2
 
 
 def image_change_centroid(base: np.ndarray, cur: np.ndarray, cfg: CorrespondenceConfig = CorrespondenceConfig()
@@ -91,41 +101,136 @@ def record_calibration_session(b, serial: str, cfg: CorrespondenceConfig):
     return path
 
 
-def correspondences(session_dir, gel, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:
-    """Poke correspondences of one calibration session: camera px (N, 2) ↔ true θ, φ (N,)."""
-    import cv2
+def nominal_lens():
+    """The sensor design's lens (nominal fisheye of tools.twin.camera.CameraConfig: focal, centre, camera
+    height) — what a real unit's datasheet gives before calibration."""
+    from tools.twin.camera import CameraConfig, FisheyeModel
 
-    from runtime.session import load_session
-    from tools.sessions.writer import read_frames
+    return FisheyeModel(CameraConfig())
+
+
+def poke_moments(session, cfg: CorrespondenceConfig, gel_surface, catalog=None) -> list[dict]:
+    """Single-indenter contacts of a calibration session → per poke: indenter id/name, the deepest
+    moment t_peak (smallest clearance of the smoothed mocap pose to the rest gel), the tip there."""
+    from tools.fe import Indenter
+    from tools.fe.indenters import make_shape
     from tools.train.keypoints import KeypointConfig, extract_keypoints
+    from tools.train.resolve import PoseTrack, ResolveConfig, clearance, fit_pose, surface_samples
+    from tools.twin.trajectory import INDENTER_SET
 
-    ses = load_session(session_dir)
-    frames = ses.table("frames")
-    kps = extract_keypoints(ses.table("poses"), ses.table("wrench"), frames, KeypointConfig())
-    poses = ses.table("poses")
-    pairs = []
+    catalog = catalog or INDENTER_SET
+    rcfg = ResolveConfig()
+    names = {int(k): v for k, v in session.streams["poses"].get("indenters", {}).items()}
+    poses = session.table("poses")
+    kcfg = KeypointConfig(contact_force_n=cfg.contact_force_n, detach_force_n=cfg.detach_force_n)
+    kps = extract_keypoints(poses, session.table("wrench"), session.table("frames"), kcfg)
+    surf = surface_samples(gel_surface, rcfg.surface_spacing_mm)
+    out = []
     for k in kps:
         if len(k.period.indenters) != 1:
             continue
         ind = int(k.period.indenters[0])
-        col = list(k.indenter_ids).index(ind)
-        j = int(np.argmax(np.linalg.norm(k.force[:, col], axis=1)))
-        peak = int(k.frame_index[j])
-        base = int(np.clip(np.searchsorted(frames[:, 0], k.period.t_start) - 1, 0, len(frames) - 1))
-        p = poses[poses[:, 1] == ind]
-        tip = p[int(np.argmin(np.abs(p[:, 0] - frames[peak, 0]))), 2:5]
-        pairs.append((base, peak, tip))
-    imgs = dict(read_frames(ses, sorted({i for a, c, _ in pairs for i in (a, c)})))
-    xy, tips = [], []
-    for base, peak, tip in pairs:
-        c = image_change_centroid(cv2.cvtColor(imgs[base], cv2.COLOR_BGR2RGB),
-                                  cv2.cvtColor(imgs[peak], cv2.COLOR_BGR2RGB), cfg)
-        if np.all(np.isfinite(c)):
-            xy.append(c)
-            tips.append(tip)
-    pts = project_to_cap(np.array(tips).reshape(-1, 3), gel.sphere_z, gel.sphere_radius)
-    theta, phi = gel.theta_phi(pts)
-    return {"xy": np.array(xy).reshape(-1, 2), "theta": theta, "phi": phi, "points": pts}
+        spec = catalog[names[ind]]
+        shape = make_shape(Indenter(shape=spec["shape"], params=dict(spec["params"])))
+        tr = PoseTrack.from_table(poses, ind)
+        ts = tr.t[(tr.t >= k.period.t_start) & (tr.t <= k.period.t_end)]
+        if len(ts) == 0:
+            continue
+        P, R = fit_pose(tr, ts, rcfg.pose_half_window_s)
+        gap = np.array([clearance(shape, p, r, surf) for p, r in zip(P, R)])
+        i = int(np.argmin(gap))
+        out.append({"indenter": ind, "name": names[ind], "t_peak": float(ts[i]), "tip": P[i], "depth": float(-gap[i]),
+                    "t_start": float(k.period.t_start), "track": tr})
+    return out
+
+
+def correspondences(b, session_dir, gel, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:
+    """Poke correspondences of one calibration session: camera px (N, 2) ↔ true θ, φ (N,), with the
+    FE of each poke re-solved from its measured poses (cached) and the model-based 2D detector."""
+    import cv2
+
+    from runtime.session import load_session
+    from tools.sessions.writer import read_frames
+    from tools.train.pokes2d import FlowPredictor, PokeDetectConfig, fit_offset, track_dots
+
+    ses = load_session(session_dir)
+    frames = ses.table("frames")
+    moments = poke_moments(ses, cfg, gel)
+    sources = _calibration_fe(b, Path(session_dir).name, moments, gel)
+    lens = nominal_lens()
+    dcfg = PokeDetectConfig()
+    pairs = []
+    for m, src in zip(moments, sources):
+        if src is None:
+            continue
+        peak = int(np.argmin(np.abs(frames[:, 0] - m["t_peak"])))
+        base = int(np.searchsorted(frames[:, 0], src["t_init"])) - 1
+        if base < 0:
+            continue
+        pairs.append((int(frames[base, 1]), int(frames[peak, 1]), m, src))
+    imgs = dict(read_frames(ses, sorted({i for a, c, _, _ in pairs for i in (a, c)})))
+    xy, pts, diag = [], [], []
+    for base, peak, m, src in pairs:
+        p3 = project_to_cap(m["tip"][None], gel.sphere_z, gel.sphere_radius)[0]
+        q0 = lens.project(p3)
+        x, v = track_dots(cv2.cvtColor(imgs[base], cv2.COLOR_BGR2GRAY), cv2.cvtColor(imgs[peak], cv2.COLOR_BGR2GRAY), dcfg)
+        res = src["result"]
+        sn = np.asarray(res.surface_nodes)
+        U = np.asarray(res.U)[0][sn]
+        fit = fit_offset(x, v, FlowPredictor(lens, gel, np.asarray(res.nodes)[sn], U, q0, dcfg), dcfg)
+        diag.append({"t_peak": m["t_peak"], "depth_mm": m["depth"], "dots": fit["dots"], "rms_px": fit["rms_px"],
+                     "offset_px": fit["offset"], "scale": fit["scale"], "ok": fit["ok"]})
+        if fit["ok"]:
+            xy.append(fit["xy"])
+            pts.append(p3)
+        else:
+            log.warning("%s: poke at t %.2f s not located (%d dots, rms %.2f px)", session_dir, m["t_peak"],
+                        fit["dots"], fit["rms_px"])
+    pts = np.array(pts).reshape(-1, 3)
+    theta, phi = gel.theta_phi(pts) if len(pts) else (np.zeros(0), np.zeros(0))
+    return {"xy": np.array(xy).reshape(-1, 2), "theta": theta, "phi": phi, "points": pts, "pokes": diag}
+
+
+def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
+    """FE displacement of each calibration poke at its deepest moment: scenario from the measured
+    poses (clear initial pose → one FE frame at t_peak), solved through the tools.fe batch runner
+    (shared cache); hertz-fallback builds use the analytic stand-in. None where it failed."""
+    from tools.fe import GelGeometry, save_scenario
+    from tools.fe.batch import run_batch
+    from tools.train.resolve import ResolveError, period_scenario
+    from tools.train.resolve_stage import _fallback_solve, fe_cache_dir
+    from tools.twin.trajectory import INDENTER_SET
+
+    from tools.fe import load_result
+
+    fe_gel = GelGeometry(kind="flattened_dome", radius=gel.radius, cap_height=gel.cap_height, skirt=gel.skirt)
+    items = []
+    for i, m in enumerate(moments):
+        try:
+            ps = period_scenario([m["track"]], [m["indenter"]], [m["name"]], np.array([m["t_peak"]]), INDENTER_SET,
+                                 fe_gel, gel)
+        except ResolveError as exc:
+            log.warning("%s poke %d: no FE scenario (%s)", name, i, exc)
+            items.append(None)
+            continue
+        f = b.root / "correspondence" / "scenarios" / name / f"p{i:02d}.json"
+        save_scenario(ps.scenario, f)
+        items.append((f, ps))
+    todo = [it for it in items if it is not None]
+    if b.cfg.physics == "fe" and todo:
+        run_batch([str(f) for f, _ in todo], fe_cache_dir(), workers=1)
+    out = []
+    for it in items:
+        if it is None:
+            out.append(None)
+            continue
+        f, ps = it
+        if b.cfg.physics == "fe":
+            path = fe_cache_dir() / f"{ps.scenario.hash()}.npz"
+            out.append({"result": load_result(path), "t_init": ps.t_init} if path.is_file() else None)
+        else:
+            out.append({"result": _fallback_solve(ps, gel), "t_init": ps.t_init})
+    return out
 
 
 def gpr_tables(xy, theta, phi, gel, center0: tuple[float, float], radius: float, size: tuple[int, int]):
@@ -164,7 +269,7 @@ def fit_unit(b, spec_serial: str, cfg: CorrespondenceConfig = CorrespondenceConf
     unit = TwinUnit(spec_serial)
     nominal = TwinUnit(spec_serial, variation=VariationConfig(0.0, 0.0, 0.0, 0.0))
     path = record_calibration_session(b, spec_serial, cfg)
-    c = correspondences(path, unit.gel, cfg)
+    c = correspondences(b, path, unit.gel, cfg)
     S = (b.cfg.size, b.cfg.size)
     radius = nominal.gel_radius_px
     fit, tables, x, y = gpr_tables(c["xy"], c["theta"], c["phi"], unit.gel, nominal.gel_center_px, radius, S)
@@ -177,7 +282,15 @@ def fit_unit(b, spec_serial: str, cfg: CorrespondenceConfig = CorrespondenceConf
     version = CalibrationStore(b.store_root).write(spec_serial, tables, meta)
     return {"version": version, "pokes": int(len(c["xy"])), "center_px": list(fit.center),
             "true_center_px": list(unit.gel_center_px), **truth_errors(unit, tables, x, y),
-            "poke_residual_theta_deg_rms": float(np.sqrt(np.mean(np.square(fit.residual_deg["theta"]))))}
+            "poke_residual_theta_deg_rms": float(np.sqrt(np.mean(np.square(fit.residual_deg["theta"])))),
+            "pokes_2d": c["pokes"], "poke_px_err_vs_truth": _px_truth_errors(unit, c)}
+
+
+def _px_truth_errors(unit, c: dict) -> list:
+    """Detected 2D poke points minus the twin lens's exact projection of the 3D points (px; diagnostics)."""
+    if not len(c["points"]):
+        return []
+    return np.round(np.asarray(c["xy"]) - unit.model.project(c["points"]), 3).tolist()
 
 
 def build_unit_calibrations(b, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:

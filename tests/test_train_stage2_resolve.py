@@ -1,0 +1,120 @@
+"""Stage 2 (resolve): stage-1 keypoints of measured poses → FE scenario (tools/train/resolve.py), and the
+frame labelling of the re-solved path (tools/train/labels.py). Synthetic pose tracks with known motion."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tools.fe import GelGeometry
+from tools.fe.indenters import make_shape
+from tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share
+from tools.train.resolve import (PoseTrack, ResolveConfig, ResolveError, clearance, densify, fit_pose,
+                                 frame_sigma, interp_frames, period_scenario, surface_samples)
+from tools.twin.geometry import GelSurface
+
+GEL = GelGeometry(kind="flattened_dome", radius=12.0, cap_height=6.0, skirt=2.0)
+SURF = GelSurface(12.0, 6.0, 2.0)
+CATALOG = {"ball": {"shape": "sphere", "params": {"radius": 3.0}}}
+
+
+def _poke_track(theta=0.3, phi=0.7, depth=1.2, noise=0.0, rate=120.0, seed=0):
+    """A press along the inward normal at (θ, φ): hover 3 mm → contact at t = 1 s → depth at t = 1.6 s →
+    hold → release by t = 2.6 s. Tip frame local +z along the outward normal (docs/fe.md)."""
+    p = SURF.point_at(np.array([theta]), np.array([phi]))[0]
+    n = SURF.normals(p[None])[0]
+    t = np.arange(0.0, 3.2, 1.0 / rate)
+    h = np.interp(t, [0.0, 0.6, 1.0, 1.6, 2.0, 2.6, 3.2], [3.0, 3.0, 0.0, -depth, -depth, 0.5, 3.0])
+    pos = p + h[:, None] * n
+    axis = np.cross([0, 0, 1.0], n)
+    rv = axis / np.linalg.norm(axis) * np.arccos(n[2])
+    q = np.tile(Rotation.from_rotvec(rv).as_quat(scalar_first=True), (len(t), 1))
+    rng = np.random.default_rng(seed)
+    return PoseTrack(t, pos + rng.normal(0, noise, pos.shape), q), p, n, h
+
+
+def test_fit_pose_smooths_mocap_noise_without_lag():
+    tr, p, n, h = _poke_track(noise=0.05)
+    clean, *_ = _poke_track(noise=0.0)
+    ts = np.array([0.8, 1.3, 1.8, 2.3])
+    P, R = fit_pose(tr, ts, ResolveConfig().pose_half_window_s)
+    truth = np.stack([np.interp(ts, clean.t, clean.position[:, c]) for c in range(3)], 1)
+    err = np.linalg.norm(P - truth, axis=1)
+    assert err.max() < 0.06 and err.mean() < 0.045          # raw samples: 0.05 mm per axis (0.087 mm 3-D)
+    np.testing.assert_allclose(Rotation.from_rotvec(R).as_quat(scalar_first=True), clean.quaternion[:4], atol=1e-9)
+
+
+def test_period_scenario_starts_clear_and_moves_by_the_measured_poses():
+    tr, p, n, h = _poke_track()
+    t_key = np.array([1.2, 1.6, 1.8, 2.1])            # stage-1 keypoints: already in contact at the first
+    ps = period_scenario([tr], [3], ["ball"], t_key, CATALOG, GEL, SURF)
+    sc = ps.scenario
+    ind = sc.indenters[0]
+    shape = make_shape(ind)
+    surf = surface_samples(SURF, 0.4)
+    assert clearance(shape, np.array(ind.position), np.array(ind.rotation), surf) >= ResolveConfig().clear_gap_mm
+    # the latest clear sample: the next pose sample already is within the gap
+    t_next = tr.t[np.searchsorted(tr.t, ps.t_init) + 1]
+    p2, r2 = fit_pose(tr, [t_next], ResolveConfig().pose_half_window_s)
+    assert clearance(shape, p2[0], r2[0], surf) < ResolveConfig().clear_gap_mm
+    assert 0.9 < ps.t_init < 1.0 and ps.slots == [3]
+    # FE frames: every keypoint kept, inserted frames keep steps ≤ 0.5 mm between keypoints
+    assert set(np.round(t_key, 6)) <= set(np.round(ps.times, 6)) and ps.is_keypoint.sum() == len(t_key)
+    P = np.array(ind.position) + np.array([k.translation for k in ind.keypoints])
+    assert np.all(np.linalg.norm(np.diff(P, axis=0), axis=1) <= 0.5 + 1e-6)
+    truth = p[None] + np.interp(ps.times, tr.t, h)[:, None] * n
+    np.testing.assert_allclose(P, truth, atol=0.02)      # the measured motion (piecewise linear here)
+    np.testing.assert_allclose([k.rotation for k in ind.keypoints], 0.0, atol=1e-9)
+    assert sc.hash() == period_scenario([tr], [3], ["ball"], t_key, CATALOG, GEL, SURF).scenario.hash()
+
+
+def test_period_scenario_refuses_unknown_indenter_or_no_clear_pose():
+    tr, *_ = _poke_track()
+    with pytest.raises(ResolveError, match="catalog"):
+        period_scenario([tr], [0], ["unknown"], np.array([1.2, 1.6]), CATALOG, GEL, SURF)
+    stuck = PoseTrack(tr.t, np.tile(SURF.point_at(np.array([0.3]), np.array([0.7]))[0] - 1.0, (len(tr.t), 1)),
+                      tr.quaternion)
+    with pytest.raises(ResolveError, match="clear"):
+        period_scenario([stuck], [0], ["ball"], np.array([1.2, 1.6]), CATALOG, GEL, SURF)
+
+
+def test_densify_inserts_measured_frames_only_where_keypoints_are_far_apart():
+    tr, *_ = _poke_track(depth=2.0)
+    t, key = densify([tr], np.array([1.0, 1.6, 1.61]))
+    assert key.sum() == 3 and len(t) >= 5 and np.all(np.diff(t) > 0)
+    assert np.all(np.isin(t[~key], tr.t))                  # inserted frames are pose-sample times
+    t2, key2 = densify([tr], np.array([1.0, 1.05]))
+    assert len(t2) == 2 and key2.all()
+
+
+def test_frame_sigma_follows_the_measured_motion_and_interp_frames():
+    tr, *_ = _poke_track()
+    times = np.array([1.0, 1.3, 1.6, 2.0])
+    s = frame_sigma(np.array([0.5, 1.0, 1.15, 1.45, 1.8, 2.0, 2.5]), times, [tr])
+    assert np.isnan(s[0]) and np.isnan(s[-1])
+    np.testing.assert_allclose(s[1:6], [0.0, 0.5, 1.5, 2.5, 3.0], atol=0.03)   # hold segment: time fraction
+    arr = np.arange(4.0)[:, None] * np.ones((4, 2))
+    np.testing.assert_allclose(interp_frames(arr, 1.25), [1.25, 1.25])
+    np.testing.assert_allclose(interp_frames(arr, 7.0), [3.0, 3.0])
+
+
+def test_frame_labels_contact_busy_rest_and_keypoint_share():
+    from types import SimpleNamespace
+
+    tr, *_ = _poke_track()
+    frame_t = np.arange(0.0, 3.2, 1 / 30)
+    src = SimpleNamespace(times=np.array([1.2, 1.4, 1.6, 2.0, 2.2]), t_init=0.97, slots=[0],
+                          is_keypoint=np.array([True, False, True, True, True]))
+    f = np.interp(frame_t, [0, 1.0, 1.6, 2.0, 2.5, 3.2], [0, 0, 3.0, 3.0, 0, 0])
+    wrench = np.column_stack([frame_t, np.zeros_like(frame_t), np.zeros_like(frame_t), np.zeros_like(frame_t), -f,
+                              np.zeros((len(frame_t), 3))])
+    lab, sig = frame_labels(frame_t, [src], {0: tr}, wrench)
+    inside = (frame_t >= 1.2) & (frame_t <= 2.2)
+    assert np.all(lab[inside] == 0) and np.all(np.isfinite(sig[inside])) and np.all(np.isnan(sig[~inside]))
+    assert np.all(lab[(frame_t > 0.98) & (frame_t < 1.19)] >= BUSY_ID)     # initial pose → first frame
+    assert np.all(lab[(frame_t > 2.21) & (frame_t < 2.45)] >= BUSY_ID)     # light contact after the period
+    assert np.all(lab[(frame_t < 0.95) | (frame_t > 2.55)] == -1)
+    share = keypoint_frame_share(frame_t, lab, [src])
+    assert share["labelled_frames"] == inside.sum() and share["at_keypoint"] == 4 and share["at_fe_frame"] == 5
+    from tools.train.labels import LabelConfig
+
+    lab2, _ = frame_labels(frame_t, [src], {0: tr}, wrench, lcfg=LabelConfig(keypoint_frames_only=True))
+    assert (lab2 == 0).sum() == 4
