@@ -143,3 +143,22 @@ def test_more_blocks_use_monte_carlo_flips():
     cfg = DiagnoseConfig(n_blocks=20, n_perm=4000)
     p = sign_flip_pvalue(np.ones(20), cfg)
     assert p == pytest.approx(1 / 4001)
+
+
+def test_candidates_are_inserted_before_the_sensor_correction(registry):
+    """Deployed order: force-stage effects, then the correction. A model that over-reads by 1.6x,
+    corrected by a gain of 1/1.6 (the sensor's correction), with strain stiffening hidden: the
+    candidate is fitted between the raw model and the correction and recovers k."""
+    base = small(5)
+    truth = small(5, [("strain_stiffening", {"k": 20.0})])
+    model = base.model * 1.6                       # the raw model's own gain error
+
+    def post(x):                                   # the correction (zero stays zero)
+        return x / 1.6
+
+    table = truth.with_model(model)
+    diag = diagnose(table, registry, post=post)
+    assert diag.verdict is not None and diag.verdict.effect.name == "strain_stiffening"
+    assert diag.verdict.params["k"] == pytest.approx(20.0, rel=0.1)
+    no_corr = diagnose(table, registry, candidates=["strain_stiffening"])   # correction forgotten:
+    assert abs(no_corr.ranking[0].params["k"] - 20.0) > 4.0                # the fit absorbs the gain error

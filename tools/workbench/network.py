@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 CLUSTER_FIELDS = ("id", "centroid_px", "centroid_mm", "normal", "area_mm2", "force_n", "force_mag_n",
                   "pixels", "perimeter_px", "circularity", "priority", "age")
 WIDTH = {"centroid_px": 2, "centroid_mm": 3, "normal": 3, "force_n": 3}
+PASS_MODULES = ("pipeline.py", "preprocess.py", "baseline.py", "model.py", "contacts.py", "geometry.py")
 RUNTIME_COVARIATES = ("depth", "max_depth", "theta", "phi", "rim_distance", "force_n", "force_t")
 
 
@@ -79,6 +80,16 @@ def geometry_key(cal) -> dict:
     return {"gel_center_px": cal.meta.get("gel_center_px"), "gel_radius_px": cal.meta.get("gel_radius_px"),
             "model_size": cal.meta.get("model_size"), "gel": cal.meta.get("gel"),
             "tables": {k: files.get(v) for k, v in sorted(cal.meta.get("tables", {}).items())}}
+
+
+def runtime_code_hash() -> str:
+    """Hash of the runtime modules the frame pass runs (a code change re-runs the network)."""
+    import runtime
+
+    h = hashlib.sha256()
+    for name in PASS_MODULES:
+        h.update((Path(runtime.__file__).parent / name).read_bytes())
+    return h.hexdigest()[:16]
 
 
 # ----- stage 1: the frame pass ------------------------------------------------------------------
@@ -152,7 +163,7 @@ def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path 
     from runtime.pipeline import PipelineConfig
 
     key_src = {"frames": frames_hash(session), "model": package.sha256(cfg.precision), "precision": cfg.precision,
-               "geometry": geometry_key(cal), "pipeline": asdict(PipelineConfig())}
+               "geometry": geometry_key(cal), "pipeline": asdict(PipelineConfig()), "code": runtime_code_hash()}
     key = hashlib.sha256(json.dumps(key_src, sort_keys=True, default=str).encode()).hexdigest()[:16]
     path = cache_dir / f"{key}.npz" if cache_dir else None
     if path is not None and path.is_file():

@@ -5,6 +5,7 @@ residual_vs.png    residual vs depth, loading rate, slip, temperature, time, loa
                    brightness
 timeline.png       measured vs predicted |F| and residual over the session
 worst.jpg          the worst samples with their camera frames
+position.png       contact position error (network path: cluster centroid − mocap tip, mm)
 before_after.png   error per axis before/after (when a previous comparison is given)
 """
 from __future__ import annotations
@@ -107,7 +108,7 @@ def residual_vs(comp, path: Path) -> str:
 def timeline(comp, path: Path) -> str:
     plt = _plt()
     t = comp.table.cols["time"]
-    s = comp.table.cols["series"]
+    s = comp.table.cols.get("indenter", comp.table.cols["series"])   # network tables: series = contact track
     fig, ax = plt.subplots(2, 1, figsize=(8, 4.2), sharex=True)
     for k in np.unique(s)[:2]:
         m = s == k
@@ -168,11 +169,38 @@ def worst(comp, path: Path, session_path: Path | None, k: int = 6) -> tuple[str,
             ax.imshow(img[h // 2 - r:h // 2 + r:2, w // 2 - r:w // 2 + r:2])
         ax.set_title(f"t={c['time'][i]:.1f}s |r|={err[i]:.2f}N", fontsize=7)
         ax.axis("off")
-        rows.append({"time": float(c["time"][i]), "indenter": int(c["series"][i]), "error_n": float(err[i]),
+        rows.append({"time": float(c["time"][i]), "indenter": int(c.get("indenter", c["series"])[i]),
+                     "error_n": float(err[i]),
                      "depth_mm": float(c["depth"][i]), "measured": comp.table.meas[i].tolist(),
                      "predicted": comp.pred[i].tolist()})
     fig.tight_layout()
     return _save(fig, path), rows
+
+
+def position_residuals(comp, path: Path) -> str | None:
+    """Contact position error (cluster centroid − mocap tip, mm) per axis and over the gel."""
+    pos = comp.table.vec.get("position_residual")
+    if pos is None:
+        return None
+    c = comp.table.cols
+    ok = np.all(np.isfinite(pos), axis=1) & (c.get("mocap_depth", c["depth"]) > 0)
+    if not ok.any():
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(1, 2, figsize=(8.4, 3.4))
+    for j, axis in enumerate("xyz"):
+        ax[0].hist(pos[ok, j], bins=40, histtype="step", label=f"{axis}: mean |e| {np.mean(np.abs(pos[ok, j])):.2f} mm")
+    ax[0].set_xlabel("cluster centroid − mocap tip (mm)")
+    ax[0].legend(fontsize=7)
+    tip = comp.table.vec["tip"][ok]
+    sc = ax[1].scatter(tip[:, 0], tip[:, 1], c=np.linalg.norm(pos[ok], axis=1), s=4, cmap="viridis")
+    fig.colorbar(sc, ax=ax[1], label="position error (mm)")
+    ax[1].set_aspect("equal")
+    ax[1].set_xlabel("x (mm)")
+    ax[1].set_ylabel("y (mm)")
+    ax[1].set_title("contact position error over the gel")
+    fig.tight_layout()
+    return _save(fig, path)
 
 
 def before_after(prev: dict, cur: dict, path: Path) -> str:
@@ -202,6 +230,9 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
     out.mkdir(parents=True, exist_ok=True)
     pics = [residual_map(comp, out / "residual_map.png"), residual_vs(comp, out / "residual_vs.png"),
             timeline(comp, out / "timeline.png")]
+    pos = position_residuals(comp, out / "position.png")
+    if pos:
+        pics.append(pos)
     wname, wrows = worst(comp, out / "worst.jpg", session_path)
     pics.append(wname)
     comp.summary["worst_samples"] = wrows
@@ -212,6 +243,8 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
              f"<p>enabled effects: {html.escape(', '.join(e['name'] for e in comp.summary['effects']) or 'none')}</p>",
              "<h2>Force error, all samples (N)</h2>", _table_html(comp.summary["force_error"]),
              "<h2>Force error, contact samples (N)</h2>", _table_html(comp.summary["force_error_contact"])]
+    if comp.summary.get("position_error"):
+        parts += ["<h2>Contact position error (mm)</h2>", _table_html(comp.summary["position_error"])]
     if previous is not None:
         comp.summary["before"] = {"effects": previous.get("effects", []), "force_error": previous["force_error"]}
         pics.append(before_after(previous, comp.summary, out / "before_after.png"))
