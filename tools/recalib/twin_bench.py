@@ -25,6 +25,7 @@ import json
 import logging
 import math
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -159,8 +160,10 @@ def mae(m: dict) -> float:
     return float(np.mean(np.abs(m["pred"] - m["ref"]))) if len(m["ref"]) else float("nan")
 
 
-def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path, test_dir: Path, say) -> dict:
-    """Before/after held-out errors of one unit for each poke count (decided and forced)."""
+def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path, test_dir: Path, say,
+                  work: Path) -> dict:
+    """Before/after held-out errors of one unit for each poke count (decided and forced); calibration
+    stores (nominal, then one recalibrated version per poke count) are written under `work`."""
     from runtime.calibration import CalibrationStore
     from runtime.session import load_session
     from tools.recalib.evaluate import measure_pokes
@@ -169,13 +172,11 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     from tools.recalib.store_ops import store_recalibration
 
     size = int(package.size[0])
-    work = cfg.folder() / "stores" / unit.serial
     tables, meta = nominal_calibration(size)
     rules = PokeRules(reach_theta_rad=math.radians(cfg.reach_deg))
     row = {"unit": unit.serial, "variation": unit.override(), "label": unit.label(), "by_pokes": {}}
     store = CalibrationStore(work / "base")
-    if unit.serial not in store.sensors():
-        store.write(unit.serial, tables, meta)
+    store.write(unit.serial, tables, meta)
     base = store.load(unit.serial)
     before = measure_pokes(test_dir, base, package, corrected=True, precision=cfg.precision)
     row.update(held_out_pokes=len(before["ref"]), before_mae_n=mae(before), before_bias_n=float(np.mean(before["pred"] - before["ref"])),
@@ -197,8 +198,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
                      pokes=[{"pred_n": p.pred_mag, "ref_n": p.ref_force_n, "uv_px": [float(v) for v in p.uv_px]}
                             for p in outcome.accepted])
         st = CalibrationStore(work / f"n{n}")
-        if unit.serial not in st.sensors():
-            st.write(unit.serial, tables, meta)
+        st.write(unit.serial, tables, meta)
         cal0 = st.load(unit.serial)
         prov = {"pokes": n, "source": f"replay:{fit_dir}", "reference": reference.name, "forced": not entry["stored"]}
         store_recalibration(st, cal0, prov, correction=(an.fit.spec, an.fit.onnx_bytes))
@@ -231,7 +231,8 @@ def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
         fit_cfg, test_cfg = record_configs(unit, cfg, points, size)
         fit_dir = record_once(fit_cfg, cfg.folder() / "sessions" / f"{unit.serial}-fit-{fit_cfg.key()}", say)
         test_dir = record_once(test_cfg, cfg.folder() / "sessions" / f"{unit.serial}-test-{test_cfg.key()}", say)
-        row = evaluate_unit(unit, cfg, package, fit_dir, test_dir, say)
+        with tempfile.TemporaryDirectory(prefix="recalib-twin-") as tmp:
+            row = evaluate_unit(unit, cfg, package, fit_dir, test_dir, say, Path(tmp))
         row["nominal"] = unit is cfg.nominal
         row["sessions"] = {"fit": str(fit_dir), "held_out": str(test_dir)}
         out["units"].append(row)
