@@ -48,6 +48,22 @@ class ModelPackage:
     def sha256(self, precision: str) -> str:
         return self.manifest["files"][PRECISION_FILES[precision]]["sha256"]
 
+    def has(self, precision: str) -> bool:
+        """True when the package folder holds the model of this precision (fp32 is optional)."""
+        return self.file(precision).is_file()
+
+    def missing_message(self, precision: str) -> str:
+        """Why a precision cannot run and the command that regenerates its file."""
+        info = self.manifest.get("files", {}).get(PRECISION_FILES[precision], {})
+        path = self.file(precision)
+        if not info:
+            return f"{path}: {precision} model not in this package (manifest.files has no entry for it)"
+        where = f" (the export left a copy in {info['cache']})" if info.get("cache") else ""
+        how = info.get("regenerate") or self.manifest.get("training", {}).get("command", "tensortouch train export")
+        ships = " and ".join(p for p, f in PRECISION_FILES.items() if (self.folder / f).is_file()) or "no model"
+        return (f"{path}: this package ships {ships} only; the {precision} model (sha256 "
+                f"{info.get('sha256', '?')[:12]}…) is not in the folder{where}. Regenerate it with: {how}")
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         b = self.manifest["output"]["bounds"]
         lo = np.array([b[c][0] for c in CHANNELS], dtype=np.float32)
@@ -101,6 +117,8 @@ def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage
     for name, info in m["files"].items():
         path = folder / name
         if not path.is_file():
+            if info.get("optional"):
+                continue          # e.g. an int8-only package: the fp32 hash is recorded, the file is not shipped
             _fail(path, "listed in manifest.files but missing")
         if verify_hashes and sha256_file(path) != info.get("sha256"):
             _fail(path, "SHA-256 does not match manifest (corrupt or replaced file)")
@@ -132,7 +150,7 @@ class FieldModel:
         self.precision = precision
         path = package.file(precision)
         if not path.is_file():
-            _fail(path, f"{precision} model missing from the package")
+            raise ModelPackageError(package.missing_message(precision))
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = max(1, int(threads))
         opts.inter_op_num_threads = 1

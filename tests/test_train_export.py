@@ -1,6 +1,7 @@
-"""Stage 7: ONNX export, static int8 QDQ, parity report and the model package (docs/model_package.md).
+"""Stage 7: ONNX export, int8 quantization, parity report and the model package (docs/model_package.md).
 
-Everything is built in temp dirs; nothing is written to exported_models/."""
+Everything is built in temp dirs; nothing is written to exported_models/. Packages ship int8 only
+unless `--with-fp32`; the fp32 graph is left beside the checkpoint (<run>/export/<name>/)."""
 import argparse
 import hashlib
 import json
@@ -16,7 +17,7 @@ from runtime.errors import ModelPackageError  # noqa: E402
 from runtime.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS  # noqa: E402
 from runtime.paths import ROOT  # noqa: E402
 from tools.train.cli import register  # noqa: E402
-from tools.train.export import FP32, INT8, count_quantize_nodes, verify_package  # noqa: E402
+from tools.train.export import FP32, INT8, count_quantize_nodes, fp32_cache_path, verify_package  # noqa: E402
 
 SIZE = 64
 
@@ -42,12 +43,12 @@ def package(tmp_path_factory):
     assert _cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "tiny",
                  "--models-dir", str(models), "--calibration", "8", "--latency-runs", "5"]) == 0
     assert (sorted(p.name for p in shipped.iterdir()) if shipped.is_dir() else []) == before
-    return models / "tiny", data
+    return models / "tiny", data, run
 
 
 def test_manifest_follows_the_contract(package):
-    folder, data = package
-    assert sorted(p.name for p in folder.iterdir()) == sorted(["manifest.json", INT8, FP32])
+    folder, data, run = package
+    assert sorted(p.name for p in folder.iterdir()) == sorted(["manifest.json", INT8])     # int8 only
     man = json.loads((folder / "manifest.json").read_text())
     assert man["schema"] == "tensortouch.model" and man["schema_version"] == 1 and man["name"] == "tiny"
     assert man["input"] == {"name": "input", "layout": "NCHW", "size": [SIZE, SIZE], "dtype": "float32",
@@ -57,8 +58,13 @@ def test_manifest_follows_the_contract(package):
     assert out["normalization"] == "minmax" and out["size"] == [SIZE, SIZE]
     bounds = json.loads((data / "bounds.json").read_text())["bounds"]
     assert out["bounds"] == bounds
-    for f in (FP32, INT8):
-        assert man["files"][f]["sha256"] == hashlib.sha256((folder / f).read_bytes()).hexdigest()
+    cached = fp32_cache_path(run, "tiny")
+    for f, path in ((FP32, cached), (INT8, folder / INT8)):
+        assert man["files"][f]["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    assert man["files"][FP32]["optional"] is True and "optional" not in man["files"][INT8]
+    assert man["files"][FP32]["cache"] == str(cached.resolve())            # outside the repo: absolute
+    assert man["files"][FP32]["regenerate"].endswith("--with-fp32")
+    assert man["metrics"]["quantization"]["scheme"] == "hybrid"
     tr = man["training"]
     assert "train export" in tr["command"] and "--name tiny" in tr["command"]
     assert tr["data_hash"] == hashlib.sha256((data / "index.json").read_bytes()).hexdigest()
@@ -73,24 +79,75 @@ def test_manifest_follows_the_contract(package):
 
 
 def test_both_models_load_in_onnxruntime_and_agree(package):
-    folder, _ = package
+    folder, _, run = package
     x = np.random.default_rng(0).random((1, 6, SIZE, SIZE), dtype=np.float32)
     outs = {}
+    paths = {FP32: fp32_cache_path(run, "tiny"), INT8: folder / INT8}
     for f in (FP32, INT8):
-        s = ort.InferenceSession(str(folder / f), providers=["CPUExecutionProvider"])
+        s = ort.InferenceSession(str(paths[f]), providers=["CPUExecutionProvider"])
         assert s.get_inputs()[0].name == "input" and s.get_outputs()[0].name == "fields"
         outs[f] = s.run(None, {"input": x})[0]
         assert outs[f].shape == (1, 15, SIZE, SIZE) and np.all(np.isfinite(outs[f]))
     mse = np.mean((outs[FP32] - outs[INT8]) ** 2)
     assert 0 < mse < 1e-2                                   # quantized, but close
     assert count_quantize_nodes(folder / INT8) > 10
-    assert count_quantize_nodes(folder / FP32) == 0
+    assert count_quantize_nodes(paths[FP32]) == 0
+
+
+def test_runtime_fp32_on_an_int8_only_package_names_file_and_command(package):
+    from runtime.model import FieldModel, load_package
+
+    folder, _, _ = package
+    pkg = load_package(folder)                       # the optional fp32 is absent: still a valid package
+    assert not pkg.has("fp32") and pkg.has("int8")
+    with pytest.raises(ModelPackageError, match=r"model\.fp32\.onnx.*ships int8 only.*--with-fp32"):
+        FieldModel(pkg, "fp32")
+    assert FieldModel(pkg, "int8")(np.zeros((6, SIZE, SIZE), np.float32)).shape == (15, SIZE, SIZE)
+
+
+def test_with_fp32_ships_both_and_the_fp32_graph_is_reproducible(package, tmp_path):
+    """--with-fp32 re-exports the same run into a package holding both models; the fp32 graph is
+    byte-identical to the one the int8-only export left in the build cache (same SHA-256)."""
+    from runtime.model import FieldModel, load_package
+
+    folder, data, run = package
+    models = tmp_path / "models"
+    assert _cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "tiny",
+                 "--models-dir", str(models), "--calibration", "8", "--latency-runs", "2", "--with-fp32"]) == 0
+    both = models / "tiny"
+    assert sorted(p.name for p in both.iterdir()) == sorted(["manifest.json", INT8, FP32])
+    man = verify_package(both)
+    assert "optional" not in man["files"][FP32] and "--with-fp32" in man["training"]["command"]
+    first = json.loads((folder / "manifest.json").read_text())
+    assert man["files"][FP32]["sha256"] == first["files"][FP32]["sha256"]
+    x = np.random.default_rng(1).random((6, SIZE, SIZE), dtype=np.float32)
+    y32, y8 = FieldModel(load_package(both), "fp32")(x), FieldModel(load_package(both), "int8")(x)
+    assert y32.shape == y8.shape == (15, SIZE, SIZE) and not np.array_equal(y32, y8)
+
+
+def test_optional_fp32_is_still_verified_when_present(package, tmp_path):
+    import shutil
+
+    folder, _, run = package
+    bad = tmp_path / "bad"
+    shutil.copytree(folder, bad)
+    data = bytearray(fp32_cache_path(run, "tiny").read_bytes())
+    data[-10] ^= 0xFF
+    (bad / FP32).write_bytes(bytes(data))                       # a present optional file must match
+    with pytest.raises(ModelPackageError, match="model.fp32.onnx"):
+        verify_package(bad)
+    (bad / FP32).unlink()
+    man = json.loads((bad / "manifest.json").read_text())
+    man["files"][INT8]["optional"] = True                       # int8 is never optional
+    (bad / "manifest.json").write_text(json.dumps(man))
+    with pytest.raises(ModelPackageError, match="model.int8.onnx"):
+        verify_package(bad)
 
 
 def test_tampered_package_is_rejected(package, tmp_path):
     import shutil
 
-    folder, _ = package
+    folder, _, _ = package
     bad = tmp_path / "bad"
     shutil.copytree(folder, bad)
     data = bytearray((bad / INT8).read_bytes())
@@ -133,3 +190,35 @@ def test_keypoints_cli_on_a_session(tmp_path):
     assert p["indenters"] == [0] and min(abs(np.array(p["t"]) - 2.0)) < 0.1
     assert np.array(p["force"]).shape == (len(p["t"]), 1, 3)
     assert doc["config"]["contact_force_n"] == 1.5 and doc["config"]["detach_force_n"] == 1.1
+
+
+@pytest.mark.parametrize("k,groups,s", [(1, 5, 2), (3, 1, 2), (3, 2, 3)])
+def test_conv_shuffle_as_one_conv_transpose_is_exact(k, groups, s):
+    from tools.train.export_graph import ConvShuffle
+
+    torch.manual_seed(k + groups + s)
+    conv = torch.nn.Conv2d(4 * groups, 3 * groups * s * s, k, padding=k // 2, groups=groups)
+    ref = torch.nn.Sequential(conv, torch.nn.PixelShuffle(s))
+    x = torch.randn(2, 4 * groups, 7, 5)
+    with torch.no_grad():
+        assert torch.allclose(ConvShuffle(conv, s)(x), ref(x), atol=1e-5)
+    with pytest.raises(ValueError, match="ConvShuffle"):
+        ConvShuffle(torch.nn.Conv2d(4, 12, 3, padding=0), 2)             # not a 'same' conv
+
+
+def test_rewritten_network_equals_the_trained_one():
+    """The exported graph's rewrites (fused heads, shuffle as deconvolution) keep the function."""
+    from tools.train.export_graph import FusedHeads, reparametrize
+    from tools.train.model.hiera import HieraConfig
+    from tools.train.model.qupsample import HieraQUpsample
+
+    torch.manual_seed(0)
+    net = HieraQUpsample(HieraConfig(image_size=64)).eval()
+    for p in net.heads.parameters():                       # distinct per-head / per-sub-position weights
+        p.data.normal_(0, 0.3)
+    x = torch.rand(3, 6, 64, 64)
+    with torch.no_grad():
+        ref = net(x)
+        out, done = reparametrize(net, 64)
+        assert done == ["heads"] and isinstance(out.heads, FusedHeads)
+        assert torch.allclose(out(x), ref, atol=1e-5)

@@ -88,10 +88,12 @@ def cmd_export(args) -> int:
 
     t0 = time.monotonic()
     root = Path(args.models_dir) if args.models_dir else models_dir()
-    cfg = ExportConfig(calibration_samples=args.calibration, latency_runs=args.latency_runs)
+    cfg = ExportConfig(calibration_samples=args.calibration, latency_runs=args.latency_runs,
+                       with_fp32=getattr(args, "with_fp32", False))
     command = args.command_line or shlex.join(
         ["tensortouch", "train", "export", "--run", str(args.run), "--data", str(args.data), "--name", args.name,
-         "--models-dir", str(root), "--calibration", str(args.calibration), "--latency-runs", str(args.latency_runs)])
+         "--models-dir", str(root), "--calibration", str(args.calibration), "--latency-runs", str(args.latency_runs)]
+        + (["--with-fp32"] if getattr(args, "with_fp32", False) else []))
     man = export_run(args.run, args.data, args.name, root, command, cfg, wall_time_s=args.wall_time)
     m = man["metrics"]
     print(f"{root / args.name}: PSNR fp32 {m['fp32']['psnr']:.2f} / int8 {m['int8']['psnr']:.2f} dB, "
@@ -161,6 +163,8 @@ def register(sub) -> None:
     e.add_argument("--wall-time", type=float, default=0.0, help="wall time of the whole build to record (s)")
     e.add_argument("--command-line", help="command to record in the manifest when export is one step of a "
                                           "larger build (default: this export command)")
+    e.add_argument("--with-fp32", action="store_true", help="also ship model.fp32.onnx in the package "
+                   "(default: int8 only; the fp32 graph is left in <run>/export/<name>/)")
     e.set_defaults(func=cmd_export)
 
     b = ts.add_parser("bench", help="network benchmark: params, training samples/s, ORT fp32 vs int8 latency")

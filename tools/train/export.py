@@ -1,12 +1,16 @@
-"""Stage 7 — ONNX export, static int8 quantization, parity report, model package (docs/model_package.md).
+"""Stage 7 — ONNX export, int8 quantization, parity report, model package (docs/model_package.md).
 
-- `export_onnx`     legacy TorchScript exporter (dynamo=False, opset 17), input "input" (N, 6, H, W),
-                    output "fields" (N, 15, H, W), dynamic batch;
-- `quantize_int8`   onnxruntime static QDQ: uint8 activations, per-channel int8 weights (DESIGN §10:
-                    the fastest of the variants measured), MinMax calibration on training inputs;
+- `export_onnx`     legacy TorchScript exporter (dynamo=False, opset 17), input "input" (1, 6, H, W),
+                    output "fields" (1, 15, H, W), after the exact rewrites of `export_graph`;
+- `quantize_int8`   scheme "hybrid" (default): static QDQ int8 for Conv (uint8 activations, per-channel
+                    int8 weights, MinMax calibration on training inputs) + int8 weights for the weighted
+                    MatMuls with activations quantized per frame (onnxruntime DynamicQuantizeMatMul);
+                    scheme "static": the earlier all-static QDQ of Conv/Gemm/MatMul;
 - `latency_ms`      single-thread latency of both models measured interleaved in one run;
 - `parity_report`   per-modality PSNR of int8 vs fp32 (and of each vs ground truth when given);
 - `write_package`   exported_models/<name>/ with manifest.json, written atomically (temp dir + rename);
+                    the package ships int8 only unless asked (`with_fp32`): the fp32 graph goes to the
+                    build cache (`fp32_cache_path`), its hash and parity metrics stay in the manifest;
 - `verify_package`  the checks the runtime applies on load (hashes, schema, graph shapes, channels).
 """
 from __future__ import annotations
@@ -40,26 +44,40 @@ class ExportConfig:
     opset: int = 17
     calibration_samples: int = 32        # training inputs used to calibrate activation ranges
     per_channel: bool = True
-    # Only layers with weights are quantized. Measured on this machine (128², one thread, interleaved,
-    # best of 120): fp32 7.7 ms; QDQ of every op 8.4 ms (slower: Softmax/Mul/Add/attention MatMul in
-    # int8 cost more than they save); Conv + Gemm only 7.05 ms.
-    op_types: tuple[str, ...] = ("Conv", "Gemm", "MatMul")
+    rewrite: bool = True                 # exact graph rewrites of export_graph (fused heads, deconv)
+    # Quantization scheme, measured on hiera-qup-128 (128², one thread, interleaved, CPU time per frame,
+    # docs/BENCHMARKS.md "Runtime"): fp32 (rewritten) 8.8 ms; all-static QDQ Conv+Gemm+MatMul 10.0 ms,
+    # QOperator the same; static Conv only 9.6; dynamic MatMul only 8.8 (-0.02 dB); hybrid = static
+    # Conv + dynamic MatMul 6.5 ms (-0.10 dB PSNR vs fp32). Quantizing every op (Softmax/Mul/Add/
+    # attention MatMul) was slower still; dynamic ConvInteger 5x slower.
+    scheme: str = "hybrid"               # "hybrid" | "static"
+    op_types: tuple[str, ...] = ("Conv", "Gemm", "MatMul")     # static ops of scheme "static"
+    hybrid_static_op_types: tuple[str, ...] = ("Conv",)       # static ops of scheme "hybrid"
     quantize_activation_matmul: bool = False   # attention q·kᵀ and p·v (no weight input) stay fp32
+    with_fp32: bool = False              # ship model.fp32.onnx inside the package (default: build cache)
     latency_runs: int = 50
     latency_warmup: int = 5
     latency_threads: int = 1
 
 
 def export_onnx(model, path: str | Path, image_size: int, opset: int = ExportConfig.opset,
-                dynamic_batch: bool = False) -> Path:
+                dynamic_batch: bool = False, rewrite: bool = ExportConfig.rewrite) -> Path:
     """Export a torch model (6 → 15 channels) to ONNX with the legacy exporter.
 
     The default is a static batch of 1 (the runtime runs one frame at a time): every reshape is then
-    constant-folded, which removes ~500 Shape/Gather/Concat nodes from the Hiera graph."""
+    constant-folded, which removes ~500 Shape/Gather/Concat nodes from the Hiera graph. With `rewrite`
+    the exact rewrites of tools/train/export_graph.py are applied first (checked numerically); the
+    exported graph is deterministic for a given checkpoint (same bytes, same SHA-256)."""
+    import copy
+
     import torch
+
+    from tools.train.export_graph import reparametrize
 
     path = Path(path)
     model = model.eval()
+    if rewrite:
+        model, _ = reparametrize(copy.deepcopy(model), image_size)
     dummy = torch.rand(1, 6, image_size, image_size)
     torch.onnx.export(model, (dummy,), str(path), input_names=["input"], output_names=["fields"],
                       opset_version=opset, dynamo=False, do_constant_folding=True,
@@ -85,24 +103,31 @@ class _Reader:
 
 def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration: np.ndarray,
                   cfg: ExportConfig = ExportConfig()) -> Path:
-    """Static QDQ quantization (uint8 activations, int8 weights, per channel) of the weighted layers."""
+    """int8 model of `fp32_path` with the scheme of `cfg` (see the module docstring)."""
     import onnx
-    from onnxruntime.quantization import (CalibrationDataReader, QuantFormat, QuantType, quantize_static)
+    from onnxruntime.quantization import (CalibrationDataReader, QuantFormat, QuantType, quantize_dynamic,
+                                          quantize_static)
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
+    if cfg.scheme not in ("hybrid", "static"):
+        raise ModelPackageError(f"ExportConfig.scheme {cfg.scheme!r}: expected 'hybrid' or 'static'")
     reader = type("Reader", (_Reader, CalibrationDataReader), {})(np.ascontiguousarray(calibration, np.float32))
+    static_ops = cfg.hybrid_static_op_types if cfg.scheme == "hybrid" else cfg.op_types
     with tempfile.TemporaryDirectory() as tmp:
         pre = Path(tmp) / "pre.onnx"
         quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
-        exclude = []
-        if not cfg.quantize_activation_matmul:
-            g = onnx.load(str(pre)).graph
-            weights = {t.name for t in g.initializer}
-            exclude = [n.name for n in g.node if n.op_type == "MatMul" and not any(i in weights for i in n.input)]
-        quantize_static(str(pre), str(int8_path), reader, quant_format=QuantFormat.QDQ,
+        g = onnx.load(str(pre)).graph
+        weights = {t.name for t in g.initializer}
+        act_matmul = [n.name for n in g.node if n.op_type == "MatMul" and not any(i in weights for i in n.input)]
+        exclude = [] if cfg.quantize_activation_matmul else act_matmul
+        static_out = Path(tmp) / "static.onnx" if cfg.scheme == "hybrid" else Path(int8_path)
+        quantize_static(str(pre), str(static_out), reader, quant_format=QuantFormat.QDQ,
                         activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
-                        per_channel=cfg.per_channel, op_types_to_quantize=list(cfg.op_types),
+                        per_channel=cfg.per_channel, op_types_to_quantize=list(static_ops),
                         nodes_to_exclude=exclude)
+        if cfg.scheme == "hybrid":
+            quantize_dynamic(str(static_out), str(int8_path), op_types_to_quantize=["MatMul"],
+                             weight_type=QuantType.QInt8, nodes_to_exclude=exclude)
     return Path(int8_path)
 
 
@@ -176,8 +201,48 @@ def git_commit() -> str:
         return "unknown"
 
 
+def _rel(path: Path) -> str:
+    """Path relative to the repository root when inside it (manifests are committed)."""
+    from runtime.paths import ROOT
+
+    path = Path(path).resolve()
+    try:
+        return str(path.relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
+def fp32_cache_path(run: str | Path, name: str) -> Path:
+    """Where an export leaves the fp32 graph of package `name` when the package ships int8 only: beside
+    the checkpoint it came from, in the fit run's folder (the build cache, never committed)."""
+    return Path(run) / "export" / name / FP32
+
+
+def regenerate_command(run: str | Path, data: str | Path, name: str, models_root: str | Path) -> str:
+    """The export command that writes the package again with the fp32 graph inside it."""
+    import shlex
+
+    return shlex.join(["tensortouch", "train", "export", "--run", _rel(Path(run)), "--data", _rel(Path(data)),
+                       "--name", name, "--models-dir", _rel(Path(models_root)), "--with-fp32"])
+
+
 def build_manifest(name: str, size: int, bounds: dict, files: dict[str, Path], command: str,
-                   data_hash: str, metrics: dict, wall_time_s: float = 0.0) -> dict:
+                   data_hash: str, metrics: dict, wall_time_s: float = 0.0, shipped: tuple[str, ...] = (INT8,),
+                   run: str | Path | None = None, fp32_cache: Path | None = None, regenerate: str = "") -> dict:
+    """`files` lists every model the export made (hash recorded); those not in `shipped` are marked
+    optional (absent from the package; `cache` says where the export left it, `regenerate` how to
+    put it into the package)."""
+    entries = {}
+    for k, p in files.items():
+        entries[k] = {"sha256": sha256_file(p)}
+        if k not in shipped:
+            entries[k].update(optional=True, regenerate=regenerate or command)
+            if fp32_cache is not None and k == FP32:
+                entries[k]["cache"] = _rel(fp32_cache)
+    training = {"command": command, "data_hash": data_hash, "git_commit": git_commit(),
+                "wall_time_s": float(wall_time_s)}
+    if run is not None:
+        training["run"] = _rel(Path(run))
     return {
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "name": name,
         "created": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -186,26 +251,37 @@ def build_manifest(name: str, size: int, bounds: dict, files: dict[str, Path], c
         "output": {"name": "fields", "layout": "NCHW", "size": [size, size], "channels": list(CHANNELS),
                    "units": list(CHANNEL_UNITS), "normalization": "minmax",
                    "bounds": {c: [float(bounds[c][0]), float(bounds[c][1])] for c in CHANNELS}},
-        "files": {k: {"sha256": sha256_file(p)} for k, p in files.items()},
-        "training": {"command": command, "data_hash": data_hash, "git_commit": git_commit(),
-                     "wall_time_s": float(wall_time_s)},
+        "files": entries,
+        "training": training,
         "metrics": metrics,
     }
 
 
-def write_package(root: str | Path, name: str, fp32_path: Path, int8_path: Path, manifest: dict) -> Path:
-    """Atomically create/replace <root>/<name>/ holding both models and manifest.json."""
+def _atomic_copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(f".{dst.name}.tmp{os.getpid()}")
+    shutil.copyfile(src, tmp)
+    os.replace(tmp, dst)
+
+
+def write_package(root: str | Path, name: str, models: dict[str, Path], manifest: dict) -> Path:
+    """Atomically create/replace <root>/<name>/ with manifest.json and the `models` {file name: path}
+    to ship (a subset of manifest.files: optional files may be left out)."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     final = root / name
     tmp = Path(tempfile.mkdtemp(dir=root, prefix=f".{name}.tmp"))
     os.chmod(tmp, 0o755)
     try:
-        shutil.copyfile(fp32_path, tmp / FP32)
-        shutil.copyfile(int8_path, tmp / INT8)
-        for k in (FP32, INT8):
+        for k, src in models.items():
+            if k not in manifest["files"]:
+                raise ModelPackageError(f"{tmp / k}: not listed in the manifest's files")
+            shutil.copyfile(src, tmp / k)
             if sha256_file(tmp / k) != manifest["files"][k]["sha256"]:
                 raise ModelPackageError(f"{tmp / k}: copy does not match the hashed file")
+        for k, info in manifest["files"].items():
+            if k not in models and not info.get("optional"):
+                raise ModelPackageError(f"{tmp / k}: required by the manifest but not written")
         with open(tmp / "manifest.json", "w") as fh:
             json.dump(manifest, fh, indent=1)
         old = None
@@ -233,11 +309,20 @@ def verify_package(folder: str | Path) -> dict:
         raise ModelPackageError(f"{mpath}: missing or unreadable ({exc})") from None
     if man.get("schema") != SCHEMA or man.get("schema_version") != SCHEMA_VERSION:
         raise ModelPackageError(f"{mpath}: schema/schema_version must be {SCHEMA!r}/{SCHEMA_VERSION}")
-    for fname, info in man.get("files", {}).items():
+    files = man.get("files", {})
+    if files.get(INT8, {}).get("optional"):
+        raise ModelPackageError(f"{mpath}: files.{INT8} is the runtime default and cannot be optional")
+    present = []
+    for fname, info in files.items():
         if not (folder / fname).is_file():
+            if info.get("optional"):
+                continue
             raise ModelPackageError(f"{mpath}: files.{fname} does not exist")
         if sha256_file(folder / fname) != info.get("sha256"):
             raise ModelPackageError(f"{folder / fname}: sha256 does not match manifest files.{fname}")
+        present.append(fname)
+    if INT8 not in present:
+        raise ModelPackageError(f"{mpath}: files.{INT8} must be listed (every package ships the int8 model)")
     out = man.get("output", {})
     if out.get("channels") != list(CHANNELS):
         raise ModelPackageError(f"{mpath}: output.channels differ from docs/fields.md")
@@ -246,7 +331,7 @@ def verify_package(folder: str | Path) -> dict:
         if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
             raise ModelPackageError(f"{mpath}: output.bounds.{c} must be finite with lo ≤ hi")
     h, w = man["input"]["size"]
-    for fname in man["files"]:
+    for fname in present:
         g = onnx.load(str(folder / fname), load_external_data=False).graph
         dims = lambda v: [d.dim_value or d.dim_param for d in v.type.tensor_type.shape.dim]  # noqa: E731
         i_dims, o_dims = dims(g.input[0]), dims(g.output[0])
@@ -257,14 +342,30 @@ def verify_package(folder: str | Path) -> dict:
 
 
 def count_quantize_nodes(path: str | Path) -> int:
+    """Quantization nodes (static QuantizeLinear and per-frame DynamicQuantizeLinear) in a graph."""
     import onnx
 
-    return sum(n.op_type == "QuantizeLinear" for n in onnx.load(str(path)).graph.node)
+    return sum(n.op_type in ("QuantizeLinear", "DynamicQuantizeLinear") for n in onnx.load(str(path)).graph.node)
+
+
+def _previous_build(folder: Path, data_hash: str) -> dict | None:
+    """The `training` block of an existing package made from the same data (kept as `build` when a
+    package is re-exported from the same checkpoint, so the manifest still names the full build)."""
+    try:
+        old = json.loads((folder / "manifest.json").read_text())["training"]
+    except (OSError, ValueError, KeyError):
+        return None
+    if old.get("data_hash") != data_hash:
+        return None
+    return old.get("build") or {k: old[k] for k in ("command", "git_commit", "wall_time_s") if k in old}
 
 
 def export_run(run: str | Path, data: str | Path, name: str, models_root: str | Path, command: str,
                cfg: ExportConfig = ExportConfig(), wall_time_s: float = 0.0) -> dict:
-    """Fit run + dataset → exported_models/<name>/ (fp32, int8, manifest with parity metrics)."""
+    """Fit run + dataset → exported_models/<name>/ (int8 [+ fp32], manifest with parity metrics).
+
+    The fp32 graph is always made (parity and latency are measured against it); without
+    `cfg.with_fp32` it is left in the build cache (`fp32_cache_path(run, name)`), not in the package."""
     from tools.train.fields import read_bounds
     from tools.train.model.data import data_hash, load_split
     from tools.train.model.train import load_trained
@@ -278,23 +379,37 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
         x_va, y_va = load_split(data, "val")
     except Exception:  # noqa: BLE001 — a dataset without a val split evaluates on training samples
         x_va, y_va = load_split(data, "train", limit=16)
+    dhash = data_hash(data)
+    previous = _previous_build(Path(models_root) / name, dhash)
     with tempfile.TemporaryDirectory() as tmp:
         fp32, int8 = Path(tmp) / FP32, Path(tmp) / INT8
-        export_onnx(model, fp32, size, cfg.opset)
+        export_onnx(model, fp32, size, cfg.opset, rewrite=cfg.rewrite)
         quantize_int8(fp32, int8, x_tr.astype(np.float32) / 255.0, cfg)
         rep = parity_report(fp32, int8, x_va.astype(np.float32) / 255.0, y_va, bounds)
         lat = latency_ms({"fp32": fp32, "int8": int8}, x_va.astype(np.float32) / 255.0, cfg)
         metrics = {"fp32": {**rep["fp32"]["mean"], "per_modality": rep["fp32"]["per_modality"]},
                    "int8": {**rep["int8"]["mean"], "per_modality": rep["int8"]["per_modality"]},
                    "int8_vs_fp32_psnr": rep["int8_vs_fp32_psnr"],
+                   "psnr_loss_db": rep["psnr_loss_db"],
                    "latency_ms": {"fp32": lat["fp32"]["median"], "int8": lat["int8"]["median"],
                                   "threads": cfg.latency_threads, "detail": lat},
-                   "eval_samples": rep["samples"], "arch": info["arch"], "params": info["params"]}
-        man = build_manifest(name, size, bounds, {FP32: fp32, INT8: int8}, command, data_hash(data), metrics,
-                             wall_time_s)
-        folder = write_package(models_root, name, fp32, int8, man)
+                   "eval_samples": rep["samples"], "arch": info["arch"], "params": info["params"],
+                   "quantization": {"scheme": cfg.scheme, "rewrite": cfg.rewrite,
+                                    "calibration_samples": int(len(x_tr))}}
+        shipped = (INT8, FP32) if cfg.with_fp32 else (INT8,)
+        cache = None
+        if not cfg.with_fp32:
+            cache = fp32_cache_path(run, name)
+            _atomic_copy(fp32, cache)
+        man = build_manifest(name, size, bounds, {FP32: fp32, INT8: int8}, command, dhash, metrics,
+                             wall_time_s, shipped=shipped, run=run, fp32_cache=cache,
+                             regenerate=regenerate_command(run, data, name, models_root))
+        if previous and previous.get("command") != command:
+            man["training"]["build"] = previous
+        folder = write_package(models_root, name, {k: p for k, p in ((FP32, fp32), (INT8, int8)) if k in shipped},
+                               man)
     verify_package(folder)
-    log.info("packaged %s: PSNR fp32 %.2f int8 %.2f dB, latency fp32 %.2f int8 %.2f ms", folder,
-             metrics["fp32"]["psnr"], metrics["int8"]["psnr"], metrics["latency_ms"]["fp32"],
-             metrics["latency_ms"]["int8"])
+    log.info("packaged %s (%s): PSNR fp32 %.2f int8 %.2f dB, latency fp32 %.2f int8 %.2f ms%s", folder,
+             "+".join(shipped), metrics["fp32"]["psnr"], metrics["int8"]["psnr"], metrics["latency_ms"]["fp32"],
+             metrics["latency_ms"]["int8"], f"; fp32 graph in {cache}" if cache else "")
     return man
