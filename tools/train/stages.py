@@ -233,7 +233,7 @@ def stage_dataset(b) -> dict:
         with np.load(part) as z:
             d = {k: z[k] for k in z.files}
         n_src = spec.pokes if fe_mode(b) == "twin" else int(d["poke"].max() + 1) if len(d["poke"]) else 1
-        val_pokes = split_pokes(n_src, si)
+        val_pokes = split_pokes(n_src, si) if n_src > 1 else set()   # one contact only: keep it for training
         d["val"] = np.isin(d["poke"], list(val_pokes)) & (d["poke"] >= 0)
         parts.append(d)
     source = (f"twin sessions {[s.name for s in b.cfg.train]} (FE physics={b.cfg.physics}, labels fe={fe_mode(b)}, "
