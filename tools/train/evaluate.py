@@ -288,7 +288,9 @@ def run_budget(b, predict=None, stride: int = 1, with_train: bool = True) -> dic
     return out
 
 
-def _predictor(run: str | None, package: str | None, precision: str = "int8"):
+def _predictor(run: str | None, package: str | None, precision: str = "int8", bounds_file: Path | None = None):
+    """(n, 6, S, S) uint8 → (n, 15, S, S) physical fields of a torch fit run (denormalized with
+    `bounds_file`, the build's dataset bounds) or of an ONNX package (its manifest bounds)."""
     if run:
         import torch
 
@@ -296,8 +298,8 @@ def _predictor(run: str | None, package: str | None, precision: str = "int8"):
         from tools.train.model.train import load_trained, predict
 
         model, _ = load_trained(run)
-        torch.set_num_threads(2)
-        bounds = read_bounds(Path(run).parent.parent / "dataset" / "bounds.json")
+        torch.set_num_threads(1)
+        bounds = read_bounds(bounds_file)
         return lambda x: np.stack([denormalize(y, bounds) for y in predict(model, x)])
     if package:
         from runtime.model import FieldModel, load_package
@@ -330,7 +332,8 @@ def main(argv=None) -> int:
     if args.fe and hasattr(cfg, "fe"):
         cfg.fe = args.fe
     b = Build(cfg)
-    res = run_budget(b, _predictor(args.run, args.package, args.precision), args.stride, not args.heldout_only)
+    res = run_budget(b, _predictor(args.run, args.package, args.precision, b.dataset / "bounds.json"), args.stride,
+                     not args.heldout_only)
     out = Path(args.out) if args.out else b.root / "eval" / "budget.json"
     tmp = out.with_suffix(".tmp")
     tmp.write_text(json.dumps(res, indent=1))
