@@ -149,20 +149,24 @@ def run_model(sess, inputs: np.ndarray) -> np.ndarray:
 
 
 def latency_ms(paths: dict[str, str | Path], sample: np.ndarray, cfg: ExportConfig = ExportConfig()) -> dict:
-    """{name: {median, min, p10, p90, p99, mean}} single-frame latency (ms), models run alternately in one
-    loop so that load from other processes hits all of them alike."""
+    """{name: {median, min, p10, p90, p99, mean, cpu_median}} single-frame latency (ms), models run
+    alternately in one loop so that load from other processes hits all of them alike. `cpu_median` is
+    the calling thread's CPU time per run (with one onnxruntime thread the whole inference runs on
+    it): on a shared machine it tracks the model's cost better than wall time."""
     sessions = {k: session(p, cfg.latency_threads) for k, p in paths.items()}
     x = np.ascontiguousarray(sample[:1], np.float32)
     times = {k: [] for k in sessions}
+    cpu = {k: [] for k in sessions}
     for i in range(cfg.latency_warmup + cfg.latency_runs):
         for k, s in sessions.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             s.run(None, {"input": x})
             if i >= cfg.latency_warmup:
                 times[k].append((time.perf_counter() - t0) * 1e3)
+                cpu[k].append((time.thread_time() - c0) * 1e3)
     return {k: {"median": float(np.median(v)), "min": float(np.min(v)), "p10": float(np.percentile(v, 10)),
-                "p90": float(np.percentile(v, 90)),
-                "p99": float(np.percentile(v, 99)), "mean": float(np.mean(v))} for k, v in times.items()}
+                "p90": float(np.percentile(v, 90)), "p99": float(np.percentile(v, 99)), "mean": float(np.mean(v)),
+                "cpu_median": float(np.median(cpu[k]))} for k, v in times.items()}
 
 
 def parity_report(fp32_path, int8_path, inputs: np.ndarray, targets: np.ndarray | None = None,
@@ -392,7 +396,9 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
                    "int8_vs_fp32_psnr": rep["int8_vs_fp32_psnr"],
                    "psnr_loss_db": rep["psnr_loss_db"],
                    "latency_ms": {"fp32": lat["fp32"]["median"], "int8": lat["int8"]["median"],
-                                  "threads": cfg.latency_threads, "detail": lat},
+                                  "cpu_fp32": lat["fp32"]["cpu_median"], "cpu_int8": lat["int8"]["cpu_median"],
+                                  "threads": cfg.latency_threads, "load_average": list(os.getloadavg()),
+                                  "detail": lat},
                    "eval_samples": rep["samples"], "arch": info["arch"], "params": info["params"],
                    "quantization": {"scheme": cfg.scheme, "rewrite": cfg.rewrite,
                                     "calibration_samples": int(len(x_tr))}}

@@ -64,7 +64,12 @@ class ConvShuffle(nn.Module):
 
     def forward(self, x):
         y = self.deconv(x)
-        return y + self.bias_tile.repeat(1, 1, y.shape[2] // self.s, y.shape[3] // self.s)
+        b, c, h, w = y.shape
+        # bias[c, a, w % s] for output row s·i + a: rows taken in pairs (a = 0..s-1) so the addend is a
+        # small (1, c, 1, s·w) constant broadcast over i (a full (c, h, w) constant would add ~1 MB to
+        # the graph; a 6-D broadcast measured 20x slower in onnxruntime)
+        tile = self.bias_tile.repeat(1, 1, 1, w // self.s).reshape(1, c, 1, self.s * w)
+        return (y.reshape(b, c, h // self.s, self.s * w) + tile).reshape(b, c, h, w)
 
 
 class FusedHeads(nn.Module):
