@@ -123,3 +123,40 @@ def test_fit_fine_tunes_from_a_state_dict_with_the_force_term(tmp_path):
     b = torch.load(tmp_path / "ft" / "best.pt", weights_only=True)
     for k in a:
         torch.testing.assert_close(a[k], b[k])
+
+
+def test_budget_table_bins_label_errors_by_force_and_indenter_count():
+    from types import SimpleNamespace
+
+    from tools.train.evaluate import budget_table, sample_forces
+
+    S = 64
+    pa = np.full((S, S), 0.1)
+    xyz = np.zeros((S, S, 3))
+    xyz[..., 0], xyz[..., 1] = np.mgrid[0:S, 0:S][1] * 0.3, np.mgrid[0:S, 0:S][0] * 0.3
+    normals = np.zeros((S, S, 3))
+    normals[..., 2] = 1
+    cal = SimpleNamespace(pixel_area=pa, surface_xyz=xyz, normals=normals, mask=pa > 0)
+    yy, xx = np.mgrid[0:S, 0:S]
+
+    def field(centres, forces):
+        f = np.zeros((15, S, S))
+        for (u, v), fz in zip(centres, forces):
+            disc = ((xx - u) ** 2 + (yy - v) ** 2 <= 9).astype(float)
+            f[11] += -fz * disc / (disc * pa).sum()
+        return f
+
+    items = []
+    for fz, k in ((2.0, 1), (6.0, 1), (4.0, 2)):
+        centres = [(20, 20), (44, 44)][:k]
+        tips = np.array([[u * 0.3, v * 0.3, 0.0] for u, v in centres] + [[0, 0, 0]] * (2 - k))
+        meas = np.array([[0, 0, -fz]] * k + [[0, 0, 0]] * (2 - k), float)
+        lab = field(centres, [fz * 0.9] * k)                  # the label carries 90 % of the force
+        items.append({"meas": meas.sum(0), "n_contact": k, "label": sample_forces(lab, cal, tips, meas)})
+    t = budget_table(items)
+    assert t["all"]["n"] == 3 and t["all"]["detected_fraction"] == 1.0
+    assert t["F 1.5-3 N"]["force_mag_bias_n"] == pytest.approx(-0.2, abs=1e-6)
+    assert t["F 5-7 N"]["integral_bias_n"] == pytest.approx(-0.6, abs=1e-6)
+    assert t["2 indenter(s)"]["contact_samples"] == 2
+    assert t["2 indenter(s)"]["force_mag_mae_n"] == pytest.approx(0.4, abs=1e-6)
+    assert t["2 indenter(s)"]["position_mae_mm"]["x"] < 0.05
