@@ -58,6 +58,27 @@ def compare_session(b, spec) -> list[dict]:
     return rows
 
 
+def label_coverage(b, spec) -> dict:
+    """Camera frames with labels: twin poke windows (truth/frames.csv) vs the resolve path (labels.py:
+    all frames in the FE spans, of which at a stage-1 keypoint — the seed's labels-at-keypoints)."""
+    from runtime.session import load_session, read_table
+    from tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share
+    from tools.train.resolve import PoseTrack
+    from tools.train.resolve_stage import resolved_sources
+
+    ses = load_session(b.session(spec), check_frames=False)
+    fr = ses.table("frames")
+    poses = ses.table("poses")
+    tracks = {int(k): PoseTrack.from_table(poses, int(k)) for k in np.unique(poses[:, 1])}
+    src = resolved_sources(b, spec)
+    lab, _ = frame_labels(fr[:, 0], src, tracks, ses.table("wrench"))
+    truth = read_table(b.session(spec) / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
+    share = keypoint_frame_share(fr[:, 0], lab, src)
+    return {"twin_poke_frames": int((truth[:, 2] >= 0).sum()), "twin_pokes": int(len(set(truth[truth[:, 2] >= 0, 2]))),
+            "periods": len(src), **share, "busy_frames": int((lab >= BUSY_ID).sum()),
+            "labelled_in_twin_window": int(((lab >= 0) & (lab < BUSY_ID) & (truth[:, 2] >= 0)).sum())}
+
+
 def summarize(rows: list[dict], contact_n: float = 0.5) -> dict:
     """Force error (N) per component and magnitude over frames where the twin force ≥ contact_n, and
     displacement differences (mm) over the same frames."""
@@ -95,15 +116,17 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     b = Build(BuildConfig(build=args.build))
-    rows = []
+    rows, cover = [], {}
     for spec in b.all_sessions():
         if args.sessions and spec.name not in args.sessions:
             continue
         if not (b.root / "fe" / f"{spec.name}.json").is_file():
             continue
         rows += compare_session(b, spec)
+        cover[spec.name] = label_coverage(b, spec)
+    tot = {k: sum(c[k] for c in cover.values()) for k in next(iter(cover.values()), {})}
     out = {"summary": summarize(rows), "summary_keypoints_only": summarize([r for r in rows if r["keypoint"]]),
-           "rows": rows}
+           "label_frames_total": tot, "label_frames": cover, "rows": rows}
     text = json.dumps(out, indent=1)
     if args.out:
         Path(args.out).write_text(text)
