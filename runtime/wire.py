@@ -167,6 +167,23 @@ class FieldsFrame:
             raise WireError(f"fields: no channel {name!r}; channels are {self.channels}") from None
 
 
+def to_float16(arr: np.ndarray) -> np.ndarray:
+    """Bit-identical to `arr.astype(float16)` (round to nearest even, overflow → ±inf, NaN kept), through
+    OpenCV's vectorized conversion for float32 input: numpy's cast takes a slow path for values that
+    become float16 subnormals (|x| < 6.1e-5, common for stresses in MPa) — measured 10 ms vs 0.13 ms
+    for a 15×128×128 field (docs/runtime.md "Speed")."""
+    if arr.dtype == np.float32 and arr.size and arr.ndim >= 1:
+        try:
+            import cv2
+
+            a = np.ascontiguousarray(arr)
+            return cv2.multiply(a.reshape(-1, a.shape[-1]), 1.0, dtype=cv2.CV_16F).reshape(a.shape)
+        except Exception:  # noqa: BLE001 - fall back to numpy (same bits, slower)
+            pass
+    with np.errstate(over="ignore", invalid="ignore"):
+        return arr.astype(_HALF)
+
+
 def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
                   channels: Sequence[str] = CHANNELS,
                   units: Sequence[str] = CHANNEL_UNITS) -> tuple[bytes, bytes, tuple[str, ...]]:
@@ -180,8 +197,7 @@ def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
     if arr.ndim != 3 or arr.shape[0] != len(channels) or len(units) != len(channels):
         raise WireError(f"fields: expected shape (C={len(channels)}, H, W) with {len(channels)} "
                         f"channel names and units, got shape {arr.shape}, {len(units)} units")
-    with np.errstate(over="ignore", invalid="ignore"):
-        half = arr.astype(_HALF)
+    half = to_float16(arr)
     # overflow test on the bit pattern (float16 arithmetic in numpy is slow): |x| bits == inf
     bits = half.view(np.uint16)
     over = (bits & _HALF_ABS) == _HALF_INF
