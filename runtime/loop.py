@@ -25,6 +25,10 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class LoopConfig:
     publish_fields: bool = True
+    # Publish the dense fields on every n-th frame that has them (1 = every frame, the default);
+    # contacts, wrench and status stay at the frame rate. Fields are the largest message (15·H·W
+    # float16) and their float16 conversion is the biggest publish cost (docs/runtime.md "Speed").
+    fields_every: int = 1
     status_every_s: float = 0.5        # status message period
     calibration_poll_s: float = 1.0    # how often the calibration store's CURRENT is checked
     max_camera_failures: int = 50      # consecutive capture errors before giving up
@@ -72,6 +76,7 @@ class SensorLoop:
         self._stop = threading.Event()
         self.frames = 0
         self.flags: set[str] = set()
+        self._field_frames = 0
 
     def stop(self) -> None:
         self._stop.set()
@@ -142,7 +147,9 @@ class SensorLoop:
         if self.publisher is None:
             return
         if r.fields is not None and self.cfg.publish_fields:
-            self.publisher.publish_fields(r.fields, r.seq, r.t)
+            if self._field_frames % max(1, self.cfg.fields_every) == 0:
+                self.publisher.publish_fields(r.fields, r.seq, r.t)
+            self._field_frames += 1
         self.publisher.publish_contacts(to_wire_contacts(r), r.seq, r.t)
         self.publisher.publish_wrench(r.force_n, r.torque_nmm, r.seq, r.t)
 

@@ -2,9 +2,13 @@
 
 Per configuration (model size × precision): frames are decoded from an MJPG video (real OpenCV
 capture), run through `SensorPipeline` (the exact deploy code) and published over a real Zenoh
-session on loopback; per-stage and end-to-end p50/p99 latency and frames/s are printed. The network
-is the shipped model when one is installed at that size, else a synthetic ~2.2 M-parameter conv
-U-Net with a 4×4 patch stem (Hiera-like compute) (random weights: timing only — said in the output).
+session on loopback; per-stage and end-to-end p50/p99 latency, frames/s and CPU time per frame
+(the main thread's; with one onnxruntime thread inference runs on it) are printed. Configurations
+run in alternating chunks so that load from other processes hits them alike. The network is the
+shipped model when one is installed at that size, else a synthetic ~2.2 M-parameter conv U-Net
+with a 4×4 patch stem (random weights: timing only — said in the output). Shipped packages are
+int8 only: the fp32 graph comes from the build cache or is re-exported from the checkpoint
+(`fp32_package`), and the output says which.
 """
 from __future__ import annotations
 
@@ -87,34 +91,104 @@ def _package_for(size: int, work: Path):
     return load_package(write_package(work / f"synthetic-{size}", size=size, width=32, depth=3, stem=4)), True
 
 
-def bench_config(pkg, precision: str, video: Path, cal, frames: int, threads: int, publisher) -> dict:
-    from drivers.camera import camera_from_uri
-    from runtime.loop import LoopConfig, SensorLoop
-    from runtime.model import FieldModel
-    from runtime.pipeline import SensorPipeline
+def fp32_package(pkg, work: Path):
+    """(package holding an fp32 model or None, where the fp32 graph came from).
 
-    model = FieldModel(pkg, precision, threads=threads)
-    pipe = SensorPipeline(cal.sensor_id, model, cal)
-    cam = camera_from_uri(f"file:{video}", realtime=False, loop=True)
-    loop = SensorLoop(cam, pipe, publisher, LoopConfig(status_every_s=1.0))
-    loop.latency.n = frames
-    with cam:
-        loop.run(max_frames=pipe.cfg.baseline.startup_frames + 5)  # warm-up, baseline
-        loop.latency = type(loop.latency)(frames)
-        loop.frames = 0
-        t0 = time.perf_counter()
-        loop.run(max_frames=frames)
-        wall = time.perf_counter() - t0
-    s = loop.latency.summary()
-    return {"frames": frames, "hz": frames / wall,
-            "stages": {k: {"p50_ms": round(v["p50"], 3), "p99_ms": round(v["p99"], 3)} for k, v in s.items()}}
+    An int8-only package (docs/model_package.md) records the fp32 graph's SHA-256 and where the export
+    left it (`files["model.fp32.onnx"].cache`, under the fit run). The graph is taken from there when its
+    hash matches, else re-exported from the run's checkpoint (`training.run`/best.pt; the export is
+    deterministic, so the hash is checked again); the package is then assembled in `work`."""
+    import shutil
+
+    from runtime.calibration import sha256_file
+    from runtime.model import PRECISION_FILES, load_package
+    from runtime.paths import ROOT
+
+    if pkg.has("fp32"):
+        return pkg, "shipped in the package"
+    name = PRECISION_FILES["fp32"]
+    info = pkg.manifest.get("files", {}).get(name)
+    if not info:
+        return None, "fp32 not recorded in the manifest"
+    folder = work / f"{pkg.folder.name}-with-fp32"
+    folder.mkdir(parents=True, exist_ok=True)
+    cached = Path(info["cache"]) if info.get("cache") else None
+    cached = (ROOT / cached) if cached is not None and not cached.is_absolute() else cached
+    if cached is not None and cached.is_file() and sha256_file(cached) == info["sha256"]:
+        shutil.copyfile(cached, folder / name)
+        source = f"build cache ({cached})"
+    else:
+        run = pkg.manifest.get("training", {}).get("run")
+        run = (ROOT / run) if run and not Path(run).is_absolute() else (Path(run) if run else None)
+        if run is None or not (run / "best.pt").is_file():
+            return None, (f"fp32 graph neither in the build cache ({cached}) nor regenerable (fit run "
+                          f"{run} has no best.pt); regenerate with: {info.get('regenerate', 'tensortouch train export')}")
+        try:
+            from tools.train.export import export_onnx
+            from tools.train.model.train import load_trained
+        except ImportError as exc:
+            return None, f"fp32 graph not in the build cache and the train extra is missing ({exc})"
+        model, _ = load_trained(run)
+        export_onnx(model, folder / name, pkg.size[0])
+        same = sha256_file(folder / name) == info["sha256"]
+        source = (f"regenerated from {run / 'best.pt'} (" + ("same SHA-256 as the manifest)" if same else
+                  "SHA-256 differs from the manifest: other torch/onnx versions?)"))
+        if not same:
+            import json
+
+            man = dict(pkg.manifest)
+            man["files"] = {**man["files"], name: {"sha256": sha256_file(folder / name)}}
+            (folder / "manifest.json").write_text(json.dumps(man))
+    for k, v in PRECISION_FILES.items():
+        if k != "fp32" and (pkg.folder / v).is_file():
+            shutil.copyfile(pkg.folder / v, folder / v)
+    if not (folder / "manifest.json").is_file():
+        shutil.copyfile(pkg.folder / "manifest.json", folder / "manifest.json")
+    return load_package(folder), source
+
+
+class _Config:
+    """One (model, precision) frame loop of the benchmark, run in chunks alternating with the others."""
+
+    def __init__(self, pkg, precision: str, video: Path, cal, threads: int, publisher, fields_every: int):
+        from drivers.camera import camera_from_uri
+        from runtime.loop import LatencyWindow, LoopConfig, SensorLoop
+        from runtime.model import FieldModel
+        from runtime.pipeline import SensorPipeline
+
+        model = FieldModel(pkg, precision, threads=threads)
+        self.pipe = SensorPipeline(cal.sensor_id, model, cal)
+        self.cam = camera_from_uri(f"file:{video}", realtime=False, loop=True)
+        self.cam.__enter__()
+        self.loop = SensorLoop(self.cam, self.pipe, publisher,
+                               LoopConfig(status_every_s=1.0, fields_every=fields_every))
+        self.loop.run(max_frames=self.pipe.cfg.baseline.startup_frames + 5)  # warm-up, baseline
+        self.loop.latency = LatencyWindow(10 ** 6)
+        self.loop.frames = 0
+        self.wall = self.cpu = 0.0
+
+    def chunk(self, n: int) -> None:
+        t0, c0 = time.perf_counter(), time.thread_time()
+        self.loop.run(max_frames=self.loop.frames + n)
+        self.wall += time.perf_counter() - t0
+        self.cpu += time.thread_time() - c0
+
+    def close(self) -> None:
+        self.cam.__exit__(None, None, None)
+
+    def result(self) -> dict:
+        n = self.loop.frames
+        s = self.loop.latency.summary()
+        return {"frames": n, "hz": n / self.wall, "cpu_ms_per_frame": 1e3 * self.cpu / n,
+                "stages": {k: {"p50_ms": round(v["p50"], 3), "p99_ms": round(v["p99"], 3)} for k, v in s.items()}}
 
 
 def run(args) -> int:
     from runtime.publisher import Publisher
 
     sizes = [int(s) for s in args.sizes.split(",")]
-    results = {}
+    results, notes = {}, []
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         frames = synthetic_frames(120)
@@ -125,32 +199,61 @@ def run(args) -> int:
                 pkg, synthetic = _package_for(size, work)
                 cal = _calibration(work / f"cal{size}", "bench-0", size, w, h)
                 params = pkg.manifest.get("metrics", {}).get("params")
-                for precision in ("fp32", "int8"):
-                    r = bench_config(pkg, precision, video, cal, args.frames, args.threads, pub)
-                    r.update(model=pkg.name, synthetic=synthetic, params=params)
-                    results[f"{size}/{precision}"] = r
-    print(f"runtime benchmark — {args.frames} frames per config, {args.threads} onnxruntime thread(s), "
-          f"capture = MJPG {w}x{h} decode, publish = Zenoh loopback; cpu count {os.cpu_count()}")
+                pkg32, source = fp32_package(pkg, work)
+                notes.append(f"{size}² fp32 model: {source}")
+                configs = {}
+                if pkg32 is not None:
+                    configs[f"{size}/fp32"] = _Config(pkg32, "fp32", video, cal, args.threads, pub, 1)
+                configs[f"{size}/int8"] = _Config(pkg, "int8", video, cal, args.threads, pub, 1)
+                if args.fields_every > 1:
+                    configs[f"{size}/int8/fields÷{args.fields_every}"] = _Config(
+                        pkg, "int8", video, cal, args.threads, pub, args.fields_every)
+                done = 0
+                while done < args.frames:          # alternate chunks: load from other processes hits all alike
+                    n = min(args.chunk, args.frames - done)
+                    for c in configs.values():
+                        c.chunk(n)
+                    done += n
+                for key, c in configs.items():
+                    c.close()
+                    results[key] = {**c.result(), "model": pkg.name, "synthetic": synthetic, "params": params}
+    load_after = os.getloadavg()
+    print(f"runtime benchmark — {args.frames} frames per config (interleaved in chunks of {args.chunk}), "
+          f"{args.threads} onnxruntime thread(s), capture = MJPG {w}x{h} decode, publish = Zenoh loopback; "
+          f"cpu count {os.cpu_count()}, load average {load_before[0]:.2f} → {load_after[0]:.2f}")
+    for note in notes:
+        print(f"  {note}")
     for key, r in results.items():
         tag = " (synthetic weights, timing only)" if r["synthetic"] else ""
         tot = r["stages"]["end_to_end"]
         print(f"\n{key}: {r['model']}{tag}, params {r['params']}: {r['hz']:.1f} frames/s, "
-              f"end-to-end p50 {tot['p50_ms']:.2f} ms p99 {tot['p99_ms']:.2f} ms")
+              f"end-to-end p50 {tot['p50_ms']:.2f} ms p99 {tot['p99_ms']:.2f} ms; "
+              f"CPU {r['cpu_ms_per_frame']:.2f} ms/frame (= {1e3 / r['cpu_ms_per_frame']:.0f} frames/s on a free core)")
         for stage, v in r["stages"].items():
             if stage not in ("total", "end_to_end"):
                 print(f"    {stage:<11} p50 {v['p50_ms']:7.3f} ms   p99 {v['p99_ms']:7.3f} ms")
-    print("\nint8 vs fp32 (same run):")
+    print("\nint8 vs fp32 (same run, interleaved):")
     for size in sizes:
-        f, q = results[f"{size}/fp32"], results[f"{size}/int8"]
-        print(f"  {size}²: inference p50 {f['stages']['inference']['p50_ms']:.2f} → "
-              f"{q['stages']['inference']['p50_ms']:.2f} ms "
-              f"(×{f['stages']['inference']['p50_ms'] / q['stages']['inference']['p50_ms']:.2f}), "
-              f"end-to-end {f['hz']:.1f} → {q['hz']:.1f} frames/s")
+        q = results[f"{size}/int8"]
+        f = results.get(f"{size}/fp32")
+        if f is None:
+            print(f"  {size}²: fp32 unavailable ({notes[sizes.index(size)]})")
+            continue
+        fi, qi = f["stages"]["inference"]["p50_ms"], q["stages"]["inference"]["p50_ms"]
+        print(f"  {size}²: inference p50 {fi:.2f} → {qi:.2f} ms (×{fi / qi:.2f}); end-to-end {f['hz']:.1f} → "
+              f"{q['hz']:.1f} frames/s (×{q['hz'] / f['hz']:.2f}); CPU/frame {f['cpu_ms_per_frame']:.2f} → "
+              f"{q['cpu_ms_per_frame']:.2f} ms (×{f['cpu_ms_per_frame'] / q['cpu_ms_per_frame']:.2f})")
+        r = results.get(f"{size}/int8/fields÷{args.fields_every}")
+        if r is not None:
+            print(f"  {size}² int8, fields every {args.fields_every}th frame (wrench/contacts every frame): "
+                  f"{r['hz']:.1f} frames/s, CPU/frame {r['cpu_ms_per_frame']:.2f} ms, publish p50 "
+                  f"{r['stages']['publish']['p50_ms']:.3f} ms vs {q['stages']['publish']['p50_ms']:.3f} ms")
     shipped = f"{max(sizes)}/int8"
     summary = {"config": shipped, "end_to_end_hz": round(results[shipped]["hz"], 2),
                "p99_ms": results[shipped]["stages"]["end_to_end"]["p99_ms"],
-               "synthetic_weights": results[shipped]["synthetic"],
-               "results": results}
+               "cpu_ms_per_frame": round(results[shipped]["cpu_ms_per_frame"], 3),
+               "synthetic_weights": results[shipped]["synthetic"], "load_average": [load_before[0], load_after[0]],
+               "fp32_source": notes, "results": results}
     if args.json:
         print(json.dumps(summary))
     return 0
@@ -160,4 +263,7 @@ def add_arguments(p) -> None:
     p.add_argument("--sizes", default="96,128", help="model input sizes, comma separated")
     p.add_argument("--frames", type=int, default=200, help="timed frames per configuration")
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--chunk", type=int, default=25, help="frames per turn when alternating configurations")
+    p.add_argument("--fields-every", type=int, default=1,
+                   help="also run int8 publishing fields every N-th frame only (LoopConfig.fields_every)")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")

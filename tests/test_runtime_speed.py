@@ -1,0 +1,134 @@
+"""Speed work on the deploy path (docs/runtime.md "Speed"): the float16 conversion, publishing fields at
+a reduced rate, and the runtime benchmark's fp32 source for int8-only packages."""
+import json
+import shutil
+import time
+
+import numpy as np
+import pytest
+
+from runtime import wire
+from runtime.model import PRECISION_FILES, load_package
+from tools.bench.models import write_package
+
+
+def test_to_float16_is_bit_identical_to_numpy_including_subnormals_overflow_nan():
+    rng = np.random.default_rng(0)
+    vals = rng.standard_normal(60_000) * 10.0 ** rng.integers(-10, 7, 60_000)
+    special = [65504, 65519, 65520, 7e4, -1e9, np.inf, -np.inf, np.nan, 0.0, -0.0, 5.96e-8, 2.98e-8, 6.1e-5]
+    arr = np.concatenate([vals, special]).astype(np.float32).reshape(1, 1, -1)
+    with np.errstate(over="ignore"):
+        ref = arr.astype(np.float16)
+    assert np.array_equal(wire.to_float16(arr).view(np.uint16), ref.view(np.uint16))
+    f64 = arr.astype(np.float64)                              # other dtypes: numpy's own cast
+    with np.errstate(over="ignore"):
+        assert np.array_equal(wire.to_float16(f64).view(np.uint16), f64.astype(np.float16).view(np.uint16))
+
+
+def test_to_float16_is_fast_on_stress_sized_values():
+    """MPa-scale fields are mostly float16 subnormals, where numpy's cast is ~50x slower."""
+    fields = (np.random.default_rng(1).standard_normal((15, 128, 128)) * 1e-4).astype(np.float32)
+    wire.to_float16(fields)
+
+    def best(fn, n=15):
+        out = []
+        for _ in range(n):
+            t0 = time.thread_time()
+            fn()
+            out.append(time.thread_time() - t0)
+        return min(out)
+
+    fast, slow = best(lambda: wire.to_float16(fields)), best(lambda: fields.astype(np.float16))
+    assert fast < slow / 3, (fast, slow)
+
+
+def test_fields_every_n_keeps_wrench_and_contacts_at_frame_rate():
+    from runtime.loop import LoopConfig, SensorLoop
+
+    class Pub:
+        def __init__(self):
+            self.sent = {"fields": [], "contacts": [], "wrench": []}
+
+        def publish_fields(self, fields, seq, t):
+            self.sent["fields"].append(seq)
+
+        def publish_contacts(self, contacts, seq, t):
+            self.sent["contacts"].append(seq)
+
+        def publish_wrench(self, f, tq, seq, t):
+            self.sent["wrench"].append(seq)
+
+    class R:
+        def __init__(self, seq, fields):
+            self.seq, self.t, self.fields, self.clusters = seq, 0.0, fields, []
+            self.force_n = self.torque_nmm = np.zeros(3)
+
+    pub = Pub()
+    loop = SensorLoop(camera=None, pipeline=None, publisher=pub, config=LoopConfig(fields_every=3))
+    for seq in range(1, 11):
+        loop._publish(R(seq, None if seq <= 2 else np.zeros((15, 4, 4))))   # no fields before the baseline
+    assert pub.sent["fields"] == [3, 6, 9]
+    assert pub.sent["contacts"] == pub.sent["wrench"] == list(range(1, 11))
+
+
+def _int8_only(pkg_folder, dest, run=None, cache=None):
+    """An int8-only copy of a synthetic package, its manifest recording the fp32 as optional."""
+    shutil.copytree(pkg_folder, dest)
+    fp32 = dest / PRECISION_FILES["fp32"]
+    man = json.loads((dest / "manifest.json").read_text())
+    info = man["files"][PRECISION_FILES["fp32"]]
+    info.update(optional=True, regenerate="tensortouch train export ... --with-fp32")
+    if cache is not None:
+        shutil.copyfile(fp32, cache)
+        info["cache"] = str(cache)
+    if run is not None:
+        man.setdefault("training", {})["run"] = str(run)
+    fp32.unlink()
+    (dest / "manifest.json").write_text(json.dumps(man))
+    return load_package(dest)
+
+
+def test_bench_takes_fp32_from_the_build_cache_and_checks_its_hash(tmp_path):
+    from tools.bench.runtime_bench import fp32_package
+
+    src = write_package(tmp_path / "src", size=16, width=2, depth=1)
+    pkg = _int8_only(src, tmp_path / "pkg", cache=tmp_path / "cached.onnx")
+    assert not pkg.has("fp32")
+    full, source = fp32_package(pkg, tmp_path / "work")
+    assert "build cache" in source and full.has("fp32") and full.has("int8")
+    assert full.sha256("fp32") == pkg.sha256("fp32")
+    data = bytearray((tmp_path / "cached.onnx").read_bytes())           # a stale cache is not used
+    data[len(data) // 2] ^= 0xFF
+    (tmp_path / "cached.onnx").write_bytes(bytes(data))
+    none, why = fp32_package(pkg, tmp_path / "work2")
+    assert none is None and "--with-fp32" in why
+
+
+@pytest.mark.slow
+def test_bench_regenerates_fp32_from_the_checkpoint(tmp_path):
+    """No cache copy: the bench re-exports the run's best.pt; the deterministic export gives the hash."""
+    pytest.importorskip("torch")
+    import argparse
+
+    from tools.bench.runtime_bench import fp32_package
+    from tools.train.cli import register
+    from tools.train.export import FP32
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+
+    def cli(argv):
+        a = parser.parse_args(argv)
+        return a.func(a)
+
+    data, run, models = tmp_path / "data", tmp_path / "run", tmp_path / "models"
+    assert cli(["train", "synth", "--out", str(data), "--n", "12", "--size", "32", "--seed", "1"]) == 0
+    assert cli(["train", "fit", "--data", str(data), "--out", str(run), "--epochs", "1", "--batch", "6",
+                "--threads", "1"]) == 0
+    assert cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "t", "--models-dir",
+                str(models), "--calibration", "4", "--latency-runs", "2"]) == 0
+    shutil.rmtree(run / "export")                                          # cache gone
+    pkg = load_package(models / "t")
+    full, source = fp32_package(pkg, tmp_path / "work")
+    assert full is not None and "regenerated" in source and "same SHA-256" in source
+    assert (full.folder / FP32).is_file()
