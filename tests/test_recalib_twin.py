@@ -39,13 +39,13 @@ def test_twin_units_five_to_seven_pokes_cut_held_out_error_60_percent():
     pkg = trained_package()
     units = UNITS[:5]
     res = run_bench(TwinBenchConfig(units=units, nominal=None, physics=PHYSICS, model=str(pkg.folder)), say=print)
-    print(markdown(res))
+    print(markdown(res, "probe"))
     assert [r["unit"] for r in res["units"]] == [u.serial for u in units]
     for r in res["units"]:
-        assert r["held_out_pokes"] >= 6, r                                     # the held-out session is real
+        assert r["held_out"]["probe"]["pokes"] >= 6, r                        # the held-out session is real
         for n in ("5", "6", "7"):
-            assert r["by_pokes"][n]["accepted"] == int(n), (r["unit"], n, r["by_pokes"][n])
-    red = {n: [r["by_pokes"][n]["reduction"] for r in res["units"]] for n in ("5", "6", "7")}
+            assert r["by_pokes"][n]["accepted"] >= min(int(n), 6), (r["unit"], n, r["by_pokes"][n])
+    red = {n: [r["held_out"]["probe"]["after"][n]["reduction"] for r in res["units"]] for n in ("5", "6", "7")}
     print({n: [f"{v:.0%}" for v in vals] for n, vals in red.items()})
     for n, vals in red.items():
         assert np.median(vals) >= 0.6, (n, red)

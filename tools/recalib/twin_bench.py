@@ -72,11 +72,18 @@ class TwinBenchConfig:
     probe: str = "sphere5"
     reach_deg: float = 31.5                              # ≤ the twin training plans' θ_max (0.6 rad = 34°)
     held_out_pokes: int = 10
-    held_out_seed: int = 2
+    # held-out sessions (random single-indenter demonstrator plans; places θ ≤ 0.6 rad, depths, kinds):
+    # "probe" = the recalibration probe's shape, "other" = another indenter (generalisation; recorded
+    # only for the units in other_units, to bound the rendering time)
+    held_out: tuple = (("probe", 5, ("sphere5",)), ("other", 2, ("sphere5", "sphere3", "flat4", "cylinder3")))
+    other_units: tuple = ("TWIN-R000", "TWIN-R001")
     physics: str = "fe"
     model: str | None = None                             # package name/path (default: newest installed)
     precision: str = "int8"
     poke_counts: tuple = (5, 6, 7)
+    runtime_check: bool = True                           # first varied unit: full pipeline vs replayed correction
+    variants: tuple = (("fmag",), ("fmag", "theta"), ("fmag", "fx", "fy", "fz"),    # other correction inputs
+                       ("fx", "fy", "fz", "fmag", "u", "v", "theta", "phi"))      # (forced, no decision)
     root: Path | None = None                             # default <cache>/recalib/twin
     extra: dict = field(default_factory=dict)
 
@@ -107,15 +114,21 @@ def guided_points(tables: dict, n: int, reach_rad: float) -> list:
 
 
 def record_configs(unit: BenchUnit, cfg: TwinBenchConfig, points: list, size: int):
+    """(fit RecordConfig, {held-out name: RecordConfig}) of a unit."""
     from tools.twin.record import RecordConfig
     from tools.twin.trajectory import GuidedConfig, TrajectoryConfig
 
     guided = GuidedConfig(points, list(cfg.fit_depths_mm[:len(points)]), cfg.probe, seed=1)
     fit = RecordConfig(serial=unit.serial, pokes=len(points), seed=1, physics=cfg.physics, model_size=size,
                        unit=unit.override(), guided=guided)
-    test = RecordConfig(serial=unit.serial, pokes=cfg.held_out_pokes, seed=cfg.held_out_seed, physics=cfg.physics,
-                        model_size=size, unit=unit.override(), trajectory=TrajectoryConfig(p_two=0.0))
-    return fit, test
+    held = {}
+    for name, seed, indenters in cfg.held_out:
+        if name != "probe" and unit.serial not in cfg.other_units:
+            continue
+        traj = TrajectoryConfig(p_two=0.0, indenters=tuple(indenters))
+        held[name] = RecordConfig(serial=unit.serial, pokes=cfg.held_out_pokes, seed=seed, physics=cfg.physics,
+                                  model_size=size, unit=unit.override(), trajectory=traj)
+    return fit, held
 
 
 def record_once(rcfg, out: Path, say) -> Path:
@@ -137,8 +150,43 @@ def record_once(rcfg, out: Path, say) -> Path:
     return out
 
 
-def collect_frames(session_dir: Path, cal, package, precision: str) -> list:
-    """(t, clusters) of every frame of a replayed recording, raw model force (correction off)."""
+def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path | None = None) -> list:
+    """(t, clusters) of every frame of a replayed recording, raw model force (correction off).
+    With `cache`, the clusters are kept in an .npz per (session, model file, calibration tables), so a
+    rerun (other fits, other feature sets) does not run the model again."""
+    from runtime.contacts import Cluster
+
+    key = None
+    if cache is not None:
+        import hashlib
+
+        h = hashlib.sha256(f"{Path(session_dir).name}|{package.sha256(precision)}".encode())
+        for name in ("theta", "phi", "surface_xyz", "pixel_area", "mask"):
+            h.update(np.ascontiguousarray(getattr(cal, name)).tobytes())
+        h.update(json.dumps(cal.gel_center_px).encode())
+        key = Path(cache) / f"{Path(session_dir).name}-{h.hexdigest()[:12]}.npz"
+        if key.is_file():
+            z = np.load(key, allow_pickle=False)
+            frames = [(float(t), []) for t in z["t"]]
+            for row in z["clusters"]:
+                i = int(row[0])
+                frames[i][1].append(Cluster(id=int(row[1]), centroid_px=(row[2], row[3]),
+                                            centroid_mm=(row[4], row[5], row[6]), normal=(0.0, 0.0, 1.0),
+                                            area_mm2=float(row[7]), force_n=(row[8], row[9], row[10]),
+                                            force_mag_n=float(row[11]), pixels=0, perimeter_px=0.0, circularity=0.0))
+            return frames
+    frames = _run_pipeline(session_dir, cal, package, precision)
+    if key is not None:
+        rows = [[i, c.id, *c.centroid_px, *c.centroid_mm, c.area_mm2, *c.force_n, c.force_mag_n]
+                for i, (_, cl) in enumerate(frames) for c in cl]
+        key.parent.mkdir(parents=True, exist_ok=True)
+        tmp = key.with_name(key.name + ".tmp.npz")
+        np.savez(tmp, t=np.array([t for t, _ in frames]), clusters=np.array(rows, float).reshape(-1, 12))
+        tmp.replace(key)
+    return frames
+
+
+def _run_pipeline(session_dir: Path, cal, package, precision: str) -> list:
     from drivers.camera import camera_from_uri
     from drivers.camera.camera import EndOfStream
     from runtime.correction import ForceCorrection
@@ -160,10 +208,52 @@ def mae(m: dict) -> float:
     return float(np.mean(np.abs(m["pred"] - m["ref"]))) if len(m["ref"]) else float("nan")
 
 
-def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path, test_dir: Path, say,
-                  work: Path) -> dict:
-    """Before/after held-out errors of one unit for each poke count (decided and forced); calibration
-    stores (nominal, then one recalibrated version per poke count) are written under `work`."""
+def corrected_frames(frames: list, cal, corr=None) -> list:
+    """The runtime's correction stage (runtime.correction.ForceCorrection of `cal`, features exactly as
+    SensorPipeline computes them) applied to recorded raw-model clusters; frames are copied."""
+    from dataclasses import replace as dc_replace
+
+    from runtime.correction import ForceCorrection
+    from runtime.geometry import sample_bilinear
+
+    corr = corr if corr is not None else ForceCorrection.from_calibration(cal)
+    h, w = cal.model_size
+    out = []
+    for t, clusters in frames:
+        if clusters and corr.enabled:
+            forces = np.array([c.force_n for c in clusters])
+            uv = np.array([c.centroid_px for c in clusters]) / np.array([w, h])
+            tp = np.array([[sample_bilinear(cal.theta, u - 0.5, v - 0.5), sample_bilinear(cal.phi, u - 0.5, v - 0.5)]
+                           for u, v in (c.centroid_px for c in clusters)])
+            f = corr(forces, uv, tp)
+            clusters = [dc_replace(c, force_n=tuple(map(float, fi)), force_mag_n=float(np.linalg.norm(fi)))
+                        for c, fi in zip(clusters, f)]
+        out.append((t, clusters))
+    return out
+
+
+def held_out_pokes(frames: list, reference, rules) -> dict:
+    """Single-contact pokes of a frame sequence paired with the reference (as tools.recalib.evaluate)."""
+    from tools.recalib.pokes import PokeDetector
+
+    det, pred, refs = PokeDetector(rules), [], []
+    for t, clusters in frames:
+        poke = det.feed(t, clusters)
+        if poke is None or poke.second_ratio > rules.second_contact_ratio:
+            continue
+        r = reference.for_poke(poke)
+        if r is not None and r >= rules.min_force_n:
+            pred.append(poke.pred_mag)
+            refs.append(r)
+    return {"pred": np.array(pred), "ref": np.array(refs)}
+
+
+def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path, held: dict, say,
+                  work: Path, runtime_check: bool = False) -> dict:
+    """Before/after held-out errors of one unit for each poke count (decided and forced). `held`:
+    {name: session dir}. Each session goes through the runtime pipeline once (raw model force);
+    each calibration version's correction is then applied by `corrected_frames`. With
+    `runtime_check`, the 7-poke version is also measured through the full pipeline (measure_pokes)."""
     from runtime.calibration import CalibrationStore
     from runtime.session import load_session
     from tools.recalib.evaluate import measure_pokes
@@ -174,22 +264,28 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     size = int(package.size[0])
     tables, meta = nominal_calibration(size)
     rules = PokeRules(reach_theta_rad=math.radians(cfg.reach_deg))
-    row = {"unit": unit.serial, "variation": unit.override(), "label": unit.label(), "by_pokes": {}}
+    eval_rules = PokeRules()
+    row = {"unit": unit.serial, "variation": unit.override(), "label": unit.label(), "held_out": {}, "by_pokes": {}}
     store = CalibrationStore(work / "base")
     store.write(unit.serial, tables, meta)
     base = store.load(unit.serial)
-    before = measure_pokes(test_dir, base, package, corrected=True, precision=cfg.precision)
-    row.update(held_out_pokes=len(before["ref"]), before_mae_n=mae(before), before_bias_n=float(np.mean(before["pred"] - before["ref"])),
-               mean_ref_n=float(np.mean(before["ref"])) if len(before["ref"]) else float("nan"))
-    frames = collect_frames(fit_dir, base, package, cfg.precision)
+    fc = cfg.folder() / "frames"
+    raw = {k: collect_frames(d, base, package, cfg.precision, fc) for k, d in held.items()}
+    refs = {k: StreamReference.from_session(load_session(d), eval_rules) for k, d in held.items()}
+    for k in held:
+        b = held_out_pokes(raw[k], refs[k], eval_rules)
+        row["held_out"][k] = {"pokes": len(b["ref"]), "before_mae_n": mae(b), "mean_ref_n": float(np.mean(b["ref"])),
+                              "before_bias_n": float(np.mean(b["pred"] - b["ref"])),
+                              "before_pred": b["pred"].tolist(), "ref": b["ref"].tolist(), "after": {}}
+    frames = collect_frames(fit_dir, base, package, cfg.precision, fc)
     reference = StreamReference.from_session(load_session(fit_dir), rules)
     for n in cfg.poke_counts:
         scfg = SessionConfig(pokes=n, rules=rules)
         outcome = run_guided(iter(frames), base, reference, scfg, say=lambda m: None)
         entry = {"accepted": len(outcome.accepted), "rejected": [p.verdict for p in outcome.rejected]}
+        row["by_pokes"][str(n)] = entry
         if len(outcome.accepted) < scfg.fit.min_pokes:
             entry["error"] = "too few accepted pokes"
-            row["by_pokes"][str(n)] = entry
             continue
         an = analyse(outcome.accepted, base, scfg, force=True)
         entry.update(loo_before_mae_n=an.fit.loo["before"]["mae_n"], loo_after_mae_n=an.fit.loo["after"]["mae_n"],
@@ -199,20 +295,53 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
                             for p in outcome.accepted])
         st = CalibrationStore(work / f"n{n}")
         st.write(unit.serial, tables, meta)
-        cal0 = st.load(unit.serial)
         prov = {"pokes": n, "source": f"replay:{fit_dir}", "reference": reference.name, "forced": not entry["stored"]}
-        store_recalibration(st, cal0, prov, correction=(an.fit.spec, an.fit.onnx_bytes))
-        after = measure_pokes(test_dir, st.load(unit.serial), package, corrected=True, precision=cfg.precision)
-        entry.update(after_forced_mae_n=mae(after), after_bias_n=float(np.mean(after["pred"] - after["ref"])),
-                     held_out_matched=len(after["ref"]))
-        entry["after_mae_n"] = entry["after_forced_mae_n"] if entry["stored"] else row["before_mae_n"]
-        entry["reduction"] = 1 - entry["after_mae_n"] / row["before_mae_n"]
-        entry["reduction_forced"] = 1 - entry["after_forced_mae_n"] / row["before_mae_n"]
-        row["by_pokes"][str(n)] = entry
-        say(f"  {unit.serial}, {n} pokes: held-out MAE {row['before_mae_n']:.3f} -> {entry['after_mae_n']:.3f} N "
-            f"({entry['reduction']:.0%}; forced {entry['reduction_forced']:.0%}), LOO "
-            f"{entry['loo_before_mae_n']:.3f} -> {entry['loo_after_mae_n']:.3f} N, stored {entry['stored']}")
+        store_recalibration(st, st.load(unit.serial), prov, correction=(an.fit.spec, an.fit.onnx_bytes))
+        cal_n = st.load(unit.serial)
+        for k in held:
+            h = row["held_out"][k]
+            a = held_out_pokes(corrected_frames(raw[k], cal_n), refs[k], eval_rules)
+            forced = mae(a)
+            after = forced if entry["stored"] else h["before_mae_n"]
+            h["after"][str(n)] = {"pokes": len(a["ref"]), "after_forced_mae_n": forced, "after_mae_n": after,
+                                  "reduction": 1 - after / h["before_mae_n"],
+                                  "reduction_forced": 1 - forced / h["before_mae_n"],
+                                  "after_bias_n": float(np.mean(a["pred"] - a["ref"]))}
+            say(f"  {unit.serial}, {n} pokes, held-out {k}: MAE {h['before_mae_n']:.3f} -> {after:.3f} N "
+                f"({1 - after / h['before_mae_n']:.0%}; forced {1 - forced / h['before_mae_n']:.0%}), LOO "
+                f"{entry['loo_before_mae_n']:.3f} -> {entry['loo_after_mae_n']:.3f} N, stored {entry['stored']}")
+        entry["variants"] = _variants(outcome.accepted, base, scfg, raw, refs, row, eval_rules, cfg.variants, work)
+        if runtime_check and n == max(cfg.poke_counts):
+            k = next(iter(held))
+            full = measure_pokes(held[k], cal_n, package, corrected=True, precision=cfg.precision)
+            row["runtime_check"] = {"held_out": k, "pokes": n, "pipeline_mae_n": mae(full),
+                                    "replayed_correction_mae_n": row["held_out"][k]["after"][str(n)]["after_forced_mae_n"],
+                                    "pipeline_pokes": len(full["ref"])}
+            say(f"  runtime check ({k}, {n} pokes): full pipeline MAE {mae(full):.3f} N on {len(full['ref'])} pokes vs "
+                f"replayed correction {row['runtime_check']['replayed_correction_mae_n']:.3f} N")
     return row
+
+
+def _variants(pokes, cal, scfg, raw, refs, row, rules, variants, work: Path) -> dict:
+    """Held-out MAE after a correction on other inputs (stored regardless of the LOO decision)."""
+    from dataclasses import replace as dc_replace
+
+    from runtime.correction import ForceCorrection
+    from tools.recalib.session import analyse
+
+    out = {}
+    for inputs in variants:
+        vcfg = dc_replace(scfg, fit=dc_replace(scfg.fit, inputs=tuple(inputs)))
+        an = analyse(pokes, cal, vcfg, force=True)
+        path = work / f"variant-{'-'.join(inputs)}.onnx"
+        path.write_bytes(an.fit.onnx_bytes)
+        corr = ForceCorrection(path, an.fit.spec)
+        name = "+".join(inputs)
+        out[name] = {"loo_after_mae_n": an.fit.loo["after"]["mae_n"]}
+        for k in raw:
+            a = held_out_pokes(corrected_frames(raw[k], cal, corr), refs[k], rules)
+            out[name][k] = {"after_mae_n": mae(a), "reduction": 1 - mae(a) / row["held_out"][k]["before_mae_n"]}
+    return out
 
 
 def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
@@ -224,36 +353,43 @@ def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
     points = guided_points(tables, cfg.fit_pokes, math.radians(cfg.reach_deg))
     units = ([cfg.nominal] if cfg.nominal else []) + list(cfg.units)
     out = {"model": package.name, "precision": cfg.precision, "reach_deg": cfg.reach_deg, "guided_points_mm": points,
-           "fit_depths_mm": list(cfg.fit_depths_mm), "held_out_seed": cfg.held_out_seed, "units": []}
+           "fit_depths_mm": list(cfg.fit_depths_mm), "held_out": [list(h) for h in cfg.held_out], "units": []}
     t0 = time.time()
     for k, unit in enumerate(units):
         say(f"[{k + 1}/{len(units)}] {unit.serial}: {unit.label()}")
-        fit_cfg, test_cfg = record_configs(unit, cfg, points, size)
+        fit_cfg, held_cfgs = record_configs(unit, cfg, points, size)
         fit_dir = record_once(fit_cfg, cfg.folder() / "sessions" / f"{unit.serial}-fit-{fit_cfg.key()}", say)
-        test_dir = record_once(test_cfg, cfg.folder() / "sessions" / f"{unit.serial}-test-{test_cfg.key()}", say)
+        held = {k: record_once(c, cfg.folder() / "sessions" / f"{unit.serial}-test-{c.key()}", say)
+                for k, c in held_cfgs.items()}
         with tempfile.TemporaryDirectory(prefix="recalib-twin-") as tmp:
-            row = evaluate_unit(unit, cfg, package, fit_dir, test_dir, say, Path(tmp))
+            row = evaluate_unit(unit, cfg, package, fit_dir, held, say, Path(tmp),
+                                runtime_check=cfg.runtime_check and bool(cfg.units) and unit is cfg.units[0])
         row["nominal"] = unit is cfg.nominal
-        row["sessions"] = {"fit": str(fit_dir), "held_out": str(test_dir)}
+        row["sessions"] = {"fit": str(fit_dir), **{k: str(d) for k, d in held.items()}}
         out["units"].append(row)
     out["seconds"] = time.time() - t0
     return out
 
 
-def markdown(res: dict) -> str:
+def markdown(res: dict, held: str = "probe") -> str:
     lines = ["| unit | variation (unknown to model + calibration) | held-out pokes | mean \\|F\\| (N) | pokes | "
              "held-out \\|F\\| MAE before → after (N) | reduction | forced | LOO MAE before → after (N) | stored |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in res["units"]:
+        h = r["held_out"].get(held)
+        if h is None:
+            continue
+        name = f"{r['unit']}{' (nominal)' if r.get('nominal') else ''}"
         for n, e in r["by_pokes"].items():
-            if "after_mae_n" not in e:
-                lines.append(f"| {r['unit']} | {r['label']} | {r['held_out_pokes']} | {r['mean_ref_n']:.2f} | {n} | "
+            a = h["after"].get(n)
+            if a is None:
+                lines.append(f"| {name} | {r['label']} | {h['pokes']} | {h['mean_ref_n']:.2f} | {n} | "
                              f"{e.get('error', '?')} | | | | |")
                 continue
-            lines.append(f"| {r['unit']}{' (nominal)' if r.get('nominal') else ''} | {r['label']} | {r['held_out_pokes']} | "
-                         f"{r['mean_ref_n']:.2f} | {n} | {r['before_mae_n']:.3f} → {e['after_mae_n']:.3f} | "
-                         f"{e['reduction']:.0%} | {e['reduction_forced']:.0%} | {e['loo_before_mae_n']:.3f} → "
-                         f"{e['loo_after_mae_n']:.3f} | {'yes' if e['stored'] else 'no'} |")
+            lines.append(f"| {name} | {r['label']} | {h['pokes']} | {h['mean_ref_n']:.2f} | {n} ({e['accepted']}) | "
+                         f"{h['before_mae_n']:.3f} → {a['after_mae_n']:.3f} | {a['reduction']:.0%} | "
+                         f"{a['reduction_forced']:.0%} | {e['loo_before_mae_n']:.3f} → {e['loo_after_mae_n']:.3f} | "
+                         f"{'yes' if e['stored'] else 'no'} |")
     return "\n".join(lines)
 
 
@@ -264,7 +400,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", help="model package name or path (default: newest installed)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     p.add_argument("--held-out-pokes", type=int, default=10)
-    p.add_argument("--held-out-seed", type=int, default=2)
     p.add_argument("--reach-deg", type=float, default=TwinBenchConfig.reach_deg)
     p.add_argument("--root", help="sessions and stores folder (default <cache>/recalib/twin)")
     p.add_argument("--json", help="write all numbers here")
@@ -273,11 +408,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     cfg = TwinBenchConfig(units=UNITS[:args.units], nominal=None if args.no_nominal else NOMINAL,
                           physics=args.physics, model=args.model, precision=args.precision,
-                          held_out_pokes=args.held_out_pokes, held_out_seed=args.held_out_seed,
+                          held_out_pokes=args.held_out_pokes,
                           reach_deg=args.reach_deg, root=Path(args.root) if args.root else None)
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     res = run_bench(cfg, say)
-    print(markdown(res))
+    for held in ("probe", "other"):
+        print(f"\n### held-out: {held}\n")
+        print(markdown(res, held))
     say(f"done in {res['seconds']:.0f} s")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
