@@ -45,11 +45,12 @@ class ExportConfig:
     calibration_samples: int = 32        # training inputs used to calibrate activation ranges
     per_channel: bool = True
     rewrite: bool = True                 # exact graph rewrites of export_graph (fused heads, deconv)
-    # Quantization scheme, measured on hiera-qup-128 (128², one thread, interleaved, CPU time per frame,
-    # docs/BENCHMARKS.md "Runtime"): fp32 (rewritten) 8.8 ms; all-static QDQ Conv+Gemm+MatMul 10.0 ms,
-    # QOperator the same; static Conv only 9.6; dynamic MatMul only 8.8 (-0.02 dB); hybrid = static
-    # Conv + dynamic MatMul 6.5 ms (-0.10 dB PSNR vs fp32). Quantizing every op (Softmax/Mul/Add/
-    # attention MatMul) was slower still; dynamic ConvInteger 5x slower.
+    # Quantization scheme, measured on hiera-qup-128 (128², one thread, interleaved, CPU time per frame
+    # on a loaded machine, docs/BENCHMARKS.md "Runtime"): fp32 (rewritten) 8.8 ms; all-static QDQ
+    # Conv+Gemm+MatMul 10.0 ms, QOperator the same; static Conv only 9.6; dynamic MatMul only 8.8
+    # (-0.02 dB); hybrid = static Conv + dynamic MatMul 6.5 ms (-0.10 dB PSNR vs fp32); hybrid with any
+    # of the three convs left fp32 was slower. Quantizing every op (Softmax/Mul/Add/attention MatMul)
+    # was slower still; dynamic ConvInteger 5x slower.
     scheme: str = "hybrid"               # "hybrid" | "static"
     op_types: tuple[str, ...] = ("Conv", "Gemm", "MatMul")     # static ops of scheme "static"
     hybrid_static_op_types: tuple[str, ...] = ("Conv",)       # static ops of scheme "hybrid"
@@ -115,7 +116,11 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration: np.
     static_ops = cfg.hybrid_static_op_types if cfg.scheme == "hybrid" else cfg.op_types
     with tempfile.TemporaryDirectory() as tmp:
         pre = Path(tmp) / "pre.onnx"
-        quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
+        # hybrid: no pre-optimization — onnxruntime's MatMul+Add→Gemm fusion would wrap every weighted
+        # MatMul in 2-D reshapes; kept N-D, they quantize to DynamicQuantizeMatMul with the bias fused
+        # at load and a shared input quantization for q/k/v (measured 3 % faster, same output)
+        quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True,
+                          skip_optimization=cfg.scheme == "hybrid")
         g = onnx.load(str(pre)).graph
         weights = {t.name for t in g.initializer}
         act_matmul = [n.name for n in g.node if n.op_type == "MatMul" and not any(i in weights for i in n.input)]
