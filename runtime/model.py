@@ -193,4 +193,9 @@ class FieldModel:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """(6, H, W) input → (15, H, W) fields in physical units (mm, MPa)."""
-        return self.denormalize(self.run_normalized(x)[0])
+        y = self.run_normalized(x)[0]
+        if y.dtype != np.float32 or not y.flags.writeable:
+            return self.denormalize(y)
+        np.multiply(y, self.span, out=y)       # in place on onnxruntime's fresh output: no temporaries
+        y += self.lo
+        return y

@@ -94,3 +94,12 @@ def test_wrong_channels_and_bounds(package, tmp_path):
     (bad / "manifest.json").write_text(json.dumps(m))
     with pytest.raises(ModelPackageError, match="output.channels"):
         load_package(bad)
+
+
+def test_call_denormalizes_in_place_to_the_same_values(package):
+    m = FieldModel(load_package(package), "int8")
+    x = np.random.default_rng(3).random((6, 32, 32), dtype=np.float32)
+    ref = m.denormalize(m.run_normalized(x)[0])
+    out = m(x)
+    assert out.dtype == np.float32 and out.flags.c_contiguous
+    assert np.array_equal(out, ref)
