@@ -251,7 +251,8 @@ def cmd_diagnose(args) -> int:
     if args.alpha:
         cfg = replace(cfg, alpha=args.alpha)
     registry = _registry(args)
-    diag = diagnose(comp.table, registry, comp.chain, cfg, post=comp.post)
+    baseline = (store_cal_correction(comp) or {}).get("nominal_reductions")
+    diag = diagnose(comp.table, registry, comp.chain, cfg, post=comp.post, baseline=baseline)
     result = diag.to_json()
     result.update({"session": str(Path(args.session).resolve()), "sensor_id": comp.summary["sensor_id"],
                    "enabled": diag.enabled, "n_samples": diag.n_samples, "n_blocks": diag.n_blocks,
@@ -266,11 +267,17 @@ def cmd_diagnose(args) -> int:
         print(line)
     print("ranking (held-out error, N):")
     for s in diag.ranking:
+        base = f"  (calibration session: {-100 * s.baseline:+.1f} %)" if s.baseline else ""
         print(f"  {s.effect.name:24s} {s.before:.4g} -> {s.after:.4g}  {-100 * s.reduction:+6.1f} %  "
-              f"p={s.p_adjusted:.3g}{'  *' if s.significant else ''}")
+              f"p={s.p_adjusted:.3g}{'  *' if s.significant else ''}{base}")
     if args.json:
         print(text)
     return 0
+
+
+def store_cal_correction(comp) -> dict | None:
+    """The sensor's correction entry, when the comparison applied one."""
+    return comp.summary.get("correction") if comp.post is not None else None
 
 
 def cmd_effects_list(args) -> int:

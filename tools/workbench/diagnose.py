@@ -91,6 +91,7 @@ class EffectScore:
     p_adjusted: float = 1.0
     significant: bool = False
     block_gain: list = field(default_factory=list)
+    baseline: float = 0.0          # held-out reduction of this candidate on the calibration session
 
     @property
     def reduction(self) -> float:
@@ -101,6 +102,8 @@ class EffectScore:
                "heldout_error_before": float(self.before), "heldout_error_after": float(self.after),
                "reduction": float(self.reduction), "significant": bool(self.significant),
                "p_value": float(self.p_value), "p_adjusted": float(self.p_adjusted)}
+        if self.baseline:
+            out["calibration_reduction"] = float(self.baseline)
         if self.channel != "force":
             out["channel"] = self.channel
             out["unit"] = "relative intensity"
@@ -139,9 +142,10 @@ class Diagnosis:
                          f"({-100 * v.reduction:+.0f} %), p = {v.p_adjusted:.3g} (Holm-corrected)")
         else:
             best = self.ranking[0] if self.ranking else None
+            base = f"; {100 * best.baseline:+.1f} % on the calibration session" if best and best.baseline else ""
             lines.append("No significant missing effect"
                          + (f" (best candidate {best.effect.name}: {100 * best.reduction:+.1f} % "
-                            f"held-out error reduction, p = {best.p_adjusted:.2g})" if best else ""))
+                            f"held-out error reduction, p = {best.p_adjusted:.2g}{base})" if best else ""))
         u = self.unexplained
         if u.get("covariate") and u["score"] >= self.min_unexplained:
             lines.append(f"What remains is best explained by {u['covariate']} "
@@ -177,9 +181,13 @@ def _score_candidate(effect: Effect, ch: Channels, blocks: np.ndarray, cfg: Diag
 
 
 def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None = None,
-             cfg: DiagnoseConfig | None = None, candidates: list[str] | None = None, post=None) -> Diagnosis:
+             cfg: DiagnoseConfig | None = None, candidates: list[str] | None = None, post=None,
+             baseline: dict | None = None) -> Diagnosis:
     """Rank every candidate effect by held-out error reduction (see module docstring). `post`: the
-    sensor's correction on table rows (applied after the force-stage effects, as deployed)."""
+    sensor's correction on table rows (applied after the force-stage effects, as deployed).
+    `baseline`: {effect: held-out reduction} the same candidate reached on the sensor's calibration
+    session (no hidden physics: the model's own residual structure); an effect is significant only
+    when it beats that by `min_reduction`."""
     t0 = time.perf_counter()
     cfg = cfg or DiagnoseConfig()
     chain = enabled or EffectChain()
@@ -200,7 +208,8 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
         log.debug("%s: %.4g -> %.4g (p=%.3g)", name, scores[-1].before, scores[-1].after, scores[-1].p_value)
     for s, padj in zip(scores, holm([s.p_value for s in scores])):
         s.p_adjusted = padj
-        s.significant = padj <= cfg.alpha and s.reduction >= cfg.min_reduction
+        s.baseline = float((baseline or {}).get(s.effect.name, 0.0))
+        s.significant = padj <= cfg.alpha and s.reduction >= cfg.min_reduction + max(s.baseline, 0.0)
     scores.sort(key=lambda s: -s.reduction)
     resid, pred = table.meas - ch.base_force, ch.base_force
     sig = [s for s in scores if s.significant]

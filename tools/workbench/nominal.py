@@ -65,6 +65,33 @@ def blocked_check(pokes, times: np.ndarray, cfg: NominalConfig = NominalConfig()
     return {"before": error_stats(pokes.pred_mag, pokes.ref_force), "after": error_stats(est, pokes.ref_force)}
 
 
+def forest_post(table: SampleTable, rf, fc):
+    """The fitted forest as the runtime applies it (gain clipped, zero stays zero), on table rows."""
+    from runtime.correction import apply_output, feature_matrix
+
+    uv, tp = table.vec["corr_uv"], table.vec["corr_theta_phi"]
+
+    def post(forces):
+        f = np.asarray(forces, dtype=np.float64)
+        out = f.copy()
+        nz = np.flatnonzero(np.any(f != 0.0, axis=1))
+        if len(nz):
+            g = rf.predict(feature_matrix(-f[nz], uv[nz], tp[nz], list(fc.inputs)))
+            out[nz] = -apply_output(-f[nz], g, "gain", fc.max_gain)
+        return out
+
+    return post
+
+
+def nominal_reductions(comp, chain, rf, fc, registry) -> dict:
+    """Held-out reduction each candidate reaches on the calibration session itself (with the new
+    correction): the model's own residual structure, which diagnosis must beat to call it physics."""
+    from tools.workbench.diagnose import diagnose
+
+    diag = diagnose(comp.table, registry, chain, post=forest_post(comp.table, rf, fc))
+    return {s.effect.name: round(float(s.reduction), 4) for s in diag.ranking}
+
+
 def fit_and_store_correction(calib_session, sensor: str, store, model, registry, cache: bool = True,
                              progress=None, cfg: NominalConfig = NominalConfig()) -> tuple[str, str]:
     """Fit the correction on a calibration session and store it (new calibration version)."""
@@ -90,7 +117,8 @@ def fit_and_store_correction(calib_session, sensor: str, store, model, registry,
     _check_onnx(onnx, x, rf.predict(x))
     spec = {"file": "correction.onnx", "inputs": list(fc.inputs), "output": "gain",
             "kind": "random_forest_gain", "n_estimators": fc.n_estimators, "max_depth": fc.max_depth,
-            "frames": int(len(pokes)), "source": "workbench nominal correction"}
+            "frames": int(len(pokes)), "source": "workbench nominal correction",
+            "nominal_reductions": nominal_reductions(comp, chain, rf, fc, registry)}
     cal = store.load(sensor)
     version = store_recalibration(store, cal, {"method": "workbench nominal correction",
                                                "session": str(calib_session), "frames": int(len(pokes)),
