@@ -57,7 +57,7 @@ class BuildConfig:
     heldout: list = field(default_factory=_heldout_sessions)
     physics: str = "fe"                           # twin physics (fe; hertz-fallback only for smoke tests)
     fe: str = "resolve"                           # stage 2: resolve (FE from measured keypoints) | twin (twin's solves)
-    tables: str = "truth"                         # θ/φ tables of the targets: truth (twin) | gpr (stage 3)
+    tables: str = "gpr"                           # θ/φ tables of the targets: gpr (stage 3 pokes) | truth (twin)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
     rest_fraction: float = 0.15                   # rest (no contact) samples relative to contact samples
     val_fraction: float = 0.1
@@ -93,7 +93,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     """Config key per stage: the fields that stage (and the stages before it) depend on."""
     d = cfg.to_dict()
     deps = {"sessions": ["train", "heldout", "physics", "size"],
-            "keypoints": [], "fe": ["fe"], "correspondence": [], "simreal": [],
+            "keypoints": [], "fe": ["fe"], "correspondence": ["tables"], "simreal": [],
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from"],
@@ -300,7 +300,7 @@ def register_build(ts) -> None:
         q.add_argument("--init-from", help="fine-tune: start the fit from this state dict (a run's best.pt)")
         q.add_argument("--threads", type=int)
         q.add_argument("--arch", choices=("hiera_qup", "unet", "vit"))
-        q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets (stage 3 GPR or truth)")
+        q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets: gpr = stage 3 GPR from detected pokes (default); truth = the twin's true tables")
         q.add_argument("--fe", choices=("resolve", "twin"),
                        help="stage 2 FE labels: resolve = FE re-solved from the measured keypoints (default); "
                             "twin = the twin's own solves of its plan")
