@@ -127,20 +127,23 @@ def run_mode(cfg, seconds: float, warmup: float) -> dict:
                 f.loop.latency = type(f.loop.latency)(100000)
         start = {n: (f.loop.frames if f.loop else 0) for n, f in hand.fingers.items()}
         msgs0 = counter.n
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         time.sleep(seconds)
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
         per = {}
         for n, f in hand.fingers.items():
             s = f.loop.latency.summary().get("total", {}) if f.loop else {}
             per[n] = {"hz": (f.loop.frames - start[n]) / wall, "p50_ms": s.get("p50"), "p99_ms": s.get("p99"),
                       "inference_p50_ms": f.loop.latency.summary().get("inference", {}).get("p50")}
         received = (counter.n - msgs0) / wall
+        frames = sum(f.loop.frames - start[n] for n, f in hand.fingers.items() if f.loop is not None)
     finally:
         counter.sub.undeclare()
         listener.close()
         hand.stop()
     return {"fingers": per, "received_msgs_per_s": received, "load1_end": round(os.getloadavg()[0], 2),
+            "cpu_share": round(cpu / wall, 3),                   # CPU-seconds per second this process got
+            "cpu_ms_per_frame": round(1e3 * cpu / max(frames, 1), 2),
             "min_hz": min(v["hz"] for v in per.values()),
             "total_hz": sum(v["hz"] for v in per.values()),
             "p99_ms": max(v["p99_ms"] or 0 for v in per.values())}
@@ -189,12 +192,15 @@ def soak(cfg, seconds: float, log_every: float, log_path: Path, fps: float) -> d
     try:
         with open(log_path, "w") as log:
             last = {n: 0 for n in hand.fingers}
-            t_last = time.monotonic()
+            t_last, cpu_last = time.monotonic(), time.process_time()
             while time.monotonic() - t_start < seconds:
                 time.sleep(log_every)
                 now = time.monotonic()
+                cpu = time.process_time()
                 row = {"t_s": round(now - t_start, 1), "rss_mb": round(rss_mb(), 2),
-                       "load1": round(os.getloadavg()[0], 2), "fingers": {}}
+                       "load1": round(os.getloadavg()[0], 2),
+                       "cpu_share": round((cpu - cpu_last) / (now - t_last), 3), "fingers": {}}
+                cpu_last = cpu
                 for n, f in hand.fingers.items():
                     frames = f.loop.frames if f.loop else 0
                     p50, p99 = lat.take(n)
@@ -206,7 +212,7 @@ def soak(cfg, seconds: float, log_every: float, log_path: Path, fps: float) -> d
                 rows.append(row)
                 log.write(json.dumps(row) + "\n")
                 log.flush()
-                print(f"  soak t={row['t_s']:7.1f} s  RSS {row['rss_mb']:7.1f} MB  load {row['load1']:5.2f}  " + "  ".join(
+                print(f"  soak t={row['t_s']:7.1f} s  RSS {row['rss_mb']:7.1f} MB  load {row['load1']:5.2f} cpu {row['cpu_share']:4.2f}  " + "  ".join(
                     f"{n} {v['hz']:5.1f} Hz p99 {v['p99_ms']:6.1f} ms" for n, v in row["fingers"].items()),
                     flush=True)
     finally:
@@ -234,6 +240,7 @@ def summarize_soak(rows: list[dict], fps: float, log_path=None) -> dict:
             "mean_hz": {n: v.get("frames", 0) / t[-1] for n, v in last.items()},
             "behind_frames": {n: v.get("behind", 0.0) for n, v in last.items()},
             "load1_median": float(np.median([r.get("load1", np.nan) for r in rows])),
+            "cpu_share_median": float(np.median([r.get("cpu_share", np.nan) for r in rows])),
             "rss_first_mb": float(rss[skip]) if len(rss) > skip else float(rss[0]),
             "rss_last_mb": float(rss[-1]), "rss_max_mb": float(rss.max()),
             "rss_slope_mb_per_h": slope, "p99_first_quarter_ms": float(np.median(p99[:q])),
@@ -284,7 +291,7 @@ def _print_soak(s: dict) -> None:
           f"{s['p99_first_quarter_ms']:.1f} ms, last quarter {s['p99_last_quarter_ms']:.1f} ms; mean rate "
           + ", ".join(f"{v:.2f}" for v in s["mean_hz"].values()) + f" Hz (target {s['fps_target']:g}), "
           "frames behind at the end " + ", ".join(f"{v:.0f}" for v in s["behind_frames"].values())
-          + f", median load {s['load1_median']:.2f}")
+          + f", median load {s['load1_median']:.2f}, median CPU share {s['cpu_share_median']:.2f} CPU-s/s")
 
 
 def from_log(args) -> int:
@@ -327,7 +334,8 @@ def run(args) -> int:
                       + f" frames/s (total {r['total_hz']:.1f}), end-to-end p50 "
                       + ", ".join(f"{v['p50_ms']:.1f}" for v in r["fingers"].values())
                       + f" ms, worst p99 {r['p99_ms']:.1f} ms, subscriber got {r['received_msgs_per_s']:.0f} msg/s"
-                      + f" (load average {r['load1_end']:.2f})")
+                      + f" (load average {r['load1_end']:.2f}; this process got {r['cpu_share']:.2f} CPU-s/s, "
+                      f"{r['cpu_ms_per_frame']:.1f} CPU-ms per frame)")
         summary = {"sensors": args.sensors, "model": pkg.name, "model_folder": str(pkg.folder),
                    "size": pkg.size[0], "precision": args.precision, "synthetic_weights": synthetic,
                    "params": params, "modes": results}
