@@ -73,6 +73,7 @@ def test_hand_bench_small(capsys):
     assert set(summary["modes"]) == set(hand_bench.MODES)
     for r in summary["modes"].values():
         assert r["min_hz"] > 5 and len(r["fingers"]) == 2 and r["received_msgs_per_s"] > 0
+        assert 0 < r["cpu_share"] <= (os.cpu_count() or 2) + 0.1 and r["cpu_ms_per_frame"] > 0
     soak = summary["soak"]
     assert soak["windows"] >= 2 and soak["rss_last_mb"] > 0 and soak["fps_target"] == 10
     assert set(soak["mean_hz"]) == {"f0", "f1"} and all(0 < v <= 11 for v in soak["mean_hz"].values())
@@ -83,7 +84,7 @@ def _rows(n=40, leak_mb_per_h=0.0, p99_ms=20.0):
     rows = []
     for i in range(1, n + 1):
         t = 30.0 * i
-        rows.append({"t_s": t, "rss_mb": 250.0 + leak_mb_per_h * t / 3600, "load1": 2.0 + (i % 3),
+        rows.append({"t_s": t, "rss_mb": 250.0 + leak_mb_per_h * t / 3600, "load1": 2.0 + (i % 3), "cpu_share": 1.25,
                      "fingers": {f"f{k}": {"hz": 30.0, "p50_ms": 8.0, "p99_ms": p99_ms + k, "state": "running",
                                            "frames": int(30 * t) - 3 * k, "behind": float(3 * k)}
                                  for k in range(4)}})
@@ -100,7 +101,7 @@ def test_soak_summary_measures_drift_rate_and_backlog():
     assert flat["mean_hz"]["f0"] == pytest.approx(30.0) and flat["mean_hz"]["f3"] < 30.0
     assert flat["behind_frames"] == {"f0": 0.0, "f1": 3.0, "f2": 6.0, "f3": 9.0}
     assert flat["p99_first_quarter_ms"] == pytest.approx(23.0) and flat["load1_median"] == pytest.approx(3.0)
-    assert flat["duration_s"] == 1200.0 and flat["windows"] == 40
+    assert flat["duration_s"] == 1200.0 and flat["windows"] == 40 and flat["cpu_share_median"] == 1.25
 
 
 def test_soak_plot_and_from_log(tmp_path, capsys):
