@@ -1,6 +1,6 @@
 """Stage 7 — ONNX export, int8 quantization, parity report, model package (docs/model_package.md).
 
-- `export_onnx`     legacy TorchScript exporter (dynamo=False, opset 17), input "input" (1, 6, H, W),
+- `export_onnx`     legacy TorchScript exporter (dynamo=False, opset 20), input "input" (1, 6, H, W),
                     output "fields" (1, 15, H, W), after the exact rewrites of `export_graph`;
 - `quantize_int8`   scheme "hybrid" (default): static QDQ int8 for Conv (uint8 activations, per-channel
                     int8 weights, MinMax calibration on training inputs) + int8 weights for the weighted
@@ -41,7 +41,7 @@ FP32, INT8 = "model.fp32.onnx", "model.int8.onnx"
 
 @dataclass(frozen=True)
 class ExportConfig:
-    opset: int = 17
+    opset: int = 20                      # GELU as one ONNX op (opset 20): int8 5 % faster than 17, same output
     calibration_samples: int = 32        # training inputs used to calibrate activation ranges
     per_channel: bool = True
     rewrite: bool = True                 # exact graph rewrites of export_graph (fused heads, deconv)
