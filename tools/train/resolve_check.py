@@ -17,23 +17,36 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def compare_session(b, spec) -> list[dict]:
+def compare_session(b, spec, reference: str = "recorded") -> list[dict]:
     """Per re-solved period and FE frame inside the twin poke's keypoint span: force of each indenter
-    (re-solved vs the twin's nominal FE reaction, N) and surface displacement difference (mm)."""
+    (re-solved vs the twin's nominal FE reaction, N) and surface displacement difference (mm).
+
+    reference "recorded": the solves the twin recorded the session with (truth.json `fe_scenarios`: the
+    physics of the images and F/T); "plan": the twin's plan solved with the CURRENT tools.fe (isolates
+    what building scenarios from measured keypoints costs from any FE change since the recording)."""
+    import json as _json
+
+    from tools.fe import load_result
     from tools.train.resolve_stage import resolved_sources
     from tools.train.stages import recorder
+    from tools.twin.fe_physics import from_fe_result
+    from tools.twin.geometry import GelSurface
     from tools.twin.physics import interpolate
     from tools.twin.record import make_physics
 
     rec = recorder(b, spec)
     physics = make_physics(rec.cfg, rec.unit)
+    recorded = _json.loads((b.session(spec) / "truth" / "truth.json").read_text())["fe_scenarios"]
     rows = []
     for src in resolved_sources(b, spec):
         t_mid = 0.5 * (src.times[0] + src.times[-1])
         pi = int(np.argmin([0.0 if p.times[0] <= t_mid <= p.times[-1] else min(abs(p.times[0] - t_mid), abs(p.times[-1] - t_mid))
                             for p in rec.plan]))
         poke = rec.plan[pi]
-        twin = physics.solve(poke)
+        if reference == "recorded":
+            twin = from_fe_result(load_result(physics.cache / f"{recorded[pi]}.npz"), GelSurface.from_fe(physics.gel))
+        else:
+            twin = physics.solve(poke)
         res = src.result
         sn = np.asarray(res.surface_nodes)
         same_mesh = twin.nodes.shape == np.asarray(res.nodes)[sn].shape and np.allclose(twin.nodes, np.asarray(res.nodes)[sn])
@@ -113,6 +126,8 @@ def main(argv=None) -> int:
     ap.add_argument("--build", default="resolve")
     ap.add_argument("--sessions", nargs="*")
     ap.add_argument("--out")
+    ap.add_argument("--reference", choices=("recorded", "plan"), default="recorded",
+                    help="recorded: the twin's recorded solves (truth); plan: its plan with the current tools.fe")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     b = Build(BuildConfig(build=args.build))
@@ -122,7 +137,7 @@ def main(argv=None) -> int:
             continue
         if not (b.root / "fe" / f"{spec.name}.json").is_file():
             continue
-        rows += compare_session(b, spec)
+        rows += compare_session(b, spec, args.reference)
         cover[spec.name] = label_coverage(b, spec)
     tot = {k: sum(c[k] for c in cover.values()) for k in next(iter(cover.values()), {})}
     out = {"summary": summarize(rows), "summary_keypoints_only": summarize([r for r in rows if r["keypoint"]]),
