@@ -132,3 +132,23 @@ def test_bench_regenerates_fp32_from_the_checkpoint(tmp_path):
     full, source = fp32_package(pkg, tmp_path / "work")
     assert full is not None and "regenerated" in source and "same SHA-256" in source
     assert (full.folder / FP32).is_file()
+
+
+def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
+    """`tensortouch bench runtime` end to end on a small synthetic size (real capture, Zenoh loopback)."""
+    import argparse
+
+    from tools.bench.runtime_bench import add_arguments, run
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args(["--sizes", "32", "--frames", "12", "--chunk", "4", "--fields-every", "3", "--json"])
+    assert run(args) == 0
+    out = capsys.readouterr().out
+    summary = json.loads(out.strip().splitlines()[-1])
+    res = summary["results"]
+    assert set(res) == {"32/fp32", "32/int8", "32/int8/fields÷3"}
+    for r in res.values():
+        assert r["frames"] == 12 and r["hz"] > 0 and 0 < r["cpu_ms_per_frame"] <= r["process_cpu_ms_per_frame"]
+        assert {"capture", "preprocess", "inference", "contacts", "publish", "end_to_end"} <= set(r["stages"])
+    assert "int8 vs fp32 (same run, interleaved)" in out and "fp32 model: shipped in the package" in out
