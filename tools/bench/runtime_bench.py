@@ -186,7 +186,11 @@ class _Config:
 
 
 def run(args) -> int:
+    import cv2
+
     from runtime.publisher import Publisher
+
+    cv2.setNumThreads(1)           # as `tensortouch run` does: one core for the whole sensor loop
 
     sizes = [int(s) for s in args.sizes.split(",")]
     results, notes = {}, []
@@ -221,7 +225,7 @@ def run(args) -> int:
                     results[key] = {**c.result(), "model": pkg.name, "synthetic": synthetic, "params": params}
     load_after = os.getloadavg()
     print(f"runtime benchmark — {args.frames} frames per config (interleaved in chunks of {args.chunk}), "
-          f"{args.threads} onnxruntime thread(s), capture = MJPG {w}x{h} decode, publish = Zenoh loopback; "
+          f"{args.threads} onnxruntime thread(s), OpenCV 1 thread, capture = MJPG {w}x{h} decode, publish = Zenoh loopback; "
           f"cpu count {os.cpu_count()}, load average {load_before[0]:.2f} → {load_after[0]:.2f}")
     for note in notes:
         print(f"  {note}")
