@@ -62,6 +62,15 @@ def _sha(path: Path) -> str:
     return h.hexdigest()
 
 
+def model_sha(package, precision: str) -> str:
+    """SHA-256 of the package's model file of that precision (a clear error when it has none)."""
+    try:
+        return package.sha256(precision)
+    except KeyError:
+        raise TensorTouchError(f"{package.folder / 'manifest.json'}: no {precision} model file in package "
+                               f"{package.name} (has {sorted(package.manifest['files'])})") from None
+
+
 def frames_hash(session) -> str:
     """Content hash of the session's camera frames (what the network sees)."""
     kind, src = session.image_source()
@@ -162,7 +171,7 @@ def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path 
     """The (cached) frame pass and its provenance {key, seconds, cached}."""
     from runtime.pipeline import PipelineConfig
 
-    key_src = {"frames": frames_hash(session), "model": package.sha256(cfg.precision), "precision": cfg.precision,
+    key_src = {"frames": frames_hash(session), "model": model_sha(package, cfg.precision), "precision": cfg.precision,
                "geometry": geometry_key(cal), "pipeline": asdict(PipelineConfig()), "code": runtime_code_hash()}
     key = hashlib.sha256(json.dumps(key_src, sort_keys=True, default=str).encode()).hexdigest()[:16]
     path = cache_dir / f"{key}.npz" if cache_dir else None
@@ -375,7 +384,7 @@ class NetworkModel:
         self.info: dict = {}
 
     def fingerprint(self) -> str:
-        text = json.dumps({"model": self.package.sha256(self.cfg.precision), "cfg": asdict(self.cfg)}, sort_keys=True)
+        text = json.dumps({"model": model_sha(self.package, self.cfg.precision), "cfg": asdict(self.cfg)}, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def predict(self, table):  # the sample-table interface of the contact law does not apply
