@@ -149,6 +149,6 @@ def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
     res = summary["results"]
     assert set(res) == {"32/fp32", "32/int8", "32/int8/fields÷3"}
     for r in res.values():
-        assert r["frames"] == 12 and r["hz"] > 0 and 0 < r["cpu_ms_per_frame"] <= r["process_cpu_ms_per_frame"]
+        assert r["frames"] == 12 and r["hz"] > 0 and 0 < r["cpu_ms_per_frame"] <= r["process_cpu_ms_per_frame"] + 0.01
         assert {"capture", "preprocess", "inference", "contacts", "publish", "end_to_end"} <= set(r["stages"])
     assert "int8 vs fp32 (same run, interleaved)" in out and "fp32 model: shipped in the package" in out
