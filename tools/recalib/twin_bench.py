@@ -82,6 +82,8 @@ class TwinBenchConfig:
     precision: str = "int8"
     poke_counts: tuple = (5, 6, 7)
     runtime_check: bool = True                           # first varied unit: full pipeline vs replayed correction
+    geometry: str = ""                                   # "" | "full" (GPR θ/φ + centre) | "center" (centre only):
+                                                         # a geometry stage first (7 pokes), then the force fit
     variants: tuple = (("fmag",), ("fmag", "theta"), ("fmag", "fx", "fy", "fz"),    # other correction inputs
                        ("fx", "fy", "fz", "fmag", "u", "v", "theta", "phi"))      # (forced, no decision)
     root: Path | None = None                             # default <cache>/recalib/twin
@@ -255,6 +257,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     each calibration version's correction is then applied by `corrected_frames`. With
     `runtime_check`, the 7-poke version is also measured through the full pipeline (measure_pokes)."""
     from runtime.calibration import CalibrationStore
+    from runtime.errors import TensorTouchError
     from runtime.session import load_session
     from tools.recalib.evaluate import measure_pokes
     from tools.recalib.pokes import PokeRules
@@ -311,6 +314,13 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
                 f"({1 - after / h['before_mae_n']:.0%}; forced {1 - forced / h['before_mae_n']:.0%}), LOO "
                 f"{entry['loo_before_mae_n']:.3f} -> {entry['loo_after_mae_n']:.3f} N, stored {entry['stored']}")
         entry["variants"] = _variants(outcome.accepted, base, scfg, raw, refs, row, eval_rules, cfg.variants, work)
+        if cfg.geometry and n == max(cfg.poke_counts):
+            try:
+                row["geometry"] = _geometry_stage(unit, cfg, package, fit_dir, held, outcome.accepted, base, row,
+                                                  rules, eval_rules, work, say)
+            except TensorTouchError as exc:       # e.g. fewer than the 6 pokes the GPR needs
+                row["geometry"] = {"error": str(exc)}
+                say(f"  {unit.serial}: geometry refresh not possible: {exc}")
         if runtime_check and n == max(cfg.poke_counts):
             k = next(iter(held))
             full = measure_pokes(held[k], cal_n, package, corrected=True, precision=cfg.precision)
@@ -320,6 +330,82 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
             say(f"  runtime check ({k}, {n} pokes): full pipeline MAE {mae(full):.3f} N on {len(full['ref'])} pokes vs "
                 f"replayed correction {row['runtime_check']['replayed_correction_mae_n']:.3f} N")
     return row
+
+
+def _geometry_stage(unit, cfg, package, fit_dir, held, pokes, base, row, rules, eval_rules, work: Path, say) -> dict:
+    """Two-stage recalibration: θ/φ tables + gel centre from the accepted pokes with their true 3D
+    points (recalibrate --geometry; twin truth/contact.csv, or mocap/jig positions in the field),
+    stored first; then the fit session replayed through the re-centred crop and the force
+    correction fitted on those forces (5/6/7 pokes). Held-out errors vs the nominal 'before'."""
+    from runtime.calibration import CalibrationStore
+    from runtime.session import load_session
+    from tools.recalib.session import SessionConfig, StreamReference, analyse, run_guided, session_truth_xyz
+    from tools.recalib.store_ops import store_recalibration
+
+    session = load_session(fit_dir)
+    truth = session_truth_xyz(session, pokes)
+    an = analyse(pokes, base, SessionConfig(pokes=len(pokes), rules=rules), force=True, truth_xyz=truth)
+    g = an.geometry
+    st = CalibrationStore(work / "geometry")
+    tables, meta = nominal_calibration(int(package.size[0]))
+    if cfg.geometry == "center":      # keep the nominal tables, re-centre the crop on the fitted centre
+        meta = {**meta, "gel_center_px": [float(v) for v in g.center]}
+        st.write(unit.serial, tables, meta)
+        geo = None
+    else:                              # the full refresh of recalibrate --geometry (GPR θ/φ tables)
+        st.write(unit.serial, tables, meta)
+        geo = {"gel_center_px": g.center, "theta": g.theta, "phi": g.phi}
+        store_recalibration(st, st.load(unit.serial), {"pokes": len(pokes), "source": f"replay:{fit_dir}"},
+                            geometry=geo)
+    cal_g = st.load(unit.serial)
+    fc = cfg.folder() / "frames"
+    raw = {k: collect_frames(d, cal_g, package, cfg.precision, fc) for k, d in held.items()}
+    refs = {k: StreamReference.from_session(load_session(d), eval_rules) for k, d in held.items()}
+    frames = collect_frames(fit_dir, cal_g, package, cfg.precision, fc)
+    reference = StreamReference.from_session(session, rules)
+    true_c = np.array(true_center(unit))
+    out = {"center_px": list(g.center), "center_true_px": true_c.tolist(),
+           "center_error_px": float(np.linalg.norm(np.array(g.center) - true_c)),
+           "center_error_nominal_px": float(np.linalg.norm(np.array(base.gel_center_px) - true_c)),
+           "held_out": {}, "by_pokes": {}}
+    for k in held:
+        b = held_out_pokes(raw[k], refs[k], eval_rules)
+        out["held_out"][k] = {"pokes": len(b["ref"]), "geometry_only_mae_n": mae(b),
+                              "reduction": 1 - mae(b) / row["held_out"][k]["before_mae_n"], "after": {}}
+    for n in cfg.poke_counts:
+        scfg = SessionConfig(pokes=n, rules=rules)
+        oc = run_guided(iter(frames), cal_g, reference, scfg, say=lambda m: None)
+        e = {"accepted": len(oc.accepted)}
+        out["by_pokes"][str(n)] = e
+        if len(oc.accepted) < scfg.fit.min_pokes:
+            continue
+        an = analyse(oc.accepted, cal_g, scfg, force=True)
+        e.update(loo_before_mae_n=an.fit.loo["before"]["mae_n"], loo_after_mae_n=an.fit.loo["after"]["mae_n"],
+                 stored=bool(an.fit.loo["after"]["mae_n"] < an.active["mae_n"]))
+        st2 = CalibrationStore(work / f"geometry-n{n}")
+        st2.write(unit.serial, tables, meta)
+        store_recalibration(st2, st2.load(unit.serial), {"pokes": n}, correction=(an.fit.spec, an.fit.onnx_bytes),
+                            geometry=geo)
+        cal_n = st2.load(unit.serial)
+        for k in held:
+            h = out["held_out"][k]
+            a = held_out_pokes(corrected_frames(raw[k], cal_n), refs[k], eval_rules)
+            after = mae(a) if e["stored"] else h["geometry_only_mae_n"]
+            h["after"][str(n)] = {"pokes": len(a["ref"]), "after_forced_mae_n": mae(a), "after_mae_n": after,
+                                  "reduction": 1 - after / row["held_out"][k]["before_mae_n"],
+                                  "reduction_forced": 1 - mae(a) / row["held_out"][k]["before_mae_n"]}
+            say(f"  {unit.serial}, geometry + {n} pokes, held-out {k}: MAE {row['held_out'][k]['before_mae_n']:.3f} -> "
+                f"{after:.3f} N ({h['after'][str(n)]['reduction']:.0%}; geometry only {h['reduction']:.0%}; "
+                f"forced {h['after'][str(n)]['reduction_forced']:.0%}); centre error {out['center_error_nominal_px']:.1f} "
+                f"-> {out['center_error_px']:.1f} px")
+    return out
+
+
+def true_center(unit: BenchUnit) -> tuple:
+    """The unit's true gel centre in camera px (image of the apex)."""
+    from tools.twin.unit import TwinUnit
+
+    return TwinUnit(unit.serial, override=unit.override()).gel_center_px
 
 
 def _variants(pokes, cal, scfg, raw, refs, row, rules, variants, work: Path) -> dict:
@@ -396,20 +482,25 @@ def markdown(res: dict, held: str = "probe") -> str:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--units", type=int, default=len(UNITS), help=f"how many of the {len(UNITS)} varied units")
     p.add_argument("--no-nominal", action="store_true", help="skip the reference unit without variation")
+    p.add_argument("--only", nargs="*", help="only these unit serials")
     p.add_argument("--physics", choices=("fe", "hertz-fallback"), default="fe")
     p.add_argument("--model", help="model package name or path (default: newest installed)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     p.add_argument("--held-out-pokes", type=int, default=10)
     p.add_argument("--reach-deg", type=float, default=TwinBenchConfig.reach_deg)
     p.add_argument("--root", help="sessions and stores folder (default <cache>/recalib/twin)")
+    p.add_argument("--geometry", choices=("full", "center"), default="",
+                   help="also a two-stage recalibration: geometry from the pokes' true points first (full: GPR "
+                        "θ/φ tables + centre; center: re-centre the crop only), then the force correction")
     p.add_argument("--json", help="write all numbers here")
 
 
 def run(args) -> int:
-    cfg = TwinBenchConfig(units=UNITS[:args.units], nominal=None if args.no_nominal else NOMINAL,
+    units = tuple(u for u in UNITS[:args.units] if not args.only or u.serial in args.only)
+    cfg = TwinBenchConfig(units=units, nominal=None if args.no_nominal else NOMINAL,
                           physics=args.physics, model=args.model, precision=args.precision,
                           held_out_pokes=args.held_out_pokes,
-                          reach_deg=args.reach_deg, root=Path(args.root) if args.root else None)
+                          reach_deg=args.reach_deg, geometry=args.geometry, root=Path(args.root) if args.root else None)
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     res = run_bench(cfg, say)
     for held in ("probe", "other"):
