@@ -6,6 +6,9 @@ module (or its dependencies) is not installed is listed as unavailable instead o
 from __future__ import annotations
 
 import importlib
+import logging
+
+log = logging.getLogger(__name__)
 
 AREAS = {
     "runtime": ("tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32"),
@@ -13,17 +16,21 @@ AREAS = {
     "fe": ("tools.fe.bench", "FE solver: seconds per keypoint frame / 5-keypoint trajectory"),
     "twin": ("tools.twin.bench", "digital twin: seconds of recording per minute of compute"),
     "workbench": ("tools.workbench.bench", "compare → diagnose → add → compare"),
+    "recalib": ("tools.recalib.twin_bench", "field recalibration on twin units: held-out |F| error before/after"),
 }
 
 
 def register(sub) -> None:
-    p = sub.add_parser("bench", help="benchmarks (runtime, fe, twin, workbench)")
+    p = sub.add_parser("bench", help="benchmarks (" + ", ".join(AREAS) + ")")
     bsub = p.add_subparsers(dest="bench_area", metavar="AREA", required=True)
     for name, (module, helptext) in AREAS.items():
         try:
             mod = importlib.import_module(module)
-        except ImportError:
+        except ImportError as exc:
+            log.warning("bench area %r unavailable: %s", name, exc)
             continue
+        if not (callable(getattr(mod, "add_arguments", None)) and callable(getattr(mod, "run", None))):
+            raise TypeError(f"bench area {name!r}: {module} must define add_arguments(parser) and run(args)")
         q = bsub.add_parser(name, help=helptext)
         mod.add_arguments(q)
         q.set_defaults(func=mod.run)

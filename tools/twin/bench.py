@@ -127,12 +127,13 @@ def interpolation_error(cache: Path, factor: int = 4, kind: str = "slide") -> di
     return out
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m tools.twin.bench")
+def add_arguments(ap) -> None:
     ap.add_argument("--pokes", type=int, default=3)
     ap.add_argument("--cache", help="FE cache for the benchmark (default: a fresh temp dir -> cold really cold)")
     ap.add_argument("--skip", nargs="*", default=[], choices=["render", "throughput", "interp"])
-    args = ap.parse_args(argv)
+
+
+def run(args) -> int:
     logging.basicConfig(level=logging.WARNING)
     cache = Path(args.cache) if args.cache else Path(tempfile.mkdtemp(prefix="twin-bench-fe-"))
     out = {}
@@ -146,6 +147,12 @@ def main(argv=None) -> int:
         out["interp"] = [interpolation_error(cache, kind=k) for k in ("press", "slide")]
         print(json.dumps({"interp": out["interp"]}), flush=True)
     return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m tools.twin.bench")
+    add_arguments(ap)
+    return run(ap.parse_args(argv))
 
 
 if __name__ == "__main__":
