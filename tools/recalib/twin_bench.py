@@ -82,6 +82,7 @@ class TwinBenchConfig:
     precision: str = "int8"
     poke_counts: tuple = (5, 6, 7)
     runtime_check: bool = True                           # first varied unit: full pipeline vs replayed correction
+    calibration: str = "nominal"                         # store before recalibration: nominal | true (per unit)
     geometry: str = ""                                   # "" | "full" (GPR θ/φ + centre) | "center" (centre only):
                                                          # a geometry stage first (7 pokes), then the force fit
     variants: tuple = (("fmag",), ("fmag", "theta"), ("fmag", "fx", "fy", "fz"),    # other correction inputs
@@ -103,6 +104,17 @@ def nominal_calibration(size: int):
     meta = calibration_meta(unit, size)
     meta["provenance"] = {"method": "nominal (shipped)", "pokes": 0, "notes": "twin unit without variation"}
     return true_tables(unit, size), meta
+
+
+def unit_calibration(unit: "BenchUnit", size: int):
+    """(tables, meta) of the unit's TRUE calibration (its own centre and lens): a unit shipped with a
+    per-unit factory calibration whose gel (stiffness) changed since."""
+    from tools.twin.unit import TwinUnit, calibration_meta, true_tables
+
+    u = TwinUnit(unit.serial, override=unit.override())
+    meta = calibration_meta(u, size)
+    meta["provenance"] = {"method": "twin-truth (factory)", "pokes": 0}
+    return true_tables(u, size), meta
 
 
 def guided_points(tables: dict, n: int, reach_rad: float) -> list:
@@ -265,7 +277,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     from tools.recalib.store_ops import store_recalibration
 
     size = int(package.size[0])
-    tables, meta = nominal_calibration(size)
+    tables, meta = nominal_calibration(size) if cfg.calibration == "nominal" else unit_calibration(unit, size)
     rules = PokeRules(reach_theta_rad=math.radians(cfg.reach_deg))
     eval_rules = PokeRules()
     row = {"unit": unit.serial, "variation": unit.override(), "label": unit.label(), "held_out": {}, "by_pokes": {}}
@@ -483,6 +495,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--units", type=int, default=len(UNITS), help=f"how many of the {len(UNITS)} varied units")
     p.add_argument("--no-nominal", action="store_true", help="skip the reference unit without variation")
     p.add_argument("--only", nargs="*", help="only these unit serials")
+    p.add_argument("--calibration", choices=("nominal", "true"), default="nominal",
+                   help="what the store holds before recalibrating: the nominal calibration (as shipped) or "
+                        "the unit's true one (factory-calibrated unit whose gel changed)")
     p.add_argument("--physics", choices=("fe", "hertz-fallback"), default="fe")
     p.add_argument("--model", help="model package name or path (default: newest installed)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
@@ -500,7 +515,7 @@ def run(args) -> int:
     cfg = TwinBenchConfig(units=units, nominal=None if args.no_nominal else NOMINAL,
                           physics=args.physics, model=args.model, precision=args.precision,
                           held_out_pokes=args.held_out_pokes,
-                          reach_deg=args.reach_deg, geometry=args.geometry, root=Path(args.root) if args.root else None)
+                          reach_deg=args.reach_deg, geometry=args.geometry, calibration=args.calibration, root=Path(args.root) if args.root else None)
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     res = run_bench(cfg, say)
     for held in ("probe", "other"):
