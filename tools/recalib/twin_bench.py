@@ -1,6 +1,6 @@
 """Recalibration acceptance on the digital twin (issue #7): held-out |F| error before/after 5–7 pokes.
 
-    tensortouch bench recalib [--units N] [--physics fe] [--json OUT]      (area registered by the lead)
+    tensortouch bench recalib [--units N] [--calibration nominal|true] [--geometry full|center] [--json OUT]
     python -m tools.recalib.twin_bench [same options]
 
 Per twin unit with manufacturing variation the shipped model does not know (gel stiffer/softer by
