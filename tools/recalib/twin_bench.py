@@ -32,6 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.recalib.replay import collect_frames, corrected_frames, held_out_pokes, mae  # noqa: F401 (re-exported)
+from tools.recalib.twin_variants import geometry_stage, input_variants
+
 log = logging.getLogger(__name__)
 
 
@@ -164,104 +167,6 @@ def record_once(rcfg, out: Path, say) -> Path:
     return out
 
 
-def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path | None = None) -> list:
-    """(t, clusters) of every frame of a replayed recording, raw model force (correction off).
-    With `cache`, the clusters are kept in an .npz per (session, model file, calibration tables), so a
-    rerun (other fits, other feature sets) does not run the model again."""
-    from runtime.contacts import Cluster
-
-    key = None
-    if cache is not None:
-        import hashlib
-
-        h = hashlib.sha256(f"{Path(session_dir).name}|{package.sha256(precision)}".encode())
-        for name in ("theta", "phi", "surface_xyz", "pixel_area", "mask"):
-            h.update(np.ascontiguousarray(getattr(cal, name)).tobytes())
-        h.update(json.dumps(cal.gel_center_px).encode())
-        key = Path(cache) / f"{Path(session_dir).name}-{h.hexdigest()[:12]}.npz"
-        if key.is_file():
-            z = np.load(key, allow_pickle=False)
-            frames = [(float(t), []) for t in z["t"]]
-            for row in z["clusters"]:
-                i = int(row[0])
-                frames[i][1].append(Cluster(id=int(row[1]), centroid_px=(row[2], row[3]),
-                                            centroid_mm=(row[4], row[5], row[6]), normal=(0.0, 0.0, 1.0),
-                                            area_mm2=float(row[7]), force_n=(row[8], row[9], row[10]),
-                                            force_mag_n=float(row[11]), pixels=0, perimeter_px=0.0, circularity=0.0))
-            return frames
-    frames = _run_pipeline(session_dir, cal, package, precision)
-    if key is not None:
-        rows = [[i, c.id, *c.centroid_px, *c.centroid_mm, c.area_mm2, *c.force_n, c.force_mag_n]
-                for i, (_, cl) in enumerate(frames) for c in cl]
-        key.parent.mkdir(parents=True, exist_ok=True)
-        tmp = key.with_name(key.name + ".tmp.npz")
-        np.savez(tmp, t=np.array([t for t, _ in frames]), clusters=np.array(rows, float).reshape(-1, 12))
-        tmp.replace(key)
-    return frames
-
-
-def _run_pipeline(session_dir: Path, cal, package, precision: str) -> list:
-    from drivers.camera import camera_from_uri
-    from drivers.camera.camera import EndOfStream
-    from runtime.correction import ForceCorrection
-    from runtime.model import FieldModel
-    from runtime.pipeline import SensorPipeline
-
-    pipe = SensorPipeline(cal.sensor_id, FieldModel(package, precision), cal, correction=ForceCorrection(None, None))
-    out = []
-    with camera_from_uri(f"replay:{session_dir}", realtime=False) as cam:
-        while True:
-            try:
-                frame = cam.read()
-            except EndOfStream:
-                return out
-            out.append((frame.t, pipe.process(frame.image, frame.t).clusters))
-
-
-def mae(m: dict) -> float:
-    return float(np.mean(np.abs(m["pred"] - m["ref"]))) if len(m["ref"]) else float("nan")
-
-
-def corrected_frames(frames: list, cal, corr=None) -> list:
-    """The runtime's correction stage (runtime.correction.ForceCorrection of `cal`, features exactly as
-    SensorPipeline computes them) applied to recorded raw-model clusters; frames are copied."""
-    from dataclasses import replace as dc_replace
-
-    from runtime.correction import ForceCorrection
-    from runtime.geometry import sample_bilinear
-
-    corr = corr if corr is not None else ForceCorrection.from_calibration(cal)
-    h, w = cal.model_size
-    out = []
-    for t, clusters in frames:
-        if clusters and corr.enabled:
-            forces = np.array([c.force_n for c in clusters])
-            uv = np.array([c.centroid_px for c in clusters]) / np.array([w, h])
-            tp = np.array([[sample_bilinear(cal.theta, u - 0.5, v - 0.5), sample_bilinear(cal.phi, u - 0.5, v - 0.5)]
-                           for u, v in (c.centroid_px for c in clusters)])
-            f = corr(forces, uv, tp)
-            clusters = [dc_replace(c, force_n=tuple(map(float, fi)), force_mag_n=float(np.linalg.norm(fi)))
-                        for c, fi in zip(clusters, f)]
-        out.append((t, clusters))
-    return out
-
-
-def held_out_pokes(frames: list, reference, rules) -> dict:
-    """Single-contact pokes of a frame sequence paired with the reference (as tools.recalib.evaluate)."""
-    from tools.recalib.pokes import PokeDetector
-
-    det, pred, refs = PokeDetector(rules), [], []
-    for t, clusters in frames:
-        poke = det.feed(t, clusters)
-        if poke is None or poke.second_ratio > rules.second_contact_ratio:
-            continue
-        r = reference.for_poke(poke)
-        if r is not None and r >= rules.min_force_n:
-            pred.append(poke.pred_mag)
-            refs.append(r)
-    return {"pred": np.array(pred), "ref": np.array(refs)}
-
-
 def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path, held: dict, say,
                   work: Path, runtime_check: bool = False) -> dict:
     """Before/after held-out errors of one unit for each poke count (decided and forced). `held`:
@@ -325,11 +230,11 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
             say(f"  {unit.serial}, {n} pokes, held-out {k}: MAE {h['before_mae_n']:.3f} -> {after:.3f} N "
                 f"({1 - after / h['before_mae_n']:.0%}; forced {1 - forced / h['before_mae_n']:.0%}), LOO "
                 f"{entry['loo_before_mae_n']:.3f} -> {entry['loo_after_mae_n']:.3f} N, stored {entry['stored']}")
-        entry["variants"] = _variants(outcome.accepted, base, scfg, raw, refs, row, eval_rules, cfg.variants, work)
+        entry["variants"] = input_variants(outcome.accepted, base, scfg, raw, refs, row, eval_rules, cfg.variants, work)
         if cfg.geometry and n == max(cfg.poke_counts):
             try:
-                row["geometry"] = _geometry_stage(unit, cfg, package, fit_dir, held, outcome.accepted, base, row,
-                                                  rules, eval_rules, work, say)
+                row["geometry"] = geometry_stage(unit, cfg, package, fit_dir, held, outcome.accepted, base, row,
+                                                 rules, eval_rules, work, say, tables, meta)
             except TensorTouchError as exc:       # e.g. fewer than the 6 pokes the GPR needs
                 row["geometry"] = {"error": str(exc)}
                 say(f"  {unit.serial}: geometry refresh not possible: {exc}")
@@ -342,104 +247,6 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
             say(f"  runtime check ({k}, {n} pokes): full pipeline MAE {mae(full):.3f} N on {len(full['ref'])} pokes vs "
                 f"replayed correction {row['runtime_check']['replayed_correction_mae_n']:.3f} N")
     return row
-
-
-def _geometry_stage(unit, cfg, package, fit_dir, held, pokes, base, row, rules, eval_rules, work: Path, say) -> dict:
-    """Two-stage recalibration: θ/φ tables + gel centre from the accepted pokes with their true 3D
-    points (recalibrate --geometry; twin truth/contact.csv, or mocap/jig positions in the field),
-    stored first; then the fit session replayed through the re-centred crop and the force
-    correction fitted on those forces (5/6/7 pokes). Held-out errors vs the nominal 'before'."""
-    from runtime.calibration import CalibrationStore
-    from runtime.session import load_session
-    from tools.recalib.session import SessionConfig, StreamReference, analyse, run_guided, session_truth_xyz
-    from tools.recalib.store_ops import store_recalibration
-
-    session = load_session(fit_dir)
-    truth = session_truth_xyz(session, pokes)
-    an = analyse(pokes, base, SessionConfig(pokes=len(pokes), rules=rules), force=True, truth_xyz=truth)
-    g = an.geometry
-    st = CalibrationStore(work / "geometry")
-    tables, meta = nominal_calibration(int(package.size[0]))
-    if cfg.geometry == "center":      # keep the nominal tables, re-centre the crop on the fitted centre
-        meta = {**meta, "gel_center_px": [float(v) for v in g.center]}
-        st.write(unit.serial, tables, meta)
-        geo = None
-    else:                              # the full refresh of recalibrate --geometry (GPR θ/φ tables)
-        st.write(unit.serial, tables, meta)
-        geo = {"gel_center_px": g.center, "theta": g.theta, "phi": g.phi}
-        store_recalibration(st, st.load(unit.serial), {"pokes": len(pokes), "source": f"replay:{fit_dir}"},
-                            geometry=geo)
-    cal_g = st.load(unit.serial)
-    fc = cfg.folder() / "frames"
-    raw = {k: collect_frames(d, cal_g, package, cfg.precision, fc) for k, d in held.items()}
-    refs = {k: StreamReference.from_session(load_session(d), eval_rules) for k, d in held.items()}
-    frames = collect_frames(fit_dir, cal_g, package, cfg.precision, fc)
-    reference = StreamReference.from_session(session, rules)
-    true_c = np.array(true_center(unit))
-    out = {"center_px": list(g.center), "center_true_px": true_c.tolist(),
-           "center_error_px": float(np.linalg.norm(np.array(g.center) - true_c)),
-           "center_error_nominal_px": float(np.linalg.norm(np.array(base.gel_center_px) - true_c)),
-           "held_out": {}, "by_pokes": {}}
-    for k in held:
-        b = held_out_pokes(raw[k], refs[k], eval_rules)
-        out["held_out"][k] = {"pokes": len(b["ref"]), "geometry_only_mae_n": mae(b),
-                              "reduction": 1 - mae(b) / row["held_out"][k]["before_mae_n"], "after": {}}
-    for n in cfg.poke_counts:
-        scfg = SessionConfig(pokes=n, rules=rules)
-        oc = run_guided(iter(frames), cal_g, reference, scfg, say=lambda m: None)
-        e = {"accepted": len(oc.accepted)}
-        out["by_pokes"][str(n)] = e
-        if len(oc.accepted) < scfg.fit.min_pokes:
-            continue
-        an = analyse(oc.accepted, cal_g, scfg, force=True)
-        e.update(loo_before_mae_n=an.fit.loo["before"]["mae_n"], loo_after_mae_n=an.fit.loo["after"]["mae_n"],
-                 stored=bool(an.fit.loo["after"]["mae_n"] < an.active["mae_n"]))
-        st2 = CalibrationStore(work / f"geometry-n{n}")
-        st2.write(unit.serial, tables, meta)
-        store_recalibration(st2, st2.load(unit.serial), {"pokes": n}, correction=(an.fit.spec, an.fit.onnx_bytes),
-                            geometry=geo)
-        cal_n = st2.load(unit.serial)
-        for k in held:
-            h = out["held_out"][k]
-            a = held_out_pokes(corrected_frames(raw[k], cal_n), refs[k], eval_rules)
-            after = mae(a) if e["stored"] else h["geometry_only_mae_n"]
-            h["after"][str(n)] = {"pokes": len(a["ref"]), "after_forced_mae_n": mae(a), "after_mae_n": after,
-                                  "reduction": 1 - after / row["held_out"][k]["before_mae_n"],
-                                  "reduction_forced": 1 - mae(a) / row["held_out"][k]["before_mae_n"]}
-            say(f"  {unit.serial}, geometry + {n} pokes, held-out {k}: MAE {row['held_out'][k]['before_mae_n']:.3f} -> "
-                f"{after:.3f} N ({h['after'][str(n)]['reduction']:.0%}; geometry only {h['reduction']:.0%}; "
-                f"forced {h['after'][str(n)]['reduction_forced']:.0%}); centre error {out['center_error_nominal_px']:.1f} "
-                f"-> {out['center_error_px']:.1f} px")
-    return out
-
-
-def true_center(unit: BenchUnit) -> tuple:
-    """The unit's true gel centre in camera px (image of the apex)."""
-    from tools.twin.unit import TwinUnit
-
-    return TwinUnit(unit.serial, override=unit.override()).gel_center_px
-
-
-def _variants(pokes, cal, scfg, raw, refs, row, rules, variants, work: Path) -> dict:
-    """Held-out MAE after a correction on other inputs (stored regardless of the LOO decision)."""
-    from dataclasses import replace as dc_replace
-
-    from runtime.correction import ForceCorrection
-    from tools.recalib.session import analyse
-
-    out = {}
-    for inputs in variants:
-        vcfg = dc_replace(scfg, fit=dc_replace(scfg.fit, inputs=tuple(inputs)))
-        an = analyse(pokes, cal, vcfg, force=True)
-        path = work / f"variant-{'-'.join(inputs)}.onnx"
-        path.write_bytes(an.fit.onnx_bytes)
-        corr = ForceCorrection(path, an.fit.spec)
-        name = "+".join(inputs)
-        out[name] = {"loo_after_mae_n": an.fit.loo["after"]["mae_n"]}
-        for k in raw:
-            a = held_out_pokes(corrected_frames(raw[k], cal, corr), refs[k], rules)
-            out[name][k] = {"after_mae_n": mae(a), "reduction": 1 - mae(a) / row["held_out"][k]["before_mae_n"]}
-    return out
 
 
 def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
