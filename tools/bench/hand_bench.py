@@ -255,7 +255,7 @@ def plot_soak(rows: list[dict], png: Path, title: str = "") -> Path:
     import matplotlib.pyplot as plt
 
     t = np.array([r["t_s"] for r in rows]) / 60.0
-    fig, ax = plt.subplots(3, 1, figsize=(6.4, 5.2), sharex=True, dpi=80)
+    fig, ax = plt.subplots(4, 1, figsize=(6.4, 6.4), sharex=True, dpi=80)
     ax[0].plot(t, [r["rss_mb"] for r in rows], color="k")
     ax[0].set_ylabel("RSS (MB)")
     ax[1].plot(t, [max(v["p99_ms"] for v in r["fingers"].values()) for r in rows], color="tab:red",
@@ -266,13 +266,17 @@ def plot_soak(rows: list[dict], png: Path, title: str = "") -> Path:
     ax[1].legend(fontsize=7, loc="upper right")
     for name in rows[0]["fingers"]:
         ax[2].plot(t, [r["fingers"][name]["hz"] for r in rows], lw=0.8, label=name)
-    if "load1" in rows[0]:
-        ax2 = ax[2].twinx()
-        ax2.plot(t, [r["load1"] for r in rows], color="0.6", ls=":", label="load average (1 min)")
-        ax2.set_ylabel("load avg", color="0.4")
     ax[2].set_ylabel("frames/s")
-    ax[2].set_xlabel("time (min)")
     ax[2].legend(fontsize=7, loc="upper left", ncol=4)
+    if "cpu_share" in rows[0]:
+        ax[3].plot(t, [r["cpu_share"] for r in rows], color="tab:green", label="CPU-s/s this process got")
+        ax[3].set_ylabel("CPU share")
+        ax[3].legend(fontsize=7, loc="upper left")
+    if "load1" in rows[0]:
+        ax3 = ax[3].twinx()
+        ax3.plot(t, [r["load1"] for r in rows], color="0.5", ls=":")
+        ax3.set_ylabel("load avg (dotted)", color="0.4")
+    ax[3].set_xlabel("time (min)")
     if title:
         ax[0].set_title(title, fontsize=9)
     fig.tight_layout()
