@@ -60,7 +60,7 @@ def summarize(kind: str, msg: Any) -> dict:
 
     if kind == "status":
         base = {k: msg.get(k) for k in ("sensor_id", "seq", "t", "state", "flags", "fps",
-                                        "timings_ms", "model_hash", "calibration_version")}
+                                        "timings_ms", "model_hash", "calibration_version", "finger")}
         return {"kind": kind, **base}
     base = {"kind": kind, "sensor_id": msg.sensor_id, "seq": msg.seq, "t": msg.t}
     if kind == "fields":
@@ -96,7 +96,8 @@ def format_line(kind: str, msg: Any) -> str:
     timings = " ".join(f"{k}={v:.2f}" for k, v in (s["timings_ms"] or {}).items()
                        if isinstance(v, (int, float)))
     fps = f"{s['fps']:.1f}" if isinstance(s["fps"], (int, float)) else "-"
-    return (f"{head} state={s['state']} fps={fps} flags={','.join(s['flags']) or '-'} "
+    finger = f" finger={s['finger']}" if s.get("finger") else ""
+    return (f"{head}{finger} state={s['state']} fps={fps} flags={','.join(s['flags']) or '-'} "
             f"timings_ms: {timings or '-'}")
 
 

@@ -104,6 +104,9 @@ def test_three_fingers_publish_independently_with_can_summary(rig):
         assert wait_until(lambda: all(statuses[s] for s in SERIALS), 5)
         for i, s in enumerate(SERIALS):
             assert {(m["finger"], m["hand"]) for m in statuses[s]} == {(f"f{i}", "test-hand")}, s
+        from runtime.listen import format_line
+
+        assert " finger=f1 state=" in format_line("status", statuses["TT-B"][-1])   # `tensortouch listen`
         fields = sub.wait_for("fields", 5.0)
         assert fields.data.shape == (15, 32, 32)
         from runtime.can_summary import SummaryDecoder
