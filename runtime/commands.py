@@ -28,6 +28,8 @@ def register(sub) -> None:
     p.add_argument("--fast", action="store_true", help="replay as fast as possible (default: recorded clock)")
     p.add_argument("--loop", action="store_true", help="replay the recording in a loop")
     p.add_argument("--no-fields", action="store_true", help="publish contacts/wrench/status only")
+    p.add_argument("--fields-every", type=int, default=1, metavar="N",
+                   help="publish the dense fields on every N-th frame (contacts/wrench/status every frame)")
     p.set_defaults(func=cmd_run)
 
     from runtime.listen import add_listen_parser
@@ -79,10 +81,24 @@ def _open_source(args):
     return make_camera(config), session_sensor
 
 
+def _temperature_source(args, cam):
+    """A replayed session's own temperature stream (for temperature-dependent effects), else None."""
+    from runtime.temperature import TemperatureTrack
+
+    path = getattr(getattr(cam, "config", None), "path", None)
+    if path is None or not Path(path).is_dir():
+        return None
+    track = TemperatureTrack.from_session(path)
+    if track is None:
+        return None
+    fold = getattr(cam, "recording_time", lambda t: t)
+    return lambda t: track(fold(t))
+
+
 def cmd_run(args) -> int:
     from runtime.calibration import CalibrationStore
     from runtime.errors import TensorTouchError
-    from runtime.loop import SensorLoop
+    from runtime.loop import LoopConfig, SensorLoop
     from runtime.model import FieldModel, find_package
     from runtime.pipeline import SensorPipeline
     from runtime.publisher import Publisher
@@ -103,7 +119,9 @@ def cmd_run(args) -> int:
     listen = args.listen or ([] if args.connect else [DEFAULT_ENDPOINT])
     loop = None
     with Publisher(sensor, listen=listen, connect=args.connect, info=lambda: loop.info() if loop else {}) as pub:
-        loop = SensorLoop(cam, pipeline, pub, store=store)
+        loop = SensorLoop(cam, pipeline, pub, LoopConfig(publish_fields=not args.no_fields,
+                                                          fields_every=max(1, args.fields_every)),
+                          store=store, temperature=_temperature_source(args, cam))
         signal.signal(signal.SIGTERM, lambda *a: loop.stop())
         print(f"tensortouch run: sensor {sensor}, model {package.name} ({args.precision}), "
               f"calibration {cal.version}, Zenoh {' '.join(listen + args.connect)}; Ctrl-C to stop",

@@ -67,8 +67,10 @@ class SensorLoop:
     """Runs one sensor until the source ends or `stop()` is called."""
 
     def __init__(self, camera, pipeline: SensorPipeline, publisher=None, config: LoopConfig | None = None,
-                 store: CalibrationStore | None = None, on_result=None):
+                 store: CalibrationStore | None = None, on_result=None, temperature=None):
         self.camera, self.pipeline, self.publisher = camera, pipeline, publisher
+        # optional gel temperature source: callable(frame time s) -> °C (runtime/temperature.py)
+        self.temperature = temperature
         self.cfg = config or LoopConfig()
         self.store = store
         self.on_result = on_result
@@ -116,6 +118,8 @@ class SensorLoop:
             failures = 0
             self.flags.discard("camera_stalled")
             capture_ms = (time.perf_counter() - t_cap) * 1e3
+            if self.temperature is not None:
+                self.pipeline.set_temperature(self.temperature(t))
             result = self.pipeline.process(frame, t)
             result.timings = {"capture": capture_ms, **result.timings}
             t_pub = time.perf_counter()

@@ -128,6 +128,13 @@ class ReplayCamera(Camera):
     def _row(self, k: int) -> int:
         return k % self._count if self._count else k
 
+    def recording_time(self, t: float) -> float:
+        """A frame time of this replay on the recording's own clock: looping replays shift each pass by
+        the recorded duration; this folds `t` back into the first pass (identity otherwise)."""
+        if not (self.config.loop and self._times is not None and self._period > 0):
+            return float(t)
+        return float(t) - math.floor((float(t) - self._times[0]) / self._period) * self._period
+
     def _time(self, k: int) -> float:
         if self._times is None:
             return k / self._fps
