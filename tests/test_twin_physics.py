@@ -99,9 +99,11 @@ def test_fe_result_conversion_uses_surface_nodes():
 
 
 def test_fe_nonconvergence_retries_with_half_increments_then_names_the_poke(tmp_path, monkeypatch):
-    """tools.fe.solve is replaced by a stub that never converges (the failure path only)."""
+    """tools.fe.solve is replaced by a stub that never converges (the failure path only): one retry
+    at half increments, then PokeSolveFailed naming the poke, and failure markers so a resumed
+    recording does not solve the same scenarios again."""
     fe_mod = pytest.importorskip("tools.fe")
-    from tools.twin.fe_physics import FEPhysics
+    from tools.twin.fe_physics import FEPhysics, PokeSolveFailed
 
     calls = []
 
@@ -111,6 +113,10 @@ def test_fe_nonconvergence_retries_with_half_increments_then_names_the_poke(tmp_
 
     monkeypatch.setattr(fe_mod, "solve", never)
     p = _poke("press")
-    with pytest.raises(fe_mod.FEConvergenceError, match=r"twin poke press .*half increments"):
+    with pytest.raises(PokeSolveFailed, match=r"twin poke press .*did not converge in 2 attempt"):
         FEPhysics(cache=tmp_path).solve(p)
     assert calls == [0.5, 0.25]
+    assert len(list(tmp_path.glob("*.failed.json"))) == 2
+    with pytest.raises(PokeSolveFailed):
+        FEPhysics(cache=tmp_path).solve(p)
+    assert calls == [0.5, 0.25]          # markers: not solved again
