@@ -1,0 +1,66 @@
+"""Several model packages side by side on the same held-out sessions, through the runtime (stage 8's
+`evaluate_session`): e.g. the shipped package against a rebuild, on sessions of today's twin.
+
+    python -m tools.train.crosseval --package exported_models/hiera-qup-128 \\
+        --package cache/train/v2/models/hiera-qup-128 --build v2 \\
+        --session cache/demo_v2/demo --store cache/demo_v2/store [--json OUT]
+
+`--build` adds the build's held-out sessions with their unit calibrations (as stage 8 uses them);
+`--session`/`--store` pairs add any other session, calibrated from that store (sensor = the
+session's sensor_id). One JSON line per (package, session) with the stage-8 summary.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def main(argv=None) -> int:
+    from runtime.calibration import CalibrationStore
+    from runtime.errors import TensorTouchError
+    from runtime.model import load_package
+    from runtime.session import load_session
+    from tools.train.build import Build, BuildConfig
+    from tools.train.evaluate import EvalConfig, evaluate_session, summarize
+    from tools.train.stages import unit_calibration
+
+    ap = argparse.ArgumentParser(prog="python -m tools.train.crosseval")
+    ap.add_argument("--package", action="append", required=True, help="model package folder (repeat)")
+    ap.add_argument("--build", help="add this build's held-out sessions (<cache>/train/BUILD)")
+    ap.add_argument("--session", action="append", default=[], help="a session folder (repeat, with --store)")
+    ap.add_argument("--store", action="append", default=[], help="calibration store root for each --session")
+    ap.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    ap.add_argument("--contact-n", type=float, default=EvalConfig.contact_n)
+    ap.add_argument("--json", help="write all summaries here")
+    args = ap.parse_args(argv)
+    if len(args.store) != len(args.session):
+        ap.error("give one --store per --session")
+    targets = []
+    if args.build:
+        b = Build(BuildConfig(build=args.build))
+        targets += [(s.name, b.session(s), unit_calibration(b, s.serial)) for s in b.cfg.heldout]
+    for folder, store in zip(args.session, args.store):
+        sensor = load_session(folder, check_frames=False).sensor_id
+        targets.append((f"{Path(folder).name}:{sensor}", Path(folder), CalibrationStore(Path(store)).load(sensor)))
+    if not targets:
+        ap.error("nothing to evaluate: give --build and/or --session/--store")
+    out = {}
+    try:
+        for pk in args.package:
+            package = load_package(pk)
+            for name, path, cal in targets:
+                r = evaluate_session(path, package, cal, EvalConfig(precision=args.precision, contact_n=args.contact_n))
+                s = summarize(r["rows"], r["rest"])
+                out[f"{pk} | {name}"] = s
+                print(json.dumps({"package": pk, "session": name, **s}), flush=True)
+    except TensorTouchError as exc:
+        print(f"crosseval: {exc}")
+        return 2
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
