@@ -53,23 +53,19 @@ def write_poke_session(folder: Path, n: int = 90, fps: float = 30.0) -> Path:
     return folder
 
 
-def test_run_to_separate_listener_process(tmp_path):
-    session = write_poke_session(tmp_path / "session")
-    pkg = write_difference_package(tmp_path / "models" / "difference-32", SIZE)
-    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+def run_and_listen(tmp_path, session, run_extra: list, listen_extra: list):
+    """`tensortouch run` (looping replay of `session`, models/calibration under tmp_path) in one process,
+    `tensortouch listen SENSOR` in another on loopback; returns (listener CompletedProcess, run stderr)."""
     env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(tmp_path / "calib"),
                TENSORTOUCH_MODELS=str(tmp_path / "models"), PYTHONUNBUFFERED="1")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cli = [sys.executable, "-m", "runtime.cli"]
-    runtime = subprocess.Popen(cli + ["run", "--source", f"replay:{session}", "--listen", endpoint, "--loop"],
+    runtime = subprocess.Popen(cli + ["run", "--source", f"replay:{session}", "--listen", endpoint, "--loop"] + run_extra,
                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         time.sleep(1.0)
-        out = tmp_path / "saved"
-        listener = subprocess.run(
-            cli + ["listen", SENSOR, "--connect", endpoint, "--count", "150", "--json", "--save", str(out)],
-            env=env, capture_output=True, text=True, timeout=90)
-        assert listener.returncode == 0, listener.stderr
+        listener = subprocess.run(cli + ["listen", SENSOR, "--connect", endpoint] + listen_extra,
+                                  env=env, capture_output=True, text=True, timeout=90)
     finally:
         runtime.terminate()
         try:
@@ -77,6 +73,16 @@ def test_run_to_separate_listener_process(tmp_path):
         except subprocess.TimeoutExpired:
             runtime.kill()
             _, err = runtime.communicate()
+    return listener, err
+
+
+def test_run_to_separate_listener_process(tmp_path):
+    session = write_poke_session(tmp_path / "session")
+    pkg = write_difference_package(tmp_path / "models" / "difference-32", SIZE)
+    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    out = tmp_path / "saved"
+    listener, err = run_and_listen(tmp_path, session, [], ["--count", "150", "--json", "--save", str(out)])
+    assert listener.returncode == 0, listener.stderr
     msgs = [json.loads(line) for line in listener.stdout.splitlines() if line.startswith("{")]
     kinds = {m.get("kind") for m in msgs}
     assert {"fields", "contacts", "status"} <= kinds, (kinds, listener.stdout[-2000:], err[-2000:])

@@ -1,15 +1,11 @@
 """`tensortouch run --fields-every N` / `--no-fields`: dense fields at a reduced rate (or not at all)
 while contacts and status keep the frame rate — real runtime and listener processes on loopback."""
 import json
-import os
-import subprocess
-import sys
-import time
 
 import pytest
 
 from tests.conftest import dome_calibration
-from tests.test_e2e_runtime import H, SENSOR, SIZE, W, free_port, write_poke_session
+from tests.test_e2e_runtime import H, SENSOR, SIZE, W, run_and_listen, write_poke_session
 from tools.bench.models import write_difference_package
 
 
@@ -18,24 +14,8 @@ def test_field_rate_options(tmp_path, extra, ratio):
     session = write_poke_session(tmp_path / "session")
     write_difference_package(tmp_path / "models" / "difference-32", SIZE)
     dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
-    env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(tmp_path / "calib"),
-               TENSORTOUCH_MODELS=str(tmp_path / "models"), PYTHONUNBUFFERED="1")
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cli = [sys.executable, "-m", "runtime.cli"]
-    runtime = subprocess.Popen(cli + ["run", "--source", f"replay:{session}", "--listen", endpoint, "--loop"] + extra,
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        time.sleep(1.0)
-        listener = subprocess.run(cli + ["listen", SENSOR, "--connect", endpoint, "--count", "120", "--json",
-                                         "--kinds", "fields,contacts"],
-                                  env=env, capture_output=True, text=True, timeout=90)
-    finally:
-        runtime.terminate()
-        try:
-            _, err = runtime.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            runtime.kill()
-            _, err = runtime.communicate()
+    listener, err = run_and_listen(tmp_path, session, extra,
+                                   ["--count", "120", "--json", "--kinds", "fields,contacts"])
     msgs = [json.loads(line) for line in listener.stdout.splitlines() if line.startswith("{")]
     n_fields = sum(m.get("kind") == "fields" for m in msgs)
     n_contacts = sum(m.get("kind") == "contacts" for m in msgs)

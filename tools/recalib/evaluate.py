@@ -30,21 +30,30 @@ def measure_pokes(session_dir, cal: Calibration, package: ModelPackage, correcte
     ref = StreamReference.from_session(session, rules)
     corr = None if corrected else ForceCorrection(None, None)
     pipe = SensorPipeline(cal.sensor_id, FieldModel(package, precision), cal, correction=corr)
-    det = PokeDetector(rules)
-    pred, refs = [], []
     with camera_from_uri(f"replay:{session_dir}", realtime=False) as cam:
         from drivers.camera.camera import EndOfStream
 
-        while True:
-            try:
-                frame = cam.read()
-            except EndOfStream:
-                break
-            poke = det.feed(frame.t, pipe.process(frame.image, frame.t).clusters)
-            if poke is None or poke.second_ratio > rules.second_contact_ratio:
-                continue
-            r = ref.for_poke(poke)
-            if r is not None and r >= rules.min_force_n:
-                pred.append(poke.pred_mag)
-                refs.append(r)
+        def frames():
+            while True:
+                try:
+                    frame = cam.read()
+                except EndOfStream:
+                    return
+                yield frame.t, pipe.process(frame.image, frame.t).clusters
+
+        return pair_pokes(frames(), ref, rules)
+
+
+def pair_pokes(frames, reference, rules: PokeRules) -> dict:
+    """{'pred', 'ref'} for the single-contact pokes of a (t, clusters) sequence: each poke the detector
+    closes, unless a second contact was too strong, paired with the reference |F| above min_force_n."""
+    det, pred, refs = PokeDetector(rules), [], []
+    for t, clusters in frames:
+        poke = det.feed(t, clusters)
+        if poke is None or poke.second_ratio > rules.second_contact_ratio:
+            continue
+        r = reference.for_poke(poke)
+        if r is not None and r >= rules.min_force_n:
+            pred.append(poke.pred_mag)
+            refs.append(r)
     return {"pred": np.array(pred), "ref": np.array(refs)}

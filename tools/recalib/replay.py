@@ -100,15 +100,6 @@ def corrected_frames(frames: list, cal, corr=None) -> list:
 
 def held_out_pokes(frames: list, reference, rules) -> dict:
     """Single-contact pokes of a frame sequence paired with the reference (as tools.recalib.evaluate)."""
-    from tools.recalib.pokes import PokeDetector
+    from tools.recalib.evaluate import pair_pokes
 
-    det, pred, refs = PokeDetector(rules), [], []
-    for t, clusters in frames:
-        poke = det.feed(t, clusters)
-        if poke is None or poke.second_ratio > rules.second_contact_ratio:
-            continue
-        r = reference.for_poke(poke)
-        if r is not None and r >= rules.min_force_n:
-            pred.append(poke.pred_mag)
-            refs.append(r)
-    return {"pred": np.array(pred), "ref": np.array(refs)}
+    return pair_pokes(frames, reference, rules)

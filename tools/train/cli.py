@@ -32,22 +32,13 @@ def _atomic_json(obj, path: Path) -> None:
 def cmd_keypoints(args) -> int:
     from runtime.paths import cache_dir
     from runtime.session import load_session
-    from tools.train.keypoints import KeypointConfig, extract_keypoints
+    from tools.train.keypoints import KeypointConfig, extract_keypoints, keypoints_doc
 
     ses = load_session(args.session, check_frames=False)
     cfg = KeypointConfig(image_rate_hz=args.image_rate, max_keypoints=args.max_keypoints)
     frames = ses.table("frames") if ses.has("frames") else None
     kps = extract_keypoints(ses.table("poses"), ses.table("wrench"), frames, cfg)
-    doc = {"schema": "tensortouch.keypoints", "schema_version": 1, "session": str(Path(args.session).resolve()),
-           "sensor_id": ses.sensor_id, "units": {"t": "s", "position": "mm", "angle": "rad", "force": "N",
-                                                 "torque": "N*mm"},
-           "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
-           "periods": [{"t_start": float(k.period.t_start), "t_end": float(k.period.t_end),
-                        "t_contact": float(k.period.t_contact), "indenters": list(k.period.indenters),
-                        "indenter_ids": list(k.indenter_ids), "t": k.t.tolist(),
-                        "position": k.position.tolist(), "quaternion_wxyz": k.quaternion.tolist(),
-                        "rel_pose": k.rel_pose.tolist(), "force": k.force.tolist(), "torque": k.torque.tolist(),
-                        "frame_index": k.frame_index.tolist()} for k in kps]}
+    doc = keypoints_doc(ses, kps, cfg, str(Path(args.session).resolve()))
     out = Path(args.out) if args.out else cache_dir() / "keypoints" / f"{Path(args.session).name}.json"
     _atomic_json(doc, out)
     print(f"{len(kps)} contact period(s), {sum(len(k.t) for k in kps)} keypoints → {out}")

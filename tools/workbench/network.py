@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.calibration import sha256_file
 from runtime.errors import SessionError, TensorTouchError
 from tools.workbench.table import SampleTable
 
@@ -54,14 +55,6 @@ class NetworkConfig:
     match_mm: float = 6.0          # a cluster further than this from an indenter's tip is not its contact
 
 
-def _sha(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def model_sha(package, precision: str) -> str:
     """SHA-256 of the package's model file of that precision (a clear error when it has none)."""
     try:
@@ -76,10 +69,10 @@ def frames_hash(session) -> str:
     kind, src = session.image_source()
     h = hashlib.sha256((session.path / "frames.csv").read_bytes())
     if kind == "video":
-        h.update(_sha(Path(src)).encode())
+        h.update(sha256_file(Path(src)).encode())
     else:
         for p in sorted(Path(src).glob("*.png")):
-            h.update(p.name.encode() + _sha(p).encode())
+            h.update(p.name.encode() + sha256_file(p).encode())
     return h.hexdigest()[:20]
 
 
