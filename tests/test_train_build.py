@@ -20,8 +20,21 @@ def test_stage_keys_change_only_downstream():
     assert changed == ["fit", "export", "evaluate"]
     c = stage_keys(BuildConfig(contact_stride=3))
     assert [s for s in STAGES if a[s] != c[s]] == list(STAGES[STAGES.index("dataset"):])
+    d = stage_keys(BuildConfig(contact_force_n=1.5, detach_force_n=1.1))  # stage-1 thresholds: all but sessions
+    assert [s for s in STAGES if a[s] != d[s]] == list(STAGES[STAGES.index("keypoints"):])
     cfg = BuildConfig.from_dict(json.loads(json.dumps(BuildConfig().to_dict())))
     assert stage_keys(cfg) == a                                       # round trip through JSON
+
+
+def test_contact_threshold_flags_reach_the_build_config():
+    from tools.train.build import config_from_args
+    from tools.train.cli import register
+
+    p = argparse.ArgumentParser()
+    register(p.add_subparsers(dest="command"))
+    cfg = config_from_args(p.parse_args(["train", "all", "--contact-force", "1.5", "--detach-force", "1.1"]))
+    assert (cfg.contact_force_n, cfg.detach_force_n) == (1.5, 1.1)
+    assert (BuildConfig().contact_force_n, BuildConfig().detach_force_n) == (0.5, 0.37)
 
 
 def test_stamps_mark_done_only_for_the_same_config(tmp_path):

@@ -59,6 +59,11 @@ class BuildConfig:
     fe: str = "resolve"                           # stage 2: resolve (FE from measured keypoints) | twin (twin's solves)
     tables: str = "gpr"                           # θ/φ tables of the targets: gpr (stage 3 pokes) | truth (twin)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
+    # stage 1 dual threshold. The seed's 1.5 N / 1.1 N (KeypointConfig) suit its stiffer gel; the twin's gel
+    # peaks at 0.2–5 N per poke, so 1.5 N dropped 15 of 35 pokes (their frames then only "busy", unlabelled).
+    # 0.5 N is 25× the F/T noise (0.02 N); detach keeps the seed's ratio 1.1/1.5.
+    contact_force_n: float = 0.5
+    detach_force_n: float = 0.37
     rest_fraction: float = 0.15                   # rest (no contact) samples relative to contact samples
     val_fraction: float = 0.1
     arch: str = "hiera_qup"
@@ -93,7 +98,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     """Config key per stage: the fields that stage (and the stages before it) depend on."""
     d = cfg.to_dict()
     deps = {"sessions": ["train", "heldout", "physics", "size"],
-            "keypoints": [], "fe": ["fe"], "correspondence": ["tables"], "simreal": [],
+            "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe"], "correspondence": ["tables"], "simreal": [],
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from"],
@@ -243,7 +248,7 @@ def config_from_args(args) -> BuildConfig:
     if args.config:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **json.loads(Path(args.config).read_text())})
     for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
-              "contact_stride", "force_weight", "init_from"):
+              "contact_stride", "force_weight", "init_from", "contact_force_n", "detach_force_n"):
         v = getattr(args, k, None)
         if v is not None:
             setattr(cfg, k, v)
@@ -296,6 +301,10 @@ def register_build(ts) -> None:
         q.add_argument("--batch", type=int)
         q.add_argument("--lr", type=float, help="fit learning rate (default 1e-3)")
         q.add_argument("--contact-stride", type=int, help="every n-th in-contact frame becomes a sample (default 2)")
+        q.add_argument("--contact-force", dest="contact_force_n", type=float,
+                       help="stage 1: contact starts above this measured |F| in N (default 0.5; seed 1.5)")
+        q.add_argument("--detach-force", dest="detach_force_n", type=float,
+                       help="stage 1: contact ends below this |F| in N (default 0.37; seed 1.1)")
         q.add_argument("--force-weight", type=float, help="total-force loss term per N (default 0 = off)")
         q.add_argument("--init-from", help="fine-tune: start the fit from this state dict (a run's best.pt)")
         q.add_argument("--threads", type=int)

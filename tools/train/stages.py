@@ -137,7 +137,7 @@ def stage_keypoints(b) -> dict:
     from runtime.session import load_session
     from tools.train.keypoints import KeypointConfig, extract_keypoints, keypoints_doc
 
-    kcfg = KeypointConfig()
+    kcfg = KeypointConfig(contact_force_n=b.cfg.contact_force_n, detach_force_n=b.cfg.detach_force_n)
     if b.cfg.physics != "fe":
         kcfg = KeypointConfig(contact_force_n=FALLBACK_CONTACT_N[0], detach_force_n=FALLBACK_CONTACT_N[1])
     out = {}
