@@ -37,6 +37,11 @@ def register(sub) -> None:
                         "was trained on (default: 85 %% of the gel's θ range)")
     p.add_argument("--geometry", action="store_true",
                    help="also refresh θ/φ tables and gel centre (needs true poke positions: twin truth or mocap poses)")
+    p.add_argument("--recentre", choices=("rim", "off"), default="rim",
+                   help="rim (default): before the pokes, find the gel rim in the first frames (gel untouched) and "
+                        "re-crop on it if the centre moved >= 0.5 px or the radius >= 0.5 %% (stored with the "
+                        "correction); if no clean rim is found the stored crop is kept. off: keep the stored crop")
+    p.add_argument("--rest-frames", type=int, default=10, help="frames at rest for the rim (default 10)")
     p.add_argument("--force", action="store_true", help="store even if the held-out error does not improve")
     p.add_argument("--dry-run", action="store_true", help="fit and report, store nothing")
     p.add_argument("--report", help="write the session report (pokes, errors, decision) as JSON here")
@@ -60,6 +65,43 @@ def _frames(camera, pipeline, restamp: bool = False):
             return
         t = time.monotonic() if restamp else frame.t
         yield t, pipeline.process(frame.image, frame.t).clusters
+
+
+def _recentre(camera, pipeline, cal, n: int, say):
+    """Geometry first: the gel rim in `n` rest frames → (calibration with the re-crop, crop changes,
+    rim report, the rest frames). The frames also start the pipeline's baseline (fed by the caller)."""
+    from drivers.camera.camera import EndOfStream
+    from runtime.errors import CalibrationError
+    from tools.recalib.rim import crop_changes, fit_rim, recrop, rest_image
+
+    say(f"keep the gel untouched: reading {n} frames to find the gel rim")
+    frames = []
+    try:
+        for _ in range(n):
+            frames.append(camera.read())
+    except EndOfStream:
+        pass
+    try:
+        fit = fit_rim(rest_image([f.image for f in frames]), cal.gel_center_px, cal.gel_radius_px)
+    except CalibrationError as exc:
+        say(f"crop kept (no re-centring): {exc}")
+        return cal, {}, {"error": str(exc)}, frames
+    changes = crop_changes(cal, fit)
+    say(f"gel rim: centre ({fit.center[0]:.1f}, {fit.center[1]:.1f}) px, {fit.shift_px:.2f} px from the stored one; "
+        f"radius x{fit.scale:.4f}; " + ("crop re-centred" if changes else "crop kept (within tolerance)"))
+    new = recrop(cal, changes)
+    if changes:
+        pipeline.set_calibration(new, pipeline.correction)
+    return new, changes, {**fit.to_dict(), "changes": changes}, frames
+
+
+def _chain(first, pipeline, rest, restamp: bool = False):
+    """The rest frames (through the pipeline, so its baseline starts with them) and then the stream."""
+    import time
+
+    for f in first:
+        yield (time.monotonic() if restamp else f.t), pipeline.process(f.image, f.t).clusters
+    yield from rest
 
 
 def _reference(args, session, say):
@@ -109,7 +151,7 @@ def cmd_recalibrate(args, say=None) -> int:
 
     say = say or (lambda msg: print(msg, file=sys.stderr))
     store = CalibrationStore(args.store) if args.store else CalibrationStore()
-    cal = store.load(args.sensor)
+    cal = stored = store.load(args.sensor)
     package = find_package(args.model)
     if not args.source:
         raise TensorTouchError("--source is required (the live camera, or replay:SESSION_DIR)")
@@ -126,8 +168,12 @@ def cmd_recalibrate(args, say=None) -> int:
         live_ref = gauge is not None
         fast = {"realtime": False} if session is not None and not live_ref and "realtime=" not in query else {}
         with camera_from_uri(args.source, **fast) as cam:
-            outcome = run_guided(_frames(cam, pipeline, restamp=live_ref and session is not None), cal,
-                                 reference, cfg, say)
+            crop, rim, first = {}, None, []
+            if getattr(args, "recentre", "off") == "rim":
+                cal, crop, rim, first = _recentre(cam, pipeline, cal, getattr(args, "rest_frames", 10), say)
+            restamp = live_ref and session is not None
+            frames = _chain(first, pipeline, _frames(cam, pipeline, restamp=restamp), restamp)
+            outcome = run_guided(frames, cal, reference, cfg, say)
     except TensorTouchError as exc:
         raise TensorTouchError(f"{exc}\nsession aborted: nothing was stored, the active calibration is still "
                                f"{store.current(args.sensor)}") from None
@@ -146,7 +192,7 @@ def cmd_recalibrate(args, say=None) -> int:
     _print_errors(an, say)
     say(an.decision.reason)
     report = {"sensor": args.sensor, "base_version": cal.version, "model": package.name,
-              "reference": reference.name, **an.summary(),
+              "reference": reference.name, "rim": rim, **an.summary(),
               "accepted": [p.to_dict() for p in outcome.accepted], "rejected": [p.to_dict() for p in outcome.rejected]}
     code = 1
     if an.decision.store and not args.dry_run:
@@ -158,7 +204,11 @@ def cmd_recalibrate(args, say=None) -> int:
                 "forced": bool(args.force and an.decision.after_mae_n >= an.decision.before_mae_n),
                 "poke_data": [{"pred_force_n": p.pred_force.tolist(), "ref_force_n": p.ref_force_n,
                                "uv_px": p.uv_px.tolist()} for p in outcome.accepted]}
-        version = store_recalibration(store, cal, prov, correction=(an.fit.spec, an.fit.onnx_bytes), geometry=geometry)
+        if crop:
+            prov["crop"] = {"from": {"gel_center_px": stored.meta["gel_center_px"],
+                                     "gel_radius_px": stored.meta["gel_radius_px"]}, "rim": rim}
+        version = store_recalibration(store, cal, prov, correction=(an.fit.spec, an.fit.onnx_bytes), geometry=geometry,
+                                      crop=crop)
         report["stored_version"] = version
         say(f"stored {args.sensor}/{version} and made it active (was {cal.version}); a running sensor picks it up "
             f"within a second; undo with: tensortouch calib rollback {args.sensor}")

@@ -29,7 +29,7 @@ def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path 
         h = hashlib.sha256(f"{Path(session_dir).name}|{package.sha256(precision)}".encode())
         for name in ("theta", "phi", "surface_xyz", "pixel_area", "mask"):
             h.update(np.ascontiguousarray(getattr(cal, name)).tobytes())
-        h.update(json.dumps(cal.gel_center_px).encode())
+        h.update(json.dumps([*cal.gel_center_px, cal.gel_radius_px]).encode())
         key = Path(cache) / f"{Path(session_dir).name}-{h.hexdigest()[:12]}.npz"
         if key.is_file():
             z = np.load(key, allow_pickle=False)

@@ -38,9 +38,10 @@ def _explain(exc: OSError, store: CalibrationStore, sensor_id: str, active: str)
 
 def store_recalibration(store: CalibrationStore, cal: Calibration, provenance: dict,
                         correction: tuple[dict, bytes] | None = None,
-                        geometry: dict | None = None) -> str:
-    """Write a new version of `cal.sensor_id` with a new correction (spec, onnx bytes) and/or new
-    geometry ({"gel_center_px", "theta", "phi"}); everything else is kept from `cal`. Returns the
+                        geometry: dict | None = None, crop: dict | None = None) -> str:
+    """Write a new version of `cal.sensor_id` with a new correction (spec, onnx bytes), a new crop
+    (`crop`: {"gel_center_px", "gel_radius_px"} from tools.recalib.rim.crop_changes; tables kept) and/or
+    new geometry ({"gel_center_px", "theta", "phi"}); everything else is kept from `cal`. Returns the
     new version name; the previous version stays on disk for `tensortouch calib rollback`."""
     sid, active = cal.sensor_id, store.current(cal.sensor_id)
     prov = {"method": "recalibrate-pokes", "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -48,10 +49,11 @@ def store_recalibration(store: CalibrationStore, cal: Calibration, provenance: d
     try:
         if geometry is None:
             files = {correction[0]["file"]: correction[1]} if correction else None
-            changes = {"correction": correction[0]} if correction else {}
+            changes = {**(crop or {}), **({"correction": correction[0]} if correction else {})}
             version = store.derive(sid, changes, files=files, provenance=prov)
         else:
             meta = {k: v for k, v in cal.meta.items() if k not in ("files", "tables", "version", "created")}
+            meta.update(crop or {})
             meta["gel_center_px"] = [float(v) for v in geometry["gel_center_px"]]
             meta["provenance"] = prov
             tables = surface_tables(geometry["theta"], geometry["phi"], dome_profile(cal.meta))

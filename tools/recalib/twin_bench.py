@@ -86,6 +86,9 @@ class TwinBenchConfig:
     poke_counts: tuple = (5, 6, 7)
     runtime_check: bool = True                           # first varied unit: full pipeline vs replayed correction
     calibration: str = "nominal"                         # store before recalibration: nominal | true (per unit)
+    recentre: str = "rim"                                # "rim": crop on the gel rim of the fit session's rest
+                                                         # frames before the force fit (geometry first) | "off"
+    rest_frames: int = 10                                # frames at rest the rim is found in
     geometry: str = ""                                   # "" | "full" (GPR θ/φ + centre) | "center" (centre only):
                                                          # a geometry stage first (7 pokes), then the force fit
     variants: tuple = (("fmag",), ("fmag", "theta"), ("fmag", "fx", "fy", "fz"),    # other correction inputs
@@ -148,6 +151,14 @@ def record_configs(unit: BenchUnit, cfg: TwinBenchConfig, points: list, size: in
     return fit, held
 
 
+def session_frames(session_dir: Path, n: int) -> list:
+    """The first `n` camera images of a recording (the gel at rest before the first poke)."""
+    from drivers.camera import camera_from_uri
+
+    with camera_from_uri(f"replay:{session_dir}", realtime=False) as cam:
+        return [cam.read().image for _ in range(n)]
+
+
 def record_once(rcfg, out: Path, say) -> Path:
     from tools.twin.record import Recorder
 
@@ -178,8 +189,10 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     from runtime.session import load_session
     from tools.recalib.evaluate import measure_pokes
     from tools.recalib.pokes import PokeRules
+    from tools.recalib.rim import crop_changes, fit_rim, recrop, rest_image
     from tools.recalib.session import SessionConfig, StreamReference, analyse, run_guided
     from tools.recalib.store_ops import store_recalibration
+    from tools.recalib.twin_variants import true_center
 
     size = int(package.size[0])
     tables, meta = nominal_calibration(size) if cfg.calibration == "nominal" else unit_calibration(unit, size)
@@ -197,17 +210,33 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
         row["held_out"][k] = {"pokes": len(b["ref"]), "before_mae_n": mae(b), "mean_ref_n": float(np.mean(b["ref"])),
                               "before_bias_n": float(np.mean(b["pred"] - b["ref"])),
                               "before_pred": b["pred"].tolist(), "ref": b["ref"].tolist(), "after": {}}
-    frames = collect_frames(fit_dir, base, package, cfg.precision, fc)
+    crop, cal_fit = {}, base
+    if cfg.recentre == "rim":          # geometry first: the crop on the gel rim of the session's rest frames
+        rim = fit_rim(rest_image(session_frames(fit_dir, cfg.rest_frames)), base.gel_center_px, base.gel_radius_px,
+                      where=f"{fit_dir.name} rest frames")
+        crop = crop_changes(base, rim)
+        cal_fit = recrop(base, crop)
+        true_c = np.array(true_center(unit))
+        row["crop"] = {**rim.to_dict(), "changes": crop, "center_error_px": float(np.linalg.norm(np.array(rim.center) - true_c)),
+                       "center_error_stored_px": float(np.linalg.norm(np.array(base.gel_center_px) - true_c))}
+        say(f"  {unit.serial}: rim centre error {row['crop']['center_error_stored_px']:.2f} -> "
+            f"{row['crop']['center_error_px']:.2f} px, radius x{rim.scale:.4f}; crop changes {sorted(crop) or 'none'}")
+    raw_fit = raw if cal_fit is base else {k: collect_frames(d, cal_fit, package, cfg.precision, fc) for k, d in held.items()}
+    for k in held:
+        b = held_out_pokes(raw_fit[k], refs[k], eval_rules)
+        row["held_out"][k]["crop_only_mae_n"] = mae(b)
+        row["held_out"][k]["crop_only_pokes"] = len(b["ref"])
+    frames = collect_frames(fit_dir, cal_fit, package, cfg.precision, fc)
     reference = StreamReference.from_session(load_session(fit_dir), rules)
     for n in cfg.poke_counts:
         scfg = SessionConfig(pokes=n, rules=rules)
-        outcome = run_guided(iter(frames), base, reference, scfg, say=lambda m: None)
+        outcome = run_guided(iter(frames), cal_fit, reference, scfg, say=lambda m: None)
         entry = {"accepted": len(outcome.accepted), "rejected": [p.verdict for p in outcome.rejected]}
         row["by_pokes"][str(n)] = entry
         if len(outcome.accepted) < scfg.fit.min_pokes:
             entry["error"] = "too few accepted pokes"
             continue
-        an = analyse(outcome.accepted, base, scfg, force=True)
+        an = analyse(outcome.accepted, cal_fit, scfg, force=True)
         entry.update(loo_before_mae_n=an.fit.loo["before"]["mae_n"], loo_after_mae_n=an.fit.loo["after"]["mae_n"],
                      stored=bool(an.fit.loo["after"]["mae_n"] < an.active["mae_n"]),
                      fit_gain=[float(g) for g in an.fit.train_gain],
@@ -216,11 +245,11 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
         st = CalibrationStore(work / f"n{n}")
         st.write(unit.serial, tables, meta)
         prov = {"pokes": n, "source": f"replay:{fit_dir}", "reference": reference.name, "forced": not entry["stored"]}
-        store_recalibration(st, st.load(unit.serial), prov, correction=(an.fit.spec, an.fit.onnx_bytes))
+        store_recalibration(st, st.load(unit.serial), prov, correction=(an.fit.spec, an.fit.onnx_bytes), crop=crop)
         cal_n = st.load(unit.serial)
         for k in held:
             h = row["held_out"][k]
-            a = held_out_pokes(corrected_frames(raw[k], cal_n), refs[k], eval_rules)
+            a = held_out_pokes(corrected_frames(raw_fit[k], cal_n), refs[k], eval_rules)
             forced = mae(a)
             after = forced if entry["stored"] else h["before_mae_n"]
             h["after"][str(n)] = {"pokes": len(a["ref"]), "after_forced_mae_n": forced, "after_mae_n": after,
@@ -230,7 +259,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
             say(f"  {unit.serial}, {n} pokes, held-out {k}: MAE {h['before_mae_n']:.3f} -> {after:.3f} N "
                 f"({1 - after / h['before_mae_n']:.0%}; forced {1 - forced / h['before_mae_n']:.0%}), LOO "
                 f"{entry['loo_before_mae_n']:.3f} -> {entry['loo_after_mae_n']:.3f} N, stored {entry['stored']}")
-        entry["variants"] = input_variants(outcome.accepted, base, scfg, raw, refs, row, eval_rules, cfg.variants, work)
+        entry["variants"] = input_variants(outcome.accepted, cal_fit, scfg, raw_fit, refs, row, eval_rules, cfg.variants, work)
         if cfg.geometry and n == max(cfg.poke_counts):
             try:
                 row["geometry"] = geometry_stage(unit, cfg, package, fit_dir, held, outcome.accepted, base, row,
@@ -278,8 +307,8 @@ def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
 
 def markdown(res: dict, held: str = "probe") -> str:
     lines = ["| unit | variation (unknown to model + calibration) | held-out pokes | mean \\|F\\| (N) | pokes | "
-             "held-out \\|F\\| MAE before → after (N) | reduction | forced | LOO MAE before → after (N) | stored |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "held-out \\|F\\| MAE before → after (N) | reduction | forced | re-crop only (N) | LOO MAE before → after (N) | stored |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in res["units"]:
         h = r["held_out"].get(held)
         if h is None:
@@ -289,11 +318,11 @@ def markdown(res: dict, held: str = "probe") -> str:
             a = h["after"].get(n)
             if a is None:
                 lines.append(f"| {name} | {r['label']} | {h['pokes']} | {h['mean_ref_n']:.2f} | {n} | "
-                             f"{e.get('error', '?')} | | | | |")
+                             f"{e.get('error', '?')} | | | | | |")
                 continue
             lines.append(f"| {name} | {r['label']} | {h['pokes']} | {h['mean_ref_n']:.2f} | {n} ({e['accepted']}) | "
                          f"{h['before_mae_n']:.3f} → {a['after_mae_n']:.3f} | {a['reduction']:.0%} | "
-                         f"{a['reduction_forced']:.0%} | {e['loo_before_mae_n']:.3f} → {e['loo_after_mae_n']:.3f} | "
+                         f"{a['reduction_forced']:.0%} | {h.get('crop_only_mae_n', float('nan')):.3f} | {e['loo_before_mae_n']:.3f} → {e['loo_after_mae_n']:.3f} | "
                          f"{'yes' if e['stored'] else 'no'} |")
     return "\n".join(lines)
 
@@ -314,6 +343,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--geometry", choices=("full", "center"), default="",
                    help="also a two-stage recalibration: geometry from the pokes' true points first (full: GPR "
                         "θ/φ tables + centre; center: re-centre the crop only), then the force correction")
+    p.add_argument("--recentre", choices=("rim", "off"), default="rim",
+                   help="rim (default): re-crop on the gel rim of the fit session's rest frames before the force fit; "
+                        "off: keep the stored crop")
     p.add_argument("--json", help="write all numbers here")
 
 
@@ -322,7 +354,8 @@ def run(args) -> int:
     cfg = TwinBenchConfig(units=units, nominal=None if args.no_nominal else NOMINAL,
                           physics=args.physics, model=args.model, precision=args.precision,
                           held_out_pokes=args.held_out_pokes,
-                          reach_deg=args.reach_deg, geometry=args.geometry, calibration=args.calibration, root=Path(args.root) if args.root else None)
+                          reach_deg=args.reach_deg, geometry=args.geometry, calibration=args.calibration,
+                          recentre=args.recentre, root=Path(args.root) if args.root else None)
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     res = run_bench(cfg, say)
     for held in ("probe", "other"):
