@@ -72,3 +72,29 @@ def test_recalibrate_refuses_when_active_is_already_better(env):
     code = cli.cmd_recalibrate(parse(base + ["--pokes", "5", "--force"]), say=lines.append)
     assert code == 0 and store.current(SENSOR) != v2
     assert store.load(SENSOR).meta["provenance"]["forced"] is True
+
+
+def test_recalibrate_recentres_a_shifted_crop_on_the_gel_rim_and_stores_it(env):
+    tmp, package, store, session = env
+    good = store.load(SENSOR).meta
+    cx, cy = good["gel_center_px"]
+    store.derive(SENSOR, {"gel_center_px": [cx + 3.0, cy - 2.0]})   # the stored crop is 3.6 px off the gel
+    lines = []
+    args = parse(["recalibrate", "--sensor", SENSOR, "--source", f"replay:{session}", "--store", str(store.root),
+                  "--model", str(package.folder), "--precision", "fp32", "--pokes", "6",
+                  "--report", str(tmp / "report.json")])
+    assert cli.cmd_recalibrate(args, say=lines.append) == 0, "\n".join(lines)
+    report = json.loads((tmp / "report.json").read_text())
+    assert report["rim"]["shift_px"] == pytest.approx(np.hypot(3, 2), abs=0.7), report["rim"]
+    new = store.load(SENSOR).meta
+    assert new["gel_center_px"] == pytest.approx([cx, cy], abs=0.7)          # back on the gel
+    assert new["provenance"]["crop"]["from"]["gel_center_px"] == [cx + 3.0, cy - 2.0]
+    assert any("crop re-centred" in line for line in lines)
+    ratios = [p["ref_force_n"] / np.linalg.norm(p["pred_force_n"]) for p in report["accepted"]]
+    assert np.allclose(ratios, [true_gain(np.array(p["uv_px"]) / 32) for p in report["accepted"]], rtol=0.05)
+    # --recentre off keeps the stored crop
+    store.derive(SENSOR, {"gel_center_px": [cx + 3.0, cy - 2.0]})
+    off = parse(["recalibrate", "--sensor", SENSOR, "--source", f"replay:{session}", "--store", str(store.root),
+                 "--model", str(package.folder), "--precision", "fp32", "--recentre", "off", "--force"])
+    assert cli.cmd_recalibrate(off, say=lambda m: None) == 0
+    assert store.load(SENSOR).meta["gel_center_px"] == [cx + 3.0, cy - 2.0]

@@ -37,7 +37,8 @@ def test_onnx_model_runs_in_the_runtime_and_matches_sklearn(tmp_path):
     corr = _runtime_correction(tmp_path, fit)
     test = STIFF_SHIFTED.held_out(rng, 50)
     out = corr(test.pred_force, test.uv, test.theta_phi)
-    g = fit_forest(pokes).predict(test.features(FitConfig().inputs))
+    chosen = FitConfig(inputs=tuple(fit.spec["inputs"]), candidates=())      # the inputs the selection chose
+    g = fit_forest(pokes, chosen).predict(test.features(chosen.inputs))
     assert np.allclose(np.linalg.norm(out, axis=1), corrected_magnitude(test.pred_mag, g), rtol=1e-4)
     # direction kept: gain only
     cos = np.sum(out * test.pred_force, axis=1) / (np.linalg.norm(out, axis=1) * test.pred_mag)
@@ -97,3 +98,25 @@ def test_too_few_pokes_and_invisible_pokes_are_errors():
 def test_gain_clipped_like_the_runtime():
     p = PokeSet(np.array([[0, 0, -1.0]] * 5), np.array([10.0, 1, 1, 1, 1]), np.full((5, 2), 0.5), np.zeros((5, 2)))
     assert gain_targets(p)[0] == FitConfig().max_gain
+
+
+def test_input_selection_takes_position_only_when_leave_one_out_supports_it():
+    from tools.recalib.fit import select_inputs
+
+    rng = np.random.default_rng(11)
+    n = 7
+    pf = np.c_[np.zeros((n, 2)), -rng.uniform(0.5, 3.0, n)]
+    tp = np.c_[np.linspace(0.0, 0.6, n), rng.uniform(-3, 3, n)]
+    uv = rng.uniform(0.2, 0.8, (n, 2))
+    # gain depends strongly on θ only (×0.6 at the apex → ×1.4 at the rim): position is chosen
+    ref = np.linalg.norm(pf, axis=1) * np.where(tp[:, 0] > 0.3, 1.4, 0.6)
+    inputs, scores = select_inputs(PokeSet(pf, ref, uv, tp))
+    assert "theta" in inputs and scores["fmag+theta"] < 0.85 * scores["fmag"], scores
+    # a constant gain: the simplest candidate, unless a richer set is clearly (15 %) better
+    ref = np.linalg.norm(pf, axis=1) * 0.7
+    inputs, scores = select_inputs(PokeSet(pf, ref, uv, tp))
+    assert inputs == ("fmag",), scores
+    fit = fit_correction(PokeSet(pf, ref, uv, tp))
+    assert fit.spec["inputs"] == ["fmag"] and set(fit.spec["selection_loo_mae_n"]) == {"fmag", "fmag+theta",
+                                                                                      "fmag+theta+u+v"}
+    assert fit.loo["after"]["mae_n"] < 0.05 * fit.loo["before"]["mae_n"]

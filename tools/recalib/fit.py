@@ -13,7 +13,7 @@ onnxruntime only. No pickle: the fitted forest leaves this module as ONNX bytes.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -28,8 +28,15 @@ class FitConfig:
     """Forest and acceptance settings. Seed: 5–7 pokes; the gain clip matches the runtime's."""
 
     # feature columns (runtime FEATURES names): magnitude and position (seed); θ lets a tree split on
-    # distance from the dome apex, where stiffness/thickness/centre errors of a dome mostly act
+    # distance from the dome apex, where stiffness/thickness/centre errors of a dome mostly act.
+    # Used as given when `candidates` is empty; else the fit chooses among `candidates` (below).
     inputs: tuple[str, ...] = ("fmag", "theta", "u", "v")
+    # position enters only where the pokes support it: candidate input sets, simplest first; a richer set
+    # is chosen only if its leave-one-out MAE beats the simpler choice by `select_margin` (relative).
+    # The reported held-out error is then a NESTED leave-one-out (selection redone without the held-out poke).
+    candidates: tuple[tuple[str, ...], ...] = (("fmag",), ("fmag", "theta"), ("fmag", "theta", "u", "v"))
+    select_margin: float = 0.15
+    select_estimators: int = 20                   # trees per forest inside the selection (speed; the stored one has n_estimators)
     n_estimators: int = 50                        # DESIGN §10: 50 trees ≈ 10 µs/sample in onnxruntime
     max_depth: int | None = 3                     # shallow: 5–7 samples cannot support deeper trees
     min_samples_leaf: int = 1
@@ -108,21 +115,54 @@ def error_stats(est: np.ndarray, ref: np.ndarray) -> dict:
             "mre": float((err / np.maximum(np.abs(ref), 1e-9)).mean()), "max_n": float(err.max())}
 
 
+def _loo_held(pokes: PokeSet, cfg: FitConfig, inputs: tuple[str, ...], trees: int | None = None) -> np.ndarray:
+    n = len(pokes)
+    if n < 3:
+        raise CalibrationError(f"leave-one-out needs at least 3 pokes, got {n}")
+    c = replace(cfg, inputs=tuple(inputs), candidates=(), n_estimators=trees or cfg.n_estimators)
+    held = np.empty(n)
+    for i in range(n):
+        rest = np.r_[0:i, i + 1:n]
+        g = fit_forest(pokes.subset(rest), c).predict(pokes.subset([i]).features(c.inputs))
+        held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, c)[0]
+    return held
+
+
+def select_inputs(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> tuple[tuple[str, ...], dict]:
+    """The input set among cfg.candidates (simplest first) with the best leave-one-out MAE, a richer set
+    only if it beats the current choice by cfg.select_margin. Returns (inputs, {"+".join(set): LOO MAE})."""
+    if not cfg.candidates:
+        return tuple(cfg.inputs), {}
+    scores = {}
+    best = None
+    for cand in cfg.candidates:
+        m = float(np.mean(np.abs(_loo_held(pokes, cfg, cand, cfg.select_estimators) - pokes.ref_force)))
+        scores["+".join(cand)] = m
+        if best is None or m < (1.0 - cfg.select_margin) * scores["+".join(best)]:
+            best = tuple(cand)
+    return best, scores
+
+
 def leave_one_out(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> dict:
-    """Held-out evaluation: each poke predicted by a forest fitted on the others.
+    """Held-out evaluation: each poke predicted by a forest fitted on the others (with input selection,
+    `cfg.candidates`, the selection is redone on the others too: nested, so the estimate stays honest).
 
     Returns per-poke held-out corrected magnitudes and before/after error statistics; "before" is
     the uncorrected model (use `error_stats` with another baseline to compare with an active correction).
     """
     n = len(pokes)
-    if n < 3:
-        raise CalibrationError(f"leave-one-out needs at least 3 pokes, got {n}")
-    held = np.empty(n)
-    for i in range(n):
-        rest = np.r_[0:i, i + 1:n]
-        rf = fit_forest(pokes.subset(rest), cfg)
-        g = rf.predict(pokes.subset([i]).features(cfg.inputs))
-        held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, cfg)[0]
+    if not cfg.candidates:
+        held = _loo_held(pokes, cfg, cfg.inputs)
+    else:
+        if n < 4:
+            raise CalibrationError(f"leave-one-out with input selection needs at least 4 pokes, got {n}")
+        held = np.empty(n)
+        for i in range(n):
+            rest = pokes.subset(np.r_[0:i, i + 1:n])
+            inputs, _ = select_inputs(rest, cfg)
+            c = replace(cfg, inputs=inputs, candidates=())
+            g = fit_forest(rest, c).predict(pokes.subset([i]).features(inputs))
+            held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, c)[0]
     return {"held_out_n": held.tolist(), "before": error_stats(pokes.pred_mag, pokes.ref_force),
             "after": error_stats(held, pokes.ref_force)}
 
@@ -155,13 +195,16 @@ def fit_correction(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> CorrectionFi
     if len(pokes) < cfg.min_pokes:
         raise CalibrationError(f"{len(pokes)} accepted pokes, need at least {cfg.min_pokes} (seed: 5–7)")
     loo = leave_one_out(pokes, cfg)
+    inputs, scores = select_inputs(pokes, cfg)
+    loo["selection"] = scores
+    cfg = replace(cfg, inputs=inputs, candidates=())
     rf = fit_forest(pokes, cfg)
     x = pokes.features(cfg.inputs)
     onnx_bytes = to_onnx(rf, len(cfg.inputs), cfg)
     _check_onnx(onnx_bytes, x, rf.predict(x))
     spec = {"file": "correction.onnx", "inputs": list(cfg.inputs), "output": "gain",
             "kind": "random_forest_gain", "n_estimators": cfg.n_estimators, "max_depth": cfg.max_depth,
-            "pokes": len(pokes)}
+            "pokes": len(pokes), **({"selection_loo_mae_n": scores} if scores else {})}
     return CorrectionFit(onnx_bytes, spec, loo, rf.predict(x).tolist(), asdict(cfg))
 
 

@@ -97,7 +97,7 @@ def input_variants(pokes, cal, scfg, raw, refs, row, rules, variants, work: Path
 
     out = {}
     for inputs in variants:
-        vcfg = dc_replace(scfg, fit=dc_replace(scfg.fit, inputs=tuple(inputs)))
+        vcfg = dc_replace(scfg, fit=dc_replace(scfg.fit, inputs=tuple(inputs), candidates=()))
         an = analyse(pokes, cal, vcfg, force=True)
         path = work / f"variant-{'-'.join(inputs)}.onnx"
         path.write_bytes(an.fit.onnx_bytes)
