@@ -12,6 +12,12 @@ provenance, and changes wrench.csv the way a hidden physical effect would.
                 sphere (params "radius", "center_z" of the gel, mm), h = center_z + radius
   rim           force scaled by 1 + a exp(-s / w), s = arc length from the tip's point on the cap
                 down to the rim (cap sphere + "skirt" height, mm)
+  mullins       force scaled by 1 - r erf((D - d) / m) on unloading: d = indentation of the mocap tip
+                (as for strain), D = the largest d since this indenter last left the gel
+  friction      the shear part of the reading (perpendicular to the cap sphere's normal at the tip,
+                rotated into the F/T frame through the tip pose and the F/T mount) capped at mu |F_n|
+  led           frames.avi re-encoded with every pixel times 1 + c t (LED dimming; MJPG as recorded);
+                the F/T stream is left as it is
 """
 from __future__ import annotations
 
@@ -21,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import signal
+from scipy.special import erf
 
 from runtime.session import STREAM_COLUMNS, load_session, write_table
 
@@ -36,9 +43,48 @@ def copy_without_truth(src: Path, dst: Path) -> Path:
     return dst
 
 
+def _quat_matrix(q: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions w, x, y, z -> (N, 3, 3) rotation matrices."""
+    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
+
+
+def _dim_video(dst: Path, c: float) -> None:
+    import cv2
+
+    manifest = json.loads((dst / "session.json").read_text())
+    info = manifest["streams"]["frames"]
+    times = np.loadtxt(dst / info["file"], delimiter=",", skiprows=1, ndmin=2)[:, 0]
+    src = dst / info["video"]
+    tmp = src.with_name("frames.tmp.avi")
+    cap = cv2.VideoCapture(str(src))
+    out = None
+    for t in times:
+        ok, img = cap.read()
+        if not ok:
+            break
+        if out is None:
+            out = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"MJPG"), float(info["fps"]),
+                                  (img.shape[1], img.shape[0]))
+            out.set(cv2.VIDEOWRITER_PROP_QUALITY, float(info.get("quality", 90)))
+        out.write(np.clip(img.astype(np.float32) * (1.0 + c * (t - times[0])), 0, 255).astype(np.uint8))
+    cap.release()
+    out.release()
+    tmp.replace(src)
+    info["bytes"] = src.stat().st_size
+    (dst / "session.json").write_text(json.dumps(manifest, indent=2))
+
+
 def alter_session(src: Path, dst: Path, kind: str, params: dict) -> Path:
     dst = copy_without_truth(Path(src), Path(dst))
+    if kind == "led":
+        _dim_video(dst, params["c"])
+        return dst
     s = load_session(dst, check_frames=False)
+    mount = json.loads((dst / "session.json").read_text())["streams"]["wrench"]["ft_to_indenter"]
+    r_mount = _quat_matrix(np.array([mount["rotation_wxyz"]], float))[0]
     w = s.table("wrench").copy()
     poses = s.table("poses")
     for k in np.unique(w[:, 1]):
@@ -55,12 +101,29 @@ def alter_session(src: Path, dst: Path, kind: str, params: dict) -> Path:
             f = f * (1.0 - params["alpha"] * (np.interp(t, tt[:, 0], tt[:, 1]) - params["t_ref"]))[:, None]
         elif kind == "ft_bias":
             f = f + np.outer(t, [params["bx"], params["by"], params["bz"]])
-        elif kind in ("strain", "rim"):
+        elif kind in ("strain", "rim", "mullins", "friction"):
             p = poses[poses[:, 1] == k]
             tip = np.column_stack([np.interp(t, p[:, 0], p[:, 2 + j]) for j in range(3)])
             v = tip - np.array([0.0, 0.0, params["center_z"]])
             r = np.linalg.norm(v, axis=1)
-            if kind == "strain":
+            if kind == "mullins":
+                d = np.clip(params["radius"] - r, 0.0, None)
+                most = np.empty_like(d)
+                run = 0.0
+                for i, di in enumerate(d):
+                    run = max(run, di) if di > 0 else 0.0
+                    most[i] = run
+                f = f * (1.0 - params["r"] * erf((most - d) / params["m"]))[:, None]
+            elif kind == "friction":
+                # nearest pose sample: orientations are not interpolated (120 Hz mocap, 200 Hz F/T)
+                j = np.clip(np.searchsorted(p[:, 0], t), 0, len(p) - 1)
+                rot = _quat_matrix(p[j, 5:9]) @ r_mount                    # F/T frame -> sensor frame
+                n_ft = np.einsum("nji,nj->ni", rot, v / np.maximum(r, 1e-9)[:, None])
+                fn = np.sum(f * n_ft, axis=1, keepdims=True) * n_ft
+                ft = f - fn
+                mag, cap = np.linalg.norm(ft, axis=1), params["mu"] * np.linalg.norm(fn, axis=1)
+                f = fn + ft * np.where(mag > cap, cap / np.maximum(mag, 1e-12), 1.0)[:, None]
+            elif kind == "strain":
                 d = np.clip(params["radius"] - r, 0.0, None)
                 f = f * (1.0 + params["k"] * (d / (params["center_z"] + params["radius"])) ** 2)[:, None]
             else:

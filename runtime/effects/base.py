@@ -93,6 +93,7 @@ class Effect:
     sequential: bool = False     # forward needs one series (indenter) in time order per call
     fixed: tuple[str, ...] = ()  # parameters held at their default when fitting (not identifiable)
     linear: bool = False         # hint: output is affine in the free parameters (exact linear fit)
+    zero_in_zero_out: bool = False  # a series of zero forces stays exactly zero (lets fits skip it)
 
     # ----- to be written by subclasses -------------------------------------------------------
     def forward(self, x: np.ndarray, cov: dict, p: dict) -> np.ndarray:  # pragma: no cover

@@ -72,6 +72,7 @@ class ViscoelasticRelaxation(Effect):
     covariates = ("time",)
     off = {"g1": 0.0}
     sequential = True
+    zero_in_zero_out = True      # linear in the force history, held at x[0] before the first sample
 
     def step(self, state: dict, t: float, x: np.ndarray, p: dict) -> np.ndarray:
         """One new sample of one contact track (runtime, frame by frame); same recursion as forward."""

@@ -67,6 +67,31 @@ class Channels:
         self.bright_meas = np.asarray(bright)[self.bright_rows] if bright is not None else np.zeros(0)
         self.base_gain = chain.image_gain(self.cov, n)[self.bright_rows]
 
+    def apply(self, effect: Effect, x: np.ndarray, p: dict) -> np.ndarray:
+        """effect.apply(x, cov, p), with a sequential effect's per-series split of the covariates
+        computed once per table (same forward calls on the same arrays: identical numbers); series
+        that are all zero are skipped for effects that declare `zero_in_zero_out`."""
+        if not effect.sequential or "series" not in self.cov:
+            return effect.apply(x, self.cov, p)
+        if not hasattr(self, "_split"):
+            series = np.asarray(self.cov["series"])
+            n = len(series)
+            self._split = []
+            for s in np.unique(series):
+                idx = np.flatnonzero(series == s)
+                self._split.append((idx, {k: (v[idx] if isinstance(v, np.ndarray) and len(v) == n else v)
+                                          for k, v in self.cov.items()}))
+        x = np.asarray(x, dtype=np.float64)
+        out = np.empty_like(x)
+        skip = effect.zero_in_zero_out
+        for idx, sub in self._split:
+            xs = x[idx]
+            if skip and not xs.any():
+                out[idx] = 0.0
+            else:
+                out[idx] = effect.forward(xs, sub, p)
+        return out
+
     def finish(self, x: np.ndarray) -> np.ndarray:
         """Force-stage output -> correction -> measurement-stage effects (the deployed order)."""
         if self.post is not None:
@@ -105,8 +130,8 @@ class Candidate:
         ch = self.ch
         if self.channel == "force":
             if self.effect.stage == "force":   # inserted before the correction, as the runtime runs it
-                return ch.table.meas - ch.finish(self.effect.apply(ch.pre, ch.cov, p))
-            return ch.table.meas - self.effect.apply(ch.base_force, ch.cov, p)
+                return ch.table.meas - ch.finish(ch.apply(self.effect, ch.pre, p))
+            return ch.table.meas - ch.apply(self.effect, ch.base_force, p)
         gain = self.effect.gain(ch.cov, p)[ch.bright_rows]
         return (ch.bright_meas - ch.base_gain * gain)[:, None]
 

@@ -48,6 +48,9 @@ PASS_MODULES = ("pipeline.py", "preprocess.py", "baseline.py", "model.py", "cont
 RUNTIME_COVARIATES = ("depth", "max_depth", "theta", "phi", "rim_distance", "force_n", "force_t")
 
 
+LINEUP_VERSION = 2     # part of the cached line-up table's name: bump when lineup() changes
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     precision: str = "int8"
@@ -280,7 +283,9 @@ def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -
         tq = tf[sel]
         part = {"cols": {c: _interp_rows(tk, tq, v[m]) for c, v in base.cols.items() if c not in ("series",)},
                 "meas": _interp_rows(tk, tq, base.meas[m]), "frame": fidx[sel], "k": k}
-        near = m[np.clip(np.searchsorted(tk, tq), 0, len(m) - 1)]
+        nxt = np.clip(np.searchsorted(tk, tq), 0, len(m) - 1)
+        prev = np.clip(nxt - 1, 0, len(m) - 1)
+        near = m[np.where(np.abs(tk[prev] - tq) < np.abs(tk[nxt] - tq), prev, nxt)]   # the nearest row
         for c in ("brightness", "bright_ok"):   # frame measurements: nearest row, never blended
             if c in base.cols:
                 part["cols"][c] = base.cols[c][near]
@@ -345,23 +350,28 @@ def temperature_of(session):
     return lambda t: float(np.interp(t, tt[:, 0], tt[:, 1]))
 
 
-def correction_post(table: SampleTable, cal):
-    """The sensor's correction on table rows (table sign convention), or None when it has none."""
+def correction_post(table: SampleTable, cal, memoize: bool = True):
+    """The sensor's correction on table rows (table sign convention), or None when it has none.
+    `memoize`: the exact memoized evaluation of tools/workbench/fastpost.py where it applies."""
     from runtime.correction import ForceCorrection
 
     corr = ForceCorrection.from_calibration(cal)
     if not corr.enabled or "corr_uv" not in table.vec:
         return None
+    from tools.workbench.fastpost import memo_gain
+
     uv, tp = table.vec["corr_uv"], table.vec["corr_theta_phi"]
+    memo = memo_gain(corr, uv, tp) if memoize else None
 
     def post(forces: np.ndarray) -> np.ndarray:
         f = np.asarray(forces, dtype=np.float64)
         out = f.copy()
         nz = np.flatnonzero(np.any(f != 0.0, axis=1))   # zero stays zero: only rows with a force
         if len(nz):
-            out[nz] = -corr(-f[nz], uv[nz], tp[nz])
+            out[nz] = -(memo(-f[nz], nz) if memo is not None else corr(-f[nz], uv[nz], tp[nz]))
         return out
 
+    post.memo = memo
     return post
 
 
@@ -393,7 +403,7 @@ class NetworkModel:
                     progress=None) -> SampleTable:
         """The line-up table (raw network force in `model`), cached beside the session's table."""
         passed = self.frame_pass(session, cal, cache_dir, progress)
-        path = folder / f"net-{self.info['key']}-{self.fingerprint()}.npz" if folder else None
+        path = folder / f"net{LINEUP_VERSION}-{self.info['key']}-{self.fingerprint()}.npz" if folder else None
         if path is not None and path.is_file():
             return SampleTable.load(path)
         runtime = replay(passed, cal, temperature_of(session), covariates=True)

@@ -83,13 +83,41 @@ def forest_post(table: SampleTable, rf, fc):
     return post
 
 
-def nominal_reductions(comp, chain, rf, fc, registry) -> dict:
-    """Held-out reduction each candidate reaches on the calibration session itself (with the new
-    correction): the model's own residual structure, which diagnosis must beat to call it physics."""
+def take_rows(table: SampleTable, rows: np.ndarray) -> SampleTable:
+    """The table restricted to `rows` (in time order)."""
+    return SampleTable({k: v[rows] for k, v in table.cols.items()}, table.meas[rows], table.model[rows],
+                       {k: v[rows] for k, v in table.vec.items()}, dict(table.meta))
+
+
+def nominal_reductions(comp, chain, pokes, idx, registry, cfg: "NominalConfig" = None) -> dict:
+    """Held-out reduction each candidate reaches on the calibration session (no hidden physics):
+    the model's own residual structure, which diagnosis must beat to call something physics.
+
+    Cross-fitted, so it measures what a test session sees: the session is cut in two halves in time;
+    the correction is fitted on the pokes of one half and the other half is diagnosed with it (its
+    contact positions and loads are new to that correction, as a test session's are). The baseline
+    is the mean over the two halves (each half's value is kept under `halves`)."""
+    from tools.recalib.fit import fit_forest
     from tools.workbench.diagnose import diagnose
 
-    diag = diagnose(comp.table, registry, chain, post=forest_post(comp.table, rf, fc))
-    return {s.effect.name: round(float(s.reduction), 4) for s in diag.ranking}
+    cfg = cfg or NominalConfig()
+    fc = _fit_cfg(cfg)
+    table = comp.table
+    t = table.cols["time"]
+    cut = float(np.median(t[idx])) if len(idx) else float(np.median(t))
+    halves = []
+    for test in (t < cut, t >= cut):
+        train = np.flatnonzero(~test[idx])
+        if len(train) < cfg.min_frames:
+            continue
+        rf = fit_forest(pokes.subset(train), fc)
+        sub = take_rows(table, np.flatnonzero(test))
+        diag = diagnose(sub, registry, chain, post=forest_post(sub, rf, fc))
+        halves.append({s.effect.name: float(s.reduction) for s in diag.ranking})
+    names = sorted({n for h in halves for n in h})
+    out = {n: round(float(np.mean([h[n] for h in halves if n in h])), 4) for n in names}
+    out["halves"] = [{n: round(v, 4) for n, v in h.items()} for h in halves]
+    return out
 
 
 def fit_and_store_correction(calib_session, sensor: str, store, model, registry, cache: bool = True,
@@ -118,7 +146,7 @@ def fit_and_store_correction(calib_session, sensor: str, store, model, registry,
     spec = {"file": "correction.onnx", "inputs": list(fc.inputs), "output": "gain",
             "kind": "random_forest_gain", "n_estimators": fc.n_estimators, "max_depth": fc.max_depth,
             "frames": int(len(pokes)), "source": "workbench nominal correction",
-            "nominal_reductions": nominal_reductions(comp, chain, rf, fc, registry)}
+            "nominal_reductions": nominal_reductions(comp, chain, pokes, idx, registry, cfg)}
     cal = store.load(sensor)
     version = store_recalibration(store, cal, {"method": "workbench nominal correction",
                                                "session": str(calib_session), "frames": int(len(pokes)),

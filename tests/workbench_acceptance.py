@@ -1,0 +1,246 @@
+"""Issue 6's acceptance on the deployed-network path, as a reusable harness (the slow tests in
+tests/test_workbench_net_twin.py and the table in docs/workbench.md both come from here).
+
+    python -m tests.workbench_acceptance --model cache/train/v2t/models/hiera-qup-128 [--nulls 10]
+
+Unit TWIN-WB01 (not a training unit), FE twin sessions with 30 fps frames (tools.workbench.scenarios,
+recorded once and cached). The sensor first gets its nominal correction, fitted on a calibration
+session without hidden physics that covers the gel (`CALIB_POKES` pokes). Each case is one session
+with one hidden effect: switched on in the twin's truth ("truth") or put into the null session's
+measurements by tests/workbench_alter.py ("altered": written separately from the twin's effect
+code). Diagnosis reads the sample table only (no provenance, truth or effect list).
+
+The model's floor = held-out rms |r| on the null session of the test plan (after the correction);
+the effect's size = rms over rows of the change the effect makes to the measured force (the altered
+or truth session minus the null session, same plan and frames); their ratio says how fair a case is.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from runtime.calibration import CalibrationStore
+from runtime.effects import EffectChain, Registry
+from tests.workbench_alter import alter_session
+from tools.workbench.compare import run_compare
+from tools.workbench.diagnose import add_to_chain, diagnose
+from tools.workbench.fit import refit_chain
+from tools.workbench.scenarios import NET_CALIB_SEED, NET_TEST_SEED, net_scenario, record, store_root
+
+log = logging.getLogger(__name__)
+SENSOR = "TWIN-WB01"
+CALIB_POKES = 32                  # the calibration session: twice the test plan, covering the gel
+NULL_POKES = 8
+PLUGINS = Path(__file__).parent / "workbench_plugins"
+GEL_KINDS = ("strain", "rim", "mullins", "friction")   # alterations that need the gel geometry
+
+
+@dataclass(frozen=True)
+class Case:
+    effect: str                   # the canonical name diagnosis should find
+    source: str                   # "truth" (twin) or "altered" (tests/workbench_alter.py)
+    params: dict
+    kind: str = ""                # alteration kind
+
+
+# Magnitudes: physically plausible and clearly above the network's floor (ratio in the table).
+CASES = (
+    Case("viscoelastic_relaxation", "truth", {"g1": 0.3, "tau": 1.0}),
+    Case("viscoelastic_relaxation", "altered", {"g1": 0.35, "tau": 0.8}, "viscoelastic"),
+    Case("temperature_softening", "altered", {"alpha": 0.04, "t_ref": 20.0}, "temperature"),
+    Case("mullins_softening", "altered", {"r": 0.4, "m": 0.3}, "mullins"),
+    Case("strain_stiffening", "altered", {"k": 15.0}, "strain"),
+    Case("friction_mismatch", "altered", {"mu": 0.15}, "friction"),
+    Case("rim_stiffening", "altered", {"a": 2.0, "w": 4.0}, "rim"),
+    Case("ft_bias_drift", "altered", {"bx": 0.0, "by": 0.004, "bz": 0.008}, "ft_bias"),
+    Case("led_drift", "altered", {"c": -0.003}, "led"),
+)
+TWO = (("viscoelastic_relaxation", {"g1": 0.3, "tau": 1.0}), ("rim_stiffening", {"a": 2.0, "w": 4.0}))
+UNKNOWN = {"a": 0.35, "phi0": 0.5}          # azimuth stiffness (not in the library)
+
+
+def gel_params() -> dict:
+    gel = CalibrationStore(store_root(SENSOR, 128)).load(SENSOR).meta["gel"]
+    return {"radius": gel["radius_mm"], "center_z": gel["center_z_mm"], "skirt": gel["skirt_mm"]}
+
+
+class Bench:
+    """The network model + a store holding the sensor's nominal correction; `table(session)`."""
+
+    def __init__(self, model_dir: str | Path | None, work: Path, calib_pokes: int = CALIB_POKES,
+                 precision: str = "int8"):
+        from runtime.model import find_package
+        from tools.workbench.network import NetworkConfig, NetworkModel
+        from tools.workbench.nominal import fit_and_store_correction
+
+        self.package = find_package(str(model_dir) if model_dir else None)
+        self.model = NetworkModel(self.package, NetworkConfig(precision=precision))
+        self.reg = Registry.default(entry_points=False)
+        self.work = Path(work)
+        self.raw_root = self._store("raw")
+        self.root = self._store("corrected")
+        self.store = CalibrationStore(self.root)
+        self.calib = record(net_scenario(NET_CALIB_SEED, pokes=calib_pokes))
+        t0 = time.perf_counter()
+        _, self.correction_text = fit_and_store_correction(self.calib, SENSOR, self.store, self.model, self.reg)
+        log.info("%s (%.0f s)", self.correction_text, time.perf_counter() - t0)
+
+    def _store(self, name: str) -> Path:
+        root = self.work / f"store-{name}"
+        if root.exists():
+            shutil.rmtree(root)
+        shutil.copytree(store_root(SENSOR, 128), root)
+        return root
+
+    def table(self, session, corrected: bool = True):
+        st = self.store if corrected else CalibrationStore(self.raw_root)
+        comp = run_compare(session, SENSOR, st, self.model, self.reg)
+        base = (comp.summary.get("correction") or {}).get("nominal_reductions")
+        return comp.table, comp.post, base
+
+    def diagnose(self, session, chain=None, registry=None, corrected: bool = True):
+        t, post, base = self.table(session, corrected)
+        return diagnose(t, registry or self.reg, chain, post=post, baseline=base)
+
+
+def null_session(seed: int = NET_TEST_SEED) -> Path:
+    return record(net_scenario(seed, pokes=16 if seed == NET_TEST_SEED else NULL_POKES))
+
+
+def case_session(case: Case, work: Path) -> Path:
+    if case.source == "truth":
+        return record(net_scenario(NET_TEST_SEED, effects=((case.effect, dict(case.params)),)))
+    params = dict(case.params, **gel_params()) if case.kind in GEL_KINDS else dict(case.params)
+    return alter_session(null_session(), Path(work) / f"{case.kind}-{case.effect}", case.kind, params)
+
+
+def effect_size(bench: Bench, session: Path, null: Path) -> float:
+    """rms over rows of |measured force with the effect - without| (N); nan when rows differ."""
+    a, _, _ = bench.table(session)
+    b, _, _ = bench.table(null)
+    if len(a) != len(b) or not np.allclose(a.cols["time"], b.cols["time"]):
+        return float("nan")
+    return float(np.sqrt(np.mean(np.sum((a.meas - b.meas) ** 2, axis=1))))
+
+
+def row_of(diag, case_name: str, truth_params: dict, size: float, floor: float) -> dict:
+    v, top = diag.verdict, (diag.ranking[0] if diag.ranking else None)
+    return {"hidden": case_name, "truth": truth_params, "rank1": top.effect.name if top else None,
+            "before": top.before if top else None, "after": top.after if top else None,
+            "reduction": top.reduction if top else None, "p_adjusted": top.p_adjusted if top else None,
+            "calibration_reduction": top.baseline if top else None,
+            "verdict": v.effect.name if v else None, "fitted": dict(top.params) if top else {},
+            "channel": top.channel if top else "force", "effect_size_n": size,
+            "ratio": size / floor if floor else None, "unexplained": diag.unexplained}
+
+
+def run_all(bench: Bench, work: Path, nulls: int = 10, cases=CASES, parts=("two", "unknown")) -> dict:
+    out = {"model": str(bench.package.folder), "model_sha256": bench.package.sha256(bench.model.cfg.precision),
+           "correction": bench.correction_text, "calibration": str(bench.calib), "cases": [], "nulls": []}
+    null = null_session()
+    floor_diag = bench.diagnose(null)
+    floor = floor_diag.ranking[0].before
+    out["floor_n"] = floor
+    raw = bench.diagnose(null, corrected=False)
+    out["raw_null"] = row_of(raw, "nothing (raw network, no correction)", {}, 0.0, floor)
+    for i, seed in enumerate([NET_TEST_SEED] + list(range(1, nulls))):
+        d = floor_diag if seed == NET_TEST_SEED else bench.diagnose(null_session(seed))
+        out["nulls"].append(dict(row_of(d, f"nothing (seed {seed})", {}, 0.0, floor), seed=seed))
+        log.info("null seed %d: %s", seed, out["nulls"][-1]["verdict"])
+    for case in cases:
+        s = case_session(case, work)
+        d = bench.diagnose(s)
+        size = effect_size(bench, s, null) if case.effect != "led_drift" else float("nan")
+        out["cases"].append(dict(row_of(d, case.effect, case.params, size, floor), source=case.source))
+        log.info("%s (%s): %s", case.effect, case.source, out["cases"][-1]["verdict"])
+    out["two"] = two_effects(bench) if "two" in parts else None
+    out["unknown"] = unknown_effect(bench, work) if "unknown" in parts else None
+    return out
+
+
+def two_effects(bench: Bench) -> dict:
+    s = record(net_scenario(NET_TEST_SEED, effects=TWO))
+    t, post, base = bench.table(s)
+    first = diagnose(t, bench.reg, post=post, baseline=base)
+    steps = [first]
+    chain = EffectChain()
+    while steps[-1].verdict is not None and len(steps) < 4:
+        chain = add_to_chain(chain, steps[-1].verdict)
+        if len(chain.items) > 1:
+            chain, _, _ = refit_chain(t, chain, post=post)
+        steps.append(diagnose(t, bench.reg, chain, post=post, baseline=base))
+    return {"truth": [n for n, _ in TWO], "found": [d.verdict.effect.name for d in steps if d.verdict],
+            "steps": [{"verdict": d.verdict.effect.name if d.verdict else None,
+                       "rank1": d.ranking[0].effect.name, "before": d.ranking[0].before,
+                       "after": d.ranking[0].after, "reduction": d.ranking[0].reduction,
+                       "p_adjusted": d.ranking[0].p_adjusted} for d in steps],
+            "chain": {it.effect.name: it.params for it in chain.items}}
+
+
+def unknown_effect(bench: Bench, work: Path) -> dict:
+    s = alter_session(null_session(), Path(work) / "azimuth", "azimuth", dict(UNKNOWN))
+    plain = bench.diagnose(s)
+    with_plugin = bench.diagnose(s, registry=Registry.default(plugin_dirs=[PLUGINS], entry_points=False))
+    v = with_plugin.verdict
+    return {"truth": UNKNOWN, "covariate": plain.unexplained.get("covariate"),
+            "score": plain.unexplained.get("score"), "verdict_without_plugin": plain.verdict.effect.name
+            if plain.verdict else None, "plugin_verdict": v.effect.name if v else None,
+            "plugin_reduction": v.reduction if v else None, "plugin_params": dict(v.params) if v else {},
+            "plugin_before": v.before if v else None, "plugin_after": v.after if v else None}
+
+
+def _fmt(x, f="{:.3f}"):
+    return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f.format(x)
+
+
+def markdown(res: dict) -> str:
+    lines = ["| hidden | source | effect size / floor | rank-1 | held-out before → after | reduction | "
+             "p (Holm) | calib. session | verdict | fitted |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in [res["raw_null"]] + res["nulls"] + res["cases"]:
+        fitted = ", ".join(f"{k} = {v:.3g}" for k, v in r["fitted"].items()) if r["verdict"] else ""
+        unit = "" if r["channel"] == "force" else " (rel.)"
+        lines.append(f"| {r['hidden']} {json.dumps(r['truth']) if r['truth'] else ''} | {r.get('source', '')} | "
+                     f"{_fmt(r['effect_size_n'])} N / {_fmt(res['floor_n'])} N = {_fmt(r['ratio'], '{:.1f}')} | "
+                     f"{r['rank1']} | {_fmt(r['before'], '{:.4f}')} → {_fmt(r['after'], '{:.4f}')}{unit} | "
+                     f"{_fmt(100 * r['reduction'] if r['reduction'] is not None else None, '{:.0f} %')} | "
+                     f"{_fmt(r['p_adjusted'], '{:.2g}')} | "
+                     f"{_fmt(100 * r['calibration_reduction'] if r['calibration_reduction'] is not None else None, '{:+.0f} %')} | "
+                     f"{r['verdict'] or 'none'} | {fitted} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m tests.workbench_acceptance")
+    p.add_argument("--model", required=True, help="model package folder (explicit: the numbers name it)")
+    p.add_argument("--precision", default="int8")
+    p.add_argument("--calib-pokes", type=int, default=CALIB_POKES)
+    p.add_argument("--nulls", type=int, default=10, help="null sessions: the test plan + seeds 1..N-1")
+    p.add_argument("--work", default="cache/workbench/acceptance")
+    p.add_argument("--out", help="write the results as JSON here")
+    p.add_argument("--only", nargs="*", help="effects to run (default all)")
+    p.add_argument("--skip", nargs="*", default=[], choices=("two", "unknown"), help="parts to leave out")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    bench = Bench(args.model, work, args.calib_pokes, args.precision)
+    cases = [c for c in CASES if not args.only or c.effect in args.only]
+    res = run_all(bench, work, args.nulls, cases, [x for x in ("two", "unknown") if x not in args.skip])
+    res["seconds"] = time.perf_counter() - t0
+    print(markdown(res))
+    print(json.dumps({k: res[k] for k in ("two", "unknown", "floor_n", "correction", "model_sha256")}, default=str))
+    if args.out:
+        Path(args.out).write_text(json.dumps(res, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
