@@ -18,6 +18,8 @@ import logging
 import sys
 import time
 
+from dataclasses import replace
+
 import numpy as np
 
 from tools.recalib.fit import FitConfig, corrected_magnitude, decide, error_stats, fit_correction, fit_forest
@@ -42,7 +44,8 @@ def one_session(unit: SyntheticUnit, n: int, rng: np.random.Generator, cfg: FitC
     test = unit.held_out(rng, 300)
     before = error_stats(test.pred_mag, test.ref_force)["mae_n"]
     if d.store:
-        g = fit_forest(pokes, cfg).predict(test.features(cfg.inputs))
+        chosen = replace(cfg, inputs=tuple(fit.spec["inputs"]), candidates=())   # what the fit stored
+        g = fit_forest(pokes, chosen).predict(test.features(chosen.inputs))
         after = error_stats(corrected_magnitude(test.pred_mag, g, cfg), test.ref_force)["mae_n"]
     else:
         after = before
