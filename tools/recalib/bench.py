@@ -17,7 +17,6 @@ import json
 import logging
 import sys
 import time
-
 from dataclasses import replace
 
 import numpy as np
