@@ -27,7 +27,13 @@ def add_arguments(p) -> None:
     p.add_argument("--model", default="network", choices=("network", "contact-law"),
                    help="network: the installed model package over FE twin sessions with 30 fps frames "
                         "(default); contact-law: the nominal law over analytic twin sessions")
-    p.add_argument("--pokes", type=int, help="pokes in the test session (default 16 network, 30 contact law)")
+    p.add_argument("--package", metavar="PATH|NAME",
+                   help="network: the model package (default: the installed one); name it for reproducible numbers")
+    p.add_argument("--pokes", type=int, help="pokes in the test session (default 32 network, 30 contact law)")
+    p.add_argument("--fps", type=float, default=50.0,
+                   help="network: camera rate of the test session (default 50: ~10k rows with 32 pokes)")
+    p.add_argument("--calib-pokes", type=int, default=32,
+                   help="network: pokes of the calibration session (the nominal correction)")
     p.add_argument("--seed", type=int, help="test session seed (default 101 network, 77 contact law)")
     p.add_argument("--effect", default="viscoelastic_relaxation:g1=0.3,tau=1.0",
                    help="hidden effect NAME:p=v,... switched on in the twin's truth")
@@ -67,8 +73,8 @@ def run(args) -> int:
     if net:
         from tools.workbench.scenarios import NET_CALIB_SEED, NET_TEST_SEED, net_scenario
 
-        calib = record(net_scenario(NET_CALIB_SEED))
-        session = record(net_scenario(args.seed or NET_TEST_SEED, pokes=args.pokes or 16,
+        calib = record(net_scenario(NET_CALIB_SEED, pokes=args.calib_pokes))
+        session = record(net_scenario(args.seed or NET_TEST_SEED, pokes=args.pokes or 32, fps=args.fps,
                                       effects=_parse_effect(args.effect)))
     else:
         calib = record(Scenario(100, pokes=30))
@@ -81,7 +87,8 @@ def run(args) -> int:
             import shutil
 
             shutil.rmtree(sub)
-    common = ["--sensor", "TWIN-WB01", "--store", str(store)] + ([] if net else ["--model", "contact-law"])
+    model = (["--model", str(args.package)] if args.package else []) if net else ["--model", "contact-law"]
+    common = ["--sensor", "TWIN-WB01", "--store", str(store)] + model
     out = work / "compare"
     nominal = ["--correction-from", str(calib)] if net else ["--model-from", str(calib)]
     _, t_fit = _cli(["compare", str(calib), *common, "--out", str(work / "calib"), *nominal, "--no-pictures"])
@@ -110,6 +117,7 @@ def run(args) -> int:
     print("\nbench workbench")
     print(f"  session: {summary['n_samples']} samples, {summary['duration_s']:.0f} s, hidden {args.effect}")
     print(f"  model: {summary['model']['name']} ({summary['model']['source']}); {load}")
+    print(f"  calibration session: {calib}; test session: {session}")
     print(f"  recording (cached after the first run): {t_record:.1f} s; nominal fit on the calibration session "
           f"({'network pass + correction' if net else 'contact law'}): {t_fit:.1f} s")
     print(f"  first compare (cold caches, pictures): {t_first:.1f} s, of which the network pass {t_net:.1f} s")
@@ -119,7 +127,9 @@ def run(args) -> int:
           f"{'met' if cycle < TARGET_S else 'MISSED'}), {cycle / TARGET_S:.2f} x target")
     print(f"  verdict {diag['verdict']} (added {added}): rms |r| {before:.4f} -> {after:.4f} N "
           f"({100 * (after / before - 1):+.0f} %)")
-    print(json.dumps({"bench": "workbench", "model": args.model, "samples": summary["n_samples"],
+    print(json.dumps({"bench": "workbench", "model": args.model, "package": summary["model"]["source"],
+                      "model_fingerprint": summary["model"]["fingerprint"], "samples": summary["n_samples"],
+                      "diagnose_candidates": len(diag["ranking"]),
                       "nominal_fit_s": round(t_fit, 2), "network_pass_s": round(t_net, 2),
                       "first_compare_s": round(t_first, 2), "uptime": load,
                       "cycle_s": round(cycle, 2), **{f"{k}_s": round(v, 2) for k, v in timings.items()},
