@@ -48,6 +48,7 @@ class Case:
     source: str                   # "truth" (twin) or "altered" (tests/workbench_alter.py)
     params: dict
     kind: str = ""                # alteration kind
+    base: str = "test"            # the null session altered: "test" (the test plan) or "slides"
 
 
 # Magnitudes: physically plausible and clearly above the network's floor (ratio in the table).
@@ -57,7 +58,7 @@ CASES = (
     Case("temperature_softening", "altered", {"alpha": 0.04, "t_ref": 20.0}, "temperature"),
     Case("mullins_softening", "altered", {"r": 0.4, "m": 0.3}, "mullins"),
     Case("strain_stiffening", "altered", {"k": 15.0}, "strain"),
-    Case("friction_mismatch", "altered", {"mu": 0.15}, "friction"),
+    Case("friction_mismatch", "altered", {"mu": 0.15}, "friction", base="slides"),   # friction shows in slides
     Case("rim_stiffening", "altered", {"a": 2.0, "w": 4.0}, "rim"),
     Case("ft_bias_drift", "altered", {"bx": 0.0, "by": 0.004, "bz": 0.008}, "ft_bias"),
     Case("led_drift", "altered", {"c": -0.003}, "led"),
@@ -110,15 +111,24 @@ class Bench:
         return diagnose(t, registry or self.reg, chain, post=post, baseline=base)
 
 
+SLIDES_SEED = 102                 # a null session of slides and presses (friction acts while sliding)
+
+
 def null_session(seed: int = NET_TEST_SEED) -> Path:
+    if seed == SLIDES_SEED:
+        return record(net_scenario(SLIDES_SEED, pokes=16, kinds=("slide", "press")))
     return record(net_scenario(seed, pokes=16 if seed == NET_TEST_SEED else NULL_POKES))
+
+
+def base_of(case: Case) -> Path:
+    return null_session(SLIDES_SEED if case.base == "slides" else NET_TEST_SEED)
 
 
 def case_session(case: Case, work: Path) -> Path:
     if case.source == "truth":
         return record(net_scenario(NET_TEST_SEED, effects=((case.effect, dict(case.params)),)))
     params = dict(case.params, **gel_params()) if case.kind in GEL_KINDS else dict(case.params)
-    return alter_session(null_session(), Path(work) / f"{case.kind}-{case.effect}", case.kind, params)
+    return alter_session(base_of(case), Path(work) / f"{case.kind}-{case.effect}", case.kind, params)
 
 
 def effect_size(bench: Bench, session: Path, null: Path) -> float:
@@ -138,6 +148,7 @@ def row_of(diag, case_name: str, truth_params: dict, size: float, floor: float) 
             "calibration_reduction": top.baseline if top else None,
             "verdict": v.effect.name if v else None, "fitted": dict(top.params) if top else {},
             "channel": top.channel if top else "force", "effect_size_n": size,
+            "top": [[s.effect.name, round(s.reduction, 4), round(s.p_adjusted, 4)] for s in diag.ranking[:4]],
             "ratio": size / floor if floor else None, "unexplained": diag.unexplained}
 
 
@@ -157,7 +168,7 @@ def run_all(bench: Bench, work: Path, nulls: int = 10, cases=CASES, parts=("two"
     for case in cases:
         s = case_session(case, work)
         d = bench.diagnose(s)
-        size = effect_size(bench, s, null) if case.effect != "led_drift" else float("nan")
+        size = effect_size(bench, s, base_of(case)) if case.effect != "led_drift" else float("nan")
         out["cases"].append(dict(row_of(d, case.effect, case.params, size, floor), source=case.source))
         log.info("%s (%s): %s", case.effect, case.source, out["cases"][-1]["verdict"])
     out["two"] = two_effects(bench) if "two" in parts else None

@@ -8,6 +8,8 @@ CLI commands in this process with cold workbench caches:
   first compare   cold: sample table from the streams (+ frame brightness), the session's network
                   pass (its time reported separately), report with pictures
   cycle           compare (warm) -> diagnose -> effects add -> compare --before-after
+Network path defaults: calibration session seed 100 with 32 pokes (30 fps), test session seed 101
+with 32 pokes at 50 fps (~10k rows: one per frame and indenter); `--package` names the model.
 Target (issue 6): the cycle < 60 s on the 2-core dev machine.
 """
 from __future__ import annotations
