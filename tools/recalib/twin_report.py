@@ -31,19 +31,20 @@ def markdown(res: dict, held: str = "probe") -> str:
 def summary(res: dict, held: str = "probe") -> str:
     """One line per unit: before, re-crop only, after with 5/6/7 pokes (decided), inputs chosen."""
     counts = [str(n) for n in res.get("poke_counts", (5, 6, 7))]
-    lines = ["| unit | variation | held-out pokes | before (N) | re-crop only (N) | "
-             + " | ".join(f"after, {n} pokes (N)" for n in counts) + " | reduction " + " / ".join(counts)
+    lines = ["| unit | variation | before (N) (pokes seen) | re-crop only (N) (pokes seen) | "
+             + " | ".join(f"after, {n} pokes (N) (pokes seen)" for n in counts) + " | reduction " + " / ".join(counts)
              + " | inputs chosen " + " / ".join(counts) + " |", "|---" * (6 + len(counts)) + "|"]
     for r in res["units"]:
         h = r["held_out"].get(held)
         if h is None:
             continue
         after = [h["after"].get(n) for n in counts]
-        cells = [f"{a['after_mae_n']:.3f}{'' if r['by_pokes'][n].get('stored') else ' (refused)'}" if a else "—"
-                 for a, n in zip(after, counts)]
+        cells = [f"{a['after_mae_n']:.3f} ({a['pokes']}){'' if r['by_pokes'][n].get('stored') else ' refused'}"
+                 if a else "—" for a, n in zip(after, counts)]
         red = " / ".join(f"{a['reduction']:.0%}" if a else "0%" for a in after)
         inp = " / ".join("+".join(r["by_pokes"][n].get("inputs", ["—"])) for n in counts)
         name = f"{r['unit']}{' (nominal)' if r.get('nominal') else ''}"
-        lines.append(f"| {name} | {r['label']} | {h['pokes']} | {h['before_mae_n']:.3f} | "
-                     f"{h.get('crop_only_mae_n', float('nan')):.3f} | " + " | ".join(cells) + f" | {red} | {inp} |")
+        lines.append(f"| {name} | {r['label']} | {h['before_mae_n']:.3f} ({h['pokes']}) | "
+                     f"{h.get('crop_only_mae_n', float('nan')):.3f} ({h.get('crop_only_pokes', '?')}) | "
+                     + " | ".join(cells) + f" | {red} | {inp} |")
     return "\n".join(lines)
