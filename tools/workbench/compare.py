@@ -38,6 +38,9 @@ class CompareConfig:
     contact_depth: float = 0.0     # mm; rows deeper than this count as "in contact"
 
 
+TABLE_VERSION = 2      # part of the sample-table cache key: bump when samples.build_table changes
+
+
 def cache_root() -> Path:
     return paths.cache_dir() / "workbench"
 
@@ -53,7 +56,7 @@ def session_key(session_path: Path, cal, cfg: CompareConfig) -> str:
     # only what the table depends on: gel geometry and image circle (not the version, so adding
     # an effect -- a new calibration version -- reuses the table and the raw predictions)
     geometry = {k: cal.meta.get(k) for k in ("gel", "gel_center_px", "gel_radius_px")}
-    h.update(json.dumps({"sensor": cal.sensor_id, "geometry": geometry, "cfg": asdict(cfg)},
+    h.update(json.dumps({"sensor": cal.sensor_id, "geometry": geometry, "cfg": asdict(cfg), "table": TABLE_VERSION},
                         sort_keys=True, default=str).encode())
     return h.hexdigest()[:16]
 

@@ -213,7 +213,9 @@ def build_table(session: Session, cal, cfg: SampleConfig | None = None, brightne
             nxt = np.clip(last + 1, 0, max(len(contact_t) - 1, 0))
             until = np.where(last + 1 < len(contact_t), contact_t[nxt] - tf, np.inf) if len(contact_t) else np.inf
             quiet = (since > cfg.quiet_s) & (until > 0.5 * cfg.quiet_s)
-            j = np.clip(np.searchsorted(tf, cat["t"]), 0, len(tf) - 1)
+            nxt = np.clip(np.searchsorted(tf, cat["t"]), 0, len(tf) - 1)
+            prev = np.clip(nxt - 1, 0, len(tf) - 1)
+            j = np.where(np.abs(tf[prev] - cat["t"]) < np.abs(tf[nxt] - cat["t"]), prev, nxt)   # nearest frame
             first = series == ids[0]
             near = np.abs(tf[j] - cat["t"]) <= 0.5 * np.median(np.diff(tf)) if len(tf) > 1 else first
             ok = first & quiet[j] & near
