@@ -5,7 +5,7 @@ tests/test_workbench_net_twin.py and the table in docs/workbench.md both come fr
 
 Unit TWIN-WB01 (not a training unit), FE twin sessions with 30 fps frames (tools.workbench.scenarios,
 recorded once and cached). The sensor first gets its nominal correction, fitted on a calibration
-session without hidden physics that covers the gel (`CALIB_POKES` pokes). Each case is one session
+sessions without hidden physics that together cover the gel (`CALIB_SEEDS`, 16 pokes each). Each case is one session
 with one hidden effect: switched on in the twin's truth ("truth") or put into the null session's
 measurements by tests/workbench_alter.py ("altered": written separately from the twin's effect
 code). Diagnosis reads the sample table only (no provenance, truth or effect list).
@@ -32,11 +32,11 @@ from tests.workbench_alter import alter_session
 from tools.workbench.compare import run_compare
 from tools.workbench.diagnose import add_to_chain, diagnose
 from tools.workbench.fit import refit_chain
-from tools.workbench.scenarios import NET_CALIB_SEED, NET_TEST_SEED, net_scenario, record, store_root
+from tools.workbench.scenarios import NET_TEST_SEED, net_scenario, record, store_root
 
 log = logging.getLogger(__name__)
 SENSOR = "TWIN-WB01"
-CALIB_POKES = 32                  # the calibration session: twice the test plan, covering the gel
+CALIB_SEEDS = (100, 103, 104)     # calibration sessions (16 pokes each, as long as a test session)
 NULL_POKES = 8
 PLUGINS = Path(__file__).parent / "workbench_plugins"
 GEL_KINDS = ("strain", "rim", "mullins", "friction")   # alterations that need the gel geometry
@@ -75,7 +75,7 @@ def gel_params() -> dict:
 class Bench:
     """The network model + a store holding the sensor's nominal correction; `table(session)`."""
 
-    def __init__(self, model_dir: str | Path | None, work: Path, calib_pokes: int = CALIB_POKES,
+    def __init__(self, model_dir: str | Path | None, work: Path, calib_seeds=CALIB_SEEDS,
                  precision: str = "int8"):
         from runtime.model import find_package
         from tools.workbench.network import NetworkConfig, NetworkModel
@@ -88,7 +88,7 @@ class Bench:
         self.raw_root = self._store("raw")
         self.root = self._store("corrected")
         self.store = CalibrationStore(self.root)
-        self.calib = record(net_scenario(NET_CALIB_SEED, pokes=calib_pokes))
+        self.calib = [record(net_scenario(s)) for s in calib_seeds]
         t0 = time.perf_counter()
         _, self.correction_text = fit_and_store_correction(self.calib, SENSOR, self.store, self.model, self.reg)
         log.info("%s (%.0f s)", self.correction_text, time.perf_counter() - t0)
@@ -154,7 +154,7 @@ def row_of(diag, case_name: str, truth_params: dict, size: float, floor: float) 
 
 def run_all(bench: Bench, work: Path, nulls: int = 10, cases=CASES, parts=("two", "unknown")) -> dict:
     out = {"model": str(bench.package.folder), "model_sha256": bench.package.sha256(bench.model.cfg.precision),
-           "correction": bench.correction_text, "calibration": str(bench.calib), "cases": [], "nulls": []}
+           "correction": bench.correction_text, "calibration": [str(c) for c in bench.calib], "cases": [], "nulls": []}
     null = null_session()
     floor_diag = bench.diagnose(null)
     floor = floor_diag.ranking[0].before
@@ -231,7 +231,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tests.workbench_acceptance")
     p.add_argument("--model", required=True, help="model package folder (explicit: the numbers name it)")
     p.add_argument("--precision", default="int8")
-    p.add_argument("--calib-pokes", type=int, default=CALIB_POKES)
+    p.add_argument("--calib-seeds", type=int, nargs="+", default=list(CALIB_SEEDS),
+                   help="calibration sessions (16 pokes each) for the nominal correction")
     p.add_argument("--nulls", type=int, default=10, help="null sessions: the test plan + seeds 1..N-1")
     p.add_argument("--work", default="cache/workbench/acceptance")
     p.add_argument("--out", help="write the results as JSON here")
@@ -242,7 +243,7 @@ def main(argv=None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    bench = Bench(args.model, work, args.calib_pokes, args.precision)
+    bench = Bench(args.model, work, tuple(args.calib_seeds), args.precision)
     cases = [c for c in CASES if not args.only or c.effect in args.only]
     res = run_all(bench, work, args.nulls, cases, [x for x in ("two", "unknown") if x not in args.skip])
     res["seconds"] = time.perf_counter() - t0

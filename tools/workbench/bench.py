@@ -8,7 +8,7 @@ CLI commands in this process with cold workbench caches:
   first compare   cold: sample table from the streams (+ frame brightness), the session's network
                   pass (its time reported separately), report with pictures
   cycle           compare (warm) -> diagnose -> effects add -> compare --before-after
-Network path defaults: calibration session seed 100 with 32 pokes (30 fps), test session seed 101
+Network path defaults: calibration sessions seeds 100, 103, 104 (16 pokes, 30 fps), test session seed 101
 with 32 pokes at 50 fps (~10k rows: one per frame and indenter); `--package` names the model.
 Target (issue 6): the cycle < 60 s on the 2-core dev machine.
 """
@@ -34,8 +34,8 @@ def add_arguments(p) -> None:
     p.add_argument("--pokes", type=int, help="pokes in the test session (default 32 network, 30 contact law)")
     p.add_argument("--fps", type=float, default=50.0,
                    help="network: camera rate of the test session (default 50: ~10k rows with 32 pokes)")
-    p.add_argument("--calib-pokes", type=int, default=32,
-                   help="network: pokes of the calibration session (the nominal correction)")
+    p.add_argument("--calib-seeds", type=int, nargs="+", default=[100, 103, 104],
+                   help="network: calibration sessions (16 pokes each) for the nominal correction")
     p.add_argument("--seed", type=int, help="test session seed (default 101 network, 77 contact law)")
     p.add_argument("--effect", default="viscoelastic_relaxation:g1=0.3,tau=1.0",
                    help="hidden effect NAME:p=v,... switched on in the twin's truth")
@@ -73,13 +73,13 @@ def run(args) -> int:
     net = args.model == "network"
     t0 = time.perf_counter()
     if net:
-        from tools.workbench.scenarios import NET_CALIB_SEED, NET_TEST_SEED, net_scenario
+        from tools.workbench.scenarios import NET_TEST_SEED, net_scenario
 
-        calib = record(net_scenario(NET_CALIB_SEED, pokes=args.calib_pokes))
+        calib = [record(net_scenario(s)) for s in args.calib_seeds]
         session = record(net_scenario(args.seed or NET_TEST_SEED, pokes=args.pokes or 32, fps=args.fps,
                                       effects=_parse_effect(args.effect)))
     else:
-        calib = record(Scenario(100, pokes=30))
+        calib = [record(Scenario(100, pokes=30))]
         session = record(Scenario(args.seed or 77, pokes=args.pokes or 30, effects=_parse_effect(args.effect)))
     t_record = time.perf_counter() - t0
     store = fresh_store(work / "store", model_size=128 if net else 64)
@@ -92,8 +92,8 @@ def run(args) -> int:
     model = (["--model", str(args.package)] if args.package else []) if net else ["--model", "contact-law"]
     common = ["--sensor", "TWIN-WB01", "--store", str(store)] + model
     out = work / "compare"
-    nominal = ["--correction-from", str(calib)] if net else ["--model-from", str(calib)]
-    _, t_fit = _cli(["compare", str(calib), *common, "--out", str(work / "calib"), *nominal, "--no-pictures"])
+    nominal = ["--correction-from", *map(str, calib)] if net else ["--model-from", str(calib[0])]
+    _, t_fit = _cli(["compare", str(calib[0]), *common, "--out", str(work / "calib"), *nominal, "--no-pictures"])
     _, t_first = _cli(["compare", str(session), *common, "--out", str(out)])
     first = json.loads((out / "summary.json").read_text())
     t_net = first.get("network_pass", {}).get("seconds", 0.0)
@@ -119,7 +119,7 @@ def run(args) -> int:
     print("\nbench workbench")
     print(f"  session: {summary['n_samples']} samples, {summary['duration_s']:.0f} s, hidden {args.effect}")
     print(f"  model: {summary['model']['name']} ({summary['model']['source']}); {load}")
-    print(f"  calibration session: {calib}; test session: {session}")
+    print(f"  calibration sessions: {', '.join(map(str, calib))}; test session: {session}")
     print(f"  recording (cached after the first run): {t_record:.1f} s; nominal fit on the calibration session "
           f"({'network pass + correction' if net else 'contact law'}): {t_fit:.1f} s")
     print(f"  first compare (cold caches, pictures): {t_first:.1f} s, of which the network pass {t_net:.1f} s")

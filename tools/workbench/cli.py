@@ -40,10 +40,10 @@ def _model_args(p) -> None:
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision (default int8)")
     p.add_argument("--model-from", metavar="CALIB_SESSION",
                    help="contact law: fit it on this calibration session and make it the sensor's default")
-    p.add_argument("--correction-from", metavar="CALIB_SESSION",
+    p.add_argument("--correction-from", metavar="CALIB_SESSION", nargs="+",
                    help="network: fit the sensor's force correction (zero-constrained gain forest, as "
-                        "`tensortouch recalibrate` stores) on this calibration session, store it as a new "
-                        "calibration version, then compare")
+                        "`tensortouch recalibrate` stores) on these calibration sessions (several short "
+                        "sessions covering the gel are best), store it as a new calibration version, then compare")
     p.add_argument("--no-cache", action="store_true", help="rebuild the sample table and predictions")
 
 

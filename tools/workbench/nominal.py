@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -30,6 +31,11 @@ class NominalConfig:
     max_depth: int = 6                # thousands of frames support deeper trees than 5–7 pokes
     min_samples_leaf: int = 20
     min_frames: int = 50              # fewer matched contact frames: refuse (not a calibration session)
+    # inputs chosen on the calibration session by the half-session check, simplest first: a richer
+    # set must beat the simpler choice's held-out |F| MAE by `select_margin` (relative). Position
+    # inputs (u, v) only pay off when the session's pokes cover the gel densely enough.
+    input_sets: tuple = (("fmag",), ("fmag", "theta"), ("fmag", "theta", "u", "v"))
+    select_margin: float = 0.03
 
 
 def correction_pokes(table: SampleTable, pre: np.ndarray, cfg: NominalConfig = NominalConfig()):
@@ -52,17 +58,39 @@ def _fit_cfg(cfg: NominalConfig):
                      min_samples_leaf=cfg.min_samples_leaf)
 
 
-def blocked_check(pokes, times: np.ndarray, cfg: NominalConfig = NominalConfig()) -> dict:
-    """Held-out |F| error before/after: fit on one half of the session, test on the other (both ways)."""
+def folds_of(times: np.ndarray, sessions: np.ndarray) -> np.ndarray:
+    """Cross-fitting folds: one per calibration session when there are several, else the two
+    halves of the one session in time."""
+    if len(np.unique(sessions)) > 1:
+        return np.asarray(sessions, dtype=int)
+    return (np.asarray(times) >= np.median(times)).astype(int)
+
+
+def blocked_check(pokes, folds: np.ndarray, cfg: NominalConfig = NominalConfig()) -> dict:
+    """Held-out |F| error before/after: for each fold, the forest fitted on the other folds."""
     from tools.recalib.fit import corrected_magnitude, error_stats, fit_forest
 
     fc = _fit_cfg(cfg)
-    half = times >= np.median(times)
     est = np.empty(len(pokes))
-    for test in (half, ~half):
+    for f in np.unique(folds):
+        test = folds == f
         rf = fit_forest(pokes.subset(np.flatnonzero(~test)), fc)
         est[test] = corrected_magnitude(pokes.pred_mag[test], rf.predict(pokes.subset(np.flatnonzero(test)).features(fc.inputs)), fc)
     return {"before": error_stats(pokes.pred_mag, pokes.ref_force), "after": error_stats(est, pokes.ref_force)}
+
+
+def choose_inputs(pokes, folds: np.ndarray, cfg: NominalConfig = NominalConfig()) -> tuple[NominalConfig, dict]:
+    """The correction's inputs: each candidate set's cross-fitted check; the simplest set unless a
+    richer one is better by `select_margin`. Returns (config with those inputs, {set: check})."""
+    from dataclasses import replace
+
+    sets = [tuple(x) for x in (cfg.input_sets or (cfg.inputs,))]
+    checks = {",".join(x): blocked_check(pokes, folds, replace(cfg, inputs=x)) for x in sets}
+    best = sets[0]
+    for x in sets[1:]:
+        if checks[",".join(x)]["after"]["mae_n"] < (1.0 - cfg.select_margin) * checks[",".join(best)]["after"]["mae_n"]:
+            best = x
+    return replace(cfg, inputs=best), checks
 
 
 def forest_post(table: SampleTable, rf, fc):
@@ -89,55 +117,77 @@ def take_rows(table: SampleTable, rows: np.ndarray) -> SampleTable:
                        {k: v[rows] for k, v in table.vec.items()}, dict(table.meta))
 
 
-def nominal_reductions(comp, chain, pokes, idx, registry, cfg: "NominalConfig" = None) -> dict:
-    """Held-out reduction each candidate reaches on the calibration session (no hidden physics):
+def nominal_reductions(tables: list, chain, pokes, row_of: list, folds: np.ndarray, registry,
+                       cfg: "NominalConfig" = None) -> dict:
+    """Held-out reduction each candidate reaches on the calibration sessions (no hidden physics):
     the model's own residual structure, which diagnosis must beat to call something physics.
 
-    Cross-fitted, so it measures what a test session sees: the session is cut in two halves in time;
-    the correction is fitted on the pokes of one half and the other half is diagnosed with it (its
-    contact positions and loads are new to that correction, as a test session's are). The baseline
-    is the mean over the two halves (each half's value is kept under `halves`)."""
+    Cross-fitted, so it measures what a test session sees: for each fold (a calibration session, or
+    a half of the only one) the correction is fitted on the other folds' pokes and the fold's rows
+    are diagnosed with it (contact positions and loads new to that correction, as a test session's
+    are). The baseline is the mean over the folds (each fold's value is kept under `folds`).
+    `row_of[i]`: (table index, row) of poke i; `folds[i]`: its fold."""
     from tools.recalib.fit import fit_forest
     from tools.workbench.diagnose import diagnose
 
     cfg = cfg or NominalConfig()
     fc = _fit_cfg(cfg)
-    table = comp.table
-    t = table.cols["time"]
-    cut = float(np.median(t[idx])) if len(idx) else float(np.median(t))
-    halves = []
-    for test in (t < cut, t >= cut):
-        train = np.flatnonzero(~test[idx])
+    row_of = np.asarray(row_of)
+    per = []
+    for f in np.unique(folds):
+        train = np.flatnonzero(folds != f)
         if len(train) < cfg.min_frames:
             continue
         rf = fit_forest(pokes.subset(train), fc)
-        sub = take_rows(table, np.flatnonzero(test))
+        k = int(row_of[folds == f][0, 0])            # the fold's table
+        table = tables[k]
+        if len(tables) > 1:
+            sub = table
+        else:                                        # the halves of folds_of(): split at the median poke time
+            t = table.cols["time"]
+            cut = float(np.median(t[row_of[:, 1]]))
+            sub = take_rows(table, np.flatnonzero((t >= cut) == bool(f)))
         diag = diagnose(sub, registry, chain, post=forest_post(sub, rf, fc))
-        halves.append({s.effect.name: float(s.reduction) for s in diag.ranking})
-    names = sorted({n for h in halves for n in h})
-    out = {n: round(float(np.mean([h[n] for h in halves if n in h])), 4) for n in names}
-    out["halves"] = [{n: round(v, 4) for n, v in h.items()} for h in halves]
+        per.append({s.effect.name: float(s.reduction) for s in diag.ranking})
+    names = sorted({n for h in per for n in h})
+    out = {n: round(float(np.mean([h[n] for h in per if n in h])), 4) for n in names}
+    out["folds"] = [{n: round(v, 4) for n, v in h.items()} for h in per]
     return out
 
 
-def fit_and_store_correction(calib_session, sensor: str, store, model, registry, cache: bool = True,
+def fit_and_store_correction(calib_sessions, sensor: str, store, model, registry, cache: bool = True,
                              progress=None, cfg: NominalConfig = NominalConfig()) -> tuple[str, str]:
-    """Fit the correction on a calibration session and store it (new calibration version)."""
+    """Fit the correction on one or more calibration sessions and store it (new calibration version).
+    Several short sessions that together cover the gel are better than one long one: each stays in
+    the conditions (duration, temperature range) of the sessions being diagnosed, and each is a
+    natural cross-fitting fold."""
     from runtime.effects import EffectChain
-    from tools.recalib.fit import _check_onnx, fit_forest, to_onnx
+    from tools.recalib.fit import PokeSet, _check_onnx, fit_forest, to_onnx
     from tools.recalib.store_ops import store_recalibration
     from tools.workbench.compare import run_compare
 
-    comp = run_compare(calib_session, sensor, store, model, registry, cache=cache, progress=progress)
+    sessions = [calib_sessions] if isinstance(calib_sessions, (str, Path)) else list(calib_sessions)
     chain = EffectChain.from_calibration(store.load(sensor), registry)
-    pre = chain.apply(comp.table.model, comp.table.cov(), stages=("force",))
-    pokes, idx = correction_pokes(comp.table, pre, cfg)
+    tables, parts, row_of, sess_id, times = [], [], [], [], []
+    for k, s in enumerate(sessions):
+        comp = run_compare(s, sensor, store, model, registry, cache=cache, progress=progress)
+        pre = chain.apply(comp.table.model, comp.table.cov(), stages=("force",))
+        pk, idx = correction_pokes(comp.table, pre, cfg)
+        tables.append(comp.table)
+        parts.append(pk)
+        row_of += [(k, int(i)) for i in idx]
+        sess_id.append(np.full(len(idx), k))
+        times.append(comp.table.cols["time"][idx])
+    pokes = PokeSet(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("pred_force", "ref_force", "uv", "theta_phi")))
+    names = ", ".join(str(s) for s in sessions)
     if len(pokes) < cfg.min_frames:
         from runtime.errors import CalibrationError
 
-        raise CalibrationError(f"{calib_session}: only {len(pokes)} matched contact frames; a nominal "
-                               "correction needs a calibration session with pokes the network sees")
-    check = blocked_check(pokes, comp.table.cols["time"][idx], cfg)
+        raise CalibrationError(f"{names}: only {len(pokes)} matched contact frames; a nominal "
+                               "correction needs calibration sessions with pokes the network sees")
+    folds = folds_of(np.concatenate(times), np.concatenate(sess_id))
+    cfg, checks = choose_inputs(pokes, folds, cfg)
+    check = checks[",".join(cfg.inputs)]
     fc = _fit_cfg(cfg)
     rf = fit_forest(pokes, fc)
     onnx = to_onnx(rf, len(fc.inputs), fc)
@@ -146,13 +196,17 @@ def fit_and_store_correction(calib_session, sensor: str, store, model, registry,
     spec = {"file": "correction.onnx", "inputs": list(fc.inputs), "output": "gain",
             "kind": "random_forest_gain", "n_estimators": fc.n_estimators, "max_depth": fc.max_depth,
             "frames": int(len(pokes)), "source": "workbench nominal correction",
-            "nominal_reductions": nominal_reductions(comp, chain, pokes, idx, registry, cfg)}
+            "sessions": [str(s) for s in sessions],
+            "input_checks": {k: [round(v["before"]["mae_n"], 4), round(v["after"]["mae_n"], 4)] for k, v in checks.items()},
+            "nominal_reductions": nominal_reductions(tables, chain, pokes, row_of, folds, registry, cfg)}
     cal = store.load(sensor)
     version = store_recalibration(store, cal, {"method": "workbench nominal correction",
-                                               "session": str(calib_session), "frames": int(len(pokes)),
+                                               "session": names, "frames": int(len(pokes)),
                                                "heldout_mae_n": [check["before"]["mae_n"], check["after"]["mae_n"]]},
                                   correction=(spec, onnx))
-    text = (f"nominal correction fitted on {calib_session} ({len(pokes)} contact frames): held-out |F| MAE "
-            f"{check['before']['mae_n']:.3f} -> {check['after']['mae_n']:.3f} N (half-session split) "
-            f"-> calibration {version}")
+    tried = "; ".join(f"{k}: {v['after']['mae_n']:.3f}" for k, v in checks.items())
+    how = "one fold per session" if len(sessions) > 1 else "half-session split"
+    text = (f"nominal correction fitted on {names} ({len(pokes)} contact frames), inputs "
+            f"{','.join(cfg.inputs)}: held-out |F| MAE {check['before']['mae_n']:.3f} -> {check['after']['mae_n']:.3f} N "
+            f"({how}; inputs tried {tried}) -> calibration {version}")
     return version, text
