@@ -98,3 +98,23 @@ def test_suggestions_spread_over_the_gel():
     assert "o'clock" in describe(uvs[1], (32, 32), tab["theta"], tab["mask"])
     m = ascii_map((32, 32), tab["mask"], uvs[:3], uvs[3])
     assert m.count("o") == 3 and m.count("X") == 1
+
+
+def test_one_contact_split_in_two_clusters_is_one_poke_with_the_summed_force():
+    # the model split one probe's patch: a 0.8 × part 2 mm away → one contact of 1.8 × the main force
+    split = ramp(0.0, 1.0, uv=(16.0, 16.0), xyz=(0.0, 0.0, 16.0),
+                 extra=lambda f: cl(0.8 * f, uv=(17.0, 16.0), xyz=(2.0, 0.0, 16.0)))
+    (p,) = run(PokeDetector(), split)
+    assert p.second_ratio == 0.0 and p.pred_mag == pytest.approx(1.8, rel=0.03)
+    assert 0.0 < p.xyz_mm[0] < 2.0                    # force-weighted between the parts
+    p.ref_force_n = 1.8
+    assert check_poke(p, []) == ""
+    # a second probe 10 mm away is still a second contact
+    two = ramp(0.0, 1.0, extra=lambda f: cl(0.8 * f, uv=(24.0, 16.0), xyz=(10.0, 0.0, 16.0)))
+    (q,) = run(PokeDetector(), two)
+    assert q.second_ratio == pytest.approx(0.8) and q.pred_mag == pytest.approx(1.0, rel=0.03)
+    q.ref_force_n = 1.0
+    assert check_poke(q, []).startswith("not a single contact")
+    # merging off (radius 0): the split patch is refused as before
+    (r,) = run(PokeDetector(PokeRules(merge_radius_mm=0.0)), split)
+    assert r.second_ratio == pytest.approx(0.8)

@@ -27,6 +27,8 @@ class PokeRules:
     max_force_n: float = 20.0          # out of range for the gel / gauge above this
     min_separation_mm: float = 4.0     # "too close" to an accepted poke (3D distance on the gel)
     second_contact_ratio: float = 0.15  # a 2nd cluster above this share of the main one → not single
+    merge_radius_mm: float = 4.0       # clusters this close to the main one are the same contact (the model
+                                       # may split one probe's patch: sphere R5 at 1.5 mm ≈ 3.9 mm contact radius)
     reach_fraction: float = 0.85       # suggestions stay inside this fraction of the gel's θ range
     reach_theta_rad: float | None = None  # and inside this θ (e.g. the model's trained contact range)
 
@@ -92,15 +94,32 @@ class PokeDetector:
         return summarize(frames, self.rules) if len(frames) >= self.rules.min_frames else None
 
 
+def merge_main(clusters, radius_mm: float):
+    """(force (3,), centroid_px, centroid_mm, magnitude, strongest other contact's magnitude) of the
+    strongest cluster together with the clusters within `radius_mm` of it (one contact split in parts;
+    force vectors summed, positions force-weighted)."""
+    main = clusters[0]
+    c0 = np.asarray(main.centroid_mm, float)
+    part = [c for c in clusters if np.linalg.norm(np.asarray(c.centroid_mm, float) - c0) <= radius_mm]
+    other = [c.force_mag_n for c in clusters if np.linalg.norm(np.asarray(c.centroid_mm, float) - c0) > radius_mm]
+    w = np.array([c.force_mag_n for c in part]) + 1e-12
+    force = np.sum([np.asarray(c.force_n, float) for c in part], axis=0)
+    uv = np.average([np.asarray(c.centroid_px, float) for c in part], axis=0, weights=w)
+    xyz = np.average([np.asarray(c.centroid_mm, float) for c in part], axis=0, weights=w)
+    return force, uv, xyz, float(np.linalg.norm(force)), max(other, default=0.0)
+
+
 def summarize(frames: list, rules: PokeRules = PokeRules()) -> Poke:
-    """frames: [(t, clusters sorted strongest first)] → plateau-averaged poke."""
-    mains = np.array([f[1][0].force_mag_n for f in frames])
-    plateau = [f for f, m in zip(frames, mains) if m >= rules.plateau_fraction * mains.max()]
-    force = np.mean([np.asarray(f[1][0].force_n, float) for f in plateau], axis=0)
-    w = np.array([f[1][0].force_mag_n for f in plateau])
-    uv = np.average([np.asarray(f[1][0].centroid_px, float) for f in plateau], axis=0, weights=w)
-    xyz = np.average([np.asarray(f[1][0].centroid_mm, float) for f in plateau], axis=0, weights=w)
-    second = max((f[1][1].force_mag_n / f[1][0].force_mag_n if len(f[1]) > 1 else 0.0) for f in plateau)
+    """frames: [(t, clusters sorted strongest first)] → plateau-averaged poke (the main contact = the
+    strongest cluster plus the parts within rules.merge_radius_mm of it)."""
+    merged = [merge_main(f[1], rules.merge_radius_mm) for f in frames]
+    mains = np.array([m[3] for m in merged])
+    plateau = [m for m in merged if m[3] >= rules.plateau_fraction * mains.max()]
+    force = np.mean([m[0] for m in plateau], axis=0)
+    w = np.array([m[3] for m in plateau])
+    uv = np.average([m[1] for m in plateau], axis=0, weights=w)
+    xyz = np.average([m[2] for m in plateau], axis=0, weights=w)
+    second = max(m[4] / m[3] if m[3] > 0 else 0.0 for m in plateau)
     return Poke(t0=float(frames[0][0]), t1=float(frames[-1][0]), frames=len(frames), pred_force=force,
                 uv_px=uv, xyz_mm=xyz, second_ratio=float(second))
 
