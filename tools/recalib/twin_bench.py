@@ -227,8 +227,10 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     raw_fit = raw if cal_fit is base else {k: collect_frames(d, cal_fit, package, cfg.precision, fc) for k, d in held.items()}
     for k in held:
         b = held_out_pokes(raw_fit[k], refs[k], eval_rules)
-        row["held_out"][k]["crop_only_mae_n"] = mae(b)
-        row["held_out"][k]["crop_only_pokes"] = len(b["ref"])
+        g = float(np.median(b["ref"] / b["pred"])) if len(b["ref"]) else float("nan")
+        row["held_out"][k].update(crop_only_mae_n=mae(b), crop_only_pokes=len(b["ref"]), crop_pred=b["pred"].tolist(),
+                                  crop_ref=b["ref"].tolist(),   # oracle: the best constant gain on these pokes
+                                  oracle_gain=g, oracle_mae_n=float(np.mean(np.abs(g * b["pred"] - b["ref"]))))
     frames = collect_frames(fit_dir, cal_fit, package, cfg.precision, fc)
     reference = StreamReference.from_session(load_session(fit_dir), rules)
     for n in cfg.poke_counts:

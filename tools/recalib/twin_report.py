@@ -33,7 +33,7 @@ def summary(res: dict, held: str = "probe") -> str:
     counts = [str(n) for n in res.get("poke_counts", (5, 6, 7))]
     lines = ["| unit | variation | before (N) (pokes seen) | re-crop only (N) (pokes seen) | "
              + " | ".join(f"after, {n} pokes (N) (pokes seen)" for n in counts) + " | reduction " + " / ".join(counts)
-             + " | inputs chosen " + " / ".join(counts) + " |", "|---" * (6 + len(counts)) + "|"]
+             + " | inputs chosen " + " / ".join(counts) + " | oracle constant gain (N) |", "|---" * (7 + len(counts)) + "|"]
     for r in res["units"]:
         h = r["held_out"].get(held)
         if h is None:
@@ -46,5 +46,5 @@ def summary(res: dict, held: str = "probe") -> str:
         name = f"{r['unit']}{' (nominal)' if r.get('nominal') else ''}"
         lines.append(f"| {name} | {r['label']} | {h['before_mae_n']:.3f} ({h['pokes']}) | "
                      f"{h.get('crop_only_mae_n', float('nan')):.3f} ({h.get('crop_only_pokes', '?')}) | "
-                     + " | ".join(cells) + f" | {red} | {inp} |")
+                     + " | ".join(cells) + f" | {red} | {inp} | {h.get('oracle_mae_n', float('nan')):.3f} |")
     return "\n".join(lines)
