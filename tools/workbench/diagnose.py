@@ -15,8 +15,9 @@
    hypothesis is "removes no more than r0": the test runs on before_b (1 - r0)^2 - after_b.
    An effect is reported significant when the corrected p <= alpha AND the held-out reduction is
    at least r0 + `min_reduction` (statistically and practically significant).
-5. Ranking by held-out reduction; the verdict is the best significant effect; its final
-   parameters are fitted on all blocks.
+5. Ranking: significant effects first, each group by held-out reduction (relative reductions of
+   the force and the brightness channel are not comparable, significance is); the verdict is the
+   best significant effect; its final parameters are fitted on all blocks.
 6. The covariate that best explains the remaining residual (scan.py) is named.
 Nothing here reads a session's provenance or ground truth: only the sample table.
 """
@@ -248,7 +249,7 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
     for s, padj in zip(scores, holm([s.p_value for s in scores])):
         s.p_adjusted = padj
         s.significant = padj <= cfg.alpha and s.reduction >= cfg.min_reduction + max(s.baseline, 0.0)
-    scores.sort(key=lambda s: -s.reduction)
+    scores.sort(key=lambda s: (not s.significant, -s.reduction))   # the evidence first, then the size
     resid, pred = table.meas - ch.base_force, ch.base_force
     sig = [s for s in scores if s.significant]
     if sig and sig[0].channel == "force":  # what remains once the verdict is in
