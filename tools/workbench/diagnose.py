@@ -14,7 +14,8 @@
    baseline r0 for the candidate (the reduction it reaches where no physics is hidden), the null
    hypothesis is "removes no more than r0": the test runs on before_b (1 - r0)^2 - after_b.
    An effect is reported significant when the corrected p <= alpha AND the held-out reduction is
-   at least r0 + `min_reduction` (statistically and practically significant).
+   at least r0 + `min_reduction` AND it removes at least `min_abs` of the channel's rms error
+   (one 8-bit grey level for brightness): statistically and practically significant.
 5. Ranking: significant effects first, each group by held-out reduction (relative reductions of
    the force and the brightness channel are not comparable, significance is); the verdict is the
    best significant effect; its final parameters are fitted on all blocks.
@@ -48,6 +49,9 @@ class DiagnoseConfig:
     max_exact_blocks: int = 16
     n_perm: int = 20000           # Monte-Carlo sign flips when there are more blocks
     quiet_edges: bool = True      # block edges at contact-free moments (time_blocks)
+    # smallest held-out rms error an effect must remove, per channel, to count: a brightness drift
+    # below one 8-bit grey level (relative intensity 1/255) is not a measurable LED drift
+    min_abs: tuple = (("force", 0.0), ("brightness", 1.0 / 255.0))
     seed: int = 0
     fit: FitConfig = field(default_factory=FitConfig)
     scan: ScanConfig = field(default_factory=ScanConfig)
@@ -248,7 +252,8 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
             s.p_value = sign_flip_pvalue(np.asarray(s.block_before) * kept - s.block_after, cfg)
     for s, padj in zip(scores, holm([s.p_value for s in scores])):
         s.p_adjusted = padj
-        s.significant = padj <= cfg.alpha and s.reduction >= cfg.min_reduction + max(s.baseline, 0.0)
+        s.significant = (padj <= cfg.alpha and s.reduction >= cfg.min_reduction + max(s.baseline, 0.0)
+                         and s.before - s.after >= dict(cfg.min_abs).get(s.channel, 0.0))
     scores.sort(key=lambda s: (not s.significant, -s.reduction))   # the evidence first, then the size
     resid, pred = table.meas - ch.base_force, ch.base_force
     sig = [s for s in scores if s.significant]
