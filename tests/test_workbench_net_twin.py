@@ -50,8 +50,8 @@ def test_hidden_effect_ranked_first_significant_and_error_halved(case, bench, tm
     assert diag.verdict.reduction >= 0.5, diag.verdict.reduction
 
 
-def test_two_hidden_effects_found_one_after_the_other(bench):
-    res = acc.two_effects(bench)
+def test_two_hidden_effects_found_one_after_the_other(bench, tmp_path):
+    res = acc.two_effects(bench, tmp_path)          # the null session altered twice (independent code)
     assert sorted(res["found"]) == sorted(res["truth"]), res
     assert res["steps"][-1]["verdict"] is None
 
