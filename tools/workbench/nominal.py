@@ -90,6 +90,10 @@ def choose_inputs(pokes, folds: np.ndarray, cfg: NominalConfig = NominalConfig()
     for x in sets[1:]:
         if checks[",".join(x)]["after"]["mae_n"] < (1.0 - cfg.select_margin) * checks[",".join(best)]["after"]["mae_n"]:
             best = x
+    raw = checks[",".join(best)]["before"]
+    checks["none"] = {"before": raw, "after": raw}
+    if checks[",".join(best)]["after"]["mae_n"] >= (1.0 - cfg.select_margin) * raw["mae_n"]:
+        return replace(cfg, inputs=()), checks      # no gain forest beats the raw network on held-out data
     return replace(cfg, inputs=best), checks
 
 
@@ -187,7 +191,13 @@ def fit_and_store_correction(calib_sessions, sensor: str, store, model, registry
                                "correction needs calibration sessions with pokes the network sees")
     folds = folds_of(np.concatenate(times), np.concatenate(sess_id))
     cfg, checks = choose_inputs(pokes, folds, cfg)
-    check = checks[",".join(cfg.inputs)]
+    identity = not cfg.inputs
+    check = checks[",".join(cfg.inputs) or "none"]
+    if identity:   # stored as a forest of gain 1 (exactly: |F|/|F|), so the calibration still carries the baseline
+        from dataclasses import replace
+
+        cfg = replace(cfg, inputs=("fmag",))
+        pokes = PokeSet(pokes.pred_force, pokes.pred_mag, pokes.uv, pokes.theta_phi)
     fc = _fit_cfg(cfg)
     rf = fit_forest(pokes, fc)
     onnx = to_onnx(rf, len(fc.inputs), fc)
@@ -196,7 +206,7 @@ def fit_and_store_correction(calib_sessions, sensor: str, store, model, registry
     spec = {"file": "correction.onnx", "inputs": list(fc.inputs), "output": "gain",
             "kind": "random_forest_gain", "n_estimators": fc.n_estimators, "max_depth": fc.max_depth,
             "frames": int(len(pokes)), "source": "workbench nominal correction",
-            "sessions": [str(s) for s in sessions],
+            "sessions": [str(s) for s in sessions], "identity": identity,
             "input_checks": {k: [round(v["before"]["mae_n"], 4), round(v["after"]["mae_n"], 4)] for k, v in checks.items()},
             "nominal_reductions": nominal_reductions(tables, chain, pokes, row_of, folds, registry, cfg)}
     cal = store.load(sensor)
@@ -207,6 +217,6 @@ def fit_and_store_correction(calib_sessions, sensor: str, store, model, registry
     tried = "; ".join(f"{k}: {v['after']['mae_n']:.3f}" for k, v in checks.items())
     how = "one fold per session" if len(sessions) > 1 else "half-session split"
     text = (f"nominal correction fitted on {names} ({len(pokes)} contact frames), inputs "
-            f"{','.join(cfg.inputs)}: held-out |F| MAE {check['before']['mae_n']:.3f} -> {check['after']['mae_n']:.3f} N "
+            f"{'none (gain 1: no forest beat the raw network)' if identity else ','.join(cfg.inputs)}: held-out |F| MAE {check['before']['mae_n']:.3f} -> {check['after']['mae_n']:.3f} N "
             f"({how}; inputs tried {tried}) -> calibration {version}")
     return version, text
