@@ -38,7 +38,11 @@ def test_recalibrate_replay_stores_better_correction_and_rollback_restores(env):
     report = json.loads((tmp / "report.json").read_text())
     assert len(report["accepted"]) == 6
     loo = report["loo"]
-    assert loo["after"]["mae_n"] < 0.4 * loo["before"]["mae_n"], loo
+    # nested leave-one-out (input selection redone without the held-out poke): an honest, pessimistic estimate
+    assert loo["after"]["mae_n"] < 0.65 * loo["before"]["mae_n"], loo
+    # the recording's bias grows along u (a shifted centre): the selection takes position as an input
+    assert "u" in store.load(SENSOR).meta["correction"]["inputs"], loo["selection"]
+    assert loo["selection"]["fmag+theta+u+v"] < 0.85 * loo["selection"]["fmag"], loo["selection"]
     # the reference pairing recovered the bias the recording was made with
     ratios = [p["ref_force_n"] / np.linalg.norm(p["pred_force_n"]) for p in report["accepted"]]
     expect = [true_gain(np.array(p["uv_px"]) / 32) for p in report["accepted"]]

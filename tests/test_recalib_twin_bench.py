@@ -42,9 +42,9 @@ def test_record_configs_units_and_held_out_sets():
     assert all(0.75 <= u.stiffness_scale <= 1.25 and abs(u.stiffness_scale - 1) >= 0.1 for u in UNITS)
 
 
-def _cluster(u, v, f):
+def _cluster(u, v, f, mm=(0.0, 0.0, 8.0)):
     f = np.asarray(f, float)
-    return Cluster(id=0, centroid_px=(u, v), centroid_mm=(0.0, 0.0, 8.0), normal=(0, 0, 1), area_mm2=1.0,
+    return Cluster(id=0, centroid_px=(u, v), centroid_mm=tuple(mm), normal=(0, 0, 1), area_mm2=1.0,
                    force_n=tuple(f), force_mag_n=float(np.linalg.norm(f)), pixels=1, perimeter_px=0.0,
                    circularity=1.0)
 
@@ -79,7 +79,8 @@ def test_held_out_pokes_pairs_single_contact_episodes_with_the_stream():
     frames, t = [], 0.0
     for amp, second in ((1.0, 0.0), (2.0, 0.0), (1.5, 0.8)):      # the third poke has a 2nd contact
         for k in range(30):                                          # 8 frames of contact, 0.7 s apart
-            cl = [_cluster(30, 30, [0, 0, -amp])] + ([_cluster(5, 5, [0, 0, -amp * second])] if second else [])
+            cl = [_cluster(30, 30, [0, 0, -amp])] + ([_cluster(5, 5, [0, 0, -amp * second], (-6.0, -6.0, 6.0))]
+                                                     if second else [])              # 10 mm away: a 2nd contact
             frames.append((t, cl if 2 <= k < 10 else []))
             t += 1 / 30
     ts = np.array([f[0] for f in frames])
