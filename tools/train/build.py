@@ -104,7 +104,9 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from"],
             "export": ["name", "calibration_samples"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
-    optional = {"force_weight": 0.0, "init_from": ""}   # in the key only when set (older stamps stay valid)
+    # in the key only when not these values (older stamps stay valid; builds before the thresholds were
+    # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
+    optional = {"force_weight": 0.0, "init_from": "", "contact_force_n": 1.5, "detach_force_n": 1.1}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:
