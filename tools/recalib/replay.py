@@ -18,15 +18,15 @@ log = logging.getLogger(__name__)
 
 def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path | None = None) -> list:
     """(t, clusters) of every frame of a replayed recording, raw model force (correction off).
-    With `cache`, the clusters are kept in an .npz per (session, model file, calibration tables), so a
-    rerun (other fits, other feature sets) does not run the model again."""
+    With `cache`, the clusters are kept in an .npz per (session, model file, runtime sources, calibration
+    tables and crop), so a rerun (other fits, other feature sets) does not run the model again."""
     from runtime.contacts import Cluster
 
     key = None
     if cache is not None:
         import hashlib
 
-        h = hashlib.sha256(f"{Path(session_dir).name}|{package.sha256(precision)}".encode())
+        h = hashlib.sha256(f"{Path(session_dir).name}|{package.sha256(precision)}|{runtime_sources_hash()}".encode())
         for name in ("theta", "phi", "surface_xyz", "pixel_area", "mask"):
             h.update(np.ascontiguousarray(getattr(cal, name)).tobytes())
         h.update(json.dumps([*cal.gel_center_px, cal.gel_radius_px]).encode())
@@ -50,6 +50,20 @@ def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path 
         np.savez(tmp, t=np.array([t for t, _ in frames]), clusters=np.array(rows, float).reshape(-1, 12))
         tmp.replace(key)
     return frames
+
+
+def runtime_sources_hash() -> str:
+    """sha256 of the runtime package's sources: cached clusters are stale when the pipeline changes
+    (e.g. a new contact threshold), not only when the model or the calibration does."""
+    import hashlib
+
+    import runtime
+
+    h = hashlib.sha256()
+    for f in sorted(Path(runtime.__file__).parent.glob("*.py")):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def _run_pipeline(session_dir: Path, cal, package, precision: str) -> list:
