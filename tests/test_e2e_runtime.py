@@ -67,13 +67,19 @@ def run_and_listen(tmp_path, session, run_extra: list, listen_extra: list):
         listener = subprocess.run(cli + ["listen", SENSOR, "--connect", endpoint] + listen_extra,
                                   env=env, capture_output=True, text=True, timeout=90)
     finally:
-        runtime.terminate()
-        try:
-            _, err = runtime.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            runtime.kill()
-            _, err = runtime.communicate()
+        err = stop(runtime)
     return listener, err
+
+
+def stop(proc: subprocess.Popen) -> str:
+    """Terminate a `tensortouch run` process (kill if it does not exit) and return its stderr."""
+    proc.terminate()
+    try:
+        _, err = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+    return err
 
 
 def test_run_to_separate_listener_process(tmp_path):

@@ -52,7 +52,7 @@ def test_run_on_the_demo_publishes_plausible_forces_to_a_subscriber(tmp_path):
     """README's first command, with a separate listener process: fields of the right shape and contact
     forces in N on the recording's scale (peak within ×0.6–1.6 of the F/T peak)."""
     from runtime.session import load_session
-    from tests.test_e2e_runtime import free_port
+    from tests.test_e2e_runtime import free_port, stop
 
     ses = load_session(DEMO, check_frames=False)
     wr = ses.table("wrench")
@@ -70,12 +70,7 @@ def test_run_on_the_demo_publishes_plausible_forces_to_a_subscriber(tmp_path):
                                          "--count", str(2 * n_frames), "--timeout", "60"],
                                   env=env, capture_output=True, text=True, timeout=180)
     finally:
-        run.terminate()
-        try:
-            _, err = run.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            run.kill()
-            _, err = run.communicate()
+        err = stop(run)
     msgs = [json.loads(line) for line in listener.stdout.splitlines() if line.startswith("{")]
     fields = [m for m in msgs if m.get("kind") == "fields"]
     contacts = [c for m in msgs if m.get("kind") == "contacts" for c in m["contacts"]]
