@@ -96,6 +96,18 @@ def test_recalibrate_recentres_a_shifted_crop_on_the_gel_rim_and_stores_it(env):
     assert any("crop re-centred" in line for line in lines)
     ratios = [p["ref_force_n"] / np.linalg.norm(p["pred_force_n"]) for p in report["accepted"]]
     assert np.allclose(ratios, [true_gain(np.array(p["uv_px"]) / 32) for p in report["accepted"]], rtol=0.05)
+    # the same pokes again: the active correction already fits them, so a new one is refused; a crop that
+    # moved since is still stored (alone), the active correction kept
+    corr = store.load(SENSOR).meta["correction"]
+    store.derive(SENSOR, {"gel_center_px": [cx + 3.0, cy - 2.0]})
+    lines = []
+    again = parse(["recalibrate", "--sensor", SENSOR, "--source", f"replay:{session}", "--store", str(store.root),
+                   "--model", str(package.folder), "--precision", "fp32", "--pokes", "5"])
+    assert cli.cmd_recalibrate(again, say=lines.append) == 1, "\n".join(lines)
+    meta = store.load(SENSOR).meta
+    assert meta["gel_center_px"] == pytest.approx([cx, cy], abs=0.7) and meta["correction"] == corr
+    assert meta["provenance"]["method"] == "recalibrate-rim"
+    assert any("re-centred crop alone was stored" in line for line in lines), lines
     # --recentre off keeps the stored crop
     store.derive(SENSOR, {"gel_center_px": [cx + 3.0, cy - 2.0]})
     off = parse(["recalibrate", "--sensor", SENSOR, "--source", f"replay:{session}", "--store", str(store.root),

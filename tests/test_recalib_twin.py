@@ -105,7 +105,7 @@ def _acceptance(res):
         assert sum(v >= 0.6 for v in vals) >= 4, (n, vals)
 
 
-NOT_MET = ("not met with the current-FE model (preview v2t, 2026-11-22): after the re-crop and the gain fit "
+NOT_MET = ("not met with the shipped current-FE model (hiera-qup-128 = v2t, 2026-11-22): after the re-crop and the gain fit "
            "each unit sits at the model's own per-poke error; even the best constant gain fitted on the held-out "
            "pokes gives a median ~50 % (docs/BENCHMARKS.md § Recalibration)")
 

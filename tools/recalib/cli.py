@@ -216,6 +216,16 @@ def cmd_recalibrate(args, say=None) -> int:
     elif args.dry_run:
         say("--dry-run: nothing stored")
         code = 0
+    elif crop:   # the correction was refused, but the rim showed a moved crop: store the re-crop alone
+        prov = {"method": "recalibrate-rim", "pokes": 0, "source": args.source,
+                "crop": {"from": {"gel_center_px": stored.meta["gel_center_px"],
+                                  "gel_radius_px": stored.meta["gel_radius_px"]}, "rim": rim},
+                "errors": {"uncorrected": an.fit.loo["before"], "active": an.active, "held_out": an.fit.loo["after"]}}
+        version = store_recalibration(store, stored, prov, crop=crop)
+        report["stored_version"] = version
+        say(f"the correction was not stored; the re-centred crop alone was stored as {args.sensor}/{version} "
+            f"(was {stored.version}); undo with: tensortouch calib rollback {args.sensor}")
+        code = 1
     if args.report:
         with open(args.report, "w") as fh:
             json.dump(report, fh, indent=2, default=float)

@@ -257,7 +257,8 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
             h = row["held_out"][k]
             a = held_out_pokes(corrected_frames(raw_fit[k], cal_n), refs[k], eval_rules)
             forced = mae(a)
-            after = forced if entry["stored"] else h["before_mae_n"]
+            # refused: the calibration keeps its correction; a re-crop is stored alone (as recalibrate does)
+            after = forced if entry["stored"] else (h["crop_only_mae_n"] if crop else h["before_mae_n"])
             h["after"][str(n)] = {"pokes": len(a["ref"]), "after_forced_mae_n": forced, "after_mae_n": after,
                                   "reduction": 1 - after / h["before_mae_n"],
                                   "reduction_forced": 1 - forced / h["before_mae_n"],
