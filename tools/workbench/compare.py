@@ -190,7 +190,7 @@ def run_compare(session_path, sensor: str | None, store: CalibrationStore, model
         raise TensorTouchError(f"{cal.folder / 'calibration.json'}: {exc}") from None
     extra = {}
     if hasattr(model, "build_table"):   # the deployed network: frames through the runtime's code
-        from tools.workbench.network import correction_post
+        from tools.workbench.fastpost import correction_post
 
         session = load_session(session_path)
         table = model.build_table(session, cal, table, folder if cache else None,

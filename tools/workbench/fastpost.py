@@ -97,3 +97,26 @@ def memo_gain(corr, uv: np.ndarray, theta_phi: np.ndarray) -> MemoGain | None:
         log.info("%s: correction not memoizable (%s)", corr.path, exc)
         return None
     return MemoGain(corr, uv, theta_phi, *found) if found else None
+
+
+def correction_post(table, cal, memoize: bool = True):
+    """The sensor's correction on table rows (table sign convention), or None when it has none.
+    `memoize`: the exact memoized evaluation of tools/workbench/fastpost.py where it applies."""
+    from runtime.correction import ForceCorrection
+
+    corr = ForceCorrection.from_calibration(cal)
+    if not corr.enabled or "corr_uv" not in table.vec:
+        return None
+    uv, tp = table.vec["corr_uv"], table.vec["corr_theta_phi"]
+    memo = memo_gain(corr, uv, tp) if memoize else None
+
+    def post(forces: np.ndarray) -> np.ndarray:
+        f = np.asarray(forces, dtype=np.float64)
+        out = f.copy()
+        nz = np.flatnonzero(np.any(f != 0.0, axis=1))   # zero stays zero: only rows with a force
+        if len(nz):
+            out[nz] = -(memo(-f[nz], nz) if memo is not None else corr(-f[nz], uv[nz], tp[nz]))
+        return out
+
+    post.memo = memo
+    return post

@@ -350,31 +350,6 @@ def temperature_of(session):
     return lambda t: float(np.interp(t, tt[:, 0], tt[:, 1]))
 
 
-def correction_post(table: SampleTable, cal, memoize: bool = True):
-    """The sensor's correction on table rows (table sign convention), or None when it has none.
-    `memoize`: the exact memoized evaluation of tools/workbench/fastpost.py where it applies."""
-    from runtime.correction import ForceCorrection
-
-    corr = ForceCorrection.from_calibration(cal)
-    if not corr.enabled or "corr_uv" not in table.vec:
-        return None
-    from tools.workbench.fastpost import memo_gain
-
-    uv, tp = table.vec["corr_uv"], table.vec["corr_theta_phi"]
-    memo = memo_gain(corr, uv, tp) if memoize else None
-
-    def post(forces: np.ndarray) -> np.ndarray:
-        f = np.asarray(forces, dtype=np.float64)
-        out = f.copy()
-        nz = np.flatnonzero(np.any(f != 0.0, axis=1))   # zero stays zero: only rows with a force
-        if len(nz):
-            out[nz] = -(memo(-f[nz], nz) if memo is not None else corr(-f[nz], uv[nz], tp[nz]))
-        return out
-
-    post.memo = memo
-    return post
-
-
 class NetworkModel:
     """The deployed network (a model package) as the workbench's ForceModel."""
 
