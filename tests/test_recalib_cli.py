@@ -26,16 +26,21 @@ def env(tmp_path):
     return tmp_path, package, store, session
 
 
-def test_recalibrate_replay_stores_better_correction_and_rollback_restores(env):
-    tmp, package, store, session = env
-    v1 = store.current(SENSOR)
-    v1_files = {p.name: p.read_bytes() for p in (store.root / SENSOR / "versions" / v1).iterdir()}
+def _recalibrate_6(tmp, package, store, session) -> tuple[dict, list[str]]:
+    """`tensortouch recalibrate` on the replayed recording (6 pokes, fp32) → (its report, what it said)."""
     lines = []
     args = parse(["recalibrate", "--sensor", SENSOR, "--source", f"replay:{session}", "--store", str(store.root),
                   "--model", str(package.folder), "--precision", "fp32", "--pokes", "6",
                   "--report", str(tmp / "report.json")])
     assert cli.cmd_recalibrate(args, say=lines.append) == 0, "\n".join(lines)
-    report = json.loads((tmp / "report.json").read_text())
+    return json.loads((tmp / "report.json").read_text()), lines
+
+
+def test_recalibrate_replay_stores_better_correction_and_rollback_restores(env):
+    tmp, package, store, session = env
+    v1 = store.current(SENSOR)
+    v1_files = {p.name: p.read_bytes() for p in (store.root / SENSOR / "versions" / v1).iterdir()}
+    report, lines = _recalibrate_6(tmp, package, store, session)
     assert len(report["accepted"]) == 6
     loo = report["loo"]
     # nested leave-one-out (input selection redone without the held-out poke): an honest, pessimistic estimate
@@ -83,12 +88,7 @@ def test_recalibrate_recentres_a_shifted_crop_on_the_gel_rim_and_stores_it(env):
     good = store.load(SENSOR).meta
     cx, cy = good["gel_center_px"]
     store.derive(SENSOR, {"gel_center_px": [cx + 3.0, cy - 2.0]})   # the stored crop is 3.6 px off the gel
-    lines = []
-    args = parse(["recalibrate", "--sensor", SENSOR, "--source", f"replay:{session}", "--store", str(store.root),
-                  "--model", str(package.folder), "--precision", "fp32", "--pokes", "6",
-                  "--report", str(tmp / "report.json")])
-    assert cli.cmd_recalibrate(args, say=lines.append) == 0, "\n".join(lines)
-    report = json.loads((tmp / "report.json").read_text())
+    report, lines = _recalibrate_6(tmp, package, store, session)
     assert report["rim"]["shift_px"] == pytest.approx(np.hypot(3, 2), abs=0.7), report["rim"]
     new = store.load(SENSOR).meta
     assert new["gel_center_px"] == pytest.approx([cx, cy], abs=0.7)          # back on the gel
