@@ -195,6 +195,7 @@ def cmd_recalibrate(args, say=None) -> int:
               "reference": reference.name, "rim": rim, **an.summary(),
               "accepted": [p.to_dict() for p in outcome.accepted], "rejected": [p.to_dict() for p in outcome.rejected]}
     code = 1
+    crop_prov = {"from": {k: stored.meta[k] for k in ("gel_center_px", "gel_radius_px")}, "rim": rim}
     if an.decision.store and not args.dry_run:
         geometry = None if an.geometry is None else {"gel_center_px": an.geometry.center, "theta": an.geometry.theta,
                                                      "phi": an.geometry.phi}
@@ -205,8 +206,7 @@ def cmd_recalibrate(args, say=None) -> int:
                 "poke_data": [{"pred_force_n": p.pred_force.tolist(), "ref_force_n": p.ref_force_n,
                                "uv_px": p.uv_px.tolist()} for p in outcome.accepted]}
         if crop:
-            prov["crop"] = {"from": {"gel_center_px": stored.meta["gel_center_px"],
-                                     "gel_radius_px": stored.meta["gel_radius_px"]}, "rim": rim}
+            prov["crop"] = crop_prov
         version = store_recalibration(store, cal, prov, correction=(an.fit.spec, an.fit.onnx_bytes), geometry=geometry,
                                       crop=crop)
         report["stored_version"] = version
@@ -218,8 +218,7 @@ def cmd_recalibrate(args, say=None) -> int:
         code = 0
     elif crop:   # the correction was refused, but the rim showed a moved crop: store the re-crop alone
         prov = {"method": "recalibrate-rim", "pokes": 0, "source": args.source,
-                "crop": {"from": {"gel_center_px": stored.meta["gel_center_px"],
-                                  "gel_radius_px": stored.meta["gel_radius_px"]}, "rim": rim},
+                "crop": crop_prov,
                 "errors": {"uncorrected": an.fit.loo["before"], "active": an.active, "held_out": an.fit.loo["after"]}}
         version = store_recalibration(store, stored, prov, crop=crop)
         report["stored_version"] = version

@@ -133,14 +133,20 @@ def select_inputs(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> tuple[tuple[s
     only if it beats the current choice by cfg.select_margin. Returns (inputs, {"+".join(set): LOO MAE})."""
     if not cfg.candidates:
         return tuple(cfg.inputs), {}
-    scores = {}
-    best = None
-    for cand in cfg.candidates:
-        m = float(np.mean(np.abs(_loo_held(pokes, cfg, cand, cfg.select_estimators) - pokes.ref_force)))
-        scores["+".join(cand)] = m
-        if best is None or m < (1.0 - cfg.select_margin) * scores["+".join(best)]:
-            best = tuple(cand)
+    scores = {"+".join(c): float(np.mean(np.abs(_loo_held(pokes, cfg, c, cfg.select_estimators) - pokes.ref_force)))
+              for c in cfg.candidates}
+    best = simplest_adequate([tuple(c) for c in cfg.candidates], lambda c: scores["+".join(c)], cfg.select_margin)
     return best, scores
+
+
+def simplest_adequate(sets: list, error, margin: float):
+    """The first (simplest) of `sets` unless a later, richer one has an `error(set)` below
+    (1 − margin) × the current choice's: a richer model must earn its extra inputs."""
+    best = sets[0]
+    for x in sets[1:]:
+        if error(x) < (1.0 - margin) * error(best):
+            best = x
+    return best
 
 
 def leave_one_out(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> dict:

@@ -37,7 +37,7 @@ import numpy as np
 
 from runtime.calibration import sha256_file
 from runtime.errors import SessionError, TensorTouchError
-from tools.workbench.table import SampleTable
+from tools.workbench.table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
 
@@ -283,9 +283,7 @@ def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -
         tq = tf[sel]
         part = {"cols": {c: _interp_rows(tk, tq, v[m]) for c, v in base.cols.items() if c not in ("series",)},
                 "meas": _interp_rows(tk, tq, base.meas[m]), "frame": fidx[sel], "k": k}
-        nxt = np.clip(np.searchsorted(tk, tq), 0, len(m) - 1)
-        prev = np.clip(nxt - 1, 0, len(m) - 1)
-        near = m[np.where(np.abs(tk[prev] - tq) < np.abs(tk[nxt] - tq), prev, nxt)]   # the nearest row
+        near = m[nearest_index(tk, tq)]   # the nearest row
         for c in ("brightness", "bright_ok"):   # frame measurements: nearest row, never blended
             if c in base.cols:
                 part["cols"][c] = base.cols[c][near]

@@ -84,12 +84,11 @@ def choose_inputs(pokes, folds: np.ndarray, cfg: NominalConfig = NominalConfig()
     richer one is better by `select_margin`. Returns (config with those inputs, {set: check})."""
     from dataclasses import replace
 
+    from tools.recalib.fit import simplest_adequate
+
     sets = [tuple(x) for x in (cfg.input_sets or (cfg.inputs,))]
     checks = {",".join(x): blocked_check(pokes, folds, replace(cfg, inputs=x)) for x in sets}
-    best = sets[0]
-    for x in sets[1:]:
-        if checks[",".join(x)]["after"]["mae_n"] < (1.0 - cfg.select_margin) * checks[",".join(best)]["after"]["mae_n"]:
-            best = x
+    best = simplest_adequate(sets, lambda x: checks[",".join(x)]["after"]["mae_n"], cfg.select_margin)
     raw = checks[",".join(best)]["before"]
     checks["none"] = {"before": raw, "after": raw}
     if checks[",".join(best)]["after"]["mae_n"] >= (1.0 - cfg.select_margin) * raw["mae_n"]:

@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from runtime.errors import CalibrationError, SessionError
 from runtime.session import Session
-from tools.workbench.table import SampleTable
+from tools.workbench.table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
 
@@ -213,9 +213,7 @@ def build_table(session: Session, cal, cfg: SampleConfig | None = None, brightne
             nxt = np.clip(last + 1, 0, max(len(contact_t) - 1, 0))
             until = np.where(last + 1 < len(contact_t), contact_t[nxt] - tf, np.inf) if len(contact_t) else np.inf
             quiet = (since > cfg.quiet_s) & (until > 0.5 * cfg.quiet_s)
-            nxt = np.clip(np.searchsorted(tf, cat["t"]), 0, len(tf) - 1)
-            prev = np.clip(nxt - 1, 0, len(tf) - 1)
-            j = np.where(np.abs(tf[prev] - cat["t"]) < np.abs(tf[nxt] - cat["t"]), prev, nxt)   # nearest frame
+            j = nearest_index(tf, cat["t"])   # nearest frame
             first = series == ids[0]
             near = np.abs(tf[j] - cat["t"]) <= 0.5 * np.median(np.diff(tf)) if len(tf) > 1 else first
             ok = first & quiet[j] & near

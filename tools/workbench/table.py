@@ -107,3 +107,11 @@ def write_residuals_csv(path: str | Path, table: SampleTable, pred: np.ndarray) 
         fh.write(",".join(header) + "\n")
         np.savetxt(fh, data, delimiter=",", fmt="%.6g")
     tmp.replace(path)
+
+
+def nearest_index(sorted_t: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Index of the nearest element of the sorted array `sorted_t` for each query time in `q`."""
+    t = np.asarray(sorted_t)
+    nxt = np.clip(np.searchsorted(t, q), 0, len(t) - 1)
+    prev = np.clip(nxt - 1, 0, len(t) - 1)
+    return np.where(np.abs(t[prev] - q) < np.abs(t[nxt] - q), prev, nxt)
