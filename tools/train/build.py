@@ -84,7 +84,7 @@ class BuildConfig:
 
     @staticmethod
     def from_dict(d: dict) -> "BuildConfig":
-        d = dict(d)
+        d = {k: v for k, v in d.items() if not k.startswith("_")}     # "_about" etc.: comments in recipes
         for k in ("train", "heldout"):
             if k in d:
                 d[k] = [s if isinstance(s, SessionSpec) else SessionSpec(**s) for s in d[k]]

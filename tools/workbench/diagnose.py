@@ -34,6 +34,7 @@ import numpy as np
 
 from runtime.effects import Effect, EffectChain, EnabledEffect, Registry
 from tools.workbench.fit import Candidate, Channels, FitConfig, channel_of
+from tools.workbench.pairs import PairConfig, score_pairs
 from tools.workbench.scan import ScanConfig, scan
 from tools.workbench.table import SCAN_COVARIATES, SampleTable
 
@@ -53,6 +54,8 @@ class DiagnoseConfig:
     # below one 8-bit grey level (relative intensity 1/255) is not a measurable LED drift
     min_abs: tuple = (("force", 0.0), ("brightness", 1.0 / 255.0))
     seed: int = 0
+    pairs: bool = True            # no single effect significant: score pairs of effects (pairs.py)
+    pair: PairConfig = field(default_factory=PairConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     scan: ScanConfig = field(default_factory=ScanConfig)
 
@@ -130,6 +133,8 @@ class EffectScore:
     block_before: list = field(default_factory=list)   # per held-out block SSE without / with the effect
     block_after: list = field(default_factory=list)
     baseline: float = 0.0          # held-out reduction of this candidate on the calibration session
+    fold_theta: list = field(default_factory=list)     # free parameters fitted without each block
+    pair: object = None            # pairs.PairScore when this verdict comes from a pair
 
     @property
     def reduction(self) -> float:
@@ -158,6 +163,7 @@ class Diagnosis:
     n_blocks: int
     seconds: float
     min_unexplained: float = 0.02
+    pairs: list = field(default_factory=list)      # pairs.PairScore (scored when no single effect was)
 
     @property
     def verdict(self) -> EffectScore | None:
@@ -166,14 +172,26 @@ class Diagnosis:
 
     def to_json(self) -> dict:
         v = self.verdict
-        return {"verdict": v.effect.name if v else None,
-                "ranking": [s.to_json() for s in self.ranking],
-                "unexplained": self.unexplained}
+        out = {"verdict": v.effect.name if v else None,
+               "ranking": [s.to_json() for s in self.ranking],
+               "unexplained": self.unexplained}
+        if self.pairs:
+            out["pairs"] = [p.to_json() for p in self.pairs]
+        return out
 
     def words(self) -> list[str]:
         lines = []
         v = self.verdict
-        if v is not None:
+        if v is not None and v.pair is not None:
+            pr = v.pair
+            other = pr.names[1 - pr.lead]
+            lines.append(f"Two effects are missing together: {pr.names[0]} and {pr.names[1]} "
+                         f"(neither alone is significant)")
+            lines.append(f"  together: held-out error {pr.before:.4g} -> {pr.after:.4g} N "
+                         f"({-100 * pr.reduction:+.0f} %), p = {pr.p_adjusted:.3g} (Holm-corrected over pairs)")
+            lines.append(f"Add first: {v.effect.describe(v.params)} (alone at the joint fit: "
+                         f"{pr.before:.4g} -> {v.after:.4g} N); then diagnose again for {other}")
+        elif v is not None:
             unit = "N" if v.channel == "force" else "(relative intensity)"
             lines.append(f"Missing physics: {v.effect.describe(v.params)}")
             lines.append(f"  held-out error {v.before:.4g} -> {v.after:.4g} {unit} "
@@ -203,10 +221,12 @@ def _score_candidate(effect: Effect, ch: Channels, blocks: np.ndarray, cfg: Diag
     before = np.zeros(len(ids))
     after = np.zeros(len(ids))
     scout = cand.scout(blk)
+    thetas = []
     for i, b in enumerate(ids):
         test = blk == b
         train = np.flatnonzero(~test)
         theta, _ = cand.fit(train, scout, ids[ids != b])
+        thetas.append(theta)
         r = cand.residual(theta)[test]
         before[i] = float(np.sum(base[test] ** 2))
         after[i] = float(np.sum(r ** 2))
@@ -216,7 +236,7 @@ def _score_candidate(effect: Effect, ch: Channels, blocks: np.ndarray, cfg: Diag
     p = sign_flip_pvalue(d, cfg) if len(ids) > 1 else 1.0
     return EffectScore(effect, cand.channel, cand.params(theta_all), float(np.sqrt(before.sum() / n)),
                        float(np.sqrt(after.sum() / n)), p, block_gain=d.tolist(), block_before=before.tolist(),
-                       block_after=after.tolist())
+                       block_after=after.tolist(), fold_theta=thetas)
 
 
 def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None = None,
@@ -255,6 +275,9 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
         s.significant = (padj <= cfg.alpha and s.reduction >= cfg.min_reduction + max(s.baseline, 0.0)
                          and s.before - s.after >= dict(cfg.min_abs).get(s.channel, 0.0))
     scores.sort(key=lambda s: (not s.significant, -s.reduction))   # the evidence first, then the size
+    pairs = []
+    if cfg.pairs and not any(s.significant for s in scores):
+        scores, pairs = _pair_stage(scores, ch, blocks, cfg, baseline or {})
     resid, pred = table.meas - ch.base_force, ch.base_force
     sig = [s for s in scores if s.significant]
     if sig and sig[0].channel == "force":  # what remains once the verdict is in
@@ -266,7 +289,33 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
                     "form": scanned[0]["form"], "unit": scanned[0]["unit"]}
                    if scanned else {"covariate": None, "score": 0.0})
     return Diagnosis(scores, unexplained, scanned, chain.names, len(table), cfg.n_blocks,
-                     time.perf_counter() - t0, cfg.min_unexplained)
+                     time.perf_counter() - t0, cfg.min_unexplained, pairs)
+
+
+def _pair_stage(scores: list, ch: Channels, blocks: np.ndarray, cfg: DiagnoseConfig, baseline: dict):
+    """Score pairs (pairs.py); a significant pair puts its first member at the top of the ranking."""
+    pairs, n_screened = score_pairs(scores, ch, blocks, cfg.fit, cfg.pair, lambda d: sign_flip_pvalue(d, cfg))
+    single = {s.effect.name: s for s in scores}
+    for pr in pairs:   # H0 as for singles: no more than both members reach on the calibration session
+        r0 = [max(0.0, float(baseline.get(n, 0.0))) for n in pr.names]
+        pr.baseline = 1.0 - (1.0 - r0[0]) * (1.0 - r0[1])
+        if pr.baseline > 0 and len(pr.block_before) > 1:
+            kept = (1.0 - pr.baseline) ** 2
+            pr.p_value = sign_flip_pvalue(np.asarray(pr.block_before) * kept - np.asarray(pr.block_after), cfg)
+    padj = holm([pr.p_value for pr in pairs] + [1.0] * (n_screened - len(pairs)))   # every pair screened counts
+    best_single = max([s.reduction for s in scores if s.channel == "force"] + [0.0])
+    for pr, p in zip(pairs, padj):
+        pr.p_adjusted = p
+        pr.significant = (p <= cfg.alpha and pr.reduction >= cfg.min_reduction + pr.baseline
+                          and pr.reduction >= best_single + cfg.pair.min_gain)
+    pairs.sort(key=lambda pr: (not pr.significant, -pr.reduction))
+    if not pairs or not pairs[0].significant:
+        return scores, pairs
+    pr = pairs[0]
+    lead = single[pr.names[pr.lead]]
+    first = EffectScore(lead.effect, "force", dict(pr.params[pr.lead]), pr.before, pr.member_after[pr.lead],
+                        lead.p_value, pr.p_adjusted, True, baseline=lead.baseline, pair=pr)
+    return [first] + [s for s in scores if s is not lead], pairs
 
 
 def add_to_chain(chain: EffectChain, score: EffectScore) -> EffectChain:
