@@ -49,6 +49,7 @@ class Cluster:
     circularity: float
     priority: float = 0.0
     age: int = 0                           # frames this id has been tracked
+    indentation_mm: float = 0.0            # deepest inward displacement (along the rest normal) of its pixels
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -88,6 +89,10 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     if disp is not None:
         pos = pos + disp.reshape(3, -1)[:, idx].T
     centroid = wmean(pos)
+    indent = np.zeros(k)
+    if disp is not None:   # the indenter's depth: the cluster's deepest point, not its force-weighted centroid
+        inward = -np.einsum("ij,ij->i", disp.reshape(3, -1)[:, idx].T, normals.reshape(-1, 3)[idx])
+        np.maximum.at(indent, lab, inward)
     nsum = wmean(normals.reshape(-1, 3)[idx])
     nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
     fvec = np.stack([np.bincount(lab, weights=force_px[i].ravel()[idx], minlength=k) for i in range(3)], 1)
@@ -102,7 +107,7 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
             id=-1, centroid_px=(float(uv[j, 0]), float(uv[j, 1])), centroid_mm=tuple(map(float, centroid[j])),
             normal=tuple(map(float, nsum[j])), area_mm2=float(area[j]), force_n=tuple(map(float, fvec[j])),
             force_mag_n=float(np.linalg.norm(fvec[j])), pixels=int(stats[j, cv2.CC_STAT_AREA]),
-            perimeter_px=float(perim[j]), circularity=float(circ[j])))
+            perimeter_px=float(perim[j]), circularity=float(circ[j]), indentation_mm=float(indent[j])))
     return out
 
 

@@ -75,3 +75,20 @@ def test_tracker_keeps_ids_and_ranks():
     f = blob_fields(t, [(32, 10)], [1.0])
     cl = tr.update(find_clusters(pixel_forces(f, t["pixel_area"]), t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"]))
     assert cl[0].id not in ids.values() and cl[0].age == 0
+
+
+def test_indentation_is_the_deepest_inward_displacement_of_the_cluster():
+    t = tables()
+    f = blob_fields(t, [(20, 32), (46, 30)], [1.0, 0.5])
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    for (u, v), depth in (((20, 32), 1.2), ((46, 30), 0.4)):    # a Gaussian dent under each blob
+        dent = depth * np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 4.0 ** 2)) * t["mask"]
+        f[0:3] -= dent[None] * np.moveaxis(t["normals"], -1, 0)  # inward = against the outward normal
+    fp = pixel_forces(f, t["pixel_area"])
+    cl = sorted(find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"], disp=f[0:3]),
+                key=lambda c: c.centroid_px[0])
+    assert [round(c.indentation_mm, 3) for c in cl] == [1.2, 0.4]
+    # the force-weighted centroid sits on the flank of the dent, shallower than its deepest point
+    assert 16.0 - np.linalg.norm(cl[0].centroid_mm) < 1.2
+    no_disp = find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"])
+    assert all(c.indentation_mm == 0.0 for c in no_disp)

@@ -54,3 +54,20 @@ def test_missing_covariate_flags_and_keeps_forces(tmp_path):
     r = run(tmp_path / "b", eff)
     assert "effect_covariate_missing" in r.flags
     assert np.allclose([c.force_n for c in r.clusters], [c.force_n for c in plain.clusters])
+
+
+def test_depth_covariate_is_the_clusters_indentation():
+    from runtime.contacts import Cluster
+    from runtime.effect_stage import EffectStage
+
+    class Cal:
+        meta = {"gel": {"radius_mm": 16.0, "center_z_mm": 0.0, "skirt_mm": 2.0}}
+        sensor_id, version, effects = "X", "v0001", []
+
+    stage = EffectStage(Cal())
+    stage.t0 = 0.0
+    on_cap = Cluster(1, (0, 0), (0.0, 0.0, 15.9), (0, 0, 1), 1.0, (0, 0, -1.0), 1.0, 5, 8.0, 0.9, indentation_mm=0.8)
+    flat = Cluster(2, (0, 0), (0.0, 0.0, 15.5), (0, 0, 1), 1.0, (0, 0, -1.0), 1.0, 5, 8.0, 0.9)
+    cov = stage.covariates([on_cap, flat], 0.1)
+    # the deepest point when the displacement field gave one, else the centroid's depth below the cap
+    assert np.allclose(cov["depth"], [0.8, 0.5]) and np.allclose(cov["max_depth"], [0.8, 0.5])

@@ -42,7 +42,7 @@ from tools.workbench.table import SampleTable, nearest_index
 log = logging.getLogger(__name__)
 
 CLUSTER_FIELDS = ("id", "centroid_px", "centroid_mm", "normal", "area_mm2", "force_n", "force_mag_n",
-                  "pixels", "perimeter_px", "circularity", "priority", "age")
+                  "pixels", "perimeter_px", "circularity", "priority", "age", "indentation_mm")
 WIDTH = {"centroid_px": 2, "centroid_mm": 3, "normal": 3, "force_n": 3}
 PASS_MODULES = ("pipeline.py", "preprocess.py", "baseline.py", "model.py", "contacts.py", "geometry.py")
 RUNTIME_COVARIATES = ("depth", "max_depth", "theta", "phi", "rim_distance", "force_n", "force_t")
