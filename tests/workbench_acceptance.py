@@ -214,11 +214,15 @@ def unknown_effect(bench: Bench, work: Path) -> dict:
     plain = bench.diagnose(s)
     with_plugin = bench.diagnose(s, registry=Registry.default(plugin_dirs=[PLUGINS], entry_points=False))
     v = with_plugin.verdict
+    row = next((s for s in with_plugin.ranking if s.effect.name == "azimuth_stiffness"), None)
     return {"truth": UNKNOWN, "covariate": plain.unexplained.get("covariate"),
             "score": plain.unexplained.get("score"), "verdict_without_plugin": plain.verdict.effect.name
             if plain.verdict else None, "plugin_verdict": v.effect.name if v else None,
-            "plugin_reduction": v.reduction if v else None, "plugin_params": dict(v.params) if v else {},
-            "plugin_before": v.before if v else None, "plugin_after": v.after if v else None}
+            # the plugin's own ranking row (what `effects add azimuth_stiffness --from-diagnosis` takes),
+            # whether or not it reached significance
+            "plugin_reduction": row.reduction if row else None, "plugin_params": dict(row.params) if row else {},
+            "plugin_before": row.before if row else None, "plugin_after": row.after if row else None,
+            "plugin_p_adjusted": row.p_adjusted if row else None}
 
 
 def _fmt(x, f="{:.3f}"):
