@@ -30,6 +30,13 @@ class PipelineConfig:
     black_level: float = 4.0          # mean 0–255 below this: frame flagged "frame_black"
     frozen_frames: int = 30           # identical consecutive frames before "camera_frozen"
 
+    @staticmethod
+    def for_package(package) -> "PipelineConfig":
+        """Defaults, with the package's own measured contact threshold when its manifest has one
+        (`runtime.contact_threshold_n`, written at export by tools/train/threshold.py)."""
+        t = ((getattr(package, "manifest", None) or {}).get("runtime") or {}).get("contact_threshold_n")
+        return PipelineConfig(contacts=ContactConfig(threshold_n=float(t))) if t else PipelineConfig()
+
 
 @dataclass
 class FrameResult:
@@ -59,7 +66,7 @@ class SensorPipeline:
     def __init__(self, sensor_id: str, model: FieldModel, calibration: Calibration,
                  config: PipelineConfig | None = None, correction: ForceCorrection | None = None):
         self.sensor_id = sensor_id
-        self.cfg = config or PipelineConfig()
+        self.cfg = config or PipelineConfig.for_package(model.package)
         self.model = model
         self.seq = 0
         self.set_calibration(calibration, correction)

@@ -111,6 +111,8 @@ def test_tiny_chain_ships_a_package_the_runtime_loads(tiny_build, tmp_path):
     assert man["training"]["command"] == "tensortouch train all --tiny"
     assert man["training"]["data_hash"] == b.read_stamp("dataset")["data_hash"]
     assert man["training"]["wall_time_s"] > 0
+    # the export measured the package's contact threshold on training sessions (null = no clean value)
+    assert man["runtime"]["measured"]["rest_frames"] > 0 and "contact_threshold_n" in man["runtime"]
     m = FieldModel(load_package(folder))
     assert m(np.zeros((6, 64, 64), np.float32)).shape == (15, 64, 64)
     summ = json.loads((b.root / "eval" / "summary.json").read_text())

@@ -76,6 +76,7 @@ class BuildConfig:
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     threads: int = 2
     calibration_samples: int = 32                 # int8 calibration inputs
+    threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
     latency_runs: int = 50
     eval_contact_n: float = 1.5                   # stage 8: measured |F| above this = contact (seed §III.C)
     eval_demo: bool = True                        # also evaluate on runtime/demo (held out: own unit/plan)
@@ -102,11 +103,12 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from"],
-            "export": ["name", "calibration_samples"],
+            "export": ["name", "calibration_samples", "threshold_sessions"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
-    optional = {"force_weight": 0.0, "init_from": "", "contact_force_n": 1.5, "detach_force_n": 1.1}
+    optional = {"force_weight": 0.0, "init_from": "", "contact_force_n": 1.5, "detach_force_n": 1.1,
+                "threshold_sessions": 6}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:

@@ -312,12 +312,24 @@ def stage_export(b) -> dict:
                      ExportConfig(calibration_samples=b.cfg.calibration_samples, latency_runs=b.cfg.latency_runs),
                      wall_time_s=build_wall_time(b, 0.0))
     m = man["metrics"]
+    thr = package_threshold(b, root / b.cfg.name)
     # the manifest's wall time is the whole build up to and including export: rewrite it once known
     total = build_wall_time(b, time.monotonic() - t0)
     _set_wall_time(root / b.cfg.name, total)
     return {"package": str(root / b.cfg.name), "psnr_fp32": m["fp32"]["psnr"], "psnr_int8": m["int8"]["psnr"],
             "latency_ms": {"fp32": m["latency_ms"]["fp32"], "int8": m["latency_ms"]["int8"]},
-            "wall_time_s": total}
+            "wall_time_s": total, "contact_threshold_n": thr["contact_threshold_n"]}
+
+
+def package_threshold(b, package_dir: Path) -> dict:
+    """The package's contact threshold from up to `threshold_sessions` training sessions spread over
+    the list (tools/train/threshold.py), recorded in its manifest."""
+    from tools.train.threshold import measure
+
+    specs = list(b.cfg.train)
+    k = max(1, min(len(specs), b.cfg.threshold_sessions))
+    pick = [specs[int(i)] for i in np.unique(np.linspace(0, len(specs) - 1, k).round().astype(int))]
+    return measure(package_dir, [(b.session(s), unit_calibration(b, s.serial)) for s in pick])
 
 
 def _set_wall_time(folder: Path, seconds: float) -> None:

@@ -168,7 +168,7 @@ def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path 
     from runtime.pipeline import PipelineConfig
 
     key_src = {"frames": frames_hash(session), "model": model_sha(package, cfg.precision), "precision": cfg.precision,
-               "geometry": geometry_key(cal), "pipeline": asdict(PipelineConfig()), "code": runtime_code_hash()}
+               "geometry": geometry_key(cal), "pipeline": asdict(PipelineConfig.for_package(package)), "code": runtime_code_hash()}
     key = hashlib.sha256(json.dumps(key_src, sort_keys=True, default=str).encode()).hexdigest()[:16]
     path = cache_dir / f"{key}.npz" if cache_dir else None
     if path is not None and path.is_file():

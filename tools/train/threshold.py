@@ -1,0 +1,154 @@
+"""The package's contact threshold, measured on training sessions (part of the export stage).
+
+The runtime's cluster core threshold (per-pixel |f| in N, runtime/contacts.py) depends on the
+network: how much force it paints on an untouched gel (false contacts) and how thin it spreads a
+light touch. So every package carries its own, measured after export on training sessions through
+the runtime (int8, the unit's calibration): the lowest value of a grid at which no rest frame
+(every indenter's measured |F| below `rest_n`) has a cluster core, times a margin. The runtime takes
+it from `manifest.runtime.contact_threshold_n` (PipelineConfig.for_package); packages without it (or
+with null: no grid value was clean, e.g. a minutes-long smoke model) use the ContactConfig default.
+
+    python -m tools.train.threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ThresholdConfig:
+    grid: tuple = tuple(np.round(np.arange(0.001, 0.00801, 0.00025), 5))   # N per pixel
+    margin: float = 1.0       # the chosen grid value × this (1: the lowest clean value, as session 3 chose)
+    rest_n: float = 0.05      # a frame is at rest when every indenter's measured |F| is below this (N)
+    contact_n: float = 0.5    # ... and in contact when one is above this (detection is reported)
+    min_pixels: int = 3       # as ContactConfig.min_pixels: smaller specks are not clusters
+
+
+def _has_core(mag: np.ndarray, t: float, min_pixels: int) -> bool:
+    n, _, stats, _ = cv2.connectedComponentsWithStats((mag > t).astype(np.uint8), connectivity=8)
+    return bool(n > 1 and stats[1:, cv2.CC_STAT_AREA].max() >= min_pixels)
+
+
+def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = ThresholdConfig()) -> dict:
+    """Per grid value: rest frames with a cluster core, contact frames with one (counts)."""
+    from runtime.contacts import pixel_forces
+    from runtime.model import FieldModel
+    from runtime.pipeline import SensorPipeline
+    from runtime.session import load_session
+    from tools.sessions.writer import read_frames
+    from tools.train.evaluate import measured_at
+
+    ses = load_session(session_dir)
+    frames = ses.table("frames")
+    meas = measured_at(ses, frames[:, 0])
+    pipe = SensorPipeline(ses.sensor_id, FieldModel(package, "int8", 1), calibration)
+    grid = np.asarray(cfg.grid)
+    rest_fp = np.zeros(len(grid), int)
+    hit = np.zeros(len(grid), int)
+    n_rest = n_contact = 0
+    for i, img in read_frames(ses):
+        res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
+        if res.fields is None:
+            continue
+        mags = np.array([np.linalg.norm(meas[k]["force"][i]) for k in meas])
+        rest, contact = bool(np.all(mags < cfg.rest_n)), bool(np.any(mags > cfg.contact_n))
+        if not (rest or contact):
+            continue
+        fp = pixel_forces(res.fields, calibration.pixel_area)
+        mag = np.where(calibration.mask, np.sqrt((fp ** 2).sum(axis=0)), 0.0)
+        has = np.array([_has_core(mag, t, cfg.min_pixels) for t in grid])
+        if rest:
+            n_rest += 1
+            rest_fp += has
+        else:
+            n_contact += 1
+            hit += has
+    return {"session": str(session_dir), "rest_frames": n_rest, "contact_frames": n_contact,
+            "rest_with_core": rest_fp.tolist(), "contact_with_core": hit.tolist()}
+
+
+def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
+    grid = np.asarray(cfg.grid)
+    fp = np.sum([s["rest_with_core"] for s in sweeps], axis=0)
+    hit = np.sum([s["contact_with_core"] for s in sweeps], axis=0)
+    n_contact = sum(s["contact_frames"] for s in sweeps)
+    clean = np.flatnonzero(fp == 0)
+    measured = {"rule": f"lowest grid value with no cluster core on any rest frame (|F| < {cfg.rest_n} N) x {cfg.margin}",
+                "grid_n": grid.tolist(), "rest_frames": int(sum(s["rest_frames"] for s in sweeps)),
+                "rest_frames_with_core": fp.tolist(), "contact_frames": int(n_contact),
+                "sessions": [Path(s["session"]).name for s in sweeps]}
+    if not len(clean):   # no value is clean: say so, and let the runtime keep its default
+        log.warning("contact threshold: every grid value up to %g N leaves false contacts on rest frames (%d at "
+                    "the top): the network paints force on an untouched gel; no threshold recorded", grid[-1], fp[-1])
+        return {"contact_threshold_n": None, "measured": dict(measured, contact_detected_fraction=None)}
+    j = int(clean[0])
+    return {"contact_threshold_n": float(round(grid[j] * cfg.margin, 6)),
+            "measured": {"rule": f"lowest grid value with no cluster core on any rest frame (|F| < {cfg.rest_n} N) x {cfg.margin}",
+                         "grid_n": grid.tolist(), "rest_frames": int(sum(s["rest_frames"] for s in sweeps)),
+                         "rest_frames_with_core": fp.tolist(), "contact_frames": int(n_contact),
+                         "contact_detected_fraction": float(hit[j] / n_contact) if n_contact else None,
+                         "sessions": [Path(s["session"]).name for s in sweeps]}}
+
+
+def record(package_dir: Path, result: dict) -> None:
+    """Write the result into manifest.runtime (atomic; manifest.json itself is not hashed)."""
+    p = Path(package_dir) / "manifest.json"
+    man = json.loads(p.read_text())
+    man.setdefault("runtime", {}).update(result)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(man, indent=1))
+    os.replace(tmp, p)
+
+
+def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True) -> dict:
+    """sessions: [(session_dir, Calibration)]."""
+    from runtime.model import load_package
+
+    package = load_package(package_dir)
+    sweeps = []
+    for path, cal in sessions:
+        sweeps.append(sweep_session(path, package, cal, cfg))
+        log.info("contact threshold sweep %s: %d rest / %d contact frames", Path(path).name,
+                 sweeps[-1]["rest_frames"], sweeps[-1]["contact_frames"])
+    out = choose(sweeps, cfg)
+    if out["contact_threshold_n"] is not None:
+        log.info("contact threshold of %s: %.5f N (contact frames with a core: %.1f %%)", Path(package_dir).name,
+                 out["contact_threshold_n"], 100 * (out["measured"]["contact_detected_fraction"] or 0))
+    if write:
+        record(package_dir, out)
+    return out
+
+
+def main(argv=None) -> int:
+    from runtime.calibration import CalibrationStore
+    from runtime.session import load_session
+
+    ap = argparse.ArgumentParser(prog="python -m tools.train.threshold", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--package", required=True)
+    ap.add_argument("--session", nargs="+", required=True, metavar="SESSION_DIR:STORE_DIR",
+                    help="a training session and the calibration store holding its unit")
+    ap.add_argument("--write", action="store_true", help="record the result in the package's manifest")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    pairs = []
+    for item in args.session:
+        sdir, _, store = item.partition(":")
+        if not store:
+            raise SystemExit(f"--session {item!r}: expected SESSION_DIR:STORE_DIR")
+        pairs.append((sdir, CalibrationStore(store).load(load_session(sdir).sensor_id)))
+    print(json.dumps(measure(args.package, pairs, write=args.write), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
