@@ -28,10 +28,10 @@ def test_choose_takes_the_lowest_clean_grid_value_over_all_sessions():
     a = sweep([9, 2, 0, 0], [50, 50, 50, 40], name="A")
     b = sweep([4, 0, 0, 0], [50, 49, 45, 30], name="B")
     out = choose([a, b], cfg)
-    assert out["contact_threshold_n"] == 0.002
+    assert out["contact_threshold_n"] == pytest.approx(0.002 * 4 / 3, abs=1e-5)
     m = out["measured"]
     assert m["rest_frames_with_core"] == [13, 2, 0, 0] and m["sessions"] == ["A", "B"]
-    assert m["contact_detected_fraction"] == pytest.approx(95 / 100)
+    assert m["detected_at_n"] == 0.0025 and m["contact_detected_fraction"] == pytest.approx(70 / 100)
     dirty = choose([sweep([3, 2, 1, 1], [1, 1, 1, 1])], cfg)
     assert dirty["contact_threshold_n"] is None and dirty["measured"]["rest_frames_with_core"] == [3, 2, 1, 1]
 
