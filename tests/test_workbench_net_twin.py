@@ -6,7 +6,7 @@ the table in docs/workbench.md).
 Model = a model package over the session's frames through the runtime's SensorPipeline, plus the
 sensor's enabled effects and correction, replayed as deployed: TENSORTOUCH_WB_MODEL (a package
 folder) or else the installed package. Unit TWIN-WB01 is not one of the network's training units;
-the sensor first gets its nominal correction, fitted on a 32-poke calibration session without
+the sensor first gets its nominal correction, fitted on two 16-poke calibration sessions without
 hidden physics. Diagnosis reads measured streams and frames only.
 """
 import os
@@ -45,9 +45,10 @@ def test_null_sessions_no_significant_effect_in_9_of_10(bench):
     assert sum(v is None for v in verdicts.values()) >= 9, {s: v.effect.name for s, v in verdicts.items() if v}
 
 
-MEASURED = "measured 2026-11-22 06:39 with the shipped model (docs/workbench.md): "
+MEASURED = "measured 2026-11-22 ~08:55 with the shipped model v4 (docs/workbench.md): "
 NOT_FIRST = {"mullins_softening": MEASURED + "read as viscoelastic relaxation (single-press plans never reload)"}
-HALVED = {"temperature_softening", "led_drift"}      # >= 50 % measured; the others 17-49.96 % (floor 0.32 N)
+# >= 50 % measured; viscoelastic 25-33 %, friction 10 % (floor 0.22 N)
+HALVED = {"temperature_softening", "strain_stiffening", "rim_stiffening", "ft_bias_drift", "led_drift"}
 
 
 def _ids(cases):
@@ -63,7 +64,7 @@ def test_hidden_effect_ranked_first_and_significant(case, bench, tmp_path):
 
 
 @pytest.mark.parametrize("case", [c if c.effect in HALVED else pytest.param(
-    c, marks=pytest.mark.xfail(reason=MEASURED + "the network's floor (0.32 N) is as large as the effect"))
+    c, marks=pytest.mark.xfail(reason=MEASURED + "the network's floor (0.22 N) is as large as the effect"))
     for c in acc.CASES], ids=_ids(acc.CASES))
 def test_adding_the_effect_halves_the_heldout_error(case, bench, tmp_path):
     diag = bench.diagnose(acc.case_session(case, tmp_path))
@@ -71,11 +72,16 @@ def test_adding_the_effect_halves_the_heldout_error(case, bench, tmp_path):
     assert diag.verdict.reduction >= 0.5, diag.verdict.reduction
 
 
-@pytest.mark.xfail(reason=MEASURED + "nothing significant at the first step (each effect alone is found)")
 def test_two_hidden_effects_found_one_after_the_other(bench, tmp_path):
     res = acc.two_effects(bench, tmp_path)          # the null session altered twice (independent code)
     assert sorted(res["found"]) == sorted(res["truth"]), res
     assert res["steps"][-1]["verdict"] is None
+
+
+@pytest.mark.xfail(reason=MEASURED + "rim found (as a pair with relaxation), then relaxation -20 % but Holm p = 0.07")
+def test_two_hidden_effects_in_the_twin_truth_found_one_after_the_other(bench):
+    res = acc.two_effects(bench)                    # viscoelastic + rim switched on in the twin's truth
+    assert sorted(res["found"]) == sorted(res["truth"]), res
 
 
 def test_altered_sessions_carry_no_provenance_or_truth(bench, tmp_path):
@@ -92,7 +98,6 @@ def test_unknown_effect_covariate_named(bench, tmp_path):
     assert res["covariate"] == "phi", res
 
 
-@pytest.mark.xfail(reason=MEASURED + "the plugin is ranked first (-30 %) but Holm p = 0.21")
 def test_a_user_plugin_fixes_the_unknown_effect(bench, tmp_path):
     res = acc.unknown_effect(bench, tmp_path)
     assert res["plugin_verdict"] == "azimuth_stiffness" and res["plugin_reduction"] >= 0.3, res
