@@ -34,7 +34,11 @@ class FitConfig:
     # position enters only where the pokes support it: candidate input sets, simplest first; a richer set
     # is chosen only if its leave-one-out MAE beats the simpler choice by `select_margin` (relative).
     # The reported held-out error is then a NESTED leave-one-out (selection redone without the held-out poke).
-    candidates: tuple[tuple[str, ...], ...] = (("fmag",), ("fmag", "theta"), ("fmag", "theta", "u", "v"))
+    # () = one gain for the whole gel (a forest that cannot split: every leaf holds all pokes). With a
+    # model whose error on a unit is mostly a clean gain (a stiffer or softer gel), 5–7 pokes estimate
+    # one number far better than a forest of piecewise gains over |F| (session 4: the per-|F| forest
+    # stayed 0.07–0.09 N above the best constant gain on the stiffer twin units).
+    candidates: tuple[tuple[str, ...], ...] = ((), ("fmag",), ("fmag", "theta"), ("fmag", "theta", "u", "v"))
     select_margin: float = 0.15
     select_estimators: int = 20                   # trees per forest inside the selection (speed; the stored one has n_estimators)
     n_estimators: int = 50                        # DESIGN §10: 50 trees ≈ 10 µs/sample in onnxruntime
@@ -89,17 +93,31 @@ def gain_targets(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> np.ndarray:
     return np.clip(pokes.ref_force / mag, 0.0, cfg.max_gain)
 
 
+def columns(inputs) -> tuple[str, ...]:
+    """The runtime feature columns of an input set: () (one constant gain) still feeds |F|, unused."""
+    return tuple(inputs) or ("fmag",)
+
+
+def set_name(inputs) -> str:
+    return "+".join(inputs) or "constant"
+
+
 def fit_forest(pokes: PokeSet, cfg: FitConfig = FitConfig()):
-    """A scikit-learn RandomForestRegressor of the gain on cfg.inputs."""
+    """A scikit-learn RandomForestRegressor of the gain on cfg.inputs; with no inputs, one tree that
+    cannot split (min_samples_leaf = all pokes, no bootstrap): the mean gain, everywhere."""
     from sklearn.ensemble import RandomForestRegressor
 
     bad = [n for n in cfg.inputs if n not in FEATURES]
     if bad:
         raise CalibrationError(f"FitConfig.inputs {bad}: not runtime correction features {FEATURES}")
-    rf = RandomForestRegressor(n_estimators=cfg.n_estimators, max_depth=cfg.max_depth,
-                               min_samples_leaf=cfg.min_samples_leaf, bootstrap=cfg.bootstrap,
-                               random_state=cfg.random_state, n_jobs=1)
-    rf.fit(pokes.features(cfg.inputs), gain_targets(pokes, cfg))
+    if not cfg.inputs:
+        rf = RandomForestRegressor(n_estimators=1, max_depth=1, min_samples_leaf=len(pokes), bootstrap=False,
+                                   random_state=cfg.random_state, n_jobs=1)
+    else:
+        rf = RandomForestRegressor(n_estimators=cfg.n_estimators, max_depth=cfg.max_depth,
+                                   min_samples_leaf=cfg.min_samples_leaf, bootstrap=cfg.bootstrap,
+                                   random_state=cfg.random_state, n_jobs=1)
+    rf.fit(pokes.features(columns(cfg.inputs)), gain_targets(pokes, cfg))
     return rf
 
 
@@ -123,7 +141,7 @@ def _loo_held(pokes: PokeSet, cfg: FitConfig, inputs: tuple[str, ...], trees: in
     held = np.empty(n)
     for i in range(n):
         rest = np.r_[0:i, i + 1:n]
-        g = fit_forest(pokes.subset(rest), c).predict(pokes.subset([i]).features(c.inputs))
+        g = fit_forest(pokes.subset(rest), c).predict(pokes.subset([i]).features(columns(c.inputs)))
         held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, c)[0]
     return held
 
@@ -133,9 +151,9 @@ def select_inputs(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> tuple[tuple[s
     only if it beats the current choice by cfg.select_margin. Returns (inputs, {"+".join(set): LOO MAE})."""
     if not cfg.candidates:
         return tuple(cfg.inputs), {}
-    scores = {"+".join(c): float(np.mean(np.abs(_loo_held(pokes, cfg, c, cfg.select_estimators) - pokes.ref_force)))
+    scores = {set_name(c): float(np.mean(np.abs(_loo_held(pokes, cfg, c, cfg.select_estimators) - pokes.ref_force)))
               for c in cfg.candidates}
-    best = simplest_adequate([tuple(c) for c in cfg.candidates], lambda c: scores["+".join(c)], cfg.select_margin)
+    best = simplest_adequate([tuple(c) for c in cfg.candidates], lambda c: scores[set_name(c)], cfg.select_margin)
     return best, scores
 
 
@@ -167,7 +185,7 @@ def leave_one_out(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> dict:
             rest = pokes.subset(np.r_[0:i, i + 1:n])
             inputs, _ = select_inputs(rest, cfg)
             c = replace(cfg, inputs=inputs, candidates=())
-            g = fit_forest(rest, c).predict(pokes.subset([i]).features(inputs))
+            g = fit_forest(rest, c).predict(pokes.subset([i]).features(columns(inputs)))
             held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, c)[0]
     return {"held_out_n": held.tolist(), "before": error_stats(pokes.pred_mag, pokes.ref_force),
             "after": error_stats(held, pokes.ref_force)}
@@ -205,12 +223,14 @@ def fit_correction(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> CorrectionFi
     loo["selection"] = scores
     cfg = replace(cfg, inputs=inputs, candidates=())
     rf = fit_forest(pokes, cfg)
-    x = pokes.features(cfg.inputs)
-    onnx_bytes = to_onnx(rf, len(cfg.inputs), cfg)
+    x = pokes.features(columns(cfg.inputs))
+    onnx_bytes = to_onnx(rf, x.shape[1], cfg)
     _check_onnx(onnx_bytes, x, rf.predict(x))
-    spec = {"file": "correction.onnx", "inputs": list(cfg.inputs), "output": "gain",
-            "kind": "random_forest_gain", "n_estimators": cfg.n_estimators, "max_depth": cfg.max_depth,
+    spec = {"file": "correction.onnx", "inputs": list(columns(cfg.inputs)), "output": "gain",
+            "kind": "random_forest_gain", "n_estimators": len(rf.estimators_), "max_depth": rf.max_depth,
             "pokes": len(pokes), **({"selection_loo_mae_n": scores} if scores else {})}
+    if not cfg.inputs:
+        spec["constant"] = True            # one leaf: the same gain for every contact
     return CorrectionFit(onnx_bytes, spec, loo, rf.predict(x).tolist(), asdict(cfg))
 
 

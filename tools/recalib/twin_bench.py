@@ -93,7 +93,7 @@ class TwinBenchConfig:
     rest_frames: int = 10                                # frames at rest the rim is found in
     geometry: str = ""                                   # "" | "full" (GPR θ/φ + centre) | "center" (centre only):
                                                          # a geometry stage first (7 pokes), then the force fit
-    variants: tuple = (("fmag",), ("fmag", "theta"), ("fmag", "theta", "u", "v"),  # fixed correction inputs
+    variants: tuple = ((), ("fmag",), ("fmag", "theta"), ("fmag", "theta", "u", "v"),  # fixed correction inputs
                        ("fmag", "fx", "fy", "fz"),
                        ("fx", "fy", "fz", "fmag", "u", "v", "theta", "phi"))      # (forced, no decision)
     root: Path | None = None                             # default <cache>/recalib/twin
@@ -244,7 +244,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
         an = analyse(outcome.accepted, cal_fit, scfg, force=True)
         entry.update(loo_before_mae_n=an.fit.loo["before"]["mae_n"], loo_after_mae_n=an.fit.loo["after"]["mae_n"],
                      stored=bool(an.fit.loo["after"]["mae_n"] < an.active["mae_n"]),
-                     fit_gain=[float(g) for g in an.fit.train_gain], inputs=an.fit.spec["inputs"],
+                     fit_gain=[float(g) for g in an.fit.train_gain], inputs=["constant"] if an.fit.spec.get("constant") else an.fit.spec["inputs"],
                      selection=an.fit.loo.get("selection", {}),
                      pokes=[{"pred_n": p.pred_mag, "ref_n": p.ref_force_n, "uv_px": [float(v) for v in p.uv_px]}
                             for p in outcome.accepted])

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.recalib.fit import set_name
 from tools.recalib.replay import collect_frames, corrected_frames, held_out_pokes, mae
 
 log = logging.getLogger(__name__)
@@ -99,10 +100,10 @@ def input_variants(pokes, cal, scfg, raw, refs, row, rules, variants, work: Path
     for inputs in variants:
         vcfg = dc_replace(scfg, fit=dc_replace(scfg.fit, inputs=tuple(inputs), candidates=()))
         an = analyse(pokes, cal, vcfg, force=True)
-        path = work / f"variant-{'-'.join(inputs)}.onnx"
+        path = work / f"variant-{set_name(inputs).replace('+', '-')}.onnx"
         path.write_bytes(an.fit.onnx_bytes)
         corr = ForceCorrection(path, an.fit.spec)
-        name = "+".join(inputs)
+        name = set_name(inputs)
         out[name] = {"loo_after_mae_n": an.fit.loo["after"]["mae_n"]}
         for k in raw:
             a = held_out_pokes(corrected_frames(raw[k], cal, corr), refs[k], rules)
