@@ -313,6 +313,8 @@ def stage_export(b) -> dict:
                      wall_time_s=build_wall_time(b, 0.0))
     m = man["metrics"]
     thr = package_threshold(b, root / b.cfg.name)
+    if b.cfg.init_from:
+        _record_init(root / b.cfg.name, Path(b.cfg.init_from))
     # the manifest's wall time is the whole build up to and including export: rewrite it once known
     total = build_wall_time(b, time.monotonic() - t0)
     _set_wall_time(root / b.cfg.name, total)
@@ -330,6 +332,18 @@ def package_threshold(b, package_dir: Path) -> dict:
     k = max(1, min(len(specs), b.cfg.threshold_sessions))
     pick = [specs[int(i)] for i in np.unique(np.linspace(0, len(specs) - 1, k).round().astype(int))]
     return measure(package_dir, [(b.session(s), unit_calibration(b, s.serial)) for s in pick])
+
+
+def _record_init(folder: Path, state: Path) -> None:
+    """A fine-tuned package names the checkpoint it started from (path, SHA-256, that run's fit config)."""
+    import hashlib
+
+    p = folder / "manifest.json"
+    man = json.loads(p.read_text())
+    run_cfg = state.parent / "config.json"
+    man["training"]["init_from"] = {"state_dict": str(state), "sha256": hashlib.sha256(state.read_bytes()).hexdigest(),
+                                    "fit_config": json.loads(run_cfg.read_text()) if run_cfg.is_file() else None}
+    _atomic_json(man, p)
 
 
 def _set_wall_time(folder: Path, seconds: float) -> None:
