@@ -193,3 +193,20 @@ def test_pairs_stay_quiet_on_null_sessions(registry):
     for s in range(3):
         d = diagnose(synth_table(100 + s, n_pokes=30, rate=25.0, noise=0.05), registry, cfg=cfg)
         assert d.verdict is None and d.pairs and not any(p.significant for p in d.pairs)
+
+
+def test_a_runner_up_the_blocks_cannot_separate_is_named(tmp_path):
+    """Two candidates that act identically on a session (here a user plugin cloning temperature
+    softening): diagnosis names the verdict and says the other explains as much."""
+    (tmp_path / "clone.py").write_text(
+        "from runtime.effects.builtin import TemperatureSoftening\n\n\n"
+        "class TemperatureClone(TemperatureSoftening):\n    name = 'temperature_clone'\n")
+    reg = Registry.default(plugin_dirs=[tmp_path], entry_points=False)
+    table = small(1, [("temperature_softening", HIDDEN["temperature_softening"])])
+    d = diagnose(table, reg)
+    assert d.verdict.effect.name in {"temperature_softening", "temperature_clone"}
+    assert d.runner_up is not None and {d.runner_up["effect"], d.verdict.effect.name} == {
+        "temperature_softening", "temperature_clone"}
+    assert any("not distinguishable" in line for line in d.words()) and "runner_up" in d.to_json()
+    plain = diagnose(table, Registry.default(entry_points=False))
+    assert plain.runner_up is None or plain.runner_up["effect"] != "temperature_clone"

@@ -164,6 +164,7 @@ class Diagnosis:
     seconds: float
     min_unexplained: float = 0.02
     pairs: list = field(default_factory=list)      # pairs.PairScore (scored when no single effect was)
+    runner_up: dict | None = None  # the next significant effect when the blocks cannot tell it from the verdict
 
     @property
     def verdict(self) -> EffectScore | None:
@@ -177,6 +178,8 @@ class Diagnosis:
                "unexplained": self.unexplained}
         if self.pairs:
             out["pairs"] = [p.to_json() for p in self.pairs]
+        if self.runner_up:
+            out["runner_up"] = self.runner_up
         return out
 
     def words(self) -> list[str]:
@@ -202,6 +205,11 @@ class Diagnosis:
             lines.append("No significant missing effect"
                          + (f" (best candidate {best.effect.name}: {100 * best.reduction:+.1f} % "
                             f"held-out error reduction, p = {best.p_adjusted:.2g}{base})" if best else ""))
+        if self.runner_up:
+            r = self.runner_up
+            lines.append(f"  {r['effect']} explains almost as much ({-100 * r['reduction']:+.0f} %): per held-out block "
+                         f"the two are not distinguishable on this session (p = {r['p_vs_verdict']:.2g}); a plan "
+                         f"that separates their covariates (holds, reloads, temperature range) would tell them apart")
         u = self.unexplained
         if u.get("covariate") and u["score"] >= self.min_unexplained:
             lines.append(f"What remains is best explained by {u['covariate']} "
@@ -289,7 +297,24 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
                     "form": scanned[0]["form"], "unit": scanned[0]["unit"]}
                    if scanned else {"covariate": None, "score": 0.0})
     return Diagnosis(scores, unexplained, scanned, chain.names, len(table), cfg.n_blocks,
-                     time.perf_counter() - t0, cfg.min_unexplained, pairs)
+                     time.perf_counter() - t0, cfg.min_unexplained, pairs, _runner_up(scores, cfg))
+
+
+def _runner_up(scores: list, cfg: DiagnoseConfig) -> dict | None:
+    """The second significant effect of the verdict's channel when a sign-flip test on the per-block
+    held-out errors of the two cannot say the verdict is better (one-sided, p > alpha)."""
+    sig = [s for s in scores if s.significant]
+    if len(sig) < 2 or sig[0].pair is not None:
+        return None
+    a = sig[0]
+    b = next((s for s in sig[1:] if s.channel == a.channel and len(s.block_after) == len(a.block_after)), None)
+    if b is None or len(a.block_after) < 2:
+        return None
+    p = sign_flip_pvalue(np.asarray(b.block_after) - np.asarray(a.block_after), cfg)
+    if p <= cfg.alpha:
+        return None
+    return {"effect": b.effect.name, "reduction": float(b.reduction), "params": {k: float(v) for k, v in b.params.items()},
+            "p_vs_verdict": float(p)}
 
 
 def _pair_stage(scores: list, ch: Channels, blocks: np.ndarray, cfg: DiagnoseConfig, baseline: dict):
