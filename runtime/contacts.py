@@ -86,13 +86,13 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
 
     uv = wmean(np.stack([uu + 0.5, vv + 0.5], 1))
     pos = surface_xyz.reshape(-1, 3)[idx]
-    if disp is not None:
-        pos = pos + disp.reshape(3, -1)[:, idx].T
-    centroid = wmean(pos)
     indent = np.zeros(k)
-    if disp is not None:   # the indenter's depth: the cluster's deepest point, not its force-weighted centroid
-        inward = -np.einsum("ij,ij->i", disp.reshape(3, -1)[:, idx].T, normals.reshape(-1, 3)[idx])
-        np.maximum.at(indent, lab, inward)
+    if disp is not None:
+        d = disp.reshape(3, -1)[:, idx].T
+        pos = pos + d
+        # the indenter's depth: the cluster's deepest point, not its force-weighted centroid
+        np.maximum.at(indent, lab, -np.einsum("ij,ij->i", d, normals.reshape(-1, 3)[idx]))
+    centroid = wmean(pos)
     nsum = wmean(normals.reshape(-1, 3)[idx])
     nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
     fvec = np.stack([np.bincount(lab, weights=force_px[i].ravel()[idx], minlength=k) for i in range(3)], 1)

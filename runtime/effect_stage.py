@@ -4,8 +4,8 @@ Runs between contact clustering and the force correction (DESIGN §4). Per conta
 covariates the workbench uses (runtime/effects/base.py COVARIATES) from what the runtime knows:
 the cluster's deformed 3D centroid against the calibrated gel cap (θ, φ, normal, distance to the
 rim), its deepest inward displacement (depth), time since start, the largest depth this contact id
-reached, normal/tangential force, and the temperature when a sensor provides one. An effect whose covariate is not available here (e.g.
-temperature without a thermistor) is skipped with a status flag instead of failing the frame.
+reached, normal/tangential force, and the temperature when a sensor provides one. An effect whose
+covariate is not available here (e.g. temperature without a thermistor) is skipped with a status flag instead of failing the frame.
 """
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ class EffectStage:
         depth = np.clip(self.radius - dist, 0.0, None) if self.radius > 0 else np.zeros(len(p))
         # the indenter's depth: the cluster's deepest point (its force-weighted centroid sits shallower,
         # on the flank of the dent); the centroid's depth when no displacement field was clustered
-        depth = np.maximum(depth, [getattr(c, "indentation_mm", 0.0) for c in clusters])
+        depth = np.maximum(depth, [c.indentation_mm for c in clusters])
         theta = np.arccos(np.clip(n[:, 2], -1.0, 1.0))
         theta_rim = float(np.arccos(np.clip((self.skirt - self.center_z) / self.radius, -1, 1))) if self.radius else 0.0
         ids = [c.id for c in clusters]

@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tools.recalib.fit import FitConfig, columns, corrected_magnitude, decide, error_stats, fit_correction, fit_forest
+from tools.recalib.fit import FitConfig, chosen_inputs, columns, corrected_magnitude, decide, error_stats, fit_correction, fit_forest
 from tools.recalib.synthetic import SyntheticUnit, random_units
 
 log = logging.getLogger(__name__)
@@ -43,9 +43,8 @@ def one_session(unit: SyntheticUnit, n: int, rng: np.random.Generator, cfg: FitC
     test = unit.held_out(rng, 300)
     before = error_stats(test.pred_mag, test.ref_force)["mae_n"]
     if d.store:
-        inputs = () if fit.spec.get("constant") else tuple(fit.spec["inputs"])
-        chosen = replace(cfg, inputs=inputs, candidates=())   # what the fit stored
-        g = fit_forest(pokes, chosen).predict(test.features(columns(inputs)))
+        chosen = replace(cfg, inputs=chosen_inputs(fit.spec), candidates=())   # what the fit stored
+        g = fit_forest(pokes, chosen).predict(test.features(columns(chosen.inputs)))
         after = error_stats(corrected_magnitude(test.pred_mag, g, cfg), test.ref_force)["mae_n"]
     else:
         after = before

@@ -102,6 +102,11 @@ def set_name(inputs) -> str:
     return "+".join(inputs) or "constant"
 
 
+def chosen_inputs(spec: dict) -> tuple[str, ...]:
+    """The input set a stored correction entry was fitted on (() for one constant gain)."""
+    return () if spec.get("constant") else tuple(spec["inputs"])
+
+
 def fit_forest(pokes: PokeSet, cfg: FitConfig = FitConfig()):
     """A scikit-learn RandomForestRegressor of the gain on cfg.inputs; with no inputs, one tree that
     cannot split (min_samples_leaf = all pokes, no bootstrap): the mean gain, everywhere."""

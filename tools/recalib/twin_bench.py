@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.recalib.fit import chosen_inputs
 from tools.recalib.replay import collect_frames, corrected_frames, held_out_pokes, mae  # noqa: F401 (re-exported)
 from tools.recalib.twin_report import markdown, summary  # noqa: F401 (re-exported)
 from tools.recalib.twin_variants import geometry_stage, input_variants
@@ -244,7 +245,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
         an = analyse(outcome.accepted, cal_fit, scfg, force=True)
         entry.update(loo_before_mae_n=an.fit.loo["before"]["mae_n"], loo_after_mae_n=an.fit.loo["after"]["mae_n"],
                      stored=bool(an.fit.loo["after"]["mae_n"] < an.active["mae_n"]),
-                     fit_gain=[float(g) for g in an.fit.train_gain], inputs=["constant"] if an.fit.spec.get("constant") else an.fit.spec["inputs"],
+                     fit_gain=[float(g) for g in an.fit.train_gain], inputs=list(chosen_inputs(an.fit.spec)) or ["constant"],
                      selection=an.fit.loo.get("selection", {}),
                      pokes=[{"pred_n": p.pred_mag, "ref_n": p.ref_force_n, "uv_px": [float(v) for v in p.uv_px]}
                             for p in outcome.accepted])

@@ -334,24 +334,28 @@ def package_threshold(b, package_dir: Path) -> dict:
     return measure(package_dir, [(b.session(s), unit_calibration(b, s.serial)) for s in pick])
 
 
+def update_manifest(folder: Path, change) -> None:
+    """Apply `change(manifest)` to a package's manifest.json and write it atomically (the manifest is
+    not itself hashed, so export-time records such as wall time, threshold, init checkpoint go here)."""
+    p = Path(folder) / "manifest.json"
+    man = json.loads(p.read_text())
+    change(man)
+    _atomic_json(man, p)
+
+
 def _record_init(folder: Path, state: Path) -> None:
     """A fine-tuned package names the checkpoint it started from (path, SHA-256, that run's fit config)."""
     import hashlib
 
-    p = folder / "manifest.json"
-    man = json.loads(p.read_text())
     run_cfg = state.parent / "config.json"
-    man["training"]["init_from"] = {"state_dict": str(state), "sha256": hashlib.sha256(state.read_bytes()).hexdigest(),
-                                    "fit_config": json.loads(run_cfg.read_text()) if run_cfg.is_file() else None}
-    _atomic_json(man, p)
+    init = {"state_dict": str(state), "sha256": hashlib.sha256(state.read_bytes()).hexdigest(),
+            "fit_config": json.loads(run_cfg.read_text()) if run_cfg.is_file() else None}
+    update_manifest(folder, lambda man: man["training"].update(init_from=init))
 
 
 def _set_wall_time(folder: Path, seconds: float) -> None:
-    """Record the build's wall time in the manifest (manifest.json is not itself hashed)."""
-    p = folder / "manifest.json"
-    man = json.loads(p.read_text())
-    man["training"]["wall_time_s"] = round(float(seconds), 1)
-    _atomic_json(man, p)
+    """Record the build's wall time in the manifest."""
+    update_manifest(folder, lambda man: man["training"].update(wall_time_s=round(float(seconds), 1)))
 
 
 def stage_evaluate(b) -> dict:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -102,13 +101,10 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
 
 
 def record(package_dir: Path, result: dict) -> None:
-    """Write the result into manifest.runtime (atomic; manifest.json itself is not hashed)."""
-    p = Path(package_dir) / "manifest.json"
-    man = json.loads(p.read_text())
-    man.setdefault("runtime", {}).update(result)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(man, indent=1))
-    os.replace(tmp, p)
+    """Write the result into manifest.runtime (atomic)."""
+    from tools.train.stages import update_manifest
+
+    update_manifest(package_dir, lambda man: man.setdefault("runtime", {}).update(result))
 
 
 def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True) -> dict:

@@ -131,6 +131,8 @@ def score_pairs(singles: list, ch: Channels, blocks: np.ndarray, fit_cfg, cfg: P
     rows = np.arange(len(ch.table))
     base = ch.base_residual("force")
     sse0 = float(np.sum(base ** 2))
+    if sse0 <= 0:
+        return [], 0
     screened = []
     for sa, sb in itertools.combinations(force, 2):
         pc = PairCandidate(cands[sa.effect.name], cands[sb.effect.name], cfg)
@@ -139,8 +141,6 @@ def score_pairs(singles: list, ch: Channels, blocks: np.ndarray, fit_cfg, cfg: P
         ia, ib = pc.split(pc.identity())
         starts = [np.concatenate([ta, tb]), np.concatenate([ta, ib]), np.concatenate([ia, tb])]
         th = pc.fit(rows, starts)
-        if sse0 <= 0:
-            continue
         red = [1.0 - np.sqrt(np.sum(pc.residual(x) ** 2) / sse0) for x in (th, starts[1], starts[2])]
         screened.append((red[0] - max(red[1], red[2]), pc, sa, sb, th))   # in-sample, all three alike
     screened.sort(key=lambda z: -z[0])
