@@ -3,8 +3,8 @@
 Runs between contact clustering and the force correction (DESIGN §4). Per contact it derives the
 covariates the workbench uses (runtime/effects/base.py COVARIATES) from what the runtime knows:
 the cluster's deformed 3D centroid against the calibrated gel cap (θ, φ, normal, distance to the
-rim), its deepest inward displacement (depth), time since start, the largest depth this contact id
-reached, normal/tangential force, and the temperature when a sensor provides one. An effect whose
+rim), its deepest inward displacement (depth), time since start, the largest depth reached so far
+in the session (docs/effects.md: Mullins damage outlasts the contact that made it), normal/tangential force, and the temperature when a sensor provides one. An effect whose
 covariate is not available here (e.g. temperature without a thermistor) is skipped with a status flag instead of failing the frame.
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ class EffectStage:
         self.center_z = float(gel.get("center_z_mm", 0.0))
         self.skirt = float(gel.get("skirt_mm", 0.0))
         self.tracks: dict = {}
-        self.max_depth: dict[int, float] = {}
+        self.max_depth = 0.0          # the largest contact depth so far in the session (mm)
         self.t0: float | None = None
         self.temperature: float | None = None
 
@@ -54,9 +54,9 @@ class EffectStage:
         theta = np.arccos(np.clip(n[:, 2], -1.0, 1.0))
         theta_rim = float(np.arccos(np.clip((self.skirt - self.center_z) / self.radius, -1, 1))) if self.radius else 0.0
         ids = [c.id for c in clusters]
-        maxd = np.array([max(self.max_depth.get(i, 0.0), d) for i, d in zip(ids, depth)])
-        for i, d in zip(ids, maxd):
-            self.max_depth[i] = float(d)
+        # the largest depth so far in the session (earlier frames, any contact; the runtime cannot tell
+        # indenters apart), or this contact's own depth when deeper
+        maxd = np.maximum(self.max_depth, depth)
         fn = np.abs(np.sum(f * n, axis=1))
         cov = {"time": t - self.t0, "depth": depth, "max_depth": maxd, "normal": n, "theta": theta,
                "phi": np.arctan2(n[:, 1], n[:, 0]),
@@ -73,9 +73,11 @@ class EffectStage:
         `apply` does (the workbench uses it to see the runtime's covariates)."""
         if self.t0 is None:
             self.t0 = t
-        live = {c.id for c in clusters}
-        self.max_depth = {k: v for k, v in self.max_depth.items() if k in live}
-        return self.covariates(clusters, t) if clusters else {}
+        if not clusters:
+            return {}
+        cov = self.covariates(clusters, t)
+        self.max_depth = max(self.max_depth, float(np.max(cov["depth"])))
+        return cov
 
     def apply(self, clusters, t: float) -> list[str]:
         """Correct the clusters' forces in place; returns status flags for this frame."""

@@ -68,6 +68,15 @@ def test_depth_covariate_is_the_clusters_indentation():
     stage.t0 = 0.0
     on_cap = Cluster(1, (0, 0), (0.0, 0.0, 15.9), (0, 0, 1), 1.0, (0, 0, -1.0), 1.0, 5, 8.0, 0.9, indentation_mm=0.8)
     flat = Cluster(2, (0, 0), (0.0, 0.0, 15.5), (0, 0, 1), 1.0, (0, 0, -1.0), 1.0, 5, 8.0, 0.9)
-    cov = stage.covariates([on_cap, flat], 0.1)
+    cov = stage.frame_covariates([on_cap, flat], 0.1)
     # the deepest point when the displacement field gave one, else the centroid's depth below the cap
     assert np.allclose(cov["depth"], [0.8, 0.5]) and np.allclose(cov["max_depth"], [0.8, 0.5])
+    # max_depth is the session's (docs/effects.md): it outlasts the contact, and a new contact
+    # shallower than that starts below it
+    assert stage.frame_covariates([], 0.2) == {}
+    later = Cluster(7, (0, 0), (0.0, 0.0, 15.9), (0, 0, 1), 1.0, (0, 0, -1.0), 1.0, 5, 8.0, 0.9, indentation_mm=0.3)
+    cov = stage.frame_covariates([later], 0.3)
+    assert np.allclose(cov["depth"], [0.3]) and np.allclose(cov["max_depth"], [0.8])
+    deeper = Cluster(8, (0, 0), (0.0, 0.0, 15.9), (0, 0, 1), 1.0, (0, 0, -1.0), 1.0, 5, 8.0, 0.9, indentation_mm=1.1)
+    assert np.allclose(stage.frame_covariates([deeper], 0.4)["max_depth"], [1.1])
+    assert np.allclose(stage.frame_covariates([later], 0.5)["max_depth"], [1.1])

@@ -12,8 +12,9 @@ provenance, and changes wrench.csv the way a hidden physical effect would.
                 sphere (params "radius", "center_z" of the gel, mm), h = center_z + radius
   rim           force scaled by 1 + a exp(-s / w), s = arc length from the tip's point on the cap
                 down to the rim (cap sphere + "skirt" height, mm)
-  mullins       force scaled by 1 - r erf((D - d) / m) on unloading: d = indentation of the mocap tip
-                (as for strain), D = the largest d since this indenter last left the gel
+  mullins       force scaled by 1 - r erf((D - d) / m): d = indentation of the mocap tip (as for
+                strain), D = the largest d of this indenter so far in the session (the damage stays:
+                unloading and every later shallower contact are softer)
   friction      the shear part of the reading (perpendicular to the cap sphere's normal at the tip,
                 rotated into the F/T frame through the tip pose and the F/T mount) capped at mu |F_n|
   led           frames.avi re-encoded with every pixel times 1 + c t (LED dimming; MJPG as recorded);
@@ -111,7 +112,7 @@ def alter_session(src: Path, dst: Path, kind: str, params: dict) -> Path:
                 most = np.empty_like(d)
                 run = 0.0
                 for i, di in enumerate(d):
-                    run = max(run, di) if di > 0 else 0.0
+                    run = max(run, di)
                     most[i] = run
                 f = f * (1.0 - params["r"] * erf((most - d) / params["m"]))[:, None]
             elif kind == "friction":
