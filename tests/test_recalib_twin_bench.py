@@ -86,6 +86,34 @@ def test_held_out_pokes_pairs_single_contact_episodes_with_the_stream():
     ts = np.array([f[0] for f in frames])
     ref_mag = np.array([1.2 * sum(c.force_mag_n for c in cl[:1]) for _, cl in frames])
     ref = StreamReference(ts, np.column_stack([np.zeros_like(ts), np.zeros_like(ts), ref_mag]), rules=rules)
-    m = held_out_pokes(frames, ref, rules)
+    m = held_out_pokes(frames, ref, rules, by="detected")
     np.testing.assert_allclose(m["pred"], [1.0, 2.0])
     np.testing.assert_allclose(m["ref"], [1.2, 2.4])
+
+
+def test_held_out_pokes_are_the_gauges_so_a_missed_poke_counts_with_zero():
+    """Default pairing: one row per reference poke, whatever the sensor saw; the sensor missed the 2nd poke,
+    split the 3rd into two parts 2 mm apart (summed) and saw a far 2nd contact on the 4th (not counted)."""
+    rules = PokeRules()
+    frames, ts, ref_mag, t = [], [], [], 0.0
+    for k, amp in enumerate((1.0, 2.0, 1.5, 0.8)):
+        for i in range(30):
+            on = 5 <= i < 20
+            if not on or k == 1:
+                cl = []
+            elif k == 2:
+                cl = [_cluster(30, 30, [0, 0, -amp / 2]), _cluster(31, 30, [0, 0, -amp / 2], (2.0, 0.0, 6.0))]
+            elif k == 3:
+                cl = [_cluster(30, 30, [0, 0, -amp]), _cluster(5, 5, [0, 0, -0.5], (-6.0, -6.0, 6.0))]
+            else:
+                cl = [_cluster(30, 30, [0, 0, -amp])]
+            frames.append((t, cl))
+            ts.append(t)
+            ref_mag.append(1.1 * amp if on else 0.0)
+            t += 1 / 30
+    ts = np.array(ts)
+    ref = StreamReference(ts, np.column_stack([np.zeros_like(ts), np.zeros_like(ts), ref_mag]), rules=rules)
+    m = held_out_pokes(frames, ref, rules)
+    np.testing.assert_allclose(m["ref"], [1.1, 2.2, 1.65, 0.88])
+    np.testing.assert_allclose(m["pred"], [1.0, 0.0, 1.5, 0.8])
+    assert len(held_out_pokes(frames, ref, rules, by="detected")["ref"]) == 2   # detection drops the miss and the 2-contact poke

@@ -3,7 +3,8 @@
 `collect_frames` runs a recording through runtime.pipeline.SensorPipeline with the correction off and
 keeps each frame's clusters (optionally cached as .npz, no pickle); `corrected_frames` applies a
 calibration's correction to them exactly as the pipeline's correction stage does; `held_out_pokes`
-pairs single-contact pokes with a reference force stream (as tools.recalib.evaluate.measure_pokes).
+pairs them with a reference force stream, one row per poke of the reference (as
+tools.recalib.evaluate.measure_pokes).
 """
 from __future__ import annotations
 
@@ -112,8 +113,9 @@ def corrected_frames(frames: list, cal, corr=None) -> list:
     return out
 
 
-def held_out_pokes(frames: list, reference, rules) -> dict:
-    """Single-contact pokes of a frame sequence paired with the reference (as tools.recalib.evaluate)."""
-    from tools.recalib.evaluate import pair_pokes
+def held_out_pokes(frames: list, reference, rules, by: str = "gauge") -> dict:
+    """The reference's pokes with the sensor's force in them (tools.recalib.evaluate.gauge_pokes), or
+    with by="detected" the single-contact pokes the sensor detected (pair_pokes)."""
+    from tools.recalib.evaluate import gauge_pokes, pair_pokes
 
-    return pair_pokes(frames, reference, rules)
+    return gauge_pokes(frames, reference, rules) if by == "gauge" else pair_pokes(frames, reference, rules)

@@ -11,7 +11,8 @@ calibration, as shipped):
      gauge = the twin's F/T through the recording's force stream (the twin gauge);
   2. a separate held-out session: a random single-indenter demonstrator plan (pokes, presses,
      slides, twists; other places, depths and indenters);
-  3. the shipped int8 model through runtime.pipeline.SensorPipeline: held-out pokes with the nominal
+  3. the shipped int8 model through runtime.pipeline.SensorPipeline: held-out pokes (the gauge's pokes,
+     tools.recalib.evaluate.gauge_pokes: every version is scored on the same pokes) with the nominal
      calibration (before), then `recalibrate` with the first 5, 6 and 7 accepted pokes (fit, LOO
      decision, stored as a new version), and the held-out pokes again with each new version (after).
 A refused correction leaves the calibration as it was, so its "after" equals "before" (0 %); the
@@ -228,7 +229,8 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     raw_fit = raw if cal_fit is base else {k: collect_frames(d, cal_fit, package, cfg.precision, fc) for k, d in held.items()}
     for k in held:
         b = held_out_pokes(raw_fit[k], refs[k], eval_rules)
-        g = float(np.median(b["ref"] / b["pred"])) if len(b["ref"]) else float("nan")
+        seen = b["pred"] > 0           # a missed poke (0 N) has no gain
+        g = float(np.median(b["ref"][seen] / b["pred"][seen])) if seen.any() else float("nan")
         row["held_out"][k].update(crop_only_mae_n=mae(b), crop_only_pokes=len(b["ref"]), crop_pred=b["pred"].tolist(),
                                   crop_ref=b["ref"].tolist(),   # oracle: the best constant gain on these pokes
                                   oracle_gain=g, oracle_mae_n=float(np.mean(np.abs(g * b["pred"] - b["ref"]))))

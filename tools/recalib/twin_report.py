@@ -31,8 +31,8 @@ def markdown(res: dict, held: str = "probe") -> str:
 def summary(res: dict, held: str = "probe") -> str:
     """One line per unit: before, re-crop only, after with 5/6/7 pokes (decided), inputs chosen."""
     counts = [str(n) for n in res.get("poke_counts", (5, 6, 7))]
-    lines = ["| unit | variation | before (N) (pokes seen) | re-crop only (N) (pokes seen) | "
-             + " | ".join(f"after, {n} pokes (N) (pokes seen)" for n in counts) + " | reduction " + " / ".join(counts)
+    lines = ["| unit | variation | before (N) (pokes) | re-crop only (N) (pokes) | "
+             + " | ".join(f"after, {n} pokes (N) (pokes)" for n in counts) + " | reduction " + " / ".join(counts)
              + " | inputs chosen " + " / ".join(counts) + " | oracle constant gain (N) |", "|---" * (7 + len(counts)) + "|"]
     for r in res["units"]:
         h = r["held_out"].get(held)
