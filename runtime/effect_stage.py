@@ -4,8 +4,11 @@ Runs between contact clustering and the force correction (DESIGN §4). Per conta
 covariates the workbench uses (runtime/effects/base.py COVARIATES) from what the runtime knows:
 the cluster's deformed 3D centroid against the calibrated gel cap (θ, φ, normal, distance to the
 rim), its deepest inward displacement (depth), time since start, the largest depth reached so far
-in the session (docs/effects.md: Mullins damage outlasts the contact that made it), normal/tangential force, and the temperature when a sensor provides one. An effect whose
-covariate is not available here (e.g. temperature without a thermistor) is skipped with a status flag instead of failing the frame.
+in the session (docs/effects.md: Mullins damage outlasts the contact that made it; tracked on every
+frame with contacts, effects enabled or not, and kept across a calibration swap by the pipeline),
+normal/tangential force, and the temperature when a sensor provides one. An effect whose covariate is
+not available here (e.g. temperature without a thermistor) is skipped with a status flag instead of
+failing the frame.
 """
 from __future__ import annotations
 
@@ -84,6 +87,8 @@ class EffectStage:
         if self.t0 is None:
             self.t0 = t
         if not self.enabled:
+            if clusters:      # the gel's memory (max_depth) is kept even while no effect uses it
+                self.frame_covariates(clusters, t)
             return list(self.flags)
         cov = self.frame_covariates(clusters, t)
         if not clusters:

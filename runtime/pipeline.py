@@ -84,8 +84,9 @@ class SensorPipeline:
         self.cal = calibration
         self.correction = correction if correction is not None else ForceCorrection.from_calibration(calibration)
         temperature = self.effects.temperature if previous is not None else None
+        max_depth = self.effects.max_depth if previous is not None else 0.0   # the gel's memory stays
         self.effects = EffectStage(calibration)
-        self.effects.temperature = temperature
+        self.effects.temperature, self.effects.max_depth = temperature, max_depth
         if previous is not None and _same_geometry(previous, calibration):
             return  # only correction/effects changed: keep the baseline and the contact ids
         cx, cy = calibration.gel_center_px

@@ -80,3 +80,19 @@ def test_depth_covariate_is_the_clusters_indentation():
     deeper = Cluster(8, (0, 0), (0.0, 0.0, 15.9), (0, 0, 1), 1.0, (0, 0, -1.0), 1.0, 5, 8.0, 0.9, indentation_mm=1.1)
     assert np.allclose(stage.frame_covariates([deeper], 0.4)["max_depth"], [1.1])
     assert np.allclose(stage.frame_covariates([later], 0.5)["max_depth"], [1.1])
+
+
+def test_gel_memory_is_kept_without_effects_and_across_a_calibration_swap(tmp_path):
+    """max_depth (Mullins) is the gel's: tracked while no effect is enabled, and a new calibration
+    version with Mullins softening (hot swap, docs/runtime.md) starts from the depth already reached."""
+    store = CalibrationStore(tmp_path / "calib")
+    dome_calibration(store.root, SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
+    pipe = SensorPipeline(SENSOR, FieldModel(pkg, "fp32"), store.load(SENSOR))
+    res = [pipe.process(f, k / 30.0) for k, f in enumerate(frames())]
+    assert res[-1].clusters and not pipe.effects.enabled
+    reached = pipe.effects.max_depth
+    assert reached > 0.0
+    store.derive(SENSOR, {"effects": [{"name": "mullins_softening", "params": {"r": 0.3, "m": 0.5}}]})
+    pipe.set_calibration(store.load(SENSOR))
+    assert pipe.effects.enabled and pipe.effects.max_depth == reached
