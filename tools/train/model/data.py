@@ -98,8 +98,19 @@ def load_split(root: str | Path, split: str | None = None, limit: int | None = N
     entries = [e for e in doc["samples"] if split is None or e.get("split") == split][:limit]
     if not entries:
         raise DatasetError(f"{Path(root) / 'index.json'}: no samples in split {split!r}")
-    pairs = [load_sample(Path(root), e) for e in entries]
-    return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+    x0, y0 = load_sample(Path(root), entries[0])
+    # filled in place: a list of samples + np.stack would hold every sample twice at the peak (a 15k-sample
+    # 128² set is 15 GB of float32 targets once)
+    x = np.empty((len(entries), *x0.shape), x0.dtype)
+    y = np.empty((len(entries), *y0.shape), y0.dtype)
+    x[0], y[0] = x0, y0
+    for i, e in enumerate(entries[1:], 1):
+        xi, yi = load_sample(Path(root), e)
+        if xi.shape != x0.shape or yi.shape != y0.shape:
+            raise DatasetError(f"{Path(root) / e['file']}: sample shapes {xi.shape}, {yi.shape}; the first sample "
+                               f"of the split has {x0.shape}, {y0.shape}")
+        x[i], y[i] = xi, yi
+    return x, y
 
 
 # ---------------------------------------------------------------- synthetic fields (not physics)
