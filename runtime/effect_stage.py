@@ -44,16 +44,20 @@ class EffectStage:
     def enabled(self) -> bool:
         return bool(self.chain.items)
 
-    def covariates(self, clusters, t: float) -> dict:
+    def _geometry(self, clusters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(centroid offsets from the cap centre, their distances, each contact's depth in mm)."""
         p = np.array([c.centroid_mm for c in clusters], dtype=np.float64).reshape(-1, 3)
-        f = np.array([c.force_n for c in clusters], dtype=np.float64).reshape(-1, 3)
         v = p - np.array([0.0, 0.0, self.center_z])
         dist = np.linalg.norm(v, axis=1)
-        n = v / np.maximum(dist, 1e-9)[:, None]
         depth = np.clip(self.radius - dist, 0.0, None) if self.radius > 0 else np.zeros(len(p))
         # the indenter's depth: the cluster's deepest point (its force-weighted centroid sits shallower,
         # on the flank of the dent); the centroid's depth when no displacement field was clustered
-        depth = np.maximum(depth, [c.indentation_mm for c in clusters])
+        return v, dist, np.maximum(depth, [c.indentation_mm for c in clusters])
+
+    def covariates(self, clusters, t: float) -> dict:
+        v, dist, depth = self._geometry(clusters)
+        f = np.array([c.force_n for c in clusters], dtype=np.float64).reshape(-1, 3)
+        n = v / np.maximum(dist, 1e-9)[:, None]
         theta = np.arccos(np.clip(n[:, 2], -1.0, 1.0))
         theta_rim = float(np.arccos(np.clip((self.skirt - self.center_z) / self.radius, -1, 1))) if self.radius else 0.0
         ids = [c.id for c in clusters]
@@ -64,11 +68,11 @@ class EffectStage:
         cov = {"time": t - self.t0, "depth": depth, "max_depth": maxd, "normal": n, "theta": theta,
                "phi": np.arctan2(n[:, 1], n[:, 0]),
                "rim_distance": self.radius * np.clip(theta_rim - theta, 0.0, None) + self.skirt,
-               "gel_height": np.full(len(p), self.center_z + self.radius), "force_n": fn,
+               "gel_height": np.full(len(v), self.center_z + self.radius), "force_n": fn,
                "force_t": np.sqrt(np.maximum(np.sum(f * f, axis=1) - fn ** 2, 0.0)),
                "series": np.array(ids)}
         if self.temperature is not None:
-            cov["temperature"] = np.full(len(p), float(self.temperature))
+            cov["temperature"] = np.full(len(v), float(self.temperature))
         return cov
 
     def frame_covariates(self, clusters, t: float) -> dict:
@@ -88,7 +92,7 @@ class EffectStage:
             self.t0 = t
         if not self.enabled:
             if clusters:      # the gel's memory (max_depth) is kept even while no effect uses it
-                self.frame_covariates(clusters, t)
+                self.max_depth = max(self.max_depth, float(np.max(self._geometry(clusters)[2])))
             return list(self.flags)
         cov = self.frame_covariates(clusters, t)
         if not clusters:
