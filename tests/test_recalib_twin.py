@@ -17,10 +17,11 @@ correction comes within 0.1 N of the best constant gain fitted on its held-out p
 a gain correction) and beats the re-crop alone; the stored re-crop + correction gives the same
 held-out error through the full pipeline; the unit without variation is not made worse by more than
 0.03 N (the pokes' scatter). The >= 60 %
-acceptance itself (median over 5 units, and >= 4 of 5; held-out pokes = the gauge's) is asserted for the
-nominal store (met with build v6, 2026-11-22: 4 of 5 units at 5, 6 and 7 pokes) and a strict xfail for
-the factory store, where the model's own per-poke error caps it (3 of 5) — an XPASS with a better model
-means: remove the xfail.
+acceptance itself, on all six varied units (median >= 60 % and >= 5 units at 5, 6 and 7 pokes; held-out
+pokes = the gauge's), is asserted for the nominal store (met with build v6, 2026-11-22: 5 of 6 units at
+every poke count; TWIN-R003 35 %, at its constant-gain bound) and a strict xfail for the factory store,
+where the model's own per-poke error caps it (3 of 6) — an XPASS with a better model means: remove the
+xfail.
 Run: pytest -m slow tests/test_recalib_twin.py   (cold: ~1 h of FE + rendering; warm: ~10 min)
 """
 import os
@@ -50,7 +51,7 @@ def _run(calibration, nominal):
     from tools.recalib.twin_bench import NOMINAL, UNITS, TwinBenchConfig, run_bench, summary
 
     pkg = trained_package()
-    res = run_bench(TwinBenchConfig(units=UNITS[:5], nominal=NOMINAL if nominal else None, physics=PHYSICS,
+    res = run_bench(TwinBenchConfig(units=UNITS, nominal=NOMINAL if nominal else None, physics=PHYSICS,
                                     model=str(pkg.folder), variants=(), calibration=calibration), say=print)
     print(summary(res, "probe"))
     return res
@@ -74,7 +75,7 @@ def _reductions(row):
 
 def _median_reductions(res):
     units = [r for r in res["units"] if not r.get("nominal")]
-    assert len(units) >= 5
+    assert len(units) >= 6
     red = {n: [_reductions(r)[n] for r in units] for n in ("5", "6", "7")}
     print({n: [f"{v:.0%}" for v in vals] for n, vals in red.items()})
     return red
@@ -105,11 +106,11 @@ def _acceptance(res):
     red = _median_reductions(res)
     for n, vals in red.items():
         assert np.median(vals) >= 0.6, (n, vals)
-        assert sum(v >= 0.6 for v in vals) >= 4, (n, vals)
+        assert sum(v >= 0.6 for v in vals) >= 5, (n, vals)
 
 
-NOT_MET = ("not met with the shipped model (hiera-qup-128 = v6, 2026-11-22): factory store 65 / 49 / 47 / 70 / 65 % at "
-           "7 pokes, 3 of 5 units >= 60 %; each unit's correction sits at the best constant gain fitted on its held-out "
+NOT_MET = ("not met with the shipped model (hiera-qup-128 = v6, 2026-11-22): factory store 65 / 49 / 47 / 70 / 65 / 54 % at "
+           "7 pokes, 3 of 6 units >= 60 %; each unit's correction sits at the best constant gain fitted on its held-out "
            "pokes, i.e. at the model's own per-poke error (docs/BENCHMARKS.md § Recalibration)")
 
 
