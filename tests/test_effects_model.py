@@ -86,6 +86,26 @@ def test_prony_fast_filter_equals_the_recursion_and_the_step_response():
     assert fast[i, 0] == pytest.approx(np.exp(-(t[i] - 1.005) / 0.5), rel=0.02)
 
 
+def test_viscoelastic_contact_is_unilateral_in_batch_and_streaming():
+    """A press, a partial unload faster than the gel recovers, a reload, a release: where the relaxed
+    force would turn into a pull the contact is lost (0), with no elastic force there is none, and the
+    runtime's frame-by-frame step gives the same forces as the batch form."""
+    e = Registry.default(entry_points=False).get("viscoelastic_relaxation")
+    p = {"g1": 0.5, "tau": 2.0}
+    t = np.arange(0, 8, 1 / 30)
+    fz = np.interp(t, [0, 0.5, 3.0, 3.1, 4.0, 4.5, 6.0, 6.1], [0, 2.0, 2.0, 0.5, 0.5, 2.0, 2.0, 0.0])
+    x = np.stack([0.1 * fz, 0.0 * fz, fz], 1)
+    y = e.forward(x, {"time": t}, p)
+    assert np.all(np.sum(y * x, axis=1) >= 0.0)
+    assert np.all(y[fz == 0.0] == 0.0)
+    lost = (t > 3.1) & (t < 4.0)                 # unloaded to 25 % after a 2.5 s hold: below g1's share
+    assert np.all(y[lost] == 0.0)
+    assert np.all(y[(t > 0.6) & (t < 3.0), 2] > 0.0)
+    state = {}
+    z = np.array([e.step(state, ti, xi, p) for ti, xi in zip(t, x)])
+    np.testing.assert_allclose(z, y, atol=1e-9)
+
+
 def test_bounds_are_enforced_and_unknown_parameters_named():
     e = Registry.default(entry_points=False).get("viscoelastic_relaxation")
     with pytest.raises(ValueError, match="tau"):

@@ -65,6 +65,19 @@ def test_viscoelastic_step_relaxes_with_tau():
     assert y[i2, 2] == pytest.approx(-2.0 * (0.7 + 0.3 * np.exp(-1.0)), rel=0.03)
 
 
+def test_viscoelastic_gel_does_not_pull_after_a_fast_release():
+    """Unilateral contact: a held press released faster than the gel recovers loses contact (force 0)
+    instead of pulling on the indenter; no elastic force, no force."""
+    e = EFFECTS["viscoelastic_relaxation"](g1=0.4, tau=1.0)
+    x = np.zeros((len(T), 6))
+    x[(T >= 0.5) & (T < 2.5), 2] = -2.0                   # press held 2 s, released within one sample
+    y = e.forward(x, _cov())
+    assert np.all(y[:, 2] <= 0.0)                          # never tensile (the push is negative z here)
+    assert np.all(y[x[:, 2] == 0.0] == 0.0)                # off the gel: exactly zero
+    held = (T > 2.0) & (T < 2.5)
+    assert np.all(y[held, 2] > -2.0) and np.all(y[held, 2] < -2.0 * 0.6)   # relaxing while held
+
+
 def test_mullins_softer_on_reloading():
     depth = np.concatenate([np.linspace(0, 2, 67), np.linspace(2, 0, 67), np.linspace(0, 1.5, 67)])
     e = EFFECTS["mullins_softening"](r=0.2, m=0.5)

@@ -30,6 +30,10 @@ def registry():
     return Registry.default(entry_points=False)
 
 
+def rms(r):
+    return float(np.sqrt(np.mean(np.sum(np.asarray(r) ** 2, axis=1))))
+
+
 def small(seed, truth=None, **kw):
     return synth_table(seed, n_pokes=30, rate=25.0, truth=truth or [], **kw)
 
@@ -166,26 +170,30 @@ def test_candidates_are_inserted_before_the_sensor_correction(registry):
 
 def test_two_effects_that_hide_each_other_are_found_as_a_pair(registry):
     """Relaxation + rim stiffening with a noisy model: fitted alone, each bends to absorb the
-    other (≈ 10–15 % held-out each, below a 25 % practical bar); fitted together they remove ~60 %
-    with the true parameters. Diagnosis names the pair, adds one member first, and the next
-    diagnosis finds the other as a single effect."""
+    other (below a 25 % practical bar); fitted together the true parameters remove ~45 % of the
+    error (the rest is the noise; until session 5 the relaxation also pulled on the indenter after
+    every release, a larger effect: ~60 %). Diagnosis names the pair, gets most of what the true
+    parameters give, adds one member first, and the next diagnosis finds the other as a single effect."""
     truth = [("viscoelastic_relaxation", {"g1": 0.5, "tau": 1.0}), ("rim_stiffening", {"a": 3.0, "w": 5.0})]
     cfg = DiagnoseConfig(min_reduction=0.25)
     table = synth_table(3, n_pokes=30, rate=25.0, truth=truth, noise=0.05)
+    chain = EffectChain.from_list([{"name": n, "params": p} for n, p in truth])
+    ceiling = 1.0 - rms(table.meas - chain.apply(table.model, table.cov())) / rms(table.meas - table.model)
+    assert 0.35 < ceiling < 0.6
     first = diagnose(table, registry, cfg=cfg)
     assert not any(s.significant and s.pair is None for s in first.ranking)
     pair = first.verdict.pair
     assert pair is not None and set(pair.names) == {n for n, _ in truth}
-    assert pair.reduction >= 0.5 and pair.p_adjusted <= 0.05
+    assert pair.reduction >= 0.8 * ceiling and pair.p_adjusted <= 0.05, (pair.reduction, ceiling)
     fitted = dict(zip(pair.names, pair.params))
-    assert abs(fitted["viscoelastic_relaxation"]["g1"] - 0.5) < 0.05
+    assert abs(fitted["viscoelastic_relaxation"]["g1"] - 0.5) < 0.15
     assert abs(fitted["rim_stiffening"]["a"] - 3.0) < 0.3
     assert any("missing together" in line for line in first.words())
     assert first.to_json()["pairs"][0]["add_first"] == first.verdict.effect.name
     second = diagnose(table, registry, add_to_chain(EffectChain(), first.verdict), cfg=cfg)
     assert second.verdict is not None and second.verdict.pair is None
     assert {first.verdict.effect.name, second.verdict.effect.name} == {n for n, _ in truth}
-    assert second.verdict.reduction >= 0.5
+    assert second.verdict.reduction >= 0.3
 
 
 def test_pairs_stay_quiet_on_null_sessions(registry):

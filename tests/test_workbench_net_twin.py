@@ -45,15 +45,19 @@ def test_null_sessions_no_significant_effect_in_9_of_10(bench):
     assert sum(v is None for v in verdicts.values()) >= 9, {s: v.effect.name for s, v in verdicts.items() if v}
 
 
-MEASURED = "measured 2026-11-22 ~11:10 with the shipped model v6 (docs/workbench.md): "
-NOT_FIRST = {"truth-viscoelastic_relaxation": MEASURED + "ranked first (-25 %) but Holm p = 0.089: no verdict"}
-# >= 50 % measured; viscoelastic 25-33 %, friction 20 % (floor 0.23 N)
-HALVED = {"temperature_softening", "mullins_softening", "strain_stiffening", "rim_stiffening", "ft_bias_drift",
-          "led_drift"}
+MEASURED = "measured 2026-11-22 ~13:05 with the shipped model v6 (docs/workbench.md): "
+FRICTION_TRUTH = ("the twin's friction also shrinks the rendered in-plane displacement, so the network sees most "
+                  "of it; ranked behind led_drift, not significant")
+NOT_FIRST = {"truth-viscoelastic_relaxation-weak": MEASURED + "ranked first (-35 %) but Holm p = 0.081: no verdict",
+             "truth-friction_mismatch": MEASURED + FRICTION_TRUTH}
+# >= 50 % measured on every other case (relaxation 56 % altered and in truth since contact is unilateral)
+NOT_HALVED = {"truth-viscoelastic_relaxation-weak": "effect size = the network's floor (0.23 N): 35 %",
+              "altered-friction_mismatch": "effect size 0.9 x the network's floor (0.23 N): 20 %",
+              "truth-friction_mismatch": FRICTION_TRUTH}
 
 
 def _id(case):
-    return f"{case.source}-{case.effect}"
+    return f"{case.source}-{case.effect}" + (f"-{case.tag}" if case.tag else "")
 
 
 def _ids(cases):
@@ -68,9 +72,8 @@ def test_hidden_effect_ranked_first_and_significant(case, bench, tmp_path):
     assert diag.verdict is not None and diag.verdict.effect.name == case.effect
 
 
-@pytest.mark.parametrize("case", [c if c.effect in HALVED else pytest.param(
-    c, marks=pytest.mark.xfail(reason=MEASURED + "the network's floor (0.23 N) is as large as the effect"))
-    for c in acc.CASES], ids=_ids(acc.CASES))
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.xfail(reason=MEASURED + NOT_HALVED[_id(c)]))
+                                  if _id(c) in NOT_HALVED else c for c in acc.CASES], ids=_ids(acc.CASES))
 def test_adding_the_effect_halves_the_heldout_error(case, bench, tmp_path):
     diag = bench.diagnose(acc.case_session(case, tmp_path))
     assert diag.verdict is not None and diag.verdict.effect.name == case.effect
@@ -83,10 +86,16 @@ def test_two_hidden_effects_found_one_after_the_other(bench, tmp_path):
     assert res["steps"][-1]["verdict"] is None
 
 
-@pytest.mark.xfail(reason=MEASURED + "no significant effect on the first diagnose (v4: rim found, then relaxation "
-                          "-20 % but Holm p = 0.07)")
 def test_two_hidden_effects_in_the_twin_truth_found_one_after_the_other(bench):
     res = acc.two_effects(bench)                    # viscoelastic + rim switched on in the twin's truth
+    assert sorted(res["found"]) == sorted(res["truth"]), res
+    assert res["steps"][-1]["verdict"] is None
+
+
+@pytest.mark.xfail(reason=MEASURED + "no significant effect on the first diagnose (relaxation g1 = 0.3 with rim "
+                          "a = 2: each about the network's floor)")
+def test_two_weak_hidden_effects_in_the_twin_truth_found_one_after_the_other(bench):
+    res = acc.two_effects(bench, truth_effects=acc.TWO_WEAK)
     assert sorted(res["found"]) == sorted(res["truth"]), res
 
 

@@ -48,13 +48,13 @@ class Case:
     source: str                   # "truth" (twin) or "altered" (tests/workbench_alter.py)
     params: dict
     kind: str = ""                # alteration kind
-    base: str = "test"            # the null session altered: "test" (the test plan) or "slides"
+    base: str = "test"            # the null session's plan: "test" (the test plan) or "slides"
+    tag: str = ""                 # tells cases of one effect and source apart (test ids)
 
 
 # Magnitudes: physically plausible and clearly above the network's floor (the ratio is in the table;
 # a reduction >= 50 % needs an effect of at least ~1.7x the floor: sqrt(floor^2 + size^2) >= 2 floor).
-CASES = (
-    Case("viscoelastic_relaxation", "truth", {"g1": 0.3, "tau": 1.0}),   # recorded twin truth (as before)
+ALTERED = (
     Case("viscoelastic_relaxation", "altered", {"g1": 0.5, "tau": 1.0}, "viscoelastic"),
     Case("temperature_softening", "altered", {"alpha": 0.05, "t_ref": 18.0}, "temperature"),
     Case("mullins_softening", "altered", {"r": 0.6, "m": 0.3}, "mullins"),
@@ -64,7 +64,13 @@ CASES = (
     Case("ft_bias_drift", "altered", {"bx": 0.0, "by": 0.008, "bz": 0.015}, "ft_bias"),
     Case("led_drift", "altered", {"c": -0.003}, "led"),
 )
-TWO = (("viscoelastic_relaxation", {"g1": 0.3, "tau": 1.0}), ("rim_stiffening", {"a": 2.0, "w": 4.0}))
+# the same effects and magnitudes switched on in the twin's truth (the twin's own effect code)
+TRUTH = tuple(Case(c.effect, "truth", c.params, base=c.base) for c in ALTERED)
+# a weaker relaxation in truth (g1 = 0.3): its size is about the network's floor (kept since session 2)
+WEAK = (Case("viscoelastic_relaxation", "truth", {"g1": 0.3, "tau": 1.0}, tag="weak"),)
+CASES = WEAK + ALTERED + TRUTH
+TWO = (("viscoelastic_relaxation", {"g1": 0.5, "tau": 1.0}), ("rim_stiffening", {"a": 3.0, "w": 5.0}))
+TWO_WEAK = (("viscoelastic_relaxation", {"g1": 0.3, "tau": 1.0}), ("rim_stiffening", {"a": 2.0, "w": 4.0}))
 # the same two effects put into the null session one after the other by the alteration script
 TWO_ALTERED = (("viscoelastic_relaxation", "viscoelastic", {"g1": 0.5, "tau": 1.0}),
                ("rim_stiffening", "rim", {"a": 3.0, "w": 5.0}))
@@ -130,7 +136,10 @@ def base_of(case: Case) -> Path:
 
 def case_session(case: Case, work: Path) -> Path:
     if case.source == "truth":
-        return record(net_scenario(NET_TEST_SEED, effects=((case.effect, dict(case.params)),)))
+        effects = ((case.effect, dict(case.params)),)
+        if case.base == "slides":
+            return record(net_scenario(SLIDES_SEED, pokes=16, kinds=("slide", "press"), effects=effects))
+        return record(net_scenario(NET_TEST_SEED, effects=effects))
     params = dict(case.params, **gel_params()) if case.kind in GEL_KINDS else dict(case.params)
     return alter_session(base_of(case), Path(work) / f"{case.kind}-{case.effect}", case.kind, params)
 
@@ -177,15 +186,17 @@ def run_all(bench: Bench, work: Path, nulls: int = 10, cases=CASES, parts=("two"
         log.info("%s (%s): %s", case.effect, case.source, out["cases"][-1]["verdict"])
     out["two"] = two_effects(bench, work) if "two" in parts else None
     out["two_truth"] = two_effects(bench) if "two" in parts else None
+    out["two_truth_weak"] = two_effects(bench, truth_effects=TWO_WEAK) if "two" in parts else None
     out["unknown"] = unknown_effect(bench, work) if "unknown" in parts else None
     return out
 
 
-def two_effects(bench: Bench, work: Path | None = None) -> dict:
+def two_effects(bench: Bench, work: Path | None = None, truth_effects: tuple = TWO) -> dict:
     """Diagnose, add, diagnose again on a session with two hidden effects: the twin-truth session
-    (TWO) or, with `work`, the null session altered twice (TWO_ALTERED)."""
+    (`truth_effects`: TWO, the altered magnitudes, or TWO_WEAK) or, with `work`, the null session
+    altered twice (TWO_ALTERED)."""
     if work is None:
-        s, truth = record(net_scenario(NET_TEST_SEED, effects=TWO)), [n for n, _ in TWO]
+        s, truth = record(net_scenario(NET_TEST_SEED, effects=truth_effects)), [n for n, _ in truth_effects]
     else:
         s, truth = base_of(Case("", "altered", {})), []
         for name, kind, params in TWO_ALTERED:
@@ -266,7 +277,8 @@ def main(argv=None) -> int:
     res = run_all(bench, work, args.nulls, cases, [x for x in ("two", "unknown") if x not in args.skip])
     res["seconds"] = time.perf_counter() - t0
     print(markdown(res))
-    print(json.dumps({k: res[k] for k in ("two", "two_truth", "unknown", "floor_n", "correction", "model_sha256")}, default=str))
+    print(json.dumps({k: res[k] for k in ("two", "two_truth", "two_truth_weak", "unknown", "floor_n", "correction",
+                                          "model_sha256")}, default=str))
     if args.out:
         Path(args.out).write_text(json.dumps(res, indent=1, default=str))
     return 0

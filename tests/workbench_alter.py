@@ -3,7 +3,10 @@ twin's effect code and from runtime/effects): copies a session WITHOUT its truth
 provenance, and changes wrench.csv the way a hidden physical effect would.
 
   viscoelastic  each force channel through the linear system H(s) = (tau s + 1 - g) / (tau s + 1)
-                (scipy.signal.lsim, first-order hold), per indenter, in the F/T frame
+                (scipy.signal.lsim, first-order hold), per indenter, in the F/T frame; the gel cannot
+                pull: where the reading shows no contact (change from the first reading within 3 noise
+                sigmas of the manifest's F/T noise) the reading is left as it is, and where the
+                filtered force points against the unfiltered one the contact is lost (first reading)
   azimuth       force scaled by 1 + a cos(phi - phi0) with phi the azimuth of the indenter tip
                 (an effect NOT in the library)
   temperature   force scaled by 1 - alpha (T - t_ref), T from the session's temperature stream
@@ -86,6 +89,7 @@ def alter_session(src: Path, dst: Path, kind: str, params: dict) -> Path:
     s = load_session(dst, check_frames=False)
     mount = json.loads((dst / "session.json").read_text())["streams"]["wrench"]["ft_to_indenter"]
     r_mount = _quat_matrix(np.array([mount["rotation_wxyz"]], float))[0]
+    noise = float(s.streams["wrench"].get("noise", {}).get("force_n", 0.02))
     w = s.table("wrench").copy()
     poses = s.table("poses")
     for k in np.unique(w[:, 1]):
@@ -96,7 +100,12 @@ def alter_session(src: Path, dst: Path, kind: str, params: dict) -> Path:
             g, tau = params["g1"], params["tau"]
             lti = signal.lti([tau, 1.0 - g], [tau, 1.0])
             f0 = f[0].copy()  # filter the change from the first reading (the unloaded state)
-            f = np.column_stack([signal.lsim(lti, f[:, j] - f0[j], t, interp=True)[1] for j in range(3)]) + f0
+            e = f - f0
+            q = np.column_stack([signal.lsim(lti, e[:, j], t, interp=True)[1] for j in range(3)])
+            touching = np.linalg.norm(e, axis=1) > 3.0 * noise
+            lost = touching & (np.sum(q * e, axis=1) <= 0.0)
+            f = np.where(touching[:, None], f0 + q, f)
+            f[lost] = f0
         elif kind == "temperature":
             tt = s.table("temperature")
             f = f * (1.0 - params["alpha"] * (np.interp(t, tt[:, 0], tt[:, 1]) - params["t_ref"]))[:, None]

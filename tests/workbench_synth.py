@@ -107,6 +107,7 @@ def alter(force: np.ndarray, cov: dict, truth: list) -> tuple[np.ndarray, np.nda
             for j in range(3):  # plans start out of contact (force 0): zero initial state
                 _, y, _ = signal.lsim(sys_, f[:, j], t, interp=True)
                 out[:, j] = y
+            out[np.einsum("ij,ij->i", out, f) <= 0] = 0.0   # no contact, or it would pull: contact lost
             f = out
         elif name == "mullins_softening":
             gap = np.clip(cov["max_depth"] - cov["depth"], 0, None)

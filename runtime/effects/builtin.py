@@ -62,11 +62,20 @@ def prony_history(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
     return h
 
 
+def unilateral(out: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A gel does not pull on the indenter: rows without elastic contact force (x = 0) or whose
+    relaxed force points against it (out . x <= 0 over the force part) are 0 (contact lost)."""
+    out = np.asarray(out, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    keep = np.sum(out[..., :3] * x[..., :3], axis=-1) > 0.0
+    return out * np.asarray(keep, dtype=np.float64)[..., None]
+
+
 class ViscoelasticRelaxation(Effect):
     name = "viscoelastic_relaxation"
-    summary = "one-term Prony series (quasi-linear viscoelasticity) on the force"
+    summary = "one-term Prony series (quasi-linear viscoelasticity) on the force, unilateral contact"
     words = "force relaxes after loading"
-    equation = "F(t) = (1 - g1) F0(t) + g1 * int exp(-(t-s)/tau) dF0(s)"
+    equation = "F(t) = (1 - g1) F0(t) + g1 * int exp(-(t-s)/tau) dF0(s); F = 0 where F . F0 <= 0"
     params = (Param("g1", "-", 0.2, 0.0, 0.8, "relaxing fraction of the instantaneous modulus", "g"),
               Param("tau", "s", 1.0, 0.02, 30.0, "relaxation time", "τ"))
     covariates = ("time",)
@@ -84,13 +93,14 @@ class ViscoelasticRelaxation(Effect):
             e = math.exp(-dt / p["tau"])
             state["h"] = e * state["h"] + (x - state["x"]) * (p["tau"] * (1.0 - e) / dt)
         state["t"], state["x"] = t, x
-        return (1.0 - p["g1"]) * x + p["g1"] * state["h"]
+        return unilateral((1.0 - p["g1"]) * x + p["g1"] * state["h"], x)
 
     def forward(self, x, cov, p):
         t = need(cov, "time", self.name)
+        x = np.asarray(x, dtype=np.float64)
         if p["g1"] == 0.0:
-            return np.asarray(x, dtype=np.float64).copy()
-        return (1.0 - p["g1"]) * np.asarray(x, dtype=np.float64) + p["g1"] * prony_history(x, t, p["tau"])
+            return x.copy()
+        return unilateral((1.0 - p["g1"]) * x + p["g1"] * prony_history(x, t, p["tau"]), x)
 
 
 class MullinsSoftening(Effect):

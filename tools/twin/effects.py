@@ -72,7 +72,10 @@ class TemperatureSoftening(TruthEffect):
 @register
 class ViscoelasticRelaxation(TruthEffect):
     """Exact recursive evaluation of the one-term Prony hereditary integral for piecewise-linear
-    input (the recording's force at its own time stamps)."""
+    input (the recording's force at its own time stamps). Unilateral contact: the gel cannot pull,
+    so where the elastic force is zero (no contact) or the relaxed force would point against it
+    (an unloading faster than the gel recovers), the contact is lost and the force is zero; the
+    gel's history keeps relaxing meanwhile."""
 
     spec = SPECS["viscoelastic_relaxation"]
 
@@ -89,6 +92,8 @@ class ViscoelasticRelaxation(TruthEffect):
             slope = (x[i] - x[i - 1]) / dt
             h = e * h + slope * tau * (1.0 - e)
             out[i] = (1.0 - g1) * x[i] + g1 * h
+        pulling = np.einsum("ij,ij->i", out[:, :3], np.asarray(x, dtype=np.float64)[:, :3]) <= 0.0
+        out[pulling] = 0.0
         return out
 
 
