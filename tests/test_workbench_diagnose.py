@@ -218,3 +218,29 @@ def test_a_runner_up_the_blocks_cannot_separate_is_named(tmp_path):
     assert any("not distinguishable" in line for line in d.words()) and "runner_up" in d.to_json()
     plain = diagnose(table, Registry.default(entry_points=False))
     assert plain.runner_up is None or plain.runner_up["effect"] != "temperature_clone"
+
+
+def test_minp_correction_knows_correlated_candidates_and_keeps_the_family_error():
+    """Westfall-Young minP over candidates scored on the same blocks: one candidate -> its own
+    sign-flip p; two identical candidates -> no multiplicity penalty (Holm would double it); never
+    above Holm; under H0 (symmetric block statistics) the family-wise error stays near alpha."""
+    from tools.workbench.diagnose import minp_adjusted
+
+    cfg = DiagnoseConfig(n_blocks=10)
+    rng = np.random.default_rng(3)
+    d = rng.normal(0.5, 1.0, 10)
+    ids = np.arange(10)
+    assert minp_adjusted([d], [ids], 10, cfg)[0] == pytest.approx(sign_flip_pvalue(d, cfg))
+    same = minp_adjusted([d, d.copy()], [ids, ids], 10, cfg)
+    assert same[0] == pytest.approx(sign_flip_pvalue(d, cfg)) and same[1] == pytest.approx(same[0])
+    for _ in range(20):
+        ds = [rng.normal(rng.uniform(-0.5, 1.0), 1.0, 10) * (rng.random(10) < 0.7) for _ in range(6)]
+        adj = minp_adjusted(ds, [ids] * 6, 10, cfg)
+        hol = holm([sign_flip_pvalue(x, cfg) for x in ds])
+        assert all(a <= h + 1e-9 for a, h in zip(adj, hol))
+    shared = rng.normal(0, 1, (400, 10))              # H0: correlated candidates, signs symmetric
+    hits = 0
+    for k in range(400):
+        ds = [shared[k] + 0.5 * rng.normal(0, 1, 10) for _ in range(6)]
+        hits += min(minp_adjusted(ds, [ids] * 6, 10, cfg)) <= 0.05
+    assert hits / 400 <= 0.08

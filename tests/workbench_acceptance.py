@@ -242,7 +242,7 @@ def _fmt(x, f="{:.3f}"):
 
 def markdown(res: dict) -> str:
     lines = ["| hidden | source | effect size / floor | rank-1 | held-out before → after | reduction | "
-             "p (Holm) | calib. session | verdict | fitted |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "p (corr.) | calib. session | verdict | fitted |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in [res["raw_null"]] + res["nulls"] + res["cases"]:
         fitted = ", ".join(f"{k} = {v:.3g}" for k, v in r["fitted"].items()) if r["verdict"] else ""
         unit = "" if r["channel"] == "force" else " (rel.)"
