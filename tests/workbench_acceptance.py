@@ -124,10 +124,16 @@ class Bench:
 SLIDES_SEED = 102                 # a null session of slides and presses (friction acts while sliding)
 
 
-def null_session(seed: int = NET_TEST_SEED) -> Path:
+def plan_session(seed: int = NET_TEST_SEED, effects: tuple = ()) -> Path:
+    """The session of a plan (the test plan, the slides plan or a short null plan), with `effects`
+    switched on in the twin's truth."""
     if seed == SLIDES_SEED:
-        return record(net_scenario(SLIDES_SEED, pokes=16, kinds=("slide", "press")))
-    return record(net_scenario(seed, pokes=16 if seed == NET_TEST_SEED else NULL_POKES))
+        return record(net_scenario(SLIDES_SEED, pokes=16, kinds=("slide", "press"), effects=effects))
+    return record(net_scenario(seed, pokes=16 if seed == NET_TEST_SEED else NULL_POKES, effects=effects))
+
+
+def null_session(seed: int = NET_TEST_SEED) -> Path:
+    return plan_session(seed)
 
 
 def base_of(case: Case) -> Path:
@@ -136,10 +142,8 @@ def base_of(case: Case) -> Path:
 
 def case_session(case: Case, work: Path) -> Path:
     if case.source == "truth":
-        effects = ((case.effect, dict(case.params)),)
-        if case.base == "slides":
-            return record(net_scenario(SLIDES_SEED, pokes=16, kinds=("slide", "press"), effects=effects))
-        return record(net_scenario(NET_TEST_SEED, effects=effects))
+        return plan_session(SLIDES_SEED if case.base == "slides" else NET_TEST_SEED,
+                            ((case.effect, dict(case.params)),))
     params = dict(case.params, **gel_params()) if case.kind in GEL_KINDS else dict(case.params)
     return alter_session(base_of(case), Path(work) / f"{case.kind}-{case.effect}", case.kind, params)
 

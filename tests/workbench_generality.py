@@ -10,11 +10,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import time
 from pathlib import Path
 
 import tests.workbench_acceptance as acc
-from tools.workbench.scenarios import net_scenario, record
 
 CASES = (("viscoelastic_relaxation", {"g1": 0.4, "tau": 3.0}),
          ("temperature_softening", {"alpha": 0.03, "t_ref": 22.0}),
@@ -35,20 +33,16 @@ def main(argv=None) -> int:
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
     bench = acc.Bench(a.model, work)
-    null = acc.null_session()
+    floor = next(s.before for s in bench.diagnose(acc.null_session()).ranking if s.channel == "force")
     rows = []
     for name, params in CASES:
-        t0 = time.time()
-        s = record(net_scenario(acc.NET_TEST_SEED, effects=((name, params),)))
-        d = bench.diagnose(s)
-        r = d.ranking[0]
-        rows.append({"effect": name, "truth": params, "rank1": r.effect.name, "before": r.before, "after": r.after,
-                     "reduction": r.reduction, "p": r.p_adjusted, "fitted": r.params, "seconds": time.time() - t0,
-                     "verdict": d.verdict.effect.name if d.verdict else None,
-                     "size_n": acc.effect_size(bench, s, null) if name != "led_drift" else float("nan")})
-        print(json.dumps(rows[-1]), flush=True)
+        case = acc.Case(name, "truth", params)
+        s = acc.case_session(case, work)
+        size = acc.effect_size(bench, s, acc.base_of(case)) if name != "led_drift" else float("nan")
+        rows.append(acc.row_of(bench.diagnose(s), name, params, size, floor))
+        print(json.dumps(rows[-1], default=str), flush=True)
     if a.out:
-        Path(a.out).write_text(json.dumps(rows, indent=1))
+        Path(a.out).write_text(json.dumps(rows, indent=1, default=str))
     return 0
 
 
