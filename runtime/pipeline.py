@@ -33,9 +33,13 @@ class PipelineConfig:
     @staticmethod
     def for_package(package) -> "PipelineConfig":
         """Defaults, with the package's own measured contact threshold when its manifest has one
-        (`runtime.contact_threshold_n`, written at export by tools/train/threshold.py)."""
-        t = ((getattr(package, "manifest", None) or {}).get("runtime") or {}).get("contact_threshold_n")
-        return PipelineConfig(contacts=ContactConfig(threshold_n=float(t))) if t else PipelineConfig()
+        (`runtime.contact_threshold_n`, and the light-touch rule `contact_weak_threshold_n` /
+        `contact_min_total_n`, written at export by tools/train/threshold.py)."""
+        rt = (getattr(package, "manifest", None) or {}).get("runtime") or {}
+        kw = {k: float(rt[m]) for k, m in (("threshold_n", "contact_threshold_n"),
+                                            ("weak_threshold_n", "contact_weak_threshold_n"),
+                                            ("min_total_n", "contact_min_total_n")) if rt.get(m)}
+        return PipelineConfig(contacts=ContactConfig(**kw))
 
 
 @dataclass

@@ -92,3 +92,27 @@ def test_indentation_is_the_deepest_inward_displacement_of_the_cluster():
     assert 16.0 - np.linalg.norm(cl[0].centroid_mm) < 1.2
     no_disp = find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"])
     assert all(c.indentation_mm == 0.0 for c in no_disp)
+
+
+def test_light_touch_rule_finds_a_broad_weak_contact_and_leaves_strong_ones_as_they_were():
+    t = tables()
+    args = (t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"])
+    strong = blob_fields(t, [(20, 32)], [1.0])
+    light = blob_fields(t, [(46, 30)], [0.3], sigma_px=6.0)       # spread thinner than the strong threshold
+    fp = pixel_forces(strong + light, t["pixel_area"])
+    peak_light = np.linalg.norm(pixel_forces(light, t["pixel_area"]), axis=0).max()
+    cfg0 = ContactConfig(threshold_n=1.5 * peak_light)
+    base = find_clusters(fp, *args, cfg=cfg0)
+    assert len(base) == 1                                           # the light touch is missed ...
+    rule = ContactConfig(threshold_n=cfg0.threshold_n, weak_threshold_n=0.25 * peak_light, min_total_n=0.2)
+    cl = sorted(find_clusters(fp, *args, cfg=rule), key=lambda c: c.centroid_px[0])
+    assert len(cl) == 2                                             # ... and found by its total force
+    assert 0.25 < cl[1].force_mag_n <= 0.3 + 1e-6 and abs(cl[1].centroid_px[0] - 46.5) < 1.0
+    # the strong contact keeps its core; only the light touch's tail no longer joins its support
+    assert cl[0].pixels == base[0].pixels and abs(cl[0].force_mag_n - base[0].force_mag_n) < 0.01
+    assert abs(cl[0].centroid_px[0] - 20.5) < 0.6
+    # a weak component whose total stays below min_total_n is not a contact; the rule off = the old result
+    assert len(find_clusters(fp, *args, cfg=ContactConfig(threshold_n=cfg0.threshold_n,
+                                                          weak_threshold_n=0.25 * peak_light, min_total_n=0.4))) == 1
+    assert len(find_clusters(fp, *args, cfg=ContactConfig(threshold_n=cfg0.threshold_n,
+                                                          weak_threshold_n=0.25 * peak_light))) == 1

@@ -59,3 +59,30 @@ def test_a_fine_tuned_package_names_its_init_checkpoint(tmp_path):
     _record_init(tmp_path, run / "best.pt")
     init = json.loads((tmp_path / "manifest.json").read_text())["training"]["init_from"]
     assert init["sha256"] == hashlib.sha256(b"weights").hexdigest() and init["fit_config"] == {"epochs": 30}
+
+
+def test_choose_weak_takes_the_rest_maximum_times_the_margin_and_the_best_light_detection():
+    cfg = ThresholdConfig(grid=(0.001, 0.002), weak_grid=(0.0005, 0.001), weak_margin=1.5)
+    a = dict(sweep([1, 0], [10, 10], name="A"), rest_weak_max=[0.2, 0.05],
+             light={"core": [[1, 0], [1, 1], [0, 0]], "weak": [[0.5, 0.2], [0.1, 0.05], [0.25, 0.08]]})
+    b = dict(sweep([0, 0], [10, 10], name="B"), rest_weak_max=[0.1, 0.02], light={"core": [], "weak": []})
+    out = choose([a, b], cfg)
+    # strong threshold: grid[1] = 0.002 -> ×4/3; the light frames detected at it: frame 2 only
+    assert out["contact_threshold_n"] == pytest.approx(0.002 * 4 / 3, abs=1e-5)
+    m = out["measured"]
+    assert m["weak_min_total_n"] == pytest.approx([0.3, 0.075]) and m["light_frames"] == 3
+    # w=0.0005 (F_min 0.3): frames 1 (0.5) + 2 -> 2/3; w=0.001 (F_min 0.075): frames 1, 2, 3 -> 3/3
+    assert m["light_detected_by_weak_n"] == pytest.approx([2 / 3, 1.0], abs=1e-4)
+    assert out["contact_weak_threshold_n"] == 0.001 and out["contact_min_total_n"] == pytest.approx(0.075)
+    assert m["light_detected_strong_only"] == pytest.approx(1 / 3)
+    # old sweeps without light frames: the rule stays off
+    old = choose([sweep([1, 0], [10, 10])], cfg)
+    assert old["contact_weak_threshold_n"] is None and old["contact_min_total_n"] is None
+
+
+def test_the_runtime_takes_the_light_touch_rule_from_the_manifest():
+    man = {"runtime": {"contact_threshold_n": 0.002, "contact_weak_threshold_n": 0.0012, "contact_min_total_n": 0.04}}
+    c = PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts
+    assert (c.threshold_n, c.weak_threshold_n, c.min_total_n) == (0.002, 0.0012, 0.04)
+    off = {"runtime": {"contact_threshold_n": 0.002, "contact_weak_threshold_n": None, "contact_min_total_n": None}}
+    assert PipelineConfig.for_package(SimpleNamespace(manifest=off)).contacts.min_total_n == 0.0

@@ -8,6 +8,11 @@ the runtime (int8, the unit's calibration): the lowest value of a grid at which 
 it from `manifest.runtime.contact_threshold_n` (PipelineConfig.for_package); packages without it (or
 with null: no grid value was clean, e.g. a minutes-long smoke model) use the ContactConfig default.
 
+Light touches spread thinner than that threshold. The light-touch rule (ContactConfig.weak_threshold_n /
+min_total_n) is measured in the same pass: per weak threshold w of `weak_grid`, min_total_n(w) = the
+largest |total force| of a component above w on any rest frame × `weak_margin`; the w that detects the
+most light-contact frames (measured |F| in `light_n`) with the strong threshold wins (ties: the larger w).
+
     python -m tools.train.threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
 """
 from __future__ import annotations
@@ -15,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +40,12 @@ class ThresholdConfig:
     rest_n: float = 0.05      # a frame is at rest when every indenter's measured |F| is below this (N)
     contact_n: float = 0.5    # ... and in contact when one is above this (detection is reported)
     min_pixels: int = 3       # as ContactConfig.min_pixels: smaller specks are not clusters
+    weak_grid: tuple = (0.0004, 0.0006, 0.0008, 0.001, 0.0012)        # N per pixel
+    # held-out sessions (docs/BENCHMARKS.md "Light contacts"): 4/3 on training rest frames left 23 false
+    # rest frames in 5747 on held-out ones at w = 0.0006, 1.5 left 20 (the strong threshold alone: 16)
+    weak_margin: float = 1.5
+    min_total_floor_n: float = 0.02   # min_total_n is never below this (N), even on a spotless rest set
+    light_n: tuple = (0.2, 1.0)   # measured |F| band (N) of the light contacts the weak rule is chosen on
 
 
 def _has_core(mag: np.ndarray, t: float, min_pixels: int) -> bool:
@@ -41,8 +53,17 @@ def _has_core(mag: np.ndarray, t: float, min_pixels: int) -> bool:
     return bool(n > 1 and stats[1:, cv2.CC_STAT_AREA].max() >= min_pixels)
 
 
+def weak_totals(fp: np.ndarray, mag: np.ndarray, mask: np.ndarray, grid) -> list[float]:
+    """Per weak threshold: the largest |total force| (N) of a component of pixels above it."""
+    from runtime.contacts import weak_components
+
+    none = np.zeros(mag.shape, bool)
+    return [float(weak_components(fp, mag, mask, none, w)[1].max(initial=0.0)) for w in grid]
+
+
 def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = ThresholdConfig()) -> dict:
-    """Per grid value: rest frames with a cluster core, contact frames with one (counts)."""
+    """Per grid value: rest frames with a cluster core, contact frames with one (counts); per weak
+    threshold the largest component total on a rest frame; the light-contact frames' cores and totals."""
     from runtime.contacts import pixel_forces
     from runtime.model import FieldModel
     from runtime.pipeline import SensorPipeline
@@ -58,25 +79,35 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     rest_fp = np.zeros(len(grid), int)
     hit = np.zeros(len(grid), int)
     n_rest = n_contact = 0
+    rest_weak = np.zeros(len(cfg.weak_grid))
+    light = {"core": [], "weak": []}
     for i, img in read_frames(ses):
         res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
         if res.fields is None:
             continue
         mags = np.array([np.linalg.norm(meas[k]["force"][i]) for k in meas])
         rest, contact = bool(np.all(mags < cfg.rest_n)), bool(np.any(mags > cfg.contact_n))
-        if not (rest or contact):
+        lit = cfg.light_n[0] < mags.max() <= cfg.light_n[1]
+        if not (rest or contact or lit):
             continue
         fp = pixel_forces(res.fields, calibration.pixel_area)
         mag = np.where(calibration.mask, np.sqrt((fp ** 2).sum(axis=0)), 0.0)
         has = np.array([_has_core(mag, t, cfg.min_pixels) for t in grid])
+        if rest or lit:
+            tot = weak_totals(fp, mag, calibration.mask, cfg.weak_grid)
         if rest:
             n_rest += 1
             rest_fp += has
-        else:
+            rest_weak = np.maximum(rest_weak, tot)
+        if lit:
+            light["core"].append(has.tolist())
+            light["weak"].append(tot)
+        if contact:
             n_contact += 1
             hit += has
     return {"session": str(session_dir), "rest_frames": n_rest, "contact_frames": n_contact,
-            "rest_with_core": rest_fp.tolist(), "contact_with_core": hit.tolist()}
+            "rest_with_core": rest_fp.tolist(), "contact_with_core": hit.tolist(),
+            "rest_weak_max": rest_weak.tolist(), "light": light}
 
 
 def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
@@ -92,12 +123,36 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
     if not len(clean):   # no value is clean: say so, and let the runtime keep its default
         log.warning("contact threshold: every grid value up to %g N leaves false contacts on rest frames (%d at "
                     "the top): the network paints force on an untouched gel; no threshold recorded", grid[-1], fp[-1])
-        return {"contact_threshold_n": None, "measured": dict(measured, contact_detected_fraction=None)}
+        return {"contact_threshold_n": None, "contact_weak_threshold_n": None, "contact_min_total_n": None,
+                "measured": dict(measured, contact_detected_fraction=None)}
     t = float(round(grid[int(clean[0])] * cfg.margin, 5))
     k = min(int(np.searchsorted(grid, t - 1e-12)), len(grid) - 1)      # the first grid value >= t
     measured["contact_detected_fraction"] = float(hit[k] / n_contact) if n_contact else None
     measured["detected_at_n"] = float(grid[k])
-    return {"contact_threshold_n": t, "measured": measured}
+    return dict({"contact_threshold_n": t, "measured": measured}, **choose_weak(sweeps, k, cfg, measured))
+
+
+def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict) -> dict:
+    """The light-touch rule for a strong threshold at grid index k (see the module doc); fills
+    `measured` in place and returns the manifest keys (empty when no session has light frames)."""
+    off = {"contact_weak_threshold_n": None, "contact_min_total_n": None}
+    if not all("light" in s for s in sweeps):
+        return off
+    wg = np.asarray(cfg.weak_grid)
+    fmin = np.maximum(np.max([s["rest_weak_max"] for s in sweeps], axis=0) * cfg.weak_margin, cfg.min_total_floor_n)
+    core = np.array([c[k] for s in sweeps for c in s["light"]["core"]], bool)
+    weak = np.array([w for s in sweeps for w in s["light"]["weak"]]).reshape(len(core), len(wg))
+    measured.update(weak_rule=f"per weak threshold: the largest rest-frame component total x {cfg.weak_margin:.4g}; "
+                              f"the one detecting most frames with {cfg.light_n[0]} < |F| <= {cfg.light_n[1]} N",
+                    weak_grid_n=wg.tolist(), weak_min_total_n=np.round(fmin, 5).tolist(), light_frames=int(len(core)))
+    if not len(core):
+        return off
+    det = core[:, None] | (weak >= fmin[None, :])
+    frac = det.mean(axis=0)
+    j = len(wg) - 1 - int(np.argmax(frac[::-1]))      # the best; on ties the larger (stricter) w
+    measured.update(light_detected_fraction=float(frac[j]), light_detected_strong_only=float(core.mean()),
+                    light_detected_by_weak_n=np.round(frac, 4).tolist())
+    return {"contact_weak_threshold_n": float(wg[j]), "contact_min_total_n": float(round(fmin[j], 5))}
 
 
 def record(package_dir: Path, result: dict) -> None:
@@ -107,8 +162,9 @@ def record(package_dir: Path, result: dict) -> None:
     update_manifest(package_dir, lambda man: man.setdefault("runtime", {}).update(result))
 
 
-def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True) -> dict:
-    """sessions: [(session_dir, Calibration)]."""
+def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True,
+            command: str | None = None) -> dict:
+    """sessions: [(session_dir, Calibration)]; `command` is recorded with the measurement."""
     from runtime.model import load_package
 
     package = load_package(package_dir)
@@ -118,6 +174,8 @@ def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Threshold
         log.info("contact threshold sweep %s: %d rest / %d contact frames", Path(path).name,
                  sweeps[-1]["rest_frames"], sweeps[-1]["contact_frames"])
     out = choose(sweeps, cfg)
+    if command:
+        out["measured"]["command"] = command
     if out["contact_threshold_n"] is not None:
         log.info("contact threshold of %s: %.5f N (contact frames with a core: %.1f %%)", Path(package_dir).name,
                  out["contact_threshold_n"], 100 * (out["measured"]["contact_detected_fraction"] or 0))
@@ -143,7 +201,8 @@ def main(argv=None) -> int:
         if not store:
             raise SystemExit(f"--session {item!r}: expected SESSION_DIR:STORE_DIR")
         pairs.append((sdir, CalibrationStore(store).load(load_session(sdir).sensor_id)))
-    print(json.dumps(measure(args.package, pairs, write=args.write), indent=1))
+    cmd = "python -m tools.train.threshold " + " ".join(sys.argv[1:] if argv is None else argv)
+    print(json.dumps(measure(args.package, pairs, write=args.write, command=cmd), indent=1))
     return 0
 
 

@@ -32,7 +32,7 @@ class Scenario:
     fps: float = 2.0
     temperature_drift: float = 0.05        # degC/s
     model_size: int = 64
-    extra: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)  # {"trajectory": {field: value}} overrides the plan's ranges
 
     def key(self) -> str:
         d = {k: v for k, v in self.__dict__.items()}
@@ -77,7 +77,9 @@ def record(sc: Scenario, progress=None) -> Path:
                        effects=[(n, dict(p)) for n, p in sc.effects], physics=sc.physics,
                        frame_format="mjpg", model_size=sc.model_size)
     cfg.rig = replace(cfg.rig, camera_fps=sc.fps, temperature_drift_c_per_s=sc.temperature_drift)
-    cfg.trajectory = replace(cfg.trajectory, indenters=tuple(sc.indenters), kinds=tuple(sc.kinds))
+    ranges = {k: tuple(v) if isinstance(v, (list, tuple)) else v
+              for k, v in dict(sc.extra.get("trajectory", {})).items()}
+    cfg.trajectory = replace(cfg.trajectory, indenters=tuple(sc.indenters), kinds=tuple(sc.kinds), **ranges)
     out.parent.mkdir(parents=True, exist_ok=True)
     log.info("recording twin scenario %s -> %s", sc, out)
     Recorder(cfg, out, progress=progress).run()
@@ -93,3 +95,7 @@ NET_TEST_SEED = 101           # the plan shared by the hidden-effect sessions (F
 def net_scenario(seed: int, pokes: int = 16, effects: tuple = (), fps: float = 30.0, **kw) -> Scenario:
     """A twin scenario for the network path (FE physics, frames at `fps`, 128 px calibration)."""
     return Scenario(seed, pokes=pokes, effects=effects, physics="fe", fps=fps, model_size=128, **kw)
+
+
+# a friction probe, as a tactile researcher records one: light presses, then long slides (gross slip)
+FRICTION_PROBE = {"trajectory": {"depth_press": [0.5, 0.9], "slide": [0.8, 1.2]}}
