@@ -32,10 +32,23 @@ class SessionSpec:
     pokes: int
     frames: str = "mjpg"          # ffv1 | mjpg | png
     quality: int = 80             # MJPG quality (the shipped demo uses 65)
+    # the plan's ranges (tools.twin.trajectory.TrajectoryConfig fields), e.g. {"kinds": ["slide"],
+    # "slide": [0.8, 1.6]}: sessions rich in one motion; empty = the twin's defaults
+    trajectory: dict = field(default_factory=dict)
 
     @property
     def name(self) -> str:
         return f"{self.serial}-s{self.seed}"
+
+    def record_config(self, physics: str, size: int):
+        """The twin RecordConfig that records (and, for labels, re-plans) this session."""
+        from tools.twin.record import RecordConfig
+        from tools.twin.trajectory import with_ranges
+
+        rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=physics,
+                            frame_format=self.frames, mjpg_quality=self.quality, model_size=size)
+        rcfg.trajectory = with_ranges(rcfg.trajectory, self.trajectory, f"session {self.name} trajectory")
+        return rcfg
 
 
 def _train_sessions() -> list[SessionSpec]:
@@ -92,7 +105,12 @@ class BuildConfig:
         return BuildConfig(**d)
 
     def to_dict(self) -> dict:
-        return json.loads(json.dumps(asdict(self)))
+        d = json.loads(json.dumps(asdict(self)))
+        for k in ("train", "heldout"):      # default plans stay out (stage keys of older builds stay valid)
+            for spec in d.get(k) or []:
+                if not spec.get("trajectory"):
+                    spec.pop("trajectory", None)
+        return d
 
 
 def stage_keys(cfg: BuildConfig) -> dict[str, str]:
@@ -188,15 +206,13 @@ def stage_sessions(b: Build) -> dict:
     """Record the twin sessions (FE physics, cached per poke) and write each unit's TRUE calibration
     into the build's store (the twin truth the correspondence stage is checked against)."""
     from tools.twin.cli import _Bar
-    from tools.twin.record import RecordConfig, Recorder
+    from tools.twin.record import Recorder
     from tools.twin.unit import write_true_calibration
 
     out = {}
     for i, spec in enumerate(b.all_sessions()):
         path = b.session(spec)
-        rcfg = RecordConfig(serial=spec.serial, pokes=spec.pokes, seed=spec.seed, physics=b.cfg.physics,
-                            frame_format=spec.frames, mjpg_quality=spec.quality, model_size=b.cfg.size)
-        rec = Recorder(rcfg, path, progress=_Bar())
+        rec = Recorder(spec.record_config(b.cfg.physics, b.cfg.size), path, progress=_Bar())
         version = write_true_calibration(rec.unit, b.store_root, b.cfg.size)
         if (path / "session.json").is_file():
             log.info("[sessions %d/%d] %s already recorded", i + 1, len(b.all_sessions()), spec.name)

@@ -27,11 +27,9 @@ def _atomic_json(obj, path: Path) -> None:
 
 def recorder(b, spec):
     """The twin Recorder of a session spec (not run): plan, unit, modules, physics config."""
-    from tools.twin.record import RecordConfig, Recorder
+    from tools.twin.record import Recorder
 
-    rcfg = RecordConfig(serial=spec.serial, pokes=spec.pokes, seed=spec.seed, physics=b.cfg.physics,
-                        frame_format=spec.frames, mjpg_quality=spec.quality, model_size=b.cfg.size)
-    return Recorder(rcfg, b.session(spec))
+    return Recorder(spec.record_config(b.cfg.physics, b.cfg.size), b.session(spec))
 
 
 def fe_results(b, spec) -> list:

@@ -60,6 +60,31 @@ class TrajectoryConfig:
     t_lead: float = 0.8              # s of rest before the first poke (baseline frames)
 
 
+def with_ranges(cfg: TrajectoryConfig, ranges: dict | None, where: str = "trajectory") -> TrajectoryConfig:
+    """`cfg` with fields replaced from `ranges` (e.g. {"kinds": ["slide"], "slide": [0.8, 1.6]}; JSON lists
+    become tuples); an unknown field or a wrong shape is an error naming `where`."""
+    from dataclasses import fields, replace
+
+    if not ranges:
+        return cfg
+    known = {f.name: getattr(cfg, f.name) for f in fields(cfg)}
+    out = {}
+    for k, v in dict(ranges).items():
+        if k not in known:
+            raise ValueError(f"{where}: unknown trajectory field {k!r} (expected one of {sorted(known)})")
+        cur = known[k]
+        if isinstance(cur, tuple):
+            if not isinstance(v, (list, tuple)) or (k not in ("kinds", "indenters") and len(v) != len(cur)):
+                raise ValueError(f"{where}.{k}: expected a list like {list(cur)}, got {v!r}")
+            v = tuple(v)
+            if k == "kinds" and not set(v) <= set(KINDS):
+                raise ValueError(f"{where}.kinds: {list(v)} not all in {list(KINDS)}")
+        elif not isinstance(v, (int, float)) or isinstance(v, bool):
+            raise ValueError(f"{where}.{k}: expected a number, got {v!r}")
+        out[k] = v
+    return replace(cfg, **out)
+
+
 @dataclass
 class Poke:
     kind: str

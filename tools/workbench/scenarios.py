@@ -69,6 +69,7 @@ def fresh_store(dest: Path, unit: str = "TWIN-WB01", model_size: int = 64) -> Pa
 def record(sc: Scenario, progress=None) -> Path:
     """The scenario's session folder (recorded on first use)."""
     from tools.twin.record import RecordConfig, Recorder
+    from tools.twin.trajectory import with_ranges
 
     out = root() / f"s-{sc.key()}"
     if (out / "session.json").is_file():
@@ -77,9 +78,8 @@ def record(sc: Scenario, progress=None) -> Path:
                        effects=[(n, dict(p)) for n, p in sc.effects], physics=sc.physics,
                        frame_format="mjpg", model_size=sc.model_size)
     cfg.rig = replace(cfg.rig, camera_fps=sc.fps, temperature_drift_c_per_s=sc.temperature_drift)
-    ranges = {k: tuple(v) if isinstance(v, (list, tuple)) else v
-              for k, v in dict(sc.extra.get("trajectory", {})).items()}
-    cfg.trajectory = replace(cfg.trajectory, indenters=tuple(sc.indenters), kinds=tuple(sc.kinds), **ranges)
+    cfg.trajectory = with_ranges(replace(cfg.trajectory, indenters=tuple(sc.indenters), kinds=tuple(sc.kinds)),
+                                 sc.extra.get("trajectory"), f"scenario {sc.key()} extra.trajectory")
     out.parent.mkdir(parents=True, exist_ok=True)
     log.info("recording twin scenario %s -> %s", sc, out)
     Recorder(cfg, out, progress=progress).run()
@@ -96,6 +96,3 @@ def net_scenario(seed: int, pokes: int = 16, effects: tuple = (), fps: float = 3
     """A twin scenario for the network path (FE physics, frames at `fps`, 128 px calibration)."""
     return Scenario(seed, pokes=pokes, effects=effects, physics="fe", fps=fps, model_size=128, **kw)
 
-
-# a friction probe, as a tactile researcher records one: light presses, then long slides (gross slip)
-FRICTION_PROBE = {"trajectory": {"depth_press": [0.5, 0.9], "slide": [0.8, 1.2]}}
