@@ -14,6 +14,7 @@ largest |total force| of a component above w on any rest frame × `weak_margin`;
 most light-contact frames (measured |F| in `light_n`) with the strong threshold wins (ties: the larger w).
 
     python -m tools.train.threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
+    python -m tools.train.threshold --package DIR --session ... --check    # held-out detection report
 """
 from __future__ import annotations
 
@@ -184,6 +185,53 @@ def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Threshold
     return out
 
 
+CHECK_BANDS = ((0.1, 0.3), (0.3, 0.5), (0.5, 1.0), (1.0, float("inf")))
+
+
+def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
+    """The package's detection (its manifest's values) on other sessions, e.g. held-out ones: per
+    measured |F| band the frames with a core by the strong threshold alone and with the light-touch
+    rule, and the rest frames (every |F| < rest_n) with a core. Same frames and fields for both."""
+    from runtime.contacts import light_cores, pixel_forces
+    from runtime.model import FieldModel, load_package
+    from runtime.pipeline import PipelineConfig, SensorPipeline
+    from runtime.session import load_session
+    from tools.sessions.writer import read_frames
+    from tools.train.evaluate import measured_at
+
+    package = load_package(package_dir)
+    cc = PipelineConfig.for_package(package).contacts
+    fm, strong, rule = [], [], []
+    for path, cal in sessions:
+        ses = load_session(path)
+        frames = ses.table("frames")
+        meas = measured_at(ses, frames[:, 0])
+        pipe = SensorPipeline(ses.sensor_id, FieldModel(package, "int8", 1), cal)
+        for i, img in read_frames(ses):
+            res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
+            if res.fields is None:
+                continue
+            fp = pixel_forces(res.fields, cal.pixel_area)
+            mag = np.where(cal.mask, np.sqrt((fp ** 2).sum(axis=0)), 0.0)
+            s = _has_core(mag, cc.threshold_n, cc.min_pixels)
+            light = light_cores(fp, mag, cal.mask, (mag > cc.threshold_n) & cal.mask, cc)
+            fm.append(max(np.linalg.norm(meas[k]["force"][i]) for k in meas))
+            strong.append(s)
+            rule.append(s or (light is not None and _has_core(light.astype(float), 0.5, cc.min_pixels)))
+        log.info("check %s: %d frames", Path(path).name, len(fm))
+    fm, strong, rule = np.array(fm), np.array(strong), np.array(rule)
+    rest = fm < cfg.rest_n
+    bands = [{"band_n": [lo, hi if np.isfinite(hi) else None], "frames": int(((fm > lo) & (fm <= hi)).sum()),
+              "strong_only": float(strong[(fm > lo) & (fm <= hi)].mean()) if ((fm > lo) & (fm <= hi)).any() else None,
+              "with_rule": float(rule[(fm > lo) & (fm <= hi)].mean()) if ((fm > lo) & (fm <= hi)).any() else None}
+             for lo, hi in CHECK_BANDS]
+    return {"package": str(package_dir), "contacts": {"threshold_n": cc.threshold_n, "weak_threshold_n": cc.weak_threshold_n,
+                                                      "min_total_n": cc.min_total_n},
+            "sessions": [Path(p).name for p, _ in sessions], "frames": int(len(fm)), "rest_frames": int(rest.sum()),
+            "rest_with_core": {"strong_only": int(strong[rest].sum()), "with_rule": int(rule[rest].sum())},
+            "bands": bands}
+
+
 def main(argv=None) -> int:
     from runtime.calibration import CalibrationStore
     from runtime.session import load_session
@@ -193,6 +241,8 @@ def main(argv=None) -> int:
     ap.add_argument("--session", nargs="+", required=True, metavar="SESSION_DIR:STORE_DIR",
                     help="a training session and the calibration store holding its unit")
     ap.add_argument("--write", action="store_true", help="record the result in the package's manifest")
+    ap.add_argument("--check", action="store_true",
+                    help="measure nothing: report the package's own detection on these (e.g. held-out) sessions")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     pairs = []
@@ -201,6 +251,9 @@ def main(argv=None) -> int:
         if not store:
             raise SystemExit(f"--session {item!r}: expected SESSION_DIR:STORE_DIR")
         pairs.append((sdir, CalibrationStore(store).load(load_session(sdir).sensor_id)))
+    if args.check:
+        print(json.dumps(check(args.package, pairs), indent=1))
+        return 0
     cmd = "python -m tools.train.threshold " + " ".join(sys.argv[1:] if argv is None else argv)
     print(json.dumps(measure(args.package, pairs, write=args.write, command=cmd), indent=1))
     return 0
