@@ -34,8 +34,8 @@ class ContactConfig:
     min_pixels: int = 3             # drop specks smaller than this (noise)
     # light touches: a component of pixels above weak_threshold_n with no pixel above threshold_n is a core
     # when |its total force| >= min_total_n (N). 0 = off; packages carry measured values
-    # (manifest.runtime, tools/train/threshold.py): with the shipped model 0.5-1 N contacts went from
-    # 81 % to 99 % of frames detected on held-out sessions (docs/BENCHMARKS.md "Light contacts")
+    # (manifest.runtime, tools/train/threshold.py): with the shipped model 0.3-0.5 / 0.5-1 N contacts went
+    # from 43 / 80 % to 81 / 97 % of held-out frames detected (docs/BENCHMARKS.md "Light contacts")
     weak_threshold_n: float = 0.0
     min_total_n: float = 0.0
     match_gate_mm: float = 4.0      # max centroid jump to keep a cluster's id between frames

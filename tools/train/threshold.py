@@ -135,7 +135,8 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
 
 def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict) -> dict:
     """The light-touch rule for a strong threshold at grid index k (see the module doc); fills
-    `measured` in place and returns the manifest keys (empty when no session has light frames)."""
+    `measured` in place and returns the manifest keys (both None, i.e. rule off, when a sweep predates
+    the rule or no session has light frames)."""
     off = {"contact_weak_threshold_n": None, "contact_min_total_n": None}
     if not all("light" in s for s in sweeps):
         return off
