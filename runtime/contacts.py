@@ -127,10 +127,11 @@ def weak_components(force_px: np.ndarray, mag: np.ndarray, mask: np.ndarray, str
     """Components of pixels above weak_n that hold no strong pixel: (labels (H, W), |total force| per
     label (N), 0 for label 0 and for labels holding a strong pixel)."""
     n, labels = cv2.connectedComponents(((mag > weak_n) & mask).astype(np.uint8), connectivity=8)
-    flat = labels.ravel()
-    tot = np.linalg.norm(np.stack([np.bincount(flat, weights=force_px[i].ravel(), minlength=n)
+    idx = np.flatnonzero(labels)                 # only the (few) pixels above weak_n
+    lab = labels.ravel()[idx]
+    tot = np.linalg.norm(np.stack([np.bincount(lab, weights=force_px[i].ravel()[idx], minlength=n)
                                    for i in range(3)], 1), axis=1)
-    tot[np.bincount(flat, weights=strong.ravel().astype(np.float64), minlength=n) > 0] = 0.0
+    tot[np.bincount(lab, weights=strong.ravel()[idx].astype(np.float64), minlength=n) > 0] = 0.0
     tot[0] = 0.0
     return labels, tot
 
@@ -140,7 +141,8 @@ def light_cores(force_px, mag, mask, strong, cfg: ContactConfig) -> np.ndarray |
     if cfg.weak_threshold_n <= 0 or cfg.min_total_n <= 0 or cfg.weak_threshold_n >= cfg.threshold_n:
         return None
     labels, tot = weak_components(force_px, mag, mask, strong, cfg.weak_threshold_n)
-    return (tot >= cfg.min_total_n)[labels].astype(np.uint8)
+    keep = tot >= cfg.min_total_n
+    return keep[labels].astype(np.uint8) if keep.any() else None
 
 
 def _support_labels(labels: np.ndarray, mag: np.ndarray, cfg: ContactConfig) -> np.ndarray:

@@ -12,6 +12,7 @@ log = logging.getLogger(__name__)
 
 AREAS = {
     "runtime": ("tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32"),
+    "contacts": ("tools.bench.contacts_bench", "contact clustering with vs without the light-touch rule"),
     "hand": ("tools.bench.hand_bench", "N sensors in one process: frames/s per sensor, p99, soak drift"),
     "fe": ("tools.fe.bench", "FE solver: seconds per keypoint frame / 5-keypoint trajectory"),
     "twin": ("tools.twin.bench", "digital twin: seconds of recording per minute of compute"),

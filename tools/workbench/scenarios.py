@@ -95,4 +95,3 @@ NET_TEST_SEED = 101           # the plan shared by the hidden-effect sessions (F
 def net_scenario(seed: int, pokes: int = 16, effects: tuple = (), fps: float = 30.0, **kw) -> Scenario:
     """A twin scenario for the network path (FE physics, frames at `fps`, 128 px calibration)."""
     return Scenario(seed, pokes=pokes, effects=effects, physics="fe", fps=fps, model_size=128, **kw)
-

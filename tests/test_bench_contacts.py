@@ -1,0 +1,18 @@
+"""`tensortouch bench contacts` runs on the demo unit's tables; the rule adds the light touch only."""
+import argparse
+import json
+
+from tools.bench.contacts_bench import add_arguments, run
+
+
+def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    assert run(p.parse_args(["--frames", "2", "--json"])) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    rows = {(r["field"], r["config"]): r for r in out["rows"]}
+    assert len(rows) == 4 and all(r["ms"] > 0 for r in rows.values())
+    assert len(rows[("one touch + light touch", "strong only")]["clusters_n"]) == 1
+    light = sorted(rows[("one touch + light touch", "with rule")]["clusters_n"])
+    assert len(light) == 2 and 0.25 < light[0] <= 0.31
+    assert rows[("one touch", "with rule")]["clusters_n"] == rows[("one touch", "strong only")]["clusters_n"]
