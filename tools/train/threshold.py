@@ -12,6 +12,8 @@ Light touches spread thinner than that threshold. The light-touch rule (ContactC
 min_total_n) is measured in the same pass: per weak threshold w of `weak_grid`, min_total_n(w) = the
 largest |total force| of a component above w on any rest frame × `weak_margin`; the w that detects the
 most light-contact frames (measured |F| in `light_n`) with the strong threshold wins (ties: the larger w).
+The same pass keeps single-contact frames for the cluster support (how far a contact's force reaches
+beyond its core, tools/train/support.py), chosen once the threshold and the rule are known.
 
     python -m tools.train.threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
     python -m tools.train.threshold --package DIR --session ... --check    # held-out detection report
@@ -27,6 +29,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from tools.train.support import SupportConfig, choose_support, support_sample
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +51,7 @@ class ThresholdConfig:
     weak_margin: float = 1.5
     min_total_floor_n: float = 0.02   # min_total_n is never below this (N), even on a spotless rest set
     light_n: tuple = (0.2, 1.0)   # measured |F| band (N) of the light contacts the weak rule is chosen on
+    support: SupportConfig = SupportConfig()
 
 
 def _has_core(mag: np.ndarray, t: float, min_pixels: int) -> bool:
@@ -82,6 +87,7 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     n_rest = n_contact = 0
     rest_weak = np.zeros(len(cfg.weak_grid))
     light = {"core": [], "weak": []}
+    support, seen = [], 0
     for i, img in read_frames(ses):
         res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
         if res.fields is None:
@@ -89,9 +95,15 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
         mags = np.array([np.linalg.norm(meas[k]["force"][i]) for k in meas])
         rest, contact = bool(np.all(mags < cfg.rest_n)), bool(np.any(mags > cfg.contact_n))
         lit = cfg.light_n[0] < mags.max() <= cfg.light_n[1]
+        fp = pixel_forces(res.fields, calibration.pixel_area)
+        one = support_sample(fp, [meas[k]["tip"][i] for k in meas], [meas[k]["force"][i] for k in meas],
+                             cfg.rest_n, cfg.support)
+        if one is not None:
+            seen += 1
+            if seen % cfg.support.stride == 0 and len(support) < cfg.support.frames_per_session:
+                support.append(one)
         if not (rest or contact or lit):
             continue
-        fp = pixel_forces(res.fields, calibration.pixel_area)
         mag = np.where(calibration.mask, np.sqrt((fp ** 2).sum(axis=0)), 0.0)
         has = np.array([_has_core(mag, t, cfg.min_pixels) for t in grid])
         if rest or lit:
@@ -108,7 +120,8 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
             hit += has
     return {"session": str(session_dir), "rest_frames": n_rest, "contact_frames": n_contact,
             "rest_with_core": rest_fp.tolist(), "contact_with_core": hit.tolist(),
-            "rest_weak_max": rest_weak.tolist(), "light": light}
+            "rest_weak_max": rest_weak.tolist(), "light": light,
+            "support": support, "calibration": calibration}    # the last two stay in memory (not JSON)
 
 
 def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
@@ -125,12 +138,26 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
         log.warning("contact threshold: every grid value up to %g N leaves false contacts on rest frames (%d at "
                     "the top): the network paints force on an untouched gel; no threshold recorded", grid[-1], fp[-1])
         return {"contact_threshold_n": None, "contact_weak_threshold_n": None, "contact_min_total_n": None,
-                "measured": dict(measured, contact_detected_fraction=None)}
+                "contact_support_radius_px": None, "contact_support_floor_n": None, "measured": dict(measured, contact_detected_fraction=None)}
     t = float(round(grid[int(clean[0])] * cfg.margin, 5))
     k = min(int(np.searchsorted(grid, t - 1e-12)), len(grid) - 1)      # the first grid value >= t
     measured["contact_detected_fraction"] = float(hit[k] / n_contact) if n_contact else None
     measured["detected_at_n"] = float(grid[k])
-    return dict({"contact_threshold_n": t, "measured": measured}, **choose_weak(sweeps, k, cfg, measured))
+    out = dict({"contact_threshold_n": t, "measured": measured}, **choose_weak(sweeps, k, cfg, measured))
+    return dict(out, **_support(sweeps, out, cfg))
+
+
+def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
+    """The cluster support with the chosen threshold and rule (None: sweeps without support frames)."""
+    from runtime.contacts import ContactConfig
+
+    samples = [x for s in sweeps for x in s.get("support", [])]
+    cals = [s["calibration"] for s in sweeps for _ in s.get("support", [])]
+    cc = ContactConfig(threshold_n=chosen["contact_threshold_n"], weak_threshold_n=chosen.get("contact_weak_threshold_n") or 0.0,
+                       min_total_n=chosen.get("contact_min_total_n") or 0.0)
+    res = choose_support(samples, cals, cc, cfg.support)
+    chosen["measured"].update(res.pop("measured"))
+    return res
 
 
 def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict) -> dict:

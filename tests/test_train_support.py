@@ -1,0 +1,84 @@
+"""The package's cluster support (tools/train/support.py): chosen on single-contact frames against the F/T."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from runtime.contacts import ContactConfig
+from runtime.pipeline import PipelineConfig
+from tools.train.support import SupportConfig, choose_support, score, support_sample
+from tools.train.threshold import choose
+
+S = 96
+
+
+def flat_calibration():
+    v, u = np.mgrid[0:S, 0:S].astype(float)
+    xyz = np.stack([u * 0.2, v * 0.2, np.zeros_like(u)], -1)
+    normals = np.zeros((S, S, 3))
+    normals[..., 2] = 1.0
+    return SimpleNamespace(surface_xyz=xyz, normals=normals, pixel_area=np.full((S, S), 0.04),
+                           mask=np.ones((S, S), bool))
+
+
+def contact(c=(48, 48), core=(0.0, 0.0, -0.004), tail=(0.00006, 0.0, 0.0), tail_from=12.0, tail_to=25.0):
+    """Pixel forces (3, S, S): a 5 px core plus an optional weak shear ring; returns (fp, total force)."""
+    v, u = np.mgrid[0:S, 0:S]
+    r = np.hypot(u - c[0], v - c[1])
+    fp = np.zeros((3, S, S))
+    fp[:, r <= 5] = np.asarray(core)[:, None]
+    ring = (r >= tail_from) & (r <= tail_to)
+    fp[:, ring] = np.asarray(tail)[:, None]
+    return fp, fp.reshape(3, -1).sum(1)
+
+
+def sample(fp, total, c=(48, 48)):
+    return {"fp": fp.astype(np.float32), "tip": np.array([c[0] * 0.2, c[1] * 0.2, 0.0]), "force": total}
+
+
+def test_a_broad_shear_tail_takes_a_farther_support_and_a_compact_contact_keeps_the_default():
+    cal, cc = flat_calibration(), ContactConfig()
+    fp, total = contact()
+    assert np.linalg.norm(total[:2]) > 0.05                      # the ring carries real shear
+    cfg = SupportConfig()
+    out = choose_support([sample(fp, total)] * 3, [cal] * 3, cc, cfg)
+    errs = out["measured"]["support_error_n"]
+    assert errs[0] > 0.05 and min(errs) < 1e-6                    # 10 px misses the ring, 30 px holds it
+    assert out["contact_support_radius_px"] == 30.0 and out["contact_support_floor_n"] == 0.0
+    fp2, total2 = contact(tail=(0.0, 0.0, 0.0))
+    same = choose_support([sample(fp2, total2)], [cal], cc, cfg)
+    assert (same["contact_support_radius_px"], same["contact_support_floor_n"]) == cfg.candidates[0]
+
+
+def test_a_missed_contact_counts_its_whole_force_and_no_samples_leave_the_default():
+    cal = flat_calibration()
+    blank = sample(np.zeros((3, S, S)), np.array([0.0, 0.0, -1.0]))
+    assert score([blank], [cal], ContactConfig(), 10, 1e-4) == pytest.approx(1.0)
+    none = choose_support([], [], ContactConfig())
+    assert none["contact_support_radius_px"] is None and none["measured"]["support_frames"] == 0
+
+
+def test_support_frames_have_exactly_one_indenter_in_contact():
+    fp = np.zeros((3, 4, 4))
+    tips = np.zeros((2, 3))
+    assert support_sample(fp, tips, [[0, 0, -1.0], [0, 0, 0.01]], 0.05) is not None
+    assert support_sample(fp, tips, [[0, 0, -1.0], [0, 0, -0.5]], 0.05) is None     # two contacts
+    assert support_sample(fp, tips, [[0, 0, -1.0], [0, 0, -0.1]], 0.05) is None     # the other not at rest
+    assert support_sample(fp, tips, [[0, 0, -0.1], [0, 0, 0.0]], 0.05) is None      # too light
+
+
+def test_threshold_sweeps_without_support_frames_leave_the_support_off():
+    s = {"session": "A", "rest_frames": 10, "contact_frames": 10, "rest_with_core": [1, 0],
+         "contact_with_core": [10, 10]}
+    from tools.train.threshold import ThresholdConfig
+    out = choose([s], ThresholdConfig(grid=(0.001, 0.002)))
+    assert out["contact_support_radius_px"] is None and out["contact_support_floor_n"] is None
+
+
+def test_the_runtime_takes_the_support_from_the_manifest_including_a_zero_floor():
+    man = {"runtime": {"contact_threshold_n": 0.002, "contact_support_radius_px": 20.0, "contact_support_floor_n": 0.0}}
+    c = PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts
+    assert (c.support_radius_px, c.support_floor_n) == (20.0, 0.0)
+    old = {"runtime": {"contact_threshold_n": 0.002, "contact_support_radius_px": None}}
+    c = PipelineConfig.for_package(SimpleNamespace(manifest=old)).contacts
+    assert (c.support_radius_px, c.support_floor_n) == (ContactConfig().support_radius_px, ContactConfig().support_floor_n)
