@@ -1,5 +1,6 @@
-"""`tensortouch bench contacts`: the contact clustering step with and without the light-touch rule,
-side by side in one run, on a unit's real calibration tables (128² for the demo unit).
+"""`tensortouch bench contacts`: the contact clustering step with and without the light-touch rule, and
+with the rule and a farther cluster support (tools/train/support.py), side by side in one run, on a
+unit's real calibration tables (128² for the demo unit).
 
 Fields are synthetic contact-force maps (docs/runtime.md): a 1.5 N touch (σ = 4 px) with and without a
 0.3 N light touch spread thinner than the strong threshold (σ = 5.5 px), plus 0.2 mN/pixel noise.
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -18,6 +20,8 @@ def add_arguments(p) -> None:
     p.add_argument("--frames", type=int, default=500, help="timed calls per configuration and field")
     p.add_argument("--weak", type=float, default=0.0012, help="weak threshold (N per pixel)")
     p.add_argument("--min-total", type=float, default=0.041, help="min_total_n (N)")
+    p.add_argument("--support-radius", type=float, default=30.0, help="support radius (px) of the third configuration")
+    p.add_argument("--support-floor", type=float, default=0.0, help="support floor (N per pixel) of the third configuration")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
 
 
@@ -52,7 +56,9 @@ def run(args) -> int:
     h, w = cal.model_size
     fields = {"one touch": [(0.3 * w, 0.5 * h, 1.5, 4.0)],
               "one touch + light touch": [(0.3 * w, 0.5 * h, 1.5, 4.0), (0.7 * w, 0.47 * h, 0.3, 5.5)]}
-    cfgs = {"strong only": ContactConfig(), "with rule": ContactConfig(weak_threshold_n=args.weak, min_total_n=args.min_total)}
+    rule = ContactConfig(weak_threshold_n=args.weak, min_total_n=args.min_total)
+    cfgs = {"strong only": ContactConfig(), "with rule": rule,
+            "rule+support": replace(rule, support_radius_px=args.support_radius, support_floor_n=args.support_floor)}
     out = {"bench": "contacts", "sensor": args.sensor, "size": [h, w], "rows": []}
     print(f"bench contacts ({args.sensor}, {h}x{w}, {args.frames} calls each)")
     for fname, touches in fields.items():
@@ -62,7 +68,8 @@ def run(args) -> int:
             ms[cname], found = _time(fp, args_, cfg, args.frames)
             out["rows"].append({"field": fname, "config": cname, "ms": round(ms[cname], 4), "clusters_n": found})
             print(f"  {fname:24s} {cname:12s} {ms[cname]:.3f} ms  clusters |F| {found}")
-        print(f"  {fname:24s} with rule / strong only: {ms['with rule'] / ms['strong only']:.2f}")
+        print(f"  {fname:24s} with rule / strong only: {ms['with rule'] / ms['strong only']:.2f}, "
+              f"rule+support / strong only: {ms['rule+support'] / ms['strong only']:.2f}")
     if args.json:
         print(json.dumps(out))
     return 0
