@@ -38,6 +38,8 @@ class ContactConfig:
     # from 43 / 80 % to 81 / 97 % of held-out frames detected (docs/BENCHMARKS.md "Light contacts")
     weak_threshold_n: float = 0.0
     min_total_n: float = 0.0
+    # cores joined by pixels above merge_n (N) are one cluster (0 = off); packages carry a measured value
+    merge_n: float = 0.0
     match_gate_mm: float = 4.0      # max centroid jump to keep a cluster's id between frames
     stable_frames: int = 5          # frames until a cluster counts as fully stable for priority
     max_contacts: int = 16          # cap published clusters (highest priority first)
@@ -80,6 +82,8 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
     if n <= 1:
         return []
+    if n > 2 and cfg.merge_n > 0:
+        labels, n, stats = merge_bridged(labels, binary, mag, mask, cfg.merge_n)
     k = n
     support = _support_labels(labels, mag, cfg)
     idx = np.flatnonzero(support)                 # only pixels that belong to some cluster
@@ -120,6 +124,24 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
             force_mag_n=float(np.linalg.norm(fvec[j])), pixels=int(stats[j, cv2.CC_STAT_AREA]),
             perimeter_px=float(perim[j]), circularity=float(circ[j]), indentation_mm=float(indent[j])))
     return out
+
+
+def merge_bridged(labels: np.ndarray, binary: np.ndarray, mag: np.ndarray, mask: np.ndarray,
+                  merge_n: float) -> tuple[np.ndarray, int, np.ndarray]:
+    """Cores joined by a path of pixels above merge_n (8-connected) become one cluster: one contact
+    whose field dips between two peaks (a sliding contact's split shear) is not published twice.
+    Returns (labels, n incl. background, stats with CC_STAT_AREA filled)."""
+    _, wl = cv2.connectedComponents((((mag > merge_n) & mask) | (binary > 0)).astype(np.uint8), connectivity=8)
+    core = np.where(labels > 0, wl, 0)
+    present = np.zeros(int(wl.max()) + 1, bool)
+    present[core[labels > 0]] = True
+    present[0] = False
+    remap = np.cumsum(present) * present
+    new = remap[core].astype(np.int32)
+    n = int(remap.max()) + 1
+    stats = np.zeros((n, 5), np.int64)
+    stats[:, cv2.CC_STAT_AREA] = np.bincount(new.ravel(), minlength=n)
+    return new, n, stats
 
 
 def weak_components(force_px: np.ndarray, mag: np.ndarray, mask: np.ndarray, strong: np.ndarray,

@@ -34,14 +34,15 @@ class PipelineConfig:
     def for_package(package) -> "PipelineConfig":
         """Defaults, with the package's own measured contact threshold when its manifest has one
         (`runtime.contact_threshold_n`, the light-touch rule `contact_weak_threshold_n` /
-        `contact_min_total_n` and the cluster support `contact_support_radius_px` /
-        `contact_support_floor_n`, written at export by tools/train/threshold.py; null or absent = default)."""
+        `contact_min_total_n`, the cluster support `contact_support_radius_px` /
+        `contact_support_floor_n` and merging `contact_merge_n`, written at export by tools/train/threshold.py; null or absent = default)."""
         rt = (getattr(package, "manifest", None) or {}).get("runtime") or {}
         kw = {k: float(rt[m]) for k, m in (("threshold_n", "contact_threshold_n"),
                                             ("weak_threshold_n", "contact_weak_threshold_n"),
                                             ("min_total_n", "contact_min_total_n"),
                                             ("support_radius_px", "contact_support_radius_px"),
-                                            ("support_floor_n", "contact_support_floor_n")) if rt.get(m) is not None}
+                                            ("support_floor_n", "contact_support_floor_n"),
+                                            ("merge_n", "contact_merge_n")) if rt.get(m) is not None}
         return PipelineConfig(contacts=ContactConfig(**kw))
 
 

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from runtime.contacts import ContactConfig, ContactTracker, find_clusters, pixel_forces
 from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
@@ -116,3 +117,28 @@ def test_light_touch_rule_finds_a_broad_weak_contact_and_leaves_strong_ones_as_t
                                                           weak_threshold_n=0.25 * peak_light, min_total_n=0.4))) == 1
     assert len(find_clusters(fp, *args, cfg=ContactConfig(threshold_n=cfg0.threshold_n,
                                                           weak_threshold_n=0.25 * peak_light))) == 1
+
+
+def test_cores_bridged_above_merge_n_are_one_cluster_with_the_summed_force():
+    from dataclasses import replace
+
+    from runtime.contacts import ContactConfig, find_clusters
+
+    s = 64
+    v, u = np.mgrid[0:s, 0:s].astype(float)
+    xyz = np.stack([u * 0.2, v * 0.2, np.zeros_like(u)], -1)
+    normals = np.zeros((s, s, 3))
+    normals[..., 2] = 1.0
+    area, mask = np.full((s, s), 0.04), np.ones((s, s), bool)
+    fp = np.zeros((3, s, s))
+    fp[2, 31:34, 20:45] = -0.0015                      # the bridge, below the core threshold
+    for c in (20, 44):
+        fp[2, 31:34, c - 1:c + 2] = -0.004
+    base = ContactConfig(support_radius_px=0.0)
+    apart = find_clusters(fp, xyz, normals, area, mask, cfg=base)
+    merged = find_clusters(fp, xyz, normals, area, mask, cfg=replace(base, merge_n=0.0012))
+    assert len(apart) == 2 and len(merged) == 1
+    assert merged[0].force_mag_n == pytest.approx(sum(c.force_mag_n for c in apart))
+    assert merged[0].pixels == sum(c.pixels for c in apart)
+    # a bridge below merge_n does not join them
+    assert len(find_clusters(fp, xyz, normals, area, mask, cfg=replace(base, merge_n=0.0016))) == 2

@@ -82,3 +82,36 @@ def test_the_runtime_takes_the_support_from_the_manifest_including_a_zero_floor(
     old = {"runtime": {"contact_threshold_n": 0.002, "contact_support_radius_px": None}}
     c = PipelineConfig.for_package(SimpleNamespace(manifest=old)).contacts
     assert (c.support_radius_px, c.support_floor_n) == (ContactConfig().support_radius_px, ContactConfig().support_floor_n)
+
+
+def two_peaks(gap_level: float, a=(40, 48), b=(56, 48), peak=0.004):
+    """Two 3 px cores joined along the row by pixels at `gap_level` (N per pixel, -z)."""
+    fp = np.zeros((3, S, S))
+    fp[2, b[1] - 1:b[1] + 2, a[0]:b[0] + 1] = -gap_level
+    for c in (a, b):
+        fp[2, c[1] - 1:c[1] + 2, c[0] - 1:c[0] + 2] = -peak
+    return fp
+
+
+def test_merging_joins_a_split_contact_and_keeps_two_real_contacts_apart():
+    from tools.train.support import choose_merge, merge_counts
+
+    cal, cc = flat_calibration(), ContactConfig(weak_threshold_n=0.0012, min_total_n=0.04)
+    split = two_peaks(0.0015)                           # one contact whose field dips between two peaks
+    total = split.reshape(3, -1).sum(1)
+    single = [sample(split, total, c=(40, 48))] * 2
+    far = two_peaks(0.0002, a=(30, 48), b=(66, 48))     # two contacts 7 mm apart, nothing between them
+    two = [{"fp": far.astype(np.float32), "tips": np.array([[6.0, 9.6, 0.0], [13.2, 9.6, 0.0]])}]
+    assert merge_counts(single, [cal] * 2, two, [cal], cc) == (2, 1)
+    out = choose_merge(single, [cal] * 2, two, [cal], cc)
+    assert out["contact_merge_n"] == pytest.approx(0.0012)
+    assert out["measured"]["merge_phantom_frames"] == [2, 0, 0] and out["measured"]["merge_two_apart_frames"] == [1, 1, 1]
+    # when the "two contacts" are bridged too, merging would publish them as one: stays off
+    joined = [{"fp": split.astype(np.float32), "tips": np.array([[8.0, 9.6, 0.0], [11.2, 9.6, 0.0]])}]
+    assert choose_merge(single, [cal] * 2, joined, [cal], cc)["contact_merge_n"] is None
+
+
+def test_the_runtime_takes_merging_from_the_manifest():
+    man = {"runtime": {"contact_threshold_n": 0.002, "contact_merge_n": 0.0012}}
+    assert PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts.merge_n == 0.0012
+    assert PipelineConfig.for_package(SimpleNamespace(manifest={"runtime": {"contact_merge_n": None}})).contacts.merge_n == 0.0

@@ -20,14 +20,19 @@ log = logging.getLogger(__name__)
 def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path | None = None) -> list:
     """(t, clusters) of every frame of a replayed recording, raw model force (correction off).
     With `cache`, the clusters are kept in an .npz per (session, model file, runtime sources, calibration
-    tables and crop), so a rerun (other fits, other feature sets) does not run the model again."""
+    tables and crop, the package's pipeline configuration: its measured contact threshold, rule, support
+    and merging), so a rerun (other fits, other feature sets) does not run the model again."""
+    from dataclasses import asdict
+
     from runtime.contacts import Cluster
+    from runtime.pipeline import PipelineConfig
 
     key = None
     if cache is not None:
         import hashlib
 
-        h = hashlib.sha256(f"{Path(session_dir).name}|{package.sha256(precision)}|{runtime_sources_hash()}".encode())
+        pipe_cfg = json.dumps(asdict(PipelineConfig.for_package(package)), sort_keys=True)
+        h = hashlib.sha256(f"{Path(session_dir).name}|{package.sha256(precision)}|{runtime_sources_hash()}|{pipe_cfg}".encode())
         for name in ("theta", "phi", "surface_xyz", "pixel_area", "mask"):
             h.update(np.ascontiguousarray(getattr(cal, name)).tobytes())
         h.update(json.dumps([*cal.gel_center_px, cal.gel_radius_px]).encode())

@@ -1,4 +1,5 @@
-"""The package's contact support: how far a contact's force reaches beyond its core, measured at export.
+"""The package's contact support and merging: how far a contact's force reaches beyond its core, and
+which cores are one contact; measured at export.
 
 The runtime grows each cluster core onto weaker pixels nearby (ContactConfig.support_radius_px /
 support_floor_n) so the cluster's force includes the tails the core threshold cuts off. How far those
@@ -11,7 +12,16 @@ on training-session frames where exactly one indenter touches (measured |F| > `c
 below the rest level), each candidate (radius, floor) clusters the package's own fields with the
 package's threshold and light-touch rule; the cluster nearest the indenter's tip is compared with the
 F/T (|F_cluster − F_measured|, a missed contact counts its whole force). The first candidate (smallest
-reach) whose mean error is within `margin` of the best wins. Pure core: `support_sample`, `score`, `choose_support`.
+reach) whose mean error is within `margin` of the best wins.
+
+Merging (ContactConfig.merge_n): while sliding, the shipped model splits one contact's field into two
+peaks, and the runtime published a second, phantom contact ~3.6 mm from the first on 8 % of single-contact
+frames (> 0.2 N; docs/BENCHMARKS.md "Contact merging"). Cores joined by pixels above merge_n are one
+cluster. Chosen first, on the same frames plus the frames where two indenters touch: among `merge_fractions`
+of the core threshold (0 = off), the one with the fewest phantom frames (an extra cluster above
+`phantom_n`) that keeps two real contacts apart (each tip's nearest cluster its own) on at least as many
+two-contact frames as no merging does, less `separation_slack`.
+Pure core: `support_sample`, `two_sample`, `score`, `merge_counts`, `choose_merge`, `choose_support`.
 """
 from __future__ import annotations
 
@@ -28,6 +38,9 @@ class SupportConfig:
     frames_per_session: int = 150   # ... every `stride`-th such frame, at most this many per session
     stride: int = 2
     margin: float = 0.02            # relative: a farther reach must lower the mean error by more than this
+    merge_fractions: tuple = (0.0, 0.6, 0.4)   # merge_n candidates as fractions of the core threshold (0 = off)
+    phantom_n: float = 0.05         # an extra cluster above this (N) on a single-contact frame is a phantom
+    separation_slack: float = 0.01  # two-contact frames kept apart may drop by at most this fraction
 
 
 def support_sample(fp: np.ndarray, tips: np.ndarray, forces: np.ndarray, rest_n: float,
@@ -42,18 +55,68 @@ def support_sample(fp: np.ndarray, tips: np.ndarray, forces: np.ndarray, rest_n:
     return {"fp": np.asarray(fp, dtype=np.float32), "tip": np.asarray(tips[j], float), "force": np.asarray(forces[j], float)}
 
 
-def score(samples: list[dict], calibrations: list, contacts, radius: float, floor: float) -> float:
-    """Mean |F_cluster − F_measured| (N) over samples with the given support; samples[i] uses calibrations[i]."""
+def two_sample(fp: np.ndarray, tips: np.ndarray, forces: np.ndarray, cfg: SupportConfig = SupportConfig()) -> dict | None:
+    """One frame's sample when exactly two indenters touch (> contact_n), else None."""
+    mags = np.linalg.norm(np.asarray(forces, dtype=np.float64), axis=1)
+    on = np.flatnonzero(mags > cfg.contact_n)
+    if len(on) != 2:
+        return None
+    return {"fp": np.asarray(fp, dtype=np.float32), "tips": np.asarray(tips, float)[on]}
+
+
+def _clusters(fp, cal, cc):
     from runtime.contacts import find_clusters
 
+    return find_clusters(fp, cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask, cfg=cc)
+
+
+def _nearest(cl, tip) -> int:
+    return min(range(len(cl)), key=lambda j: float(np.linalg.norm(np.asarray(cl[j].centroid_mm) - tip)))
+
+
+def merge_counts(single: list[dict], single_cals: list, two: list[dict], two_cals: list, contacts,
+                 cfg: SupportConfig = SupportConfig()) -> tuple[int, int]:
+    """(single-contact frames with a phantom cluster, two-contact frames whose tips own distinct clusters)."""
+    phantom = 0
+    for s, cal in zip(single, single_cals):
+        cl = _clusters(s["fp"], cal, contacts)
+        if len(cl) > 1:
+            j = _nearest(cl, s["tip"])
+            phantom += any(c.force_mag_n > cfg.phantom_n for i, c in enumerate(cl) if i != j)
+    apart = 0
+    for s, cal in zip(two, two_cals):
+        cl = _clusters(s["fp"], cal, contacts)
+        apart += len(cl) > 1 and _nearest(cl, s["tips"][0]) != _nearest(cl, s["tips"][1])
+    return phantom, apart
+
+
+def choose_merge(single, single_cals, two, two_cals, contacts, cfg: SupportConfig = SupportConfig()) -> dict:
+    """{"contact_merge_n", "measured": {...}}; None (off) without single-contact samples."""
+    if not single:
+        return {"contact_merge_n": None, "measured": {}}
+    values = [round(f * contacts.threshold_n, 6) for f in cfg.merge_fractions]
+    counts = [merge_counts(single, single_cals, two, two_cals, replace(contacts, merge_n=v), cfg) for v in values]
+    off_apart = counts[0][1]
+    ok = [i for i, (_, a) in enumerate(counts) if a >= off_apart - cfg.separation_slack * len(two)]
+    best = min(ok, key=lambda i: (counts[i][0], i))          # fewest phantoms; ties: the earlier (less merging)
+    return {"contact_merge_n": float(values[best]) if values[best] > 0 else None,
+            "measured": {"merge_rule": f"fewest single-contact frames with an extra cluster > {cfg.phantom_n} N, keeping "
+                                       f"two-contact frames apart within {100 * cfg.separation_slack:.0f} % of no merging",
+                         "merge_candidates_n": values, "merge_phantom_frames": [c[0] for c in counts],
+                         "merge_two_apart_frames": [c[1] for c in counts], "merge_single_frames": len(single),
+                         "merge_two_frames": len(two)}}
+
+
+def score(samples: list[dict], calibrations: list, contacts, radius: float, floor: float) -> float:
+    """Mean |F_cluster − F_measured| (N) over samples with the given support; samples[i] uses calibrations[i]."""
     cc = replace(contacts, support_radius_px=float(radius), support_floor_n=float(floor))
     errs = []
     for s, cal in zip(samples, calibrations):
-        cl = find_clusters(s["fp"], cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask, cfg=cc)
+        cl = _clusters(s["fp"], cal, cc)
         if not cl:
             errs.append(float(np.linalg.norm(s["force"])))
             continue
-        c = min(cl, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_mm) - s["tip"])))
+        c = cl[_nearest(cl, s["tip"])]
         errs.append(float(np.linalg.norm(np.asarray(c.force_n) - s["force"])))
     return float(np.mean(errs)) if errs else float("nan")
 

@@ -30,7 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tools.train.support import SupportConfig, choose_support, support_sample
+from tools.train.support import SupportConfig, choose_merge, choose_support, support_sample, two_sample
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     n_rest = n_contact = 0
     rest_weak = np.zeros(len(cfg.weak_grid))
     light = {"core": [], "weak": []}
-    support, seen = [], 0
+    support, two, seen, seen2 = [], [], 0, 0
     for i, img in read_frames(ses):
         res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
         if res.fields is None:
@@ -102,6 +102,11 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
             seen += 1
             if seen % cfg.support.stride == 0 and len(support) < cfg.support.frames_per_session:
                 support.append(one)
+        pair = two_sample(fp, np.array([meas[k]["tip"][i] for k in meas]), [meas[k]["force"][i] for k in meas], cfg.support)
+        if pair is not None:
+            seen2 += 1
+            if seen2 % cfg.support.stride == 0 and len(two) < cfg.support.frames_per_session:
+                two.append(pair)
         if not (rest or contact or lit):
             continue
         mag = np.where(calibration.mask, np.sqrt((fp ** 2).sum(axis=0)), 0.0)
@@ -121,7 +126,7 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     return {"session": str(session_dir), "rest_frames": n_rest, "contact_frames": n_contact,
             "rest_with_core": rest_fp.tolist(), "contact_with_core": hit.tolist(),
             "rest_weak_max": rest_weak.tolist(), "light": light,
-            "support": support, "calibration": calibration}    # the last two stay in memory (not JSON)
+            "support": support, "two": two, "calibration": calibration}    # the last three stay in memory (not JSON)
 
 
 def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
@@ -138,7 +143,7 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
         log.warning("contact threshold: every grid value up to %g N leaves false contacts on rest frames (%d at "
                     "the top): the network paints force on an untouched gel; no threshold recorded", grid[-1], fp[-1])
         return {"contact_threshold_n": None, "contact_weak_threshold_n": None, "contact_min_total_n": None,
-                "contact_support_radius_px": None, "contact_support_floor_n": None, "measured": dict(measured, contact_detected_fraction=None)}
+                "contact_support_radius_px": None, "contact_support_floor_n": None, "contact_merge_n": None, "measured": dict(measured, contact_detected_fraction=None)}
     t = float(round(grid[int(clean[0])] * cfg.margin, 5))
     k = min(int(np.searchsorted(grid, t - 1e-12)), len(grid) - 1)      # the first grid value >= t
     measured["contact_detected_fraction"] = float(hit[k] / n_contact) if n_contact else None
@@ -148,16 +153,24 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
 
 
 def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
-    """The cluster support with the chosen threshold and rule (None: sweeps without support frames)."""
+    """Merging, then the cluster support, with the chosen threshold and rule (None: sweeps without
+    support frames)."""
+    from dataclasses import replace
+
     from runtime.contacts import ContactConfig
 
     samples = [x for s in sweeps for x in s.get("support", [])]
     cals = [s["calibration"] for s in sweeps for _ in s.get("support", [])]
+    two = [x for s in sweeps for x in s.get("two", [])]
+    two_cals = [s["calibration"] for s in sweeps for _ in s.get("two", [])]
     cc = ContactConfig(threshold_n=chosen["contact_threshold_n"], weak_threshold_n=chosen.get("contact_weak_threshold_n") or 0.0,
                        min_total_n=chosen.get("contact_min_total_n") or 0.0)
+    merge = choose_merge(samples, cals, two, two_cals, cc, cfg.support)
+    chosen["measured"].update(merge.pop("measured"))
+    cc = replace(cc, merge_n=merge["contact_merge_n"] or 0.0)
     res = choose_support(samples, cals, cc, cfg.support)
     chosen["measured"].update(res.pop("measured"))
-    return res
+    return dict(res, **merge)
 
 
 def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict) -> dict:
