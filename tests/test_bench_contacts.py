@@ -11,11 +11,13 @@ def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):
     assert run(p.parse_args(["--frames", "2", "--json"])) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     rows = {(r["field"], r["config"]): r for r in out["rows"]}
-    assert len(rows) == 6 and all(r["ms"] > 0 for r in rows.values())
+    assert len(rows) == 9 and all(r["ms"] > 0 for r in rows.values())
     assert len(rows[("one touch + light touch", "strong only")]["clusters_n"]) == 1
     light = sorted(rows[("one touch + light touch", "with rule")]["clusters_n"])
     assert len(light) == 2 and 0.25 < light[0] <= 0.31
     assert rows[("one touch", "with rule")]["clusters_n"] == rows[("one touch", "strong only")]["clusters_n"]
-    # the farther support adds the tails: the same clusters, each with at least the force it had
-    sup = sorted(rows[("one touch + light touch", "rule+support")]["clusters_n"])
-    assert len(sup) == 2 and all(b >= a - 0.02 for a, b in zip(light, sup))
+    # merging keeps two real contacts apart and publishes the split sliding contact once, with its whole force
+    assert sorted(rows[("one touch + light touch", "rule+merge")]["clusters_n"]) == light
+    split = rows[("split sliding contact", "with rule")]["clusters_n"]
+    merged = rows[("split sliding contact", "rule+merge")]["clusters_n"]
+    assert len(split) == 2 and len(merged) == 1 and merged[0] > max(split)

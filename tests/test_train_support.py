@@ -115,3 +115,20 @@ def test_the_runtime_takes_merging_from_the_manifest():
     man = {"runtime": {"contact_threshold_n": 0.002, "contact_merge_n": 0.0012}}
     assert PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts.merge_n == 0.0012
     assert PipelineConfig.for_package(SimpleNamespace(manifest={"runtime": {"contact_merge_n": None}})).contacts.merge_n == 0.0
+
+
+def test_the_threshold_pass_measures_merging_always_and_the_support_only_on_request():
+    from tools.train.threshold import ThresholdConfig
+
+    cal = flat_calibration()
+    fp, total = contact()
+    split = two_peaks(0.0015)
+    sweep = {"session": "A", "rest_frames": 10, "contact_frames": 10, "rest_with_core": [1, 0],
+             "contact_with_core": [10, 10], "calibration": cal,
+             "support": [sample(fp, total), sample(split, split.reshape(3, -1).sum(1), c=(40, 48))], "two": []}
+    cfg = ThresholdConfig(grid=(0.0015, 0.0015))
+    plain = choose([sweep], cfg)
+    assert plain["contact_support_radius_px"] is None and plain["contact_merge_n"] is not None
+    assert plain["measured"]["merge_phantom_frames"][0] == 1
+    asked = choose([sweep], ThresholdConfig(grid=(0.0015, 0.0015), measure_support=True))
+    assert asked["contact_support_radius_px"] > 10.0 and "support_error_n" in asked["measured"]

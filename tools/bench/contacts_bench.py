@@ -1,9 +1,10 @@
 """`tensortouch bench contacts`: the contact clustering step with and without the light-touch rule, and
-with the rule and a farther cluster support (tools/train/support.py), side by side in one run, on a
-unit's real calibration tables (128² for the demo unit).
+with the rule and merging (tools/train/support.py), side by side in one run, on a unit's real
+calibration tables (128² for the demo unit).
 
 Fields are synthetic contact-force maps (docs/runtime.md): a 1.5 N touch (σ = 4 px) with and without a
-0.3 N light touch spread thinner than the strong threshold (σ = 5.5 px), plus 0.2 mN/pixel noise.
+0.3 N light touch spread thinner than the strong threshold (σ = 5.5 px), and a sliding contact split
+into two peaks 12 px apart (1.0 + 0.6 N, σ = 2 px) joined by a ridge below the core threshold, plus 0.2 mN/pixel noise.
 """
 from __future__ import annotations
 
@@ -20,8 +21,7 @@ def add_arguments(p) -> None:
     p.add_argument("--frames", type=int, default=500, help="timed calls per configuration and field")
     p.add_argument("--weak", type=float, default=0.0012, help="weak threshold (N per pixel)")
     p.add_argument("--min-total", type=float, default=0.041, help="min_total_n (N)")
-    p.add_argument("--support-radius", type=float, default=30.0, help="support radius (px) of the third configuration")
-    p.add_argument("--support-floor", type=float, default=0.0, help="support floor (N per pixel) of the third configuration")
+    p.add_argument("--merge", type=float, default=0.0012, help="merge_n (N per pixel) of the third configuration")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
 
 
@@ -55,10 +55,11 @@ def run(args) -> int:
     args_ = (cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask)
     h, w = cal.model_size
     fields = {"one touch": [(0.3 * w, 0.5 * h, 1.5, 4.0)],
-              "one touch + light touch": [(0.3 * w, 0.5 * h, 1.5, 4.0), (0.7 * w, 0.47 * h, 0.3, 5.5)]}
+              "one touch + light touch": [(0.3 * w, 0.5 * h, 1.5, 4.0), (0.7 * w, 0.47 * h, 0.3, 5.5)],
+              "split sliding contact": [(0.45 * w, 0.5 * h, 1.0, 2.0), (0.45 * w + 12, 0.5 * h, 0.6, 2.0),
+                                        (0.45 * w + 6, 0.5 * h, 0.045, 3.0)]}
     rule = ContactConfig(weak_threshold_n=args.weak, min_total_n=args.min_total)
-    cfgs = {"strong only": ContactConfig(), "with rule": rule,
-            "rule+support": replace(rule, support_radius_px=args.support_radius, support_floor_n=args.support_floor)}
+    cfgs = {"strong only": ContactConfig(), "with rule": rule, "rule+merge": replace(rule, merge_n=args.merge)}
     out = {"bench": "contacts", "sensor": args.sensor, "size": [h, w], "rows": []}
     print(f"bench contacts ({args.sensor}, {h}x{w}, {args.frames} calls each)")
     for fname, touches in fields.items():
@@ -69,7 +70,7 @@ def run(args) -> int:
             out["rows"].append({"field": fname, "config": cname, "ms": round(ms[cname], 4), "clusters_n": found})
             print(f"  {fname:24s} {cname:12s} {ms[cname]:.3f} ms  clusters |F| {found}")
         print(f"  {fname:24s} with rule / strong only: {ms['with rule'] / ms['strong only']:.2f}, "
-              f"rule+support / strong only: {ms['rule+support'] / ms['strong only']:.2f}")
+              f"rule+merge / strong only: {ms['rule+merge'] / ms['strong only']:.2f}")
     if args.json:
         print(json.dumps(out))
     return 0
