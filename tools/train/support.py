@@ -5,7 +5,9 @@ The runtime grows each cluster core onto weaker pixels nearby (ContactConfig.sup
 support_floor_n) so the cluster's force includes the tails the core threshold cuts off. How far those
 tails reach depends on the network: the shipped model paints a sliding contact's shear as a broad, low
 haze, and with the default 10 px / 0.0001 N the matched cluster held 0.73 N of a 0.97 N image-integral
-shear (F/T: 1.20 N) on held-out slide units (docs/BENCHMARKS.md "Contact support").
+shear (F/T: 1.20 N) on held-out slide units (docs/BENCHMARKS.md "Contact support and merging"). Measured
+only on request (ThresholdConfig.measure_support, `--support`): a farther support moved the
+recalibration's errors under the nominal crop (docs/model_package.md "Support").
 
 So the support is measured per package, in the same pass as the core threshold (tools/train/threshold.py):
 on training-session frames where exactly one indenter touches (measured |F| > `contact_n`, every other
@@ -15,8 +17,8 @@ F/T (|F_cluster − F_measured|, a missed contact counts its whole force). The f
 reach) whose mean error is within `margin` of the best wins.
 
 Merging (ContactConfig.merge_n): while sliding, the shipped model splits one contact's field into two
-peaks, and the runtime published a second, phantom contact ~3.6 mm from the first on 8 % of single-contact
-frames (> 0.2 N; docs/BENCHMARKS.md "Contact merging"). Cores joined by pixels above merge_n are one
+peaks, and the runtime published a second, phantom contact ~3.1 mm from the first on 11 % of single-contact
+frames of slide units (docs/BENCHMARKS.md "Contact support and merging"). Cores joined by pixels above merge_n are one
 cluster. Chosen first, on the same frames plus the frames where two indenters touch: among `merge_fractions`
 of the core threshold (0 = off), the one with the fewest phantom frames (an extra cluster above
 `phantom_n`) that keeps two real contacts apart (each tip's nearest cluster its own) on at least as many

@@ -55,7 +55,7 @@ class ThresholdConfig:
     support: SupportConfig = SupportConfig()
     # the farther support is measured only on request (--support): it lowered held-out |F| MAE by 1-7 % but
     # moved the recalibration's nominal-crop errors, so its 60 % cut held on 3 of 6 units instead of 5
-    # (docs/BENCHMARKS.md "Contact support"); merging is always measured
+    # (docs/BENCHMARKS.md "Contact support and merging"); merging is always measured
     measure_support: bool = False
 
 
