@@ -9,7 +9,7 @@ shear (F/T: 1.20 N) on held-out slide units (docs/BENCHMARKS.md "Contact support
 only on request (ThresholdConfig.measure_support, `--support`): a farther support moved the
 recalibration's errors under the nominal crop (docs/model_package.md "Support").
 
-So the support is measured per package, in the same pass as the core threshold (tools/train/threshold.py):
+With `--support` it is measured per package, in the same pass as the core threshold (tools/train/threshold.py):
 on training-session frames where exactly one indenter touches (measured |F| > `contact_n`, every other
 below the rest level), each candidate (radius, floor) clusters the package's own fields with the
 package's threshold and light-touch rule; the cluster nearest the indenter's tip is compared with the
