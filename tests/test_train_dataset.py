@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 from runtime.fields import CHANNELS
 from tools.train.correspondence import image_change_centroid, project_to_cap, tables_from_theta_phi
 from tools.train.dataset import DatasetConfig, FieldProjector, select_frames, write_dataset
-from tools.train.evaluate import frame_errors, summarize
+from tools.train.evaluate import frame_errors, has_phantom, summarize
 from tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
 from tools.train.model.data import load_split, read_index
 from tools.train.simreal import SimRealError, apply_ratios, fit_ratios, ft_to_sensor
@@ -132,6 +132,8 @@ def test_project_to_cap_and_tables_match_the_twin_truth():
 # ---------------------------------------------------------------- stage 8: matching and summary
 
 class _C:
+    force_mag_n = property(lambda self: float(np.linalg.norm(self.force_n)))
+
     def __init__(self, pos, force):
         self.centroid_mm, self.force_n = pos, force
 
@@ -152,6 +154,17 @@ def test_frame_errors_match_nearest_cluster_and_count_misses():
                                                3.0, np.linalg.norm([.5, 0, -2])])) < 1e-3
     assert s["rest_force_mean_n"] == 0.15 and s["rest_false_contact_fraction"] == 0.5
     assert frame_errors(cl, tips, forces * 0.1) == []                            # below the contact threshold
+
+
+def test_a_second_cluster_beside_a_single_contact_is_a_phantom():
+    tip, force = np.array([[0.0, 0.0, 8.0]]), np.array([[0.0, 0.0, -2.0]])
+    main, split = _C((0.1, 0.0, 7.9), (0.0, 0.0, -1.2)), _C((3.0, 0.0, 7.5), (0.3, 0.0, -0.6))
+    assert has_phantom([main, split], frame_errors([main, split], tip, force))
+    assert not has_phantom([main], frame_errors([main], tip, force))
+    speck = _C((3.0, 0.0, 7.5), (0.0, 0.0, -0.01))                              # below phantom_n
+    assert not has_phantom([main, speck], frame_errors([main, speck], tip, force))
+    s = summarize(frame_errors([main], tip, force), [], [True, False, False, False])
+    assert s["single_contact_frames"] == 4 and s["phantom_fraction"] == 0.25
 
 
 def test_gpr_tables_recover_the_twin_lens_from_exact_pokes():

@@ -7,7 +7,8 @@
 
 `--build` adds the build's held-out sessions with their unit calibrations (as stage 8 uses them);
 `--session`/`--store` pairs add any other session, calibrated from that store (sensor = the
-session's sensor_id). One JSON line per (package, session) with the stage-8 summary.
+session's sensor_id). One JSON line per (package, session) with the stage-8 summary, plus the fraction
+of single-contact frames (one indenter ≥ --contact-n, the others at rest) with a phantom second cluster.
 """
 from __future__ import annotations
 
@@ -51,7 +52,7 @@ def main(argv=None) -> int:
             package = load_package(pk)
             for name, path, cal in targets:
                 r = evaluate_session(path, package, cal, EvalConfig(precision=args.precision, contact_n=args.contact_n))
-                s = summarize(r["rows"], r["rest"])
+                s = summarize(r["rows"], r["rest"], r["phantoms"])
                 out[f"{pk} | {name}"] = s
                 print(json.dumps({"package": pk, "session": name, **s}), flush=True)
     except TensorTouchError as exc:

@@ -28,6 +28,7 @@ log = logging.getLogger(__name__)
 class EvalConfig:
     contact_n: float = 1.5        # seed §III.C contact threshold on the measured force
     rest_n: float = 0.2           # all indenters below this: a rest frame
+    phantom_n: float = 0.05       # on a frame with one indenter in contact, another cluster above this is a phantom
     precision: str = "int8"
     threads: int = 1
 
@@ -71,8 +72,9 @@ def frame_errors(clusters: list, tips: np.ndarray, forces: np.ndarray, cfg: Eval
     return rows
 
 
-def summarize(rows: list[dict], rest_forces: list[float]) -> dict:
-    """Seed §V-A style numbers from matched rows: mean absolute errors per axis and of |F|."""
+def summarize(rows: list[dict], rest_forces: list[float], phantoms: list[bool] | None = None) -> dict:
+    """Seed §V-A style numbers from matched rows: mean absolute errors per axis and of |F|; with
+    `phantoms` (one flag per single-contact frame) the fraction of those frames with a phantom cluster."""
     if not rows:
         return {"contact_samples": 0}
     mf = np.array([r["meas_force"] for r in rows])
@@ -93,7 +95,17 @@ def summarize(rows: list[dict], rest_forces: list[float]) -> dict:
     if len(rf):
         out["rest_force_mean_n"] = float(rf.mean())
         out["rest_false_contact_fraction"] = float((rf > 0.0).mean())
+    if phantoms is not None:
+        out["single_contact_frames"] = len(phantoms)
+        out["phantom_fraction"] = float(np.mean(phantoms)) if phantoms else None
     return out
+
+
+def has_phantom(clusters: list, frame_rows: list[dict], cfg: EvalConfig = EvalConfig()) -> bool:
+    """On a frame with one indenter in contact: a cluster other than the matched one holds > phantom_n."""
+    pos = next((r["pred_pos"] for r in frame_rows if not r["miss"]), None)
+    return any(c.force_mag_n > cfg.phantom_n for c in clusters
+               if pos is None or list(map(float, c.centroid_mm)) != pos)
 
 
 def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalConfig(), keep_fields_at=None) -> dict:
@@ -110,7 +122,7 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
     meas = measured_at(ses, frames[:, 0])
     ids = sorted(meas)
     pipe = SensorPipeline(ses.sensor_id, FieldModel(package, cfg.precision, cfg.threads), calibration)
-    rows, rest, trace, kept = [], [], [], None
+    rows, rest, trace, kept, phantoms = [], [], [], None, []
     for i, img in read_frames(ses):
         t = float(frames[i, 0])
         res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), t)
@@ -125,10 +137,13 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
         mags = np.linalg.norm(forces, axis=1)
         if np.all(mags < cfg.rest_n):
             rest.append(float(np.linalg.norm(res.force_n)))
-        for r in frame_errors(res.clusters, tips, forces, cfg):
+        fr = frame_errors(res.clusters, tips, forces, cfg)
+        if (mags >= cfg.contact_n).sum() == 1 and (mags >= cfg.rest_n).sum() == 1:
+            phantoms.append(has_phantom(res.clusters, fr, cfg))
+        for r in fr:
             r.update(t=t, frame=i)
             rows.append(r)
-    return {"rows": rows, "rest": rest, "trace": trace, "kept": kept, "sensor": ses.sensor_id}
+    return {"rows": rows, "rest": rest, "trace": trace, "kept": kept, "sensor": ses.sensor_id, "phantoms": phantoms}
 
 
 def evaluate_build(b) -> dict:
@@ -152,7 +167,7 @@ def evaluate_build(b) -> dict:
             log.warning("%s: calibration size %s ≠ model %s; skipped", name, cal.model_size, package.size)
             continue
         r = evaluate_session(path, package, cal, EvalConfig(contact_n=b.cfg.eval_contact_n))
-        s = summarize(r["rows"], r["rest"])
+        s = summarize(r["rows"], r["rest"], r.get("phantoms"))
         summary[name] = s
         (b.root / "eval").mkdir(exist_ok=True)
         (b.root / "eval" / f"{name}.json").write_text(json.dumps({"summary": s, "rows": r["rows"],
