@@ -37,13 +37,17 @@ class PipelineConfig:
         `contact_min_total_n`, the cluster support `contact_support_radius_px` /
         `contact_support_floor_n` and merging `contact_merge_n`, written at export by tools/train/threshold.py; null or absent = default)."""
         rt = (getattr(package, "manifest", None) or {}).get("runtime") or {}
-        kw = {k: float(rt[m]) for k, m in (("threshold_n", "contact_threshold_n"),
-                                            ("weak_threshold_n", "contact_weak_threshold_n"),
-                                            ("min_total_n", "contact_min_total_n"),
-                                            ("support_radius_px", "contact_support_radius_px"),
-                                            ("support_floor_n", "contact_support_floor_n"),
-                                            ("merge_n", "contact_merge_n")) if rt.get(m) is not None}
-        return PipelineConfig(contacts=ContactConfig(**kw))
+        return PipelineConfig(contacts=contact_config(rt))
+
+
+MANIFEST_CONTACT_KEYS = (("threshold_n", "contact_threshold_n"), ("weak_threshold_n", "contact_weak_threshold_n"),
+                         ("min_total_n", "contact_min_total_n"), ("support_radius_px", "contact_support_radius_px"),
+                         ("support_floor_n", "contact_support_floor_n"), ("merge_n", "contact_merge_n"))
+
+
+def contact_config(runtime: dict) -> ContactConfig:
+    """ContactConfig from a manifest's `runtime` section (null or absent keys keep the defaults)."""
+    return ContactConfig(**{k: float(runtime[m]) for k, m in MANIFEST_CONTACT_KEYS if runtime.get(m) is not None})
 
 
 @dataclass

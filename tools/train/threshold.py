@@ -92,26 +92,23 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     n_rest = n_contact = 0
     rest_weak = np.zeros(len(cfg.weak_grid))
     light = {"core": [], "weak": []}
-    support, two, seen, seen2 = [], [], 0, 0
+    kept, seen = {"support": [], "two": []}, {"support": 0, "two": 0}
     for i, img in read_frames(ses):
         res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
         if res.fields is None:
             continue
-        mags = np.array([np.linalg.norm(meas[k]["force"][i]) for k in meas])
+        tips = np.array([meas[k]["tip"][i] for k in meas])
+        forces = np.array([meas[k]["force"][i] for k in meas])
+        mags = np.linalg.norm(forces, axis=1)
         rest, contact = bool(np.all(mags < cfg.rest_n)), bool(np.any(mags > cfg.contact_n))
         lit = cfg.light_n[0] < mags.max() <= cfg.light_n[1]
         fp = pixel_forces(res.fields, calibration.pixel_area)
-        one = support_sample(fp, [meas[k]["tip"][i] for k in meas], [meas[k]["force"][i] for k in meas],
-                             cfg.rest_n, cfg.support)
-        if one is not None:
-            seen += 1
-            if seen % cfg.support.stride == 0 and len(support) < cfg.support.frames_per_session:
-                support.append(one)
-        pair = two_sample(fp, np.array([meas[k]["tip"][i] for k in meas]), [meas[k]["force"][i] for k in meas], cfg.support)
-        if pair is not None:
-            seen2 += 1
-            if seen2 % cfg.support.stride == 0 and len(two) < cfg.support.frames_per_session:
-                two.append(pair)
+        for name, got in (("support", support_sample(fp, tips, forces, cfg.rest_n, cfg.support)),
+                          ("two", two_sample(fp, tips, forces, cfg.support))):
+            if got is not None:          # every stride-th such frame, at most frames_per_session
+                seen[name] += 1
+                if seen[name] % cfg.support.stride == 0 and len(kept[name]) < cfg.support.frames_per_session:
+                    kept[name].append(got)
         if not (rest or contact or lit):
             continue
         mag = np.where(calibration.mask, np.sqrt((fp ** 2).sum(axis=0)), 0.0)
@@ -131,7 +128,7 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     return {"session": str(session_dir), "rest_frames": n_rest, "contact_frames": n_contact,
             "rest_with_core": rest_fp.tolist(), "contact_with_core": hit.tolist(),
             "rest_weak_max": rest_weak.tolist(), "light": light,
-            "support": support, "two": two, "calibration": calibration}    # the last three stay in memory (not JSON)
+            "support": kept["support"], "two": kept["two"], "calibration": calibration}    # the last three stay in memory (not JSON)
 
 
 def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
@@ -162,14 +159,13 @@ def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
     support frames)."""
     from dataclasses import replace
 
-    from runtime.contacts import ContactConfig
+    from runtime.pipeline import contact_config
 
     samples = [x for s in sweeps for x in s.get("support", [])]
     cals = [s["calibration"] for s in sweeps for _ in s.get("support", [])]
     two = [x for s in sweeps for x in s.get("two", [])]
     two_cals = [s["calibration"] for s in sweeps for _ in s.get("two", [])]
-    cc = ContactConfig(threshold_n=chosen["contact_threshold_n"], weak_threshold_n=chosen.get("contact_weak_threshold_n") or 0.0,
-                       min_total_n=chosen.get("contact_min_total_n") or 0.0)
+    cc = contact_config(chosen)                 # the runtime's reading of these keys, as it will apply them
     merge = choose_merge(samples, cals, two, two_cals, cc, cfg.support)
     chosen["measured"].update(merge.pop("measured"))
     if not cfg.measure_support:
