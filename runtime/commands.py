@@ -51,7 +51,7 @@ def register(sub) -> None:
     for q in (cl, cs, cr):
         q.add_argument("--store", help="calibration store folder (default: calibration_store/)")
 
-    from runtime.hand import register_hand
+    from runtime.hand_cli import register_hand
 
     register_hand(sub)
 

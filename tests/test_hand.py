@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from runtime.errors import TensorTouchError
-from runtime.hand import Hand, register_hand
+from runtime.hand import Hand
+from runtime.hand_cli import register_hand
 from runtime.hand_config import HandConfigError, load_hand_config, parse_hand_config
 from runtime.subscriber import Subscriber, alive_sensors, query_info
 from tests.hand_util import hand_cfg, make_package, make_store, make_video, wait_until

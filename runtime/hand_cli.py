@@ -1,0 +1,63 @@
+"""`tensortouch hand CONFIG`: the command-line shell around runtime.hand.Hand (docs/hand.md)."""
+from __future__ import annotations
+
+import time
+
+from runtime.hand import Hand
+from runtime.hand_config import load_hand_config
+
+
+def register_hand(sub) -> None:
+    p = sub.add_parser("hand", help="run a whole hand: several fingertip sensors in one process",
+                       description="Serve every sensor of a hand config (docs/hand.md) over one Zenoh "
+                                   "session, with an optional CAN summary.")
+    p.add_argument("config", help="hand config TOML")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--fast", action="store_true", help="replays: as fast as possible")
+    p.add_argument("--loop", action="store_true", help="replays: start over at the end")
+    p.add_argument("--listen", action="append", help="Zenoh listen endpoint (overrides the config)")
+    p.add_argument("--connect", action="append", help="Zenoh connect endpoint (overrides the config)")
+    p.set_defaults(func=cmd_hand)
+
+
+def cmd_hand(args) -> int:
+    import dataclasses
+    import signal
+    import sys
+
+    cfg = load_hand_config(args.config)
+    cam = dict(cfg.camera_options)
+    if args.fast:
+        cam["realtime"] = False
+    if args.loop:
+        cam["loop"] = True
+    changes = {"camera_options": cam}
+    if args.listen:
+        changes["listen"] = tuple(args.listen)
+    if args.connect:
+        changes["connect"] = tuple(args.connect)
+    cfg = dataclasses.replace(cfg, **changes)
+    hand = Hand(cfg)
+    signal.signal(signal.SIGTERM, lambda *a: hand.stop_event.set())
+    print(f"tensortouch hand {cfg.name}: {len(hand.fingers)} finger(s), model {hand.package.name} "
+          f"({cfg.precision}), Zenoh {' '.join(cfg.listen + cfg.connect)}"
+          f"{', CAN ' + cfg.can.interface + ':' + cfg.can.channel if cfg.can else ''}; Ctrl-C to stop",
+          file=sys.stderr)
+    hand.start()
+    t0 = time.monotonic()
+    try:
+        while not hand.stop_event.is_set():
+            if hand.wait(0.5):
+                break
+            if args.duration and time.monotonic() - t0 >= args.duration:
+                break
+    except KeyboardInterrupt:
+        pass
+    summary = hand.summary()
+    hand.stop()
+    for name, s in summary.items():
+        p50, p99 = s["p50_ms"] or 0.0, s["p99_ms"] or 0.0
+        print(f"  {name:<8} {s['sensor_id']:<16} {s['state']:<11} {s['frames']:6d} frames  "
+              f"p50 {p50:6.2f} ms  p99 {p99:6.2f} ms  reconnects {s['reconnects']}  flags {s['flags']}",
+              file=sys.stderr)
+    return 0
