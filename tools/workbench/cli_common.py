@@ -1,0 +1,123 @@
+"""Shared pieces of the workbench's command-line shells (cli.py, effects_cli.py): the calibration
+store, the effect registry, the sensor id and the model a command runs."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def session_args(p, session: bool = True) -> None:
+    if session:
+        p.add_argument("session", help="session directory (docs/session.md)")
+    p.add_argument("--sensor", help="sensor id in the calibration store (default: the session's)")
+    p.add_argument("--store", help="calibration store root (default: calibration_store/)")
+    p.add_argument("--plugins", action="append", default=[], metavar="DIR", help="folder of effect plugins")
+
+
+def store_of(args):
+    from runtime.calibration import CalibrationStore
+
+    return CalibrationStore(args.store) if args.store else CalibrationStore()
+
+
+def registry_of(args):
+    from runtime.effects import Registry
+    from runtime.errors import TensorTouchError
+
+    try:
+        return Registry.default(plugin_dirs=args.plugins)
+    except ValueError as exc:
+        raise TensorTouchError(str(exc)) from None
+
+
+def sensor_of(args) -> str:
+    if args.sensor:
+        return args.sensor
+    if getattr(args, "session", None):
+        return json.loads((Path(args.session) / "session.json").read_text())["sensor_id"]
+    from runtime.errors import TensorTouchError
+
+    raise TensorTouchError("--sensor is required")
+
+
+def default_model_path(sensor: str) -> Path:
+    from tools.workbench.compare import cache_root
+
+    return cache_root() / "models" / f"{sensor}.json"
+
+
+def last_diagnosis_path(sensor: str) -> Path:
+    from tools.workbench.compare import cache_root
+
+    return cache_root() / f"diagnosis-{sensor}.json"
+
+
+def contact_law(args, sensor: str, store, path=None):
+    from runtime.errors import TensorTouchError
+    from tools.workbench.compare import load_table
+    from tools.workbench.models import ContactLaw
+
+    if getattr(args, "model_from", None):
+        table, _ = load_table(args.model_from, store.load(sensor), cache=not args.no_cache)
+        law = ContactLaw.fit(table, source=f"fitted on {args.model_from}")
+        law.save(default_model_path(sensor))
+        print(f"nominal contact law fitted on {args.model_from} -> {default_model_path(sensor)}")
+        return law
+    path = Path(path) if path else default_model_path(sensor)
+    if not path.is_file():
+        raise TensorTouchError(f"{path}: no model for sensor {sensor} (no contact law fitted); fit one on a calibration "
+                               "session with --model-from CALIB_SESSION (or give --model FILE)")
+    return ContactLaw.load(path)
+
+
+def model_of(args, sensor: str, store):
+    """--model: package (path/name) -> the deployed network; 'contact-law' or a .json -> contact law;
+    default: the installed package when it fits the calibration and the session has frames."""
+    from runtime.errors import ModelPackageError
+    from runtime.model import find_package
+    from tools.workbench.network import NetworkConfig, NetworkModel
+
+    choice = getattr(args, "model", None)
+    cfg = NetworkConfig(precision=getattr(args, "precision", "int8"))
+    if choice == "contact-law" or (choice and choice.endswith(".json")) or getattr(args, "model_from", None):
+        return contact_law(args, sensor, store, None if choice in (None, "contact-law") else choice)
+    if choice:
+        return NetworkModel(find_package(choice), cfg)
+    cal = store.load(sensor)
+    session = getattr(args, "session", None)
+    has_frames = bool(session) and "frames" in json.loads((Path(session) / "session.json").read_text()).get("streams", {})
+    try:
+        package = find_package()
+    except ModelPackageError as exc:
+        why = str(exc).split(".")[0]
+    else:
+        if tuple(package.size) == tuple(cal.model_size) and (has_frames or not session):
+            return NetworkModel(package, cfg)
+        why = (f"calibration {sensor}/{cal.version} is for {list(cal.model_size)} px, model {package.name} for "
+               f"{list(package.size)} px" if tuple(package.size) != tuple(cal.model_size) else "the session has no frames")
+    print(f"note: model = the nominal contact law ({why}); use --model PATH|NAME for the network")
+    return contact_law(args, sensor, store)
+
+
+def progress(i: int, n: int, seconds: float) -> None:
+    print(f"\r  network pass: frame {i}/{n} ({seconds:.0f} s)", end="\n" if i == n else "", flush=True)
+
+
+def compare_session(args, store=None, sensor=None):
+    from tools.workbench.compare import run_compare
+
+    sensor = sensor or sensor_of(args)
+    store = store or store_of(args)
+    model = model_of(args, sensor, store)
+    if getattr(args, "correction_from", None):
+        from tools.workbench.nominal import fit_and_store_correction
+
+        if not hasattr(model, "build_table"):
+            from runtime.errors import TensorTouchError
+
+            raise TensorTouchError("--correction-from needs the network model (the contact law has no correction)")
+        version, text = fit_and_store_correction(args.correction_from, sensor, store, model, registry_of(args),
+                                                 cache=not args.no_cache, progress=progress)
+        print(text)
+    return run_compare(args.session, sensor, store, model, registry_of(args), cache=not args.no_cache,
+                       progress=progress)

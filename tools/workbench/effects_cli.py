@@ -1,0 +1,136 @@
+"""`tensortouch effects list | add | remove` (thin shell; docs/effects.md)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from tools.workbench.cli_common import (last_diagnosis_path, model_of, progress, registry_of, sensor_of,
+                                        session_args, store_of)
+
+
+def register_effects(sub) -> None:
+    e = sub.add_parser("effects", help="physical effects: list the library, add/remove for a sensor")
+    esub = e.add_subparsers(dest="effects_cmd", metavar="ACTION", required=True)
+    el = esub.add_parser("list", help="library + plugin effects with parameters and units")
+    el.add_argument("--json", action="store_true")
+    el.add_argument("--plugins", action="append", default=[], metavar="DIR")
+    el.set_defaults(func=cmd_effects_list)
+    ea = esub.add_parser("add", help="enable an effect for a sensor (new calibration version)")
+    ea.add_argument("name")
+    session_args(ea, session=False)
+    ea.add_argument("--from-diagnosis", nargs="?", const="", metavar="FILE",
+                    help="take the fitted parameters from a diagnosis (default: the sensor's last one)")
+    ea.add_argument("--param", action="append", default=[], metavar="P=V")
+    ea.add_argument("--no-refit", action="store_true",
+                    help="keep the enabled effects' parameters (default with --from-diagnosis: refit all "
+                         "enabled effects jointly with the new one on the diagnosed session)")
+    ea.add_argument("--model", metavar="PATH|NAME|contact-law", help="the model for the refit (as compare)")
+    ea.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    ea.set_defaults(func=cmd_effects_add)
+    er = esub.add_parser("remove", help="disable an effect for a sensor (new calibration version)")
+    er.add_argument("name")
+    session_args(er, session=False)
+    er.set_defaults(func=cmd_effects_remove)
+
+
+def cmd_effects_list(args) -> int:
+    reg = registry_of(args)
+    if args.json:
+        print(json.dumps([dict(reg.get(n).spec(), origin=reg.origin[n]) for n in reg.names()]))
+        return 0
+    for n in reg.names():
+        e = reg.get(n)
+        params = ", ".join(f"{p.name} [{p.unit}] {p.lo}..{p.hi}" for p in e.params)
+        print(f"{n:24s} {e.stage:11s} {e.summary}\n{'':36s}{params}   ({reg.origin[n]})")
+    return 0
+
+
+def cmd_effects_add(args) -> int:
+    from runtime.effects import EnabledEffect
+    from runtime.errors import TensorTouchError
+
+    reg = registry_of(args)
+    sensor = sensor_of(args)
+    try:
+        eff = reg.get(args.name)
+    except KeyError as exc:
+        raise TensorTouchError(str(exc).strip('"')) from None
+    params, source = {}, "manual"
+    if args.from_diagnosis is not None:
+        path = Path(args.from_diagnosis) if args.from_diagnosis else last_diagnosis_path(sensor)
+        if not path.is_file():
+            raise TensorTouchError(f"{path}: no diagnosis to take parameters from (run diagnose first)")
+        diag = json.loads(path.read_text())
+        row = next((r for r in diag.get("ranking", []) if r["effect"] == args.name), None)
+        if row is None:
+            raise TensorTouchError(f"{path}: effect {args.name} not in that diagnosis' ranking")
+        params, source = dict(row["params"]), f"diagnosis of {diag.get('session', path)}"
+    for item in args.param:
+        key, eq, val = item.partition("=")
+        if not eq:
+            raise TensorTouchError(f"--param {item!r}: expected P=V")
+        params[key.strip()] = float(val)
+    try:
+        params = eff.resolve(params)
+    except ValueError as exc:
+        raise TensorTouchError(str(exc)) from None
+    store = store_of(args)
+    current = [e for e in store.load(sensor).effects if e.get("name") != args.name]
+    entry = EnabledEffect(eff, params).to_dict(source)
+    if args.from_diagnosis is not None and not args.no_refit and current:
+        current, entry = _refit(args, sensor, store, reg, current, entry, diag.get("session"))
+    version = store.derive(sensor, {"effects": current + [entry]},
+                           provenance={"method": "workbench effects add", "effect": args.name, "source": source})
+    params = entry["params"]
+    words = eff.describe(params)
+    print(f"{sensor}: {words} -> calibration {version}")
+    if eff.stage == "force":
+        spec = ",".join(f"{k}={v:.6g}" for k, v in params.items())
+        print(f"twin/FE configuration: --effect {eff.name}:{spec}")
+    return 0
+
+
+def _refit(args, sensor, store, reg, current, entry, session):
+    """Joint refit of the enabled effects + the new one on the diagnosed session (same model and
+    deployed order as compare/diagnose: force-stage effects, then the sensor's correction)."""
+    from runtime.effects import EffectChain
+    from runtime.errors import TensorTouchError
+    from tools.workbench.compare import run_compare
+    from tools.workbench.fit import refit_chain
+
+    if not session or not Path(session, "session.json").is_file():
+        print("note: parameters not refitted jointly (diagnosed session not found)")
+        return current, entry
+    args.session = session
+    try:
+        model = model_of(args, sensor, store)
+        comp = run_compare(session, sensor, store, model, reg, progress=progress)
+    except TensorTouchError as exc:
+        print(f"note: parameters not refitted jointly ({exc})")
+        return current, entry
+    chain = EffectChain.from_list(current + [entry], reg)
+    new, before, after = refit_chain(comp.table, chain, post=comp.post)
+    print(f"joint refit of {', '.join(chain.names)} on {session}: rms |r| {before:.4f} -> {after:.4f} N")
+    for old_it, it in zip(chain.items, new.items):
+        if old_it.params != it.params:
+            print(f"  {it.effect.describe(it.params)}")
+    out = new.to_list()
+    for o, c in zip(out, current + [entry]):
+        o.update({k: v for k, v in c.items() if k not in ("name", "params")})
+    return out[:-1], out[-1]
+
+
+def cmd_effects_remove(args) -> int:
+    from runtime.errors import TensorTouchError
+
+    store = store_of(args)
+    sensor = sensor_of(args)
+    effects = store.load(sensor).effects
+    kept = [e for e in effects if e.get("name") != args.name]
+    if len(kept) == len(effects):
+        raise TensorTouchError(f"sensor {sensor}: effect {args.name} is not enabled "
+                               f"(enabled: {', '.join(e['name'] for e in effects) or 'none'})")
+    version = store.derive(sensor, {"effects": kept}, provenance={"method": "workbench effects remove",
+                                                                 "effect": args.name})
+    print(f"{sensor}: {args.name} removed -> calibration {version}")
+    return 0
