@@ -1,4 +1,5 @@
-"""Zenoh wire format: key expressions, schemas and pure encode/decode (docs/wire.md).
+"""Zenoh wire format: key expressions, schemas and pure encode/decode (docs/wire.md). The key
+expressions, schemas and JSON envelope live in runtime/wire_keys.py and are re-exported here.
 
 No zenoh import here: these functions turn arrays and dataclasses into `bytes` (what zenoh-python
 accepts as a payload) and back, so they can be unit-tested and reused by any transport.
@@ -12,139 +13,27 @@ from __future__ import annotations
 import json
 import logging
 import math
-import re
 from dataclasses import dataclass, field, fields as dc_fields
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from runtime.errors import TensorTouchError
 from runtime.fields import CHANNEL_UNITS, CHANNELS
+from runtime.wire_keys import (ALIVE, ENCODINGS, INFO, KEY_PREFIX, KINDS, MIME, SCHEMAS,  # noqa: F401 (the wire API)
+                               WIRE_VERSION, WireError, alive_key, check_sensor_id, info_key, key, parse_key,
+                               schema_of)
+from runtime.wire_keys import check_encoding as _check_encoding
+from runtime.wire_keys import dumps as _dumps
+from runtime.wire_keys import loads as _loads
+from runtime.wire_keys import need as _need
 
 log = logging.getLogger(__name__)
-
-WIRE_VERSION = 1
-KEY_PREFIX = "tensortouch"
-KINDS = ("fields", "contacts", "wrench", "status")
-INFO = "info"
-ALIVE = "alive"
-
-SCHEMAS = {kind: f"tensortouch.{kind}.v{WIRE_VERSION}" for kind in KINDS + (INFO,)}
-MIME = {"fields": "application/octet-stream", "contacts": "application/json",
-        "wrench": "application/json", "status": "application/json", INFO: "application/json"}
-# Zenoh Encoding strings ("<mime>;<schema>") for each payload kind.
-ENCODINGS = {kind: f"{MIME[kind]};{schema}" for kind, schema in SCHEMAS.items()}
 
 FIELDS_DTYPE = "<f2"                  # little-endian IEEE half precision
 FLOAT16_MAX = float(np.finfo(np.float16).max)  # 65504: larger magnitudes are clipped and flagged
 
 _HALF = np.dtype(FIELDS_DTYPE)
 _HALF_SIGN, _HALF_ABS, _HALF_INF, _HALF_MAX_BITS = 0x8000, 0x7FFF, 0x7C00, 0x7BFF
-
-_SENSOR_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
-
-
-class WireError(TensorTouchError):
-    """A Zenoh payload does not match the wire format (schema, shape, byte length, fields)."""
-
-
-# --------------------------------------------------------------------------- key expressions
-
-def check_sensor_id(sensor_id: str) -> str:
-    """Return `sensor_id` if it is one valid key chunk (letters, digits, `_.-`, 1-64 chars)."""
-    if not isinstance(sensor_id, str) or not _SENSOR_ID.match(sensor_id):
-        raise WireError(f"sensor id {sensor_id!r}: expected 1-64 characters of [A-Za-z0-9_.-] "
-                        "starting with a letter or digit (it becomes one Zenoh key chunk)")
-    return sensor_id
-
-
-def key(sensor_id: str, kind: str) -> str:
-    """Key expression of one stream: `tensortouch/<sensor-id>/<kind>`; `sensor_id` may be `*`."""
-    if kind not in KINDS + (INFO, ALIVE, "*"):
-        raise WireError(f"key kind {kind!r}: expected one of {KINDS + (INFO, ALIVE)}")
-    if sensor_id not in ("*", "**"):
-        check_sensor_id(sensor_id)
-    return f"{KEY_PREFIX}/{sensor_id}/{kind}"
-
-
-def info_key(sensor_id: str) -> str:
-    return key(sensor_id, INFO)
-
-
-def alive_key(sensor_id: str) -> str:
-    """Liveliness token key of a running sensor."""
-    return key(sensor_id, ALIVE)
-
-
-def parse_key(key_expr: str) -> tuple[str, str]:
-    """`tensortouch/<sensor-id>/<kind>` -> (sensor_id, kind)."""
-    parts = str(key_expr).split("/")
-    if len(parts) != 3 or parts[0] != KEY_PREFIX:
-        raise WireError(f"key {key_expr!r}: expected '{KEY_PREFIX}/<sensor-id>/<kind>'")
-    return parts[1], parts[2]
-
-
-def schema_of(encoding: Any) -> str | None:
-    """Schema part of a Zenoh Encoding string `mime;schema` (None when there is none)."""
-    text = str(encoding)
-    return text.split(";", 1)[1] if ";" in text else None
-
-
-def _check_schema(kind: str, found: Any, where: str) -> None:
-    expected = SCHEMAS[kind]
-    if found != expected:
-        raise WireError(f"{kind} {where}: schema {found!r}, expected {expected!r} "
-                        f"(wire version {WIRE_VERSION}; see docs/wire.md)")
-
-
-def _check_encoding(kind: str, encoding: Any) -> None:
-    if encoding is not None:
-        _check_schema(kind, schema_of(encoding), f"encoding {str(encoding)!r}")
-
-
-# --------------------------------------------------------------------------- JSON helpers
-
-def _plain(value: Any, strict: bool) -> Any:
-    """numpy/tuple -> JSON-ready python; non-finite floats -> None (or WireError when strict)."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v, strict) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v, strict) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist(), strict)
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        value = float(value)
-        if not math.isfinite(value):
-            if strict:
-                raise WireError(f"non-finite number {value} cannot be sent as JSON")
-            return None
-        return value
-    return value
-
-
-def _dumps(obj: dict, strict: bool = True) -> bytes:
-    return json.dumps(_plain(obj, strict), separators=(",", ":"), allow_nan=False).encode()
-
-
-def _loads(kind: str, payload: bytes | bytearray | str) -> dict:
-    try:
-        obj = json.loads(payload)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise WireError(f"{kind} payload: not valid UTF-8 JSON ({exc})") from None
-    if not isinstance(obj, dict):
-        raise WireError(f"{kind} payload: expected a JSON object, got {type(obj).__name__}")
-    _check_schema(kind, obj.get("schema"), "payload")
-    return obj
-
-
-def _need(kind: str, obj: dict, name: str) -> Any:
-    if name not in obj:
-        raise WireError(f"{kind} payload: missing field {name!r}")
-    return obj[name]
 
 
 # --------------------------------------------------------------------------- fields
