@@ -87,6 +87,7 @@ class BuildConfig:
     fg_weight: float = 20.0                       # foreground-weighted L1 (FitConfig.fg_weight)
     force_weight: float = 0.0                     # total-force loss term per N (FitConfig.force_weight)
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
+    init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
     calibration_samples: int = 32                 # int8 calibration inputs
     threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
@@ -120,13 +121,13 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe"], "correspondence": ["tables"], "simreal": [],
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
-            "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from"],
+            "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from", "init_bounds"],
             "export": ["name", "calibration_samples", "threshold_sessions"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
-    optional = {"force_weight": 0.0, "init_from": "", "contact_force_n": 1.5, "detach_force_n": 1.1,
-                "threshold_sessions": 6}
+    optional = {"force_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
+                "detach_force_n": 1.1, "threshold_sessions": 6}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:
@@ -268,7 +269,7 @@ def config_from_args(args) -> BuildConfig:
     if args.config:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **json.loads(Path(args.config).read_text())})
     for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
-              "contact_stride", "force_weight", "init_from", "contact_force_n", "detach_force_n"):
+              "contact_stride", "force_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n"):
         v = getattr(args, k, None)
         if v is not None:
             setattr(cfg, k, v)
@@ -327,6 +328,9 @@ def register_build(ts) -> None:
                        help="stage 1: contact ends below this |F| in N (default 0.37; seed 1.1)")
         q.add_argument("--force-weight", type=float, help="total-force loss term per N (default 0 = off)")
         q.add_argument("--init-from", help="fine-tune: start the fit from this state dict (a run's best.pt)")
+        q.add_argument("--init-bounds", help="fine-tune: the output bounds --init-from was trained with (a bounds.json "
+                                             "or a model package's manifest.json; default: the bounds.json beside it); "
+                                             "the heads are rescaled to this dataset's bounds")
         q.add_argument("--threads", type=int)
         q.add_argument("--arch", choices=("hiera_qup", "unet", "vit"))
         q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets: gpr = stage 3 GPR from detected pokes (default); truth = the twin's true tables")

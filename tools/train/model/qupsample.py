@@ -126,6 +126,19 @@ class Heads(nn.Module):
             reps = last.out_channels // 3
             last.bias.copy_(mean[3 * i:3 * i + 3].repeat_interleave(reps))
 
+    @torch.no_grad()
+    def remap_output(self, scale: torch.Tensor, offset: torch.Tensor) -> None:
+        """Make every output channel k exactly scale[k]·y_k + offset[k] (15,) by rescaling the head's
+        last convolution (its output channels c·r² … c·r² + r² − 1 become channel c after the pixel
+        shuffle): a fine-tune on data normalized with other bounds starts at the same physical output."""
+        for i, head in enumerate(self.heads):
+            last = head[-2] if isinstance(head[-1], nn.PixelShuffle) else head[-1]
+            reps = last.out_channels // 3
+            a = scale[3 * i:3 * i + 3].to(last.weight.dtype).repeat_interleave(reps)
+            b = offset[3 * i:3 * i + 3].to(last.weight.dtype).repeat_interleave(reps)
+            last.weight.mul_(a.view(-1, *([1] * (last.weight.dim() - 1))))
+            last.bias.mul_(a).add_(b)
+
     def forward(self, x):
         return torch.cat([h(x) for h in self.heads], 1)
 

@@ -54,6 +54,10 @@ class FitConfig:
     # the runtime integrates. 0 = off. Needs pixel_area.npy in the dataset directory.
     force_weight: float = 0.0
     init_from: str = ""                  # fine-tune: start from this state dict (e.g. a shipped run's best.pt)
+    # the output bounds `init_from` was trained with: a bounds.json or a model package's manifest.json;
+    # default: the bounds.json a fit writes beside its best.pt. When they differ from this dataset's,
+    # the heads are rescaled so the fine-tune starts at the init's physical output (remap_heads).
+    init_bounds: str = ""
 
 
 @dataclass
@@ -146,6 +150,8 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
     per_epoch = len(_batches(n, cfg.batch_size, cfg.seed, 0))
     total = per_epoch * cfg.epochs
     config = {"what": what, **asdict(cfg), "n_train": n}
+    if not config.get("init_bounds", True):
+        config.pop("init_bounds")   # runs made before the option existed resume unchanged
     ckpt = _prepare_run(out, config)
     step, epoch0, batch0, extra = 0, 0, 0, dict(state_extra or {})
     if ckpt is not None:
@@ -200,6 +206,59 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
     return extra
 
 
+def load_any_bounds(path: str | Path) -> dict[str, list[float]]:
+    """Output bounds from a bounds.json or from a model package's manifest.json (output.bounds)."""
+    from tools.train.fields import read_bounds
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "manifest.json"
+    if path.name != "manifest.json":
+        return read_bounds(path)
+    try:
+        bounds = json.loads(path.read_text())["output"]["bounds"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DatasetError(f"{path}: no output.bounds in this model manifest ({exc})") from None
+    from runtime.fields import CHANNELS
+
+    missing = [c for c in CHANNELS if c not in bounds]
+    if missing:
+        raise DatasetError(f"{path}: output.bounds lacks channels {missing}")
+    return {c: [float(bounds[c][0]), float(bounds[c][1])] for c in CHANNELS}
+
+
+def head_remap(old: dict, new: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(scale, offset) per channel that turn outputs normalized with `old` bounds into the same physical
+    values normalized with `new`: y_new = (lo_o − lo_n + span_o · y_old) / span_n."""
+    from runtime.fields import CHANNELS
+
+    lo_o, hi_o = (np.array([old[c][i] for c in CHANNELS], np.float64) for i in (0, 1))
+    lo_n, hi_n = (np.array([new[c][i] for c in CHANNELS], np.float64) for i in (0, 1))
+    span_o = np.where(hi_o > lo_o, hi_o - lo_o, 1.0)
+    span_n = np.where(hi_n > lo_n, hi_n - lo_n, 1.0)
+    return span_o / span_n, (lo_o - lo_n) / span_n
+
+
+def remap_heads(model, cfg: FitConfig, bounds: dict) -> bool:
+    """Rescale the heads of a model initialised from `cfg.init_from` to this dataset's `bounds`
+    (FitConfig.init_bounds); True when they were changed."""
+    path = Path(cfg.init_bounds) if cfg.init_bounds else Path(cfg.init_from).parent / "bounds.json"
+    if not path.exists():
+        if cfg.init_bounds:
+            raise DatasetError(f"init_bounds {path}: no such file (a bounds.json or a model manifest.json)")
+        log.warning("%s: no bounds.json beside the init weights; the heads are not rescaled (if its dataset had "
+                    "other bounds, pass FitConfig.init_bounds / --init-bounds)", cfg.init_from)
+        return False
+    old = load_any_bounds(path)
+    scale, offset = head_remap(old, bounds)
+    if np.allclose(scale, 1.0) and np.allclose(offset, 0.0):
+        return False
+    model.heads.remap_output(torch.from_numpy(scale).float(), torch.from_numpy(offset).float())
+    log.info("heads rescaled from the init's bounds (%s) to this dataset's: scale %.3f..%.3f, offset %+.3f..%+.3f",
+             path, scale.min(), scale.max(), offset.min(), offset.max())
+    return True
+
+
 def predict(model, x_uint8: np.ndarray, batch: int = 16) -> np.ndarray:
     """Model outputs (N, 15, H, W) float32 for uint8 inputs (N, 6, H, W)."""
     model.eval()
@@ -213,7 +272,7 @@ def predict(model, x_uint8: np.ndarray, batch: int = 16) -> np.ndarray:
 def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder_init: str | Path | None = None
         ) -> dict:
     """Supervised training on a dataset directory; returns {'metrics', 'samples_per_s', ...}."""
-    from tools.train.fields import read_bounds
+    from tools.train.fields import read_bounds, write_bounds
 
     data, out = Path(data), Path(out)
     index = read_index(data)
@@ -224,12 +283,15 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     except DatasetError:
         x_va, y_va = x_tr[: cfg.eval_batch], y_tr[: cfg.eval_batch]
     bounds = read_bounds(data / "bounds.json")
+    out.mkdir(parents=True, exist_ok=True)
+    write_bounds(out / "bounds.json", bounds)       # what a later fine-tune from this run's best.pt needs
     torch.manual_seed(cfg.seed)
     model = build_model(cfg.arch, size)
     model.heads.set_output_bias(torch.from_numpy(y_tr.mean(axis=(0, 2, 3))).float())
     if cfg.init_from and not (out / "checkpoint.pt").exists():
         model.load_state_dict(torch.load(cfg.init_from, weights_only=True, map_location="cpu"), strict=True)
         log.info("model initialised from %s (fine-tuning)", cfg.init_from)
+        remap_heads(model, cfg, bounds)
     elif encoder_init is not None and not (out / "checkpoint.pt").exists():
         state = torch.load(encoder_init, weights_only=True, map_location="cpu")
         model.encoder.load_state_dict(state, strict=True)
