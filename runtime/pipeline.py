@@ -35,7 +35,8 @@ class PipelineConfig:
         """Defaults, with the package's own measured contact threshold when its manifest has one
         (`runtime.contact_threshold_n`, the light-touch rule `contact_weak_threshold_n` /
         `contact_min_total_n`, the cluster support `contact_support_radius_px` /
-        `contact_support_floor_n` and merging `contact_merge_n`, written at export by tools/train/threshold.py; null or absent = default)."""
+        `contact_support_floor_n` and merging `contact_merge_n`, written at export by
+        tools/train/threshold.py; null or absent = default)."""
         rt = (getattr(package, "manifest", None) or {}).get("runtime") or {}
         return PipelineConfig(contacts=contact_config(rt))
 

@@ -167,7 +167,7 @@ def evaluate_build(b) -> dict:
             log.warning("%s: calibration size %s ≠ model %s; skipped", name, cal.model_size, package.size)
             continue
         r = evaluate_session(path, package, cal, EvalConfig(contact_n=b.cfg.eval_contact_n))
-        s = summarize(r["rows"], r["rest"], r.get("phantoms"))
+        s = summarize(r["rows"], r["rest"], r["phantoms"])
         summary[name] = s
         (b.root / "eval").mkdir(exist_ok=True)
         (b.root / "eval" / f"{name}.json").write_text(json.dumps({"summary": s, "rows": r["rows"],
