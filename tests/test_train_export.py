@@ -65,6 +65,8 @@ def test_manifest_follows_the_contract(package):
     assert man["files"][FP32]["cache"] == str(cached.resolve())            # outside the repo: absolute
     assert man["files"][FP32]["regenerate"].endswith("--with-fp32")
     assert man["metrics"]["quantization"]["scheme"] == "hybrid"
+    assert man["metrics"]["quantization"]["calibration_pick"] == "spread"
+    assert man["metrics"]["quantization"]["calibration_samples"] == 8
     tr = man["training"]
     assert "train export" in tr["command"] and "--name tiny" in tr["command"]
     assert tr["data_hash"] == hashlib.sha256((data / "index.json").read_bytes()).hexdigest()
@@ -76,6 +78,22 @@ def test_manifest_follows_the_contract(package):
     assert set(m["int8_vs_fp32_psnr"]) == {"displacement", "normal_stress", "shear_stress",
                                            "contact_normal", "contact_shear"}
     assert verify_package(folder)["name"] == "tiny"
+
+
+def test_int8_calibration_inputs_are_spread_over_the_whole_train_split(package):
+    """The dataset is written session by session: the first samples are one unit's first pokes."""
+    from tools.train.model.data import load_sample, load_split, read_index, spread_indices
+
+    assert spread_indices(10, 4) == [0, 3, 6, 9]
+    assert spread_indices(3, 8) == [0, 1, 2] and spread_indices(5, None) == list(range(5))
+    assert spread_indices(5, 0) == []
+    _, data, _ = package
+    train = [e for e in read_index(data)["samples"] if e.get("split") == "train"]
+    x, _ = load_split(data, "train", limit=3, spread=True)
+    want = [load_sample(data, train[i])[0] for i in (0, len(train) - 1)]
+    assert len(x) == 3 and np.array_equal(x[0], want[0]) and np.array_equal(x[-1], want[-1])
+    first, _ = load_split(data, "train", limit=3)
+    assert np.array_equal(first[1], load_sample(data, train[1])[0])
 
 
 def test_both_models_load_in_onnxruntime_and_agree(package):

@@ -89,7 +89,8 @@ class BuildConfig:
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
-    calibration_samples: int = 32                 # int8 calibration inputs
+    calibration_samples: int = 128                # int8 calibration inputs (ExportConfig)
+    calibration_pick: str = "spread"              # spread over the train split | "first" (ExportConfig)
     threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
     latency_runs: int = 50
     eval_contact_n: float = 1.5                   # stage 8: measured |F| above this = contact (seed §III.C)
@@ -122,12 +123,12 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from", "init_bounds"],
-            "export": ["name", "calibration_samples", "threshold_sessions"],
+            "export": ["name", "calibration_samples", "calibration_pick", "threshold_sessions"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
     optional = {"force_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
-                "detach_force_n": 1.1, "threshold_sessions": 6}
+                "detach_force_n": 1.1, "threshold_sessions": 6, "calibration_pick": "first"}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:

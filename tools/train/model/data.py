@@ -91,11 +91,23 @@ def load_sample(root: Path, entry: dict) -> tuple[np.ndarray, np.ndarray]:
         raise DatasetError(f"{path}: unreadable sample ({exc})") from None
 
 
-def load_split(root: str | Path, split: str | None = None, limit: int | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """All samples of a split as (N, 6, H, W) uint8 and (N, 15, H, W) float32 arrays."""
+def spread_indices(count: int, n: int | None) -> list[int]:
+    """`n` indices spread evenly over range(count), first and last included (all when n >= count)."""
+    if n is None or n >= count:
+        return list(range(count))
+    if n <= 0:
+        return []
+    return sorted(set(np.linspace(0, count - 1, n).round().astype(int).tolist()))
+
+
+def load_split(root: str | Path, split: str | None = None, limit: int | None = None,
+               spread: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """All samples of a split as (N, 6, H, W) uint8 and (N, 15, H, W) float32 arrays: the first
+    `limit` of them, or with `spread` `limit` samples spread evenly over the whole split (every unit
+    and loading kind of a dataset written session by session, e.g. for int8 calibration)."""
     doc = read_index(root)
-    entries = [e for e in doc["samples"] if split is None or e.get("split") == split][:limit]
+    entries = [e for e in doc["samples"] if split is None or e.get("split") == split]
+    entries = [entries[i] for i in spread_indices(len(entries), limit)] if spread else entries[:limit]
     if not entries:
         raise DatasetError(f"{Path(root) / 'index.json'}: no samples in split {split!r}")
     x0, y0 = load_sample(Path(root), entries[0])
