@@ -37,6 +37,22 @@ def test_contact_threshold_flags_reach_the_build_config():
     assert (BuildConfig().contact_force_n, BuildConfig().detach_force_n) == (0.5, 0.37)
 
 
+def test_int8_calibration_flags_reach_the_export_key():
+    """Only the export is redone for another int8 calibration; the shipped package's older export
+    (first 32 samples) is reproduced with --calibration-samples 32 --calibration-pick first."""
+    from tools.train.build import config_from_args
+    from tools.train.cli import register
+
+    p = argparse.ArgumentParser()
+    register(p.add_subparsers(dest="command"))
+    old = config_from_args(p.parse_args(["train", "all", "--calibration-samples", "32", "--calibration-pick", "first"]))
+    new = BuildConfig()
+    assert (old.calibration_samples, old.calibration_pick) == (32, "first")
+    assert (new.calibration_samples, new.calibration_pick) == (128, "spread")
+    a, b = stage_keys(old), stage_keys(new)
+    assert a["fit"] == b["fit"] and a["export"] != b["export"]
+
+
 def test_stamps_mark_done_only_for_the_same_config(tmp_path):
     b = Build(BuildConfig(), tmp_path)
     assert not b.done("keypoints")

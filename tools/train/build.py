@@ -270,7 +270,8 @@ def config_from_args(args) -> BuildConfig:
     if args.config:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **json.loads(Path(args.config).read_text())})
     for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
-              "contact_stride", "force_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n"):
+              "contact_stride", "force_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n",
+              "calibration_samples", "calibration_pick"):
         v = getattr(args, k, None)
         if v is not None:
             setattr(cfg, k, v)
@@ -333,6 +334,10 @@ def register_build(ts) -> None:
                                              "or a model package's manifest.json; default: the bounds.json beside it); "
                                              "the heads are rescaled to this dataset's bounds")
         q.add_argument("--threads", type=int)
+        q.add_argument("--calibration-samples", type=int, help="int8 calibration inputs (default 128)")
+        q.add_argument("--calibration-pick", choices=("spread", "first"),
+                       help="int8 calibration inputs spread over the train split (default) or its first ones "
+                            "(packages exported before session 10)")
         q.add_argument("--arch", choices=("hiera_qup", "unet", "vit"))
         q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets: gpr = stage 3 GPR from detected pokes (default); truth = the twin's true tables")
         q.add_argument("--fe", choices=("resolve", "twin"),
