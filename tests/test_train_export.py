@@ -96,6 +96,29 @@ def test_int8_calibration_inputs_are_spread_over_the_whole_train_split(package):
     assert np.array_equal(first[1], load_sample(data, train[1])[0])
 
 
+def test_total_force_parity_in_newtons(package):
+    """The parity report's int8 - fp32 total force: the runtime's integral of the traction channels."""
+    from tools.train.export import parity_report, total_force_n
+    from tools.train.model.data import load_split
+
+    bounds = {c: [-1.0, 1.0] for c in CHANNELS}
+    y = np.full((2, 15, 4, 4), 0.5, np.float32)                         # 0 MPa everywhere
+    y[1, 9, 0, 0], y[1, 14, 1, 1] = 1.0, 0.0                            # fn_x +1 MPa, fs_z -1 MPa
+    area = np.full((4, 4), 0.25)
+    assert np.allclose(total_force_n(y, bounds, area), [[0, 0, 0], [0.25, 0, -0.25]])
+    folder, data, run = package
+    bounds = json.loads((data / "bounds.json").read_text())["bounds"]
+    x, _ = load_split(data, "val")
+    x = x.astype(np.float32) / 255.0
+    ones = np.ones((SIZE, SIZE))
+    fp32 = fp32_cache_path(run, "tiny")
+    same = parity_report(fp32, fp32, x, bounds=bounds, pixel_area=ones)["int8_vs_fp32_force_n"]
+    assert same == {"mean": 0.0, "p95": 0.0, "max": 0.0}
+    rep = parity_report(fp32, folder / INT8, x, bounds=bounds, pixel_area=ones)["int8_vs_fp32_force_n"]
+    assert 0.0 <= rep["mean"] <= rep["p95"] <= rep["max"] and np.isfinite(rep["max"])
+    assert "int8_vs_fp32_force_n" not in parity_report(fp32, fp32, x)      # no area: PSNR only
+
+
 def test_both_models_load_in_onnxruntime_and_agree(package):
     folder, _, run = package
     x = np.random.default_rng(0).random((1, 6, SIZE, SIZE), dtype=np.float32)

@@ -172,15 +172,32 @@ def latency_ms(paths: dict[str, str | Path], sample: np.ndarray, cfg: ExportConf
                 "cpu_median": float(np.median(cpu[k]))} for k, v in times.items()}
 
 
+def total_force_n(y: np.ndarray, bounds: dict, pixel_area: np.ndarray) -> np.ndarray:
+    """(N, 3) total contact force in N of min/max-normalized fields (N, 15, H, W): what the runtime
+    integrates (normal + shear traction times pixel area, runtime.contacts.pixel_forces)."""
+    from runtime.fields import CHANNELS
+
+    lo = np.array([bounds[c][0] for c in CHANNELS[9:15]], np.float64)[None, :, None, None]
+    hi = np.array([bounds[c][1] for c in CHANNELS[9:15]], np.float64)[None, :, None, None]
+    t = lo + np.asarray(y[:, 9:15], np.float64) * (hi - lo)
+    return ((t[:, 0:3] + t[:, 3:6]) * np.asarray(pixel_area, np.float64)[None, None]).sum(axis=(2, 3))
+
+
 def parity_report(fp32_path, int8_path, inputs: np.ndarray, targets: np.ndarray | None = None,
-                  bounds: dict | None = None) -> dict:
-    """Per-modality PSNR of int8 against fp32; with targets also each model against the truth."""
+                  bounds: dict | None = None, pixel_area: np.ndarray | None = None) -> dict:
+    """Per-modality PSNR of int8 against fp32; with targets also each model against the truth; with
+    bounds and the dataset's pixel area also the int8 - fp32 total force |ΔF| (N: mean, p95, max).
+    PSNR alone missed clipped int8 ranges that moved slides' forces by up to 0.56 N (session 10)."""
     from tools.train.model.metrics import evaluate, psnr_per_modality
 
     y32 = run_model(session(fp32_path, 2), inputs)
     y8 = run_model(session(int8_path, 2), inputs)
     rep = {"int8_vs_fp32_psnr": psnr_per_modality(y8, y32), "samples": int(len(inputs))}
     rep["int8_vs_fp32_psnr_mean"] = float(np.mean(list(rep["int8_vs_fp32_psnr"].values())))
+    if bounds is not None and pixel_area is not None:
+        d = np.linalg.norm(total_force_n(y8, bounds, pixel_area) - total_force_n(y32, bounds, pixel_area), axis=1)
+        rep["int8_vs_fp32_force_n"] = {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)),
+                                       "max": float(d.max())}
     if targets is not None:
         e32, e8 = evaluate(y32, targets, bounds), evaluate(y8, targets, bounds)
         rep["fp32"], rep["int8"] = e32, e8
@@ -251,7 +268,8 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
         fp32, int8 = Path(tmp) / FP32, Path(tmp) / INT8
         export_onnx(model, fp32, size, cfg.opset, rewrite=cfg.rewrite)
         quantize_int8(fp32, int8, x_tr.astype(np.float32) / 255.0, cfg)
-        rep = parity_report(fp32, int8, x_va.astype(np.float32) / 255.0, y_va, bounds)
+        area = np.load(data / "pixel_area.npy") if (data / "pixel_area.npy").is_file() else None
+        rep = parity_report(fp32, int8, x_va.astype(np.float32) / 255.0, y_va, bounds, area)
         lat = latency_ms({"fp32": fp32, "int8": int8}, x_va.astype(np.float32) / 255.0, cfg)
         metrics = {"fp32": {**rep["fp32"]["mean"], "per_modality": rep["fp32"]["per_modality"]},
                    "int8": {**rep["int8"]["mean"], "per_modality": rep["int8"]["per_modality"]},
@@ -264,7 +282,8 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
                    "eval_samples": rep["samples"], "arch": info["arch"], "params": info["params"],
                    "quantization": {"scheme": cfg.scheme, "rewrite": cfg.rewrite,
                                     "calibration_samples": int(len(x_tr)),
-                                    "calibration_pick": cfg.calibration_pick}}
+                                    "calibration_pick": cfg.calibration_pick,
+                                    "int8_vs_fp32_force_n": rep.get("int8_vs_fp32_force_n")}}
         shipped = (INT8, FP32) if cfg.with_fp32 else (INT8,)
         cache = None
         if not cfg.with_fp32:
@@ -278,7 +297,9 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
         folder = write_package(models_root, name, {k: p for k, p in ((FP32, fp32), (INT8, int8)) if k in shipped},
                                man)
     verify_package(folder)
-    log.info("packaged %s (%s): PSNR fp32 %.2f int8 %.2f dB, latency fp32 %.2f int8 %.2f ms%s", folder,
+    df = rep.get("int8_vs_fp32_force_n")
+    log.info("packaged %s (%s): PSNR fp32 %.2f int8 %.2f dB, latency fp32 %.2f int8 %.2f ms%s%s", folder,
              "+".join(shipped), metrics["fp32"]["psnr"], metrics["int8"]["psnr"], metrics["latency_ms"]["fp32"],
-             metrics["latency_ms"]["int8"], f"; fp32 graph in {cache}" if cache else "")
+             metrics["latency_ms"]["int8"], f"; int8 - fp32 total force p95 {df['p95']:.3f} N" if df else "",
+             f"; fp32 graph in {cache}" if cache else "")
     return man
