@@ -3,8 +3,9 @@
 - `export_onnx`     legacy TorchScript exporter (dynamo=False, opset 20), input "input" (1, 6, H, W),
                     output "fields" (1, 15, H, W), after the exact rewrites of `export_graph`;
 - `quantize_int8`   scheme "hybrid" (default): static QDQ int8 for Conv (uint8 activations, per-channel
-                    int8 weights, MinMax calibration on training inputs spread over the split) + int8 weights for the weighted
-                    MatMuls with activations quantized per frame (onnxruntime DynamicQuantizeMatMul);
+                    int8 weights, MinMax calibration on training inputs spread over the split) + int8
+                    weights for the weighted MatMuls with activations quantized per frame (onnxruntime
+                    DynamicQuantizeMatMul);
                     scheme "static": the earlier all-static QDQ of Conv/Gemm/MatMul;
 - `latency_ms`      single-thread latency of both models measured interleaved in one run;
 - `parity_report`   per-modality PSNR of int8 vs fp32 (and of each vs ground truth when given);
