@@ -53,6 +53,19 @@ def test_int8_calibration_flags_reach_the_export_key():
     assert a["fit"] == b["fit"] and a["export"] != b["export"]
 
 
+def test_a_recipe_includes_others_sessions_once(tmp_path):
+    from tools.train.build import read_recipe
+
+    a = {"serial": "TWIN-A", "seed": 1, "pokes": 5}
+    b = {"serial": "TWIN-B", "seed": 2, "pokes": 8, "trajectory": {"kinds": ["slide"]}}
+    (tmp_path / "one.json").write_text(json.dumps({"_about": "x", "train": [a], "epochs": 3}))
+    (tmp_path / "two.json").write_text(json.dumps({"train": [a, b]}))
+    (tmp_path / "both.json").write_text(json.dumps({"include": ["one.json", "two.json"], "lr": 1e-4}))
+    d = read_recipe(tmp_path / "both.json")
+    assert d == {"train": [a, b], "lr": 1e-4}                 # only the sessions come from included recipes
+    assert [s.serial for s in BuildConfig.from_dict(d).train] == ["TWIN-A", "TWIN-B"]
+
+
 def test_stamps_mark_done_only_for_the_same_config(tmp_path):
     b = Build(BuildConfig(), tmp_path)
     assert not b.done("keypoints")

@@ -265,10 +265,26 @@ def tiny_config(name: str = "tiny-smoke", build: str = "tiny") -> BuildConfig:
                        eval_contact_n=0.2)
 
 
+def read_recipe(path: str | Path) -> dict:
+    """A recipe's BuildConfig fields. `"include": [FILE, ...]` (paths beside the recipe) puts the
+    included recipes' training sessions first, each (serial, seed) once, then the recipe's own."""
+    path = Path(path)
+    d = json.loads(path.read_text())
+    if "include" in d:
+        train, seen = [], set()
+        for spec in [s for inc in d.pop("include") for s in read_recipe(path.parent / inc).get("train", [])] \
+                + d.get("train", []):
+            if (spec["serial"], spec["seed"]) not in seen:
+                seen.add((spec["serial"], spec["seed"]))
+                train.append(spec)
+        d["train"] = train
+    return d
+
+
 def config_from_args(args) -> BuildConfig:
     cfg = tiny_config() if args.tiny else BuildConfig()
     if args.config:
-        cfg = BuildConfig.from_dict({**cfg.to_dict(), **json.loads(Path(args.config).read_text())})
+        cfg = BuildConfig.from_dict({**cfg.to_dict(), **read_recipe(args.config)})
     for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
               "contact_stride", "force_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n",
               "calibration_samples", "calibration_pick"):
