@@ -95,6 +95,16 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_weights(args) -> int:
+    from tools.train.from_package import write_init
+
+    path = write_init(args.package, args.out, args.precision)
+    info = json.loads((path.parent / "from_package.json").read_text())
+    print(f"{info['package']} ({info['file']}, {info['params']:,} weights) → {path}; fine-tune with "
+          f"`tensortouch train all ... --init-from {path}` (bounds.json beside it: heads rescaled)")
+    return 0
+
+
 def cmd_bench(args) -> int:
     from tools.train.bench import run_bench
 
@@ -162,6 +172,14 @@ def register(sub) -> None:
     e.add_argument("--with-fp32", action="store_true", help="also ship model.fp32.onnx in the package "
                    "(default: int8 only; the fp32 graph is left in <run>/export/<name>/)")
     e.set_defaults(func=cmd_export)
+
+    w = ts.add_parser("weights", help="a model package's ONNX weights back into a training state dict "
+                                       "(fine-tune from what ships when its build cache is gone)")
+    w.add_argument("package", help="model package folder (manifest.json + model.int8.onnx [+ model.fp32.onnx])")
+    w.add_argument("--out", required=True, help="folder for best.pt, bounds.json and from_package.json")
+    w.add_argument("--precision", choices=("best", "fp32", "int8"), default="best",
+                   help="graph to read: best = fp32 when the package ships it, else int8 (dequantized)")
+    w.set_defaults(func=cmd_weights)
 
     b = ts.add_parser("bench", help="network benchmark: params, training samples/s, ORT fp32 vs int8 latency")
     b.add_argument("--sizes", type=int, nargs="+", default=[96, 128])
