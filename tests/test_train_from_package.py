@@ -1,6 +1,5 @@
 """`tensortouch train weights`: a model package's ONNX weights back into the training network
 (tools/train/from_package.py), so a fine-tune can start from what ships. Tiny packages in temp dirs."""
-import argparse
 import json
 import shutil
 
@@ -11,29 +10,16 @@ torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 
 from runtime.errors import ModelPackageError  # noqa: E402
-from tools.train.cli import register  # noqa: E402
+from tests.test_train_export import SIZE, _cli, package  # noqa: E402,F401  (package: the tiny int8 package)
 from tools.train.export import FP32, INT8  # noqa: E402
 from tools.train.from_package import assemble, dequantized, id_positions, state_dict_from_package  # noqa: E402
 
-SIZE = 64
-
-
-def _cli(argv):
-    parser = argparse.ArgumentParser()
-    register(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(argv)
-    return args.func(args)
-
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory):
-    """synth → fit (1 epoch) → export with both graphs, through the CLI, in temp dirs."""
-    torch.set_num_threads(1)
-    tmp = tmp_path_factory.mktemp("frompkg")
-    data, run, models = tmp / "data", tmp / "run", tmp / "models"
-    assert _cli(["train", "synth", "--out", str(data), "--n", "16", "--size", str(SIZE), "--seed", "5"]) == 0
-    assert _cli(["train", "fit", "--data", str(data), "--out", str(run), "--epochs", "1", "--batch", "8",
-                 "--threads", "1"]) == 0
+def built(package, tmp_path_factory):
+    """test_train_export's tiny run re-exported with both graphs (fp32 + int8) into a temp models dir."""
+    _, data, run = package
+    models = tmp_path_factory.mktemp("frompkg")
     assert _cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "tiny", "--models-dir",
                  str(models), "--calibration", "8", "--latency-runs", "2", "--with-fp32"]) == 0
     return models / "tiny", data, run

@@ -22,7 +22,6 @@ a fine-tune starts from there. Pure core: `dequantized`, `id_positions`, `assemb
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import logging
 import tempfile
@@ -30,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.calibration import sha256_file
 from runtime.errors import ModelPackageError
 from runtime.model import PRECISION_FILES
 
@@ -151,7 +151,7 @@ def state_dict_from_package(folder: str | Path, precision: str = "best") -> tupl
         state[name] = torch.from_numpy(theta[k:k + p.numel()].reshape(p.shape)).to(p.dtype)
         k += p.numel()
     info = {"package": str(pkg.folder), "file": graph.name, "precision": precision,
-            "sha256": (files.get(graph.name) or {}).get("sha256") or _sha256(graph), "arch": arch,
+            "sha256": (files.get(graph.name) or {}).get("sha256") or sha256_file(graph), "arch": arch,
             "image_size": size, "params": n_ids, "rewritten_graph": use is rewritten}
     return state, info
 
@@ -165,14 +165,6 @@ def _rewritten_positions(model, size: int, n_ids: int, tmp: Path) -> dict:
     path = tmp / "template_rewritten.onnx"
     export_onnx(rew, path, size, rewrite=False)
     return id_positions(_initializers(path), n_ids)
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def write_init(folder: str | Path, out: str | Path, precision: str = "best") -> Path:
