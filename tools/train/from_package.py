@@ -15,7 +15,7 @@ How the weights are found, without a hand-written name table:
    one adds `_quantized` / `_scale` / `_zero_point`). Its values -- fp32 as they are, int8 and int32
    dequantized, (q - zero_point) * scale, per channel along axis 0 where the scale is a vector -- are
    read back element by element into the parameters.
-Every parameter element must be found exactly once-or-more consistently; anything else raises.
+Every weight must be found, and where the graph holds it twice the copies must agree; else it raises.
 From an int8 package the weights carry the int8 rounding (≤ half a quantization step per weight);
 a fine-tune starts from there. Pure core: `dequantized`, `id_positions`, `assemble`.
 """
