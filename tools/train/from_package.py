@@ -31,11 +31,10 @@ import numpy as np
 
 from runtime.calibration import sha256_file
 from runtime.errors import ModelPackageError
-from runtime.model import PRECISION_FILES
+from tools.train.package import FP32, INT8
 
 log = logging.getLogger(__name__)
 
-FP32, INT8 = PRECISION_FILES["fp32"], PRECISION_FILES["int8"]
 ID0 = 4_000_000          # first parameter id; ids stay below 2**24 (exact in float32) for < 12.7 M params
 
 
@@ -112,7 +111,6 @@ def state_dict_from_package(folder: str | Path, precision: str = "best") -> tupl
     import torch
 
     from runtime.model import load_package
-    from tools.train.export import export_onnx
     from tools.train.model import build_model
 
     pkg = load_package(folder)
@@ -120,12 +118,12 @@ def state_dict_from_package(folder: str | Path, precision: str = "best") -> tupl
     arch = (man.get("metrics") or {}).get("arch") or "hiera_qup"
     size = int(man["input"]["size"][0])
     files = man.get("files", {})
-    names = {"fp32": FP32, "int8": INT8}
+    files_of = {"fp32": FP32, "int8": INT8}
     if precision == "best":
-        precision = "fp32" if (pkg.folder / names["fp32"]).is_file() else "int8"
-    if precision not in names or not (pkg.folder / names[precision]).is_file():
-        raise ModelPackageError(f"{pkg.folder}: no {names.get(precision, precision)} in this package")
-    graph = pkg.folder / names[precision]
+        precision = "fp32" if (pkg.folder / FP32).is_file() else "int8"
+    if precision not in files_of or not (pkg.folder / files_of[precision]).is_file():
+        raise ModelPackageError(f"{pkg.folder}: no {files_of.get(precision, precision)} in this package")
+    graph = pkg.folder / files_of[precision]
 
     model = build_model(arch, size)
     params = list(model.parameters())
@@ -137,14 +135,13 @@ def state_dict_from_package(folder: str | Path, precision: str = "best") -> tupl
         for p in params:
             p.copy_(torch.arange(k, k + p.numel(), dtype=torch.float64).reshape(p.shape).to(p.dtype))
             k += p.numel()
-    with tempfile.TemporaryDirectory() as tmp:
-        tpl = Path(tmp) / "template.onnx"
-        export_onnx(copy.deepcopy(model), tpl, size, rewrite=False)
-        positions = id_positions(_initializers(tpl), n_ids)
-        rewritten = _rewritten_positions(model, size, n_ids, Path(tmp))
     values = dequantized(_initializers(graph))
-    # the package was exported with the rewrites (fused heads) unless its graph has the plain names
-    use = rewritten if all(n in values for n in rewritten) else positions
+    with tempfile.TemporaryDirectory() as tmp:
+        # packages are exported with the rewrites (fused heads); a graph without them has the plain names
+        use = _template_positions(model, size, n_ids, Path(tmp), rewrite=True)
+        rewritten = all(n in values for n in use)
+        if not rewritten:
+            use = _template_positions(model, size, n_ids, Path(tmp), rewrite=False)
     theta = assemble(use, values, n_ids)
     state, k = {}, 0
     for name, p in model.named_parameters():
@@ -152,18 +149,21 @@ def state_dict_from_package(folder: str | Path, precision: str = "best") -> tupl
         k += p.numel()
     info = {"package": str(pkg.folder), "file": graph.name, "precision": precision,
             "sha256": (files.get(graph.name) or {}).get("sha256") or sha256_file(graph), "arch": arch,
-            "image_size": size, "params": n_ids, "rewritten_graph": use is rewritten}
+            "image_size": size, "params": n_ids, "rewritten_graph": rewritten}
     return state, info
 
 
-def _rewritten_positions(model, size: int, n_ids: int, tmp: Path) -> dict:
-    """Id positions in the graph the export makes by default (export_graph rewrites applied)."""
+def _template_positions(model, size: int, n_ids: int, tmp: Path, rewrite: bool) -> dict:
+    """Id positions in the graph the export makes of the id-valued template (with or without the
+    export_graph rewrites; the rewrites' numeric check is off: ids are not a network)."""
     from tools.train.export import export_onnx
     from tools.train.export_graph import RewriteConfig, reparametrize
 
-    rew, _ = reparametrize(copy.deepcopy(model), size, cfg=RewriteConfig(check_batch=0))
-    path = tmp / "template_rewritten.onnx"
-    export_onnx(rew, path, size, rewrite=False)
+    net = copy.deepcopy(model)
+    if rewrite:
+        net, _ = reparametrize(net, size, cfg=RewriteConfig(check_batch=0))
+    path = tmp / f"template_{int(rewrite)}.onnx"
+    export_onnx(net, path, size, rewrite=False)
     return id_positions(_initializers(path), n_ids)
 
 
