@@ -243,6 +243,32 @@ def test_contact_tangent_exact_stick():
     assert not ce.slip.any() and err < 1e-5
 
 
+def test_contact_slip_hold_keeps_near_limit_nodes_slipping_only():
+    """A held node slips while its trial force is within HOLD_BAND of the Coulomb limit; outside the
+    band, or without a hold, the law is the plain return mapping."""
+    shape, R, p = Sphere(4.0), np.eye(3), np.zeros(3)
+    x = np.array([[0.0, 0.0, 0.05], [0.3, 0.0, 0.05], [0.6, 0.0, 0.05]])   # 0.05 mm inside the sphere's tip
+    area, pen, mu, ratio = np.full(3, 0.3), 5.0, 0.5, 0.1
+    d, _ = shape.sdf(x)
+    lim_over_k = mu * (-d) / ratio                 # tangential offset at which the trial reaches the limit
+    frac = np.array([0.97, 0.90, 1.02])            # in the band, below it, beyond the limit
+    anchors = x.copy()
+    anchors[:, 1] -= frac * lim_over_k             # offsets along y (tangent at the tip)
+    st = fc.ContactState(anchors[None], x)
+    plain = fc.evaluate(x, area, [shape], [(p, R)], st, pen, mu, tangential_ratio=ratio)
+    assert plain.slip[0].tolist() == [False, False, True]
+    held = fc.evaluate(x, area, [shape], [(p, R)], st, pen, mu, tangential_ratio=ratio,
+                       hold=np.ones((1, 3), bool))
+    assert held.slip[0].tolist() == [True, False, True]
+    lim = mu * np.linalg.norm(plain.fn, axis=1)
+    assert np.isclose(np.linalg.norm(held.ft[0]), lim[0])           # at the limit, ...
+    assert np.linalg.norm(held.ft[0] - plain.ft[0]) <= fc.HOLD_BAND * lim[0]   # ... within the band of the plain law
+    np.testing.assert_array_equal(held.ft[1:], plain.ft[1:])
+    none = fc.evaluate(x, area, [shape], [(p, R)], st, pen, mu, tangential_ratio=ratio,
+                       hold=np.zeros((1, 3), bool))
+    np.testing.assert_array_equal(none.ft, plain.ft)
+
+
 # ---------------------------------------------------------------- shapes
 @pytest.mark.parametrize("shape", [Sphere(3.0), Cylinder(2.0, 8.0), BoxEdge(8.0, 3.0), Flat(3.0, 0.5),
                                    Torus(4.0, 1.0)], ids=lambda s: type(s).__name__)

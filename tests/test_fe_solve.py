@@ -61,6 +61,23 @@ def test_press_and_slide_equilibrium_and_stick_then_slip(pad_mesh, tmp_path):
     assert np.array_equal(back.U, r.U) and json.loads(back.solver_info)["increments"] >= 5
 
 
+def test_struggle_mode_from_the_first_iteration_gives_the_same_slide(pad_mesh, monkeypatch):
+    """Struggle mode (slip hold + secant slip tangent + best-iterate acceptance, normally entered after
+    HOLD_AFTER iterations) switched on from the first Newton iteration: the stick-then-slip slide is
+    solved to the same forces as plain Newton, in equilibrium."""
+    from tools.fe import solver as fs
+
+    kps = [(0, 0, -0.8), (0.15, 0, -0.8), (1.0, 0, -0.8), (2.0, 0, -0.8)]
+    plain = solve(_pad([_sphere(keypoints=kps)], 0.4), mesh=pad_mesh)
+    monkeypatch.setattr(fs, "HOLD_AFTER", 0)
+    held = solve(_pad([_sphere(keypoints=kps)], 0.4), mesh=pad_mesh)
+    assert held.converged.all()
+    scale = np.abs(plain.RF[:, 0]).max()
+    assert np.abs(held.RF[:, 0] - plain.RF[:, 0]).max() < 0.02 * scale
+    for f in range(held.n_frames):
+        assert _eq_error(held, f) < 0.01
+
+
 def test_frictionless_slide_has_no_tangential_force(pad_mesh):
     kps = [(0, 0, -0.8), (1.0, 0, -0.8)]
     r = solve(_pad([_sphere(keypoints=kps)], 0.0), mesh=pad_mesh)

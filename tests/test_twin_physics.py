@@ -1,4 +1,6 @@
 """Twin physics: keypoint runs, interpolation between solved keypoints, FE scenario mapping, trajectories."""
+import json
+
 import numpy as np
 import pytest
 
@@ -120,3 +122,10 @@ def test_fe_nonconvergence_retries_with_half_increments_then_names_the_poke(tmp_
     with pytest.raises(PokeSolveFailed):
         FEPhysics(cache=tmp_path).solve(p)
     assert calls == [0.5, 0.25]          # markers: not solved again
+    for m in tmp_path.glob("*.failed.json"):     # markers of an older solver revision: tried again
+        info = json.loads(m.read_text())
+        info.pop("solver_revision")
+        m.write_text(json.dumps(info))
+    with pytest.raises(PokeSolveFailed):
+        FEPhysics(cache=tmp_path).solve(p)
+    assert calls == [0.5, 0.25, 0.5, 0.25]

@@ -8,12 +8,23 @@ For a surface node at x and an indenter with pose (R, p) and signed distance d(x
 The node force tangents dF/dx (3x3 per node) are exact (normal part incl. curvature n (x) n + d H;
 friction incl. the turning of the normal, dn/dx = H); the tests check them by finite differences. Anchors live in the indenter's local frame
 so a rotating/translating indenter drags sticking nodes along.
+
+For increments whose Newton iterations cycle (tools.fe.solver), two options that leave the
+converged law almost or exactly as is:
+- `hold` (K,M bool, nodes that slipped in an earlier iteration of this increment): a held node keeps
+  slipping while its trial force is within HOLD_BAND of the Coulomb limit, so its force differs from
+  the plain law by < HOLD_BAND*mu|fN|; this breaks stick/slip flips at the kink.
+- `slip_tangent="secant"`: the slip tangent leaves out its unsymmetric normal-coupling term
+  mu*eps*s(x)n; a quasi-Newton direction (forces unchanged), steadier when the exact one cycles.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+
+HOLD_BAND = 0.05   # fraction of the Coulomb limit below which a held node may stick again
+SLIP_TANGENTS = ("exact", "secant")
 
 
 @dataclass
@@ -43,8 +54,12 @@ class ContactEval:
 
 
 def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: float,
-             tangent: bool = True, tangential_ratio: float = 1.0) -> ContactEval:
-    """Contact forces on surface nodes at current positions x (M,3); poses = [(p, R), ...]."""
+             tangent: bool = True, tangential_ratio: float = 1.0, hold: np.ndarray | None = None,
+             slip_tangent: str = "exact") -> ContactEval:
+    """Contact forces on surface nodes at current positions x (M,3); poses = [(p, R), ...];
+    hold, slip_tangent: see the module docstring."""
+    if slip_tangent not in SLIP_TANGENTS:
+        raise ValueError(f"slip_tangent {slip_tangent!r}: expected one of {SLIP_TANGENTS}")
     M, K = len(x), len(shapes)
     fn, ft = np.zeros((M, 3)), np.zeros((M, 3))
     Kt = np.zeros((M, 3, 3))
@@ -91,6 +106,8 @@ def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: fl
         lim = mu * eps * (-d)
         mag = np.linalg.norm(fT, axis=1)
         slipping = mag > lim
+        if hold is not None:
+            slipping |= hold[k, idx] & (mag > (1.0 - HOLD_BAND) * lim)
         shat = s / np.maximum(np.linalg.norm(s, axis=1), 1e-300)[:, None]
         fT[slipping] = -lim[slipping, None] * shat[slipping]
         # ds/dx = P - (n.r) H - n (x) (H r), r = x - a (includes the turning of the normal)
@@ -102,8 +119,9 @@ def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: fl
             sl = slipping
             snorm = np.maximum(np.linalg.norm(s[sl], axis=1), 1e-300)
             ss = np.einsum("ai,aj->aij", shat[sl], shat[sl])
-            Kf[sl] = (-(lim[sl] / snorm)[:, None, None] * np.einsum("aij,ajk->aik", eye - ss, dsdx[sl])
-                      + mu * eps[sl, None, None] * np.einsum("ai,aj->aij", shat[sl], n[sl]))
+            Kf[sl] = -(lim[sl] / snorm)[:, None, None] * np.einsum("aij,ajk->aik", eye - ss, dsdx[sl])
+            if slip_tangent == "exact":
+                Kf[sl] += mu * eps[sl, None, None] * np.einsum("ai,aj->aij", shat[sl], n[sl])
         # anchors to commit: stick keeps the anchor (or the first touch point); slip drags it
         a_new = a_w.copy()
         if np.any(slipping):

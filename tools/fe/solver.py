@@ -26,6 +26,9 @@ from tools.fe.scenario import Scenario
 log = logging.getLogger(__name__)
 
 INITIAL_PENETRATION_TOL = 1e-6  # mm
+# Bumped when a change lets the solver converge where it did not before (2: struggle mode in newton), so
+# failures recorded by an older solver (tools.twin.fe_physics `*.failed.json`) are tried again.
+SOLVER_REVISION = 2
 
 
 def build_mesh(scenario: Scenario) -> GelMesh:
@@ -83,12 +86,12 @@ class GelModel:
     def set_u(self, U):
         self.u.values[:] = U
 
-    def residual(self, U, poses, state, tangent=True):
+    def residual(self, U, poses, state, tangent=True, hold=None, slip_tangent="exact"):
         self.set_u(U)
         r = np.asarray(self.solid.assemble.vector(self.field).todense()).ravel()
         x = self.gm.nodes[self.surf] + U[self.surf]
         ce = fc.evaluate(x, self.area, self.shapes, poses, state, self.penalty, self.sc.friction, tangent,
-                         self.sc.solver.friction_stiffness_ratio)
+                         self.sc.solver.friction_stiffness_ratio, hold, slip_tangent)
         r[self.surf_dofs] -= (ce.fn + ce.ft).ravel()
         return r, ce
 
@@ -117,11 +120,29 @@ class GelModel:
         return out / np.maximum(w, 1e-300)[:, None]
 
 
+HOLD_AFTER = 8      # Newton iterations of plain Newton before an increment switches to struggle mode
+ACCEPT_REL = 5e-3   # struggle mode: best iterate accepted if |r|max <= ACCEPT_REL * total normal force
+
+
 def newton(model: GelModel, U0, poses, state, sv):
-    """Solve equilibrium at fixed indenter poses; returns (U, ContactEval, iterations, residual)."""
+    """Solve equilibrium at fixed indenter poses; returns (U, ContactEval, iterations, residual).
+
+    An increment still unconverged after HOLD_AFTER iterations goes into struggle mode: nodes that
+    slipped are held slipping (contact.evaluate `hold`) and slip uses the secant tangent, which breaks
+    the stick/slip flip cycles of deep slides; if it still misses tol_force after max_iterations, its
+    best iterate is accepted when that residual is <= ACCEPT_REL of the total normal force (at most
+    25 mN on one node under a 5 N contact; logged). An increment that converges within HOLD_AFTER
+    iterations is solved exactly as by plain Newton. docs/fe.md "Deep slides" has the measurements."""
     U = U0.copy()
+    hold, mode = None, "exact"
     r, ce = model.residual(U, poses, state)
+    best = None
     for it in range(1, sv.max_iterations + 1):
+        if it > HOLD_AFTER:
+            hold = ce.slip.copy() if hold is None else hold | ce.slip
+            if mode == "exact":
+                mode = "secant"
+                r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode)
         rf = r[model.free]
         fscale = max(np.abs(ce.fn).sum(), 1e-12)
         K = model.tangent(ce)
@@ -142,7 +163,7 @@ def newton(model: GelModel, U0, poses, state, sv):
             Ut = U.copy()
             Ut.reshape(-1)[model.free] += step * du
             with np.errstate(invalid="ignore", divide="ignore"):
-                rt, cet = model.residual(Ut, poses, state)
+                rt, cet = model.residual(Ut, poses, state, hold=hold, slip_tangent=mode)
             nt = np.linalg.norm(rt[model.free])
             if np.isfinite(nt) and (nt < norm0 or step < 0.1):
                 break
@@ -150,11 +171,19 @@ def newton(model: GelModel, U0, poses, state, sv):
         U, r, ce = Ut, rt, cet
         res = np.abs(r[model.free]).max()
         if not np.isfinite(res):
+            if best is not None:
+                break
             raise FloatingPointError("inverted elements (non-finite residual)")
         dmax = np.abs(step * du).max()
         log.debug("  it %d: |r|max %.3e N, |du|max %.3e mm, step %.2f", it, res, dmax, step)
         if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 0.02 * model.sc.mesh.size_top:
             return U, ce, it, res
+        if mode != "exact" and (best is None or res < best[3]):
+            best = (U, ce, it, res, max(np.abs(ce.fn).sum(), 1e-12))
+    if best is not None and best[3] <= max(sv.tol_force, ACCEPT_REL * best[4]):
+        log.info("increment accepted at |r|max %.2e N (%.1e of the normal force %.2f N) after %d iterations",
+                 best[3], best[3] / best[4], best[4], sv.max_iterations)
+        return best[:4]
     raise FloatingPointError(f"no convergence in {sv.max_iterations} iterations (|r|max {res:.3e} N)")
 
 

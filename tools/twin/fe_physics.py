@@ -96,6 +96,7 @@ class FEPhysics:
         resumed recording does not solve it again; when every attempt fails, PokeSolveFailed says
         which keypoint was the last one reached."""
         from tools.fe import FEConvergenceError, load_result, save_result, solve
+        from tools.fe.solver import SOLVER_REVISION
 
         last, reasons = -1, []
         for k, sc in enumerate(self.attempts(poke)):
@@ -104,8 +105,12 @@ class FEPhysics:
             if path.is_file():
                 self.stats["cached"] += 1
                 return load_result(path)
-            if failed.is_file():
-                info = json.loads(failed.read_text())
+            info = json.loads(failed.read_text()) if failed.is_file() else None
+            if info is not None and info.get("solver_revision", 1) != SOLVER_REVISION:
+                log.info("FE scenario %s failed under solver revision %s; trying again with revision %d", key,
+                         info.get("solver_revision", 1), SOLVER_REVISION)
+                info = None
+            if info is not None:
                 last = max(last, int(info.get("last_keypoint", -1)))
                 reasons.append(info.get("message", ""))
                 log.warning("FE scenario %s did not converge earlier (%s); skipping it", key, failed.name)
@@ -121,7 +126,8 @@ class FEPhysics:
                 reasons.append(str(exc))
                 log.warning("FE solve %s of twin poke %s %s did not converge (%s)%s", key, poke.kind, poke.indenters,
                             exc, "; retrying with smaller increments" if k < len(self.refine) else "")
-                _write_json(failed, {"scenario": key, "message": str(exc), "last_keypoint": reached,
+                _write_json(failed, {"scenario": key, "solver_revision": SOLVER_REVISION,
+                                     "message": str(exc), "last_keypoint": reached,
                                      "keypoints": sc.n_keypoints, "max_increment_mm": sc.solver.max_increment_mm,
                                      "max_increment_rad": sc.solver.max_increment_rad})
                 self.stats["failed"] = self.stats.get("failed", 0) + 1
