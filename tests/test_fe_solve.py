@@ -245,3 +245,21 @@ def test_twist_about_the_vertical_axis_gives_friction_torque(pad_mesh):
     assert np.allclose(r.pose_rotation[1, 0], [0, 0, 0.15])
     r0 = twist(0.0)
     assert abs(r0.RM[1, 0, 2]) < 0.02 * abs(r.RM[1, 0, 2])
+
+
+@pytest.mark.slow
+def test_deep_twin_slide_that_plain_newton_could_not_solve():
+    """A twin training poke (TWIN-T82 poke 0: flat4 pressed 1.35 mm, slid 1.56 mm, lifted) on which
+    plain Newton cycled at the stick/slip kink and the recorder skipped it; struggle mode solves it
+    (docs/fe.md "Struggle mode for deep slides"). ~15-50 s."""
+    from pathlib import Path
+
+    from tools.fe import load_scenario
+
+    sc = load_scenario(Path(__file__).parent / "data" / "fe" / "deep_slide_flat4.json")
+    r = solve(sc)
+    assert r.converged.all()
+    fz = -r.RF[:, 0, 2]
+    assert fz.max() > 1.0                       # a deep, loaded slide
+    for f in np.flatnonzero(fz > 0.2):           # in contact: contact total balances the base reaction
+        assert _eq_error(r, f) < 0.01
