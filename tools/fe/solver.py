@@ -132,7 +132,7 @@ def newton(model: GelModel, U0, poses, state, sv):
     the stick/slip flip cycles of deep slides; if it still misses tol_force after max_iterations, its
     best iterate is accepted when that residual is <= ACCEPT_REL of the total normal force (at most
     25 mN on one node under a 5 N contact; logged). An increment that converges within HOLD_AFTER
-    iterations is solved exactly as by plain Newton. docs/fe.md "Deep slides" has the measurements."""
+    iterations is solved exactly as by plain Newton. docs/fe.md "Struggle mode for deep slides" has the measurements."""
     U = U0.copy()
     hold, mode = None, "exact"
     r, ce = model.residual(U, poses, state)
@@ -184,6 +184,8 @@ def newton(model: GelModel, U0, poses, state, sv):
         log.info("increment accepted at |r|max %.2e N (%.1e of the normal force %.2f N) after %d iterations",
                  best[3], best[3] / best[4], best[4], sv.max_iterations)
         return best[:4]
+    if not np.isfinite(res):
+        raise FloatingPointError("inverted elements (non-finite residual)")
     raise FloatingPointError(f"no convergence in {sv.max_iterations} iterations (|r|max {res:.3e} N)")
 
 
