@@ -67,7 +67,6 @@ class PokeSet:
     ref_force: np.ndarray
     uv: np.ndarray
     theta_phi: np.ndarray
-    active_gain: np.ndarray | None = None   # the active correction's gain at each poke (None: no correction)
 
     def __post_init__(self):
         self.pred_force = np.asarray(self.pred_force, dtype=np.float64).reshape(-1, 3)
@@ -75,15 +74,12 @@ class PokeSet:
         self.ref_force = np.asarray(self.ref_force, dtype=np.float64).reshape(n)
         self.uv = np.asarray(self.uv, dtype=np.float64).reshape(n, 2)
         self.theta_phi = np.asarray(self.theta_phi, dtype=np.float64).reshape(n, 2)
-        if self.active_gain is not None:
-            self.active_gain = np.asarray(self.active_gain, dtype=np.float64).reshape(n)
 
     def __len__(self) -> int:
         return len(self.pred_force)
 
     def subset(self, idx) -> "PokeSet":
-        return PokeSet(self.pred_force[idx], self.ref_force[idx], self.uv[idx], self.theta_phi[idx],
-                       None if self.active_gain is None else self.active_gain[idx])
+        return PokeSet(self.pred_force[idx], self.ref_force[idx], self.uv[idx], self.theta_phi[idx])
 
     def features(self, names) -> np.ndarray:
         return feature_matrix(self.pred_force, self.uv, self.theta_phi, list(names))
@@ -136,31 +132,6 @@ def fit_forest(pokes: PokeSet, cfg: FitConfig = FitConfig()):
     return rf
 
 
-def active_scale(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> float:
-    """One factor c on top of the active correction: the mean of |F_ref| / (|F_pred| · g_active) over the
-    pokes (the constant-gain estimate, relative to what the sensor already applies)."""
-    g = gain_targets(pokes, cfg) / np.maximum(pokes.active_gain, 1e-9)
-    return float(np.clip(np.mean(g), 0.0, cfg.max_gain))
-
-
-def scale_gain_onnx(onnx_bytes: bytes, factor: float) -> bytes:
-    """A gain model whose output is `factor` × the given model's (an extra Mul on its "gain" output):
-    the field scale of a unit stored on top of its active (e.g. factory) correction, one ONNX file."""
-    import onnx
-    from onnx import helper, numpy_helper
-
-    m = onnx.load_from_string(onnx_bytes)
-    out = m.graph.output[0].name
-    k = sum(1 for n in m.graph.node if n.op_type == "Mul" and n.name.startswith("field_scale"))
-    base, scale = f"{out}_unscaled{k}", f"field_scale{k}"
-    for node in m.graph.node:
-        node.output[:] = [base if o == out else o for o in node.output]
-    m.graph.initializer.append(numpy_helper.from_array(np.array([[factor]], np.float32), scale))
-    m.graph.node.append(helper.make_node("Mul", [base, scale], [out], name=scale))
-    onnx.checker.check_model(m)
-    return m.SerializeToString()
-
-
 def corrected_magnitude(pred_mag: np.ndarray, gain: np.ndarray, cfg: FitConfig = FitConfig()) -> np.ndarray:
     """|F'| as the runtime computes it: |F_pred| · clip(g, 0, max_gain); zero stays zero."""
     return np.where(pred_mag == 0.0, 0.0, pred_mag * np.clip(np.ravel(gain), 0.0, cfg.max_gain))
@@ -181,10 +152,6 @@ def _loo_held(pokes: PokeSet, cfg: FitConfig, inputs: tuple[str, ...], trees: in
     held = np.empty(n)
     for i in range(n):
         rest = np.r_[0:i, i + 1:n]
-        if not c.inputs and pokes.active_gain is not None:      # one scale on top of the active correction
-            g = pokes.active_gain[i] * active_scale(pokes.subset(rest), c)
-            held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], np.array([g]), c)[0]
-            continue
         g = fit_forest(pokes.subset(rest), c).predict(pokes.subset([i]).features(columns(c.inputs)))
         held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, c)[0]
     return held
@@ -244,10 +211,7 @@ def leave_one_out(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> dict:
             rest = pokes.subset(np.r_[0:i, i + 1:n])
             inputs, _ = select_inputs(rest, cfg)
             c = replace(cfg, inputs=inputs, candidates=())
-            if not inputs and pokes.active_gain is not None:
-                g = np.array([pokes.active_gain[i] * active_scale(rest, c)])
-            else:
-                g = fit_forest(rest, c).predict(pokes.subset([i]).features(columns(inputs)))
+            g = fit_forest(rest, c).predict(pokes.subset([i]).features(columns(inputs)))
             held[i] = corrected_magnitude(pokes.pred_mag[i:i + 1], g, c)[0]
     return {"held_out_n": held.tolist(), "before": error_stats(pokes.pred_mag, pokes.ref_force),
             "after": error_stats(held, pokes.ref_force)}
@@ -276,23 +240,14 @@ class CorrectionFit:
     config: dict = field(default_factory=dict)
 
 
-def fit_correction(pokes: PokeSet, cfg: FitConfig = FitConfig(), active: tuple[dict, bytes] | None = None) -> CorrectionFit:
-    """Fit on all pokes, evaluate by leave-one-out, convert to ONNX and check ONNX == sklearn.
-    With `active` ((spec, onnx bytes) of the sensor's active correction, e.g. a factory correction, and
-    pokes.active_gain its gains at the pokes), the simplest candidate is one scale on top of it instead of
-    one gain everywhere: the active correction's position / |F| shape is kept and only its level refitted."""
+def fit_correction(pokes: PokeSet, cfg: FitConfig = FitConfig()) -> CorrectionFit:
+    """Fit on all pokes, evaluate by leave-one-out, convert to ONNX and check ONNX == sklearn."""
     if len(pokes) < cfg.min_pokes:
         raise CalibrationError(f"{len(pokes)} accepted pokes, need at least {cfg.min_pokes} (seed: 5–7)")
-    if active is None:
-        pokes = replace(pokes, active_gain=None)
-    elif pokes.active_gain is None:
-        raise CalibrationError("an active correction was given without its gains at the pokes (PokeSet.active_gain)")
     loo = leave_one_out(pokes, cfg)
     inputs, scores = select_inputs(pokes, cfg)
     loo["selection"] = scores
     cfg = replace(cfg, inputs=inputs, candidates=())
-    if not inputs and active is not None:
-        return _scaled_active(pokes, cfg, active, loo, scores)
     rf = fit_forest(pokes, cfg)
     x = pokes.features(columns(cfg.inputs))
     onnx_bytes = to_onnx(rf, x.shape[1], cfg)
@@ -303,26 +258,6 @@ def fit_correction(pokes: PokeSet, cfg: FitConfig = FitConfig(), active: tuple[d
     if not cfg.inputs:
         spec["constant"] = True            # one leaf: the same gain for every contact
     return CorrectionFit(onnx_bytes, spec, loo, rf.predict(x).tolist(), asdict(cfg))
-
-
-def _scaled_active(pokes: PokeSet, cfg: FitConfig, active: tuple[dict, bytes], loo: dict, scores: dict) -> CorrectionFit:
-    spec0, onnx0 = active
-    c = active_scale(pokes, cfg)
-    onnx_bytes = scale_gain_onnx(onnx0, c)
-    x = pokes.features(spec0["inputs"])
-    _check_onnx(onnx_bytes, x, _run_gain(onnx0, x) * c)
-    spec = {**{k: v for k, v in spec0.items() if k not in ("selection_loo_mae_n", "pokes")},
-            "file": "correction.onnx", "pokes": len(pokes), "scale": c,
-            "scale_of": {k: spec0[k] for k in ("source", "kind", "inputs") if k in spec0},
-            **({"selection_loo_mae_n": scores} if scores else {})}
-    return CorrectionFit(onnx_bytes, spec, loo, (pokes.active_gain * c).tolist(), asdict(cfg))
-
-
-def _run_gain(onnx_bytes: bytes, x: np.ndarray) -> np.ndarray:
-    import onnxruntime as ort
-
-    sess = ort.InferenceSession(onnx_bytes, providers=["CPUExecutionProvider"])
-    return sess.run(None, {sess.get_inputs()[0].name: x.astype(np.float32)})[0].ravel().astype(np.float64)
 
 
 def _check_onnx(onnx_bytes: bytes, x: np.ndarray, expect: np.ndarray) -> None:

@@ -13,8 +13,7 @@ frames' clock: a replayed session's wrench.csv — how the twin's force gauge en
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -209,20 +208,8 @@ def analyse(pokes: list[Poke], cal: Calibration, cfg: SessionConfig = SessionCon
         geo = refresh_geometry(xy, th, ph, cal.gel_center_px, cal.gel_radius_px, cal.model_size, cfg.geometry)
         uv_new = camera_to_model(xy, geo.center, cal.gel_radius_px, cal.model_size)
         ps = poke_set(pokes, cal, uv_new, geo.theta, geo.phi)
-    ps, active_corr = on_top_of_active(ps, cal)
-    fit = fit_correction(ps, cfg.fit, active_corr)
+    fit = fit_correction(ps, cfg.fit)
     return Analysis(ps, fit, decide(fit.loo["after"], active, force), active, geo)
-
-
-def on_top_of_active(ps: PokeSet, cal: Calibration) -> tuple:
-    """(pokes, active) for `fit_correction`: with a correction in the calibration, the pokes carry its
-    gains and `active` its (spec, ONNX bytes), so the simplest fit is one scale on top of it."""
-    path = cal.correction_path
-    if path is None:
-        return replace(ps, active_gain=None), None
-    mag = active_magnitudes(cal, ps.pred_force, ps.uv, ps.theta_phi)
-    gain = np.where(ps.pred_mag > 0, mag / np.maximum(ps.pred_mag, 1e-12), 1.0)
-    return replace(ps, active_gain=gain), (dict(cal.meta["correction"]), Path(path).read_bytes())
 
 
 def session_truth_xyz(session, pokes: list[Poke]) -> np.ndarray:

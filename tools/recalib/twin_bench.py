@@ -90,12 +90,6 @@ class TwinBenchConfig:
     poke_counts: tuple = (5, 6, 7)
     runtime_check: bool = True                           # first varied unit: full pipeline vs replayed correction
     calibration: str = "nominal"                         # store before recalibration: nominal | true (per unit)
-                                                         # | factory (nominal + the model's factory correction)
-    # factory correction (tools.recalib.factory): random demonstrator sessions of a unit without variation
-    factory_serial: str = "TWIN-F000"
-    factory_seeds: tuple = (31, 32, 33)
-    factory_pokes: int = 12
-    factory_indenters: tuple = ("sphere5", "sphere3", "flat4", "cylinder3")
     recentre: str = "rim"                                # "rim": crop on the gel rim of the fit session's rest
                                                          # frames before the force fit (geometry first) | "off"
     rest_frames: int = 10                                # frames at rest the rim is found in
@@ -189,36 +183,8 @@ def record_once(rcfg, out: Path, say) -> Path:
     return out
 
 
-def factory_correction(cfg: TwinBenchConfig, package, size: int, say) -> dict:
-    """The model's factory correction, fitted on cfg.factory_seeds sessions of a nominal unit (recorded
-    once, cached) replayed with the nominal calibration: tools.recalib.factory.fit_factory's dict."""
-    from runtime.calibration import CalibrationStore
-    from tools.recalib.factory import FactoryConfig, fit_factory, session_samples
-    from tools.twin.record import RecordConfig
-    from tools.twin.trajectory import TrajectoryConfig
-
-    unit = BenchUnit(cfg.factory_serial)
-    traj = TrajectoryConfig(p_two=0.0, indenters=tuple(cfg.factory_indenters))
-    dirs = [record_once(RecordConfig(serial=unit.serial, pokes=cfg.factory_pokes, seed=seed, physics=cfg.physics,
-                                     model_size=size, unit=unit.override(), trajectory=traj),
-                        cfg.folder() / "sessions" / f"{unit.serial}-factory-{seed}", say) for seed in cfg.factory_seeds]
-    tables, meta = nominal_calibration(size)
-    with tempfile.TemporaryDirectory(prefix="factory-") as tmp:
-        store = CalibrationStore(tmp)
-        store.write(unit.serial, tables, meta)
-        cal = store.load(unit.serial)
-        fcfg = FactoryConfig()
-        fit = fit_factory([(d.name, session_samples(d, cal, package, cfg.precision, cfg.folder() / "frames", fcfg))
-                           for d in dirs], fcfg)
-    h = fit["heldout"]
-    say(f"factory correction: {sum(f['frames'] for f in h['folds'])} frames of {len(dirs)} sessions, held-out |F| "
-        f"MAE {h['before']['mae_n']:.3f} -> {h['after']['mae_n']:.3f} N (one session out at a time)"
-        f"{'' if fit['onnx'] else '; not worth storing: the bench runs without one'}")
-    return fit
-
-
 def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path, held: dict, say,
-                  work: Path, runtime_check: bool = False, factory: dict | None = None) -> dict:
+                  work: Path, runtime_check: bool = False) -> dict:
     """Before/after held-out errors of one unit for each poke count (decided and forced). `held`:
     {name: session dir}. Each session goes through the runtime pipeline once (raw model force);
     each calibration version's correction is then applied by `corrected_frames`. With
@@ -234,21 +200,18 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     from tools.recalib.twin_variants import true_center
 
     size = int(package.size[0])
-    tables, meta = unit_calibration(unit, size) if cfg.calibration == "true" else nominal_calibration(size)
+    tables, meta = nominal_calibration(size) if cfg.calibration == "nominal" else unit_calibration(unit, size)
     rules = PokeRules(reach_theta_rad=math.radians(cfg.reach_deg))
     eval_rules = PokeRules()
     row = {"unit": unit.serial, "variation": unit.override(), "label": unit.label(), "held_out": {}, "by_pokes": {}}
     store = CalibrationStore(work / "base")
     store.write(unit.serial, tables, meta)
-    if factory and factory.get("onnx"):      # shipped with the model's factory correction
-        store_recalibration(store, store.load(unit.serial), {"method": "factory correction", "pokes": 0},
-                            correction=(factory["spec"], factory["onnx"]))
     base = store.load(unit.serial)
     fc = cfg.folder() / "frames"
     raw = {k: collect_frames(d, base, package, cfg.precision, fc) for k, d in held.items()}
     refs = {k: StreamReference.from_session(load_session(d), eval_rules) for k, d in held.items()}
     for k in held:
-        b = held_out_pokes(corrected_frames(raw[k], base), refs[k], eval_rules)
+        b = held_out_pokes(raw[k], refs[k], eval_rules)
         row["held_out"][k] = {"pokes": len(b["ref"]), "before_mae_n": mae(b), "mean_ref_n": float(np.mean(b["ref"])),
                               "before_bias_n": float(np.mean(b["pred"] - b["ref"])),
                               "before_pred": b["pred"].tolist(), "ref": b["ref"].tolist(), "after": {}}
@@ -265,7 +228,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
             f"{row['crop']['center_error_px']:.2f} px, radius x{rim.scale:.4f}; crop changes {sorted(crop) or 'none'}")
     raw_fit = raw if cal_fit is base else {k: collect_frames(d, cal_fit, package, cfg.precision, fc) for k, d in held.items()}
     for k in held:
-        b = held_out_pokes(corrected_frames(raw_fit[k], cal_fit), refs[k], eval_rules)
+        b = held_out_pokes(raw_fit[k], refs[k], eval_rules)
         seen = b["pred"] > 0           # a missed poke (0 N) has no gain
         g = float(np.median(b["ref"][seen] / b["pred"][seen])) if seen.any() else float("nan")
         row["held_out"][k].update(crop_only_mae_n=mae(b), crop_only_pokes=len(b["ref"]), crop_pred=b["pred"].tolist(),
@@ -333,12 +296,10 @@ def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
     tables, _ = nominal_calibration(size)
     points = guided_points(tables, cfg.fit_pokes, math.radians(cfg.reach_deg))
     units = ([cfg.nominal] if cfg.nominal else []) + list(cfg.units)
-    factory = factory_correction(cfg, package, size, say) if cfg.calibration == "factory" else None
     out = {"model": package.name, "model_folder": str(package.folder), "model_sha256": package.sha256(cfg.precision),
            "calibration": cfg.calibration, "recentre": cfg.recentre, "poke_counts": list(cfg.poke_counts),
            "precision": cfg.precision, "reach_deg": cfg.reach_deg, "guided_points_mm": points,
-           "fit_depths_mm": list(cfg.fit_depths_mm), "held_out": [list(h) for h in cfg.held_out], "units": [],
-           **({"factory": {k: v for k, v in factory.items() if k != "onnx"}} if factory else {})}
+           "fit_depths_mm": list(cfg.fit_depths_mm), "held_out": [list(h) for h in cfg.held_out], "units": []}
     t0 = time.time()
     for k, unit in enumerate(units):
         say(f"[{k + 1}/{len(units)}] {unit.serial}: {unit.label()}")
@@ -348,8 +309,7 @@ def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
                 for k, c in held_cfgs.items()}
         with tempfile.TemporaryDirectory(prefix="recalib-twin-") as tmp:
             row = evaluate_unit(unit, cfg, package, fit_dir, held, say, Path(tmp),
-                                runtime_check=cfg.runtime_check and bool(cfg.units) and unit is cfg.units[0],
-                                factory=factory)
+                                runtime_check=cfg.runtime_check and bool(cfg.units) and unit is cfg.units[0])
         row["nominal"] = unit is cfg.nominal
         row["sessions"] = {"fit": str(fit_dir), **{k: str(d) for k, d in held.items()}}
         out["units"].append(row)
@@ -361,10 +321,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--units", type=int, default=len(UNITS), help=f"how many of the {len(UNITS)} varied units")
     p.add_argument("--no-nominal", action="store_true", help="skip the reference unit without variation")
     p.add_argument("--only", nargs="*", help="only these unit serials")
-    p.add_argument("--calibration", choices=("nominal", "true", "factory"), default="nominal",
-                   help="what the store holds before recalibrating: the nominal calibration (as shipped), "
-                        "the unit's true one (factory-calibrated unit whose gel changed), or the nominal one "
-                        "with the model's factory correction (tools.recalib.factory)")
+    p.add_argument("--calibration", choices=("nominal", "true"), default="nominal",
+                   help="what the store holds before recalibrating: the nominal calibration (as shipped) or "
+                        "the unit's true one (factory-calibrated unit whose gel changed)")
     p.add_argument("--physics", choices=("fe", "hertz-fallback"), default="fe")
     p.add_argument("--model", help="model package name or path (default: newest installed)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
