@@ -42,9 +42,9 @@ class FitConfig:
     select_margin: float = 0.15
     # ... and only if the per-poke gain is consistent: a paired one-sided t statistic of the leave-one-out
     # |errors| (current choice − richer set) of at least `select_t` (1.5 ≈ p 0.09 with 6 dof). With 5–7
-    # pokes a 15 % lower mean is often one poke's luck (session 14, docs/BENCHMARKS.md "Recalibration input
-    # selection": on the twin bench, sets chosen by the mean alone did worse on the held-out probe than one
-    # gain in 8–15 of 21 unit × poke-count cases with each candidate network s12/s13/s13c).
+    # pokes a 15 % lower mean is often one poke's luck (docs/BENCHMARKS.md, Recalibration, "Session 14": on
+    # the twin bench, sets chosen by the mean alone did worse on the held-out probe than one gain in 8–15
+    # of 21 unit × poke-count cases with each candidate network s12/s13/s13c).
     select_t: float = 1.5
     select_estimators: int = 20                   # trees per forest inside the selection (speed; the stored one has n_estimators)
     n_estimators: int = 50                        # DESIGN §10: 50 trees ≈ 10 µs/sample in onnxruntime
