@@ -11,25 +11,22 @@ RUN is a fit run folder (best.pt, bounds.json, metrics.json); STATE_DICT a best.
 started from (its bounds.json beside it, or --base-bounds: a bounds.json or a package manifest). The
 base's heads are rescaled to RUN's bounds first (tools.train.model.train.head_remap). RUN_OUT is a run
 folder like RUN (best.pt, bounds.json, metrics.json, config.json with the provenance); `--export` turns
-it into a package with `tools.train.export.export_run` (the command is recorded in its manifest).
+it into a package with `tools.train.export.export_run` (the command is recorded in its manifest); its
+contact threshold is then measured as after any export: `python -m tools.train.threshold --package DIR --write ...`.
 """
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import logging
 import shutil
 import sys
 from pathlib import Path
 
+from runtime.calibration import sha256_file
 from tools.train.model.data import DatasetError
 
 log = logging.getLogger(__name__)
-
-
-def _sha(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def average_states(tuned: dict, base: dict, weight: float) -> dict:
@@ -57,7 +54,7 @@ def average_run(tuned_run: Path, base_state: Path, weight: float, out: Path, bas
 
     from tools.train.fields import read_bounds
     from tools.train.model import build_model
-    from tools.train.model.train import FitConfig, remap_heads
+    from tools.train.model.train import FitConfig, _atomic_json, remap_heads
 
     tuned_run, base_state, out = Path(tuned_run), Path(base_state), Path(out)
     for need in ("best.pt", "bounds.json", "metrics.json"):
@@ -78,12 +75,12 @@ def average_run(tuned_run: Path, base_state: Path, weight: float, out: Path, bas
     tmp.replace(out / "best.pt")
     shutil.copyfile(tuned_run / "bounds.json", out / "bounds.json")
     cfg = {"what": "average", "weight": weight, "heads_rescaled": bool(remapped),
-           "tuned": {"run": str(tuned_run), "best_sha256": _sha(tuned_run / "best.pt")},
-           "base": {"state_dict": str(base_state), "sha256": _sha(base_state),
+           "tuned": {"run": str(tuned_run), "best_sha256": sha256_file(tuned_run / "best.pt")},
+           "base": {"state_dict": str(base_state), "sha256": sha256_file(base_state),
                     "bounds": str(base_bounds or base_state.parent / "bounds.json")}}
-    (out / "config.json").write_text(json.dumps(cfg, indent=1))
-    metrics = dict(info, metrics=None, note="weight average: validation metrics are the export's parity report")
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    _atomic_json(cfg, out / "config.json")
+    _atomic_json(dict(info, metrics=None, note="weight average: validation metrics are the export's parity report"),
+                 out / "metrics.json")
     log.info("averaged %s (%.2f) with %s -> %s", tuned_run, weight, base_state, out)
     return cfg
 
@@ -100,7 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--models-dir", help="package root (with --export; default exported_models/)")
 
 
-def run(args) -> int:
+def run(args, argv: list[str]) -> int:
     from runtime.paths import models_dir
     from tools.train.export import ExportConfig, export_run
 
@@ -108,7 +105,7 @@ def run(args) -> int:
                 Path(args.base_bounds) if args.base_bounds else None)
     if args.export:
         root = Path(args.models_dir) if args.models_dir else models_dir()
-        cmd = " ".join(["python -m tools.train.average"] + sys.argv[1:])
+        cmd = " ".join(["python -m tools.train.average"] + argv)
         man = export_run(Path(args.out), Path(args.export), args.name, root, cmd, ExportConfig())
         m = man["metrics"]
         print(f"exported {root / args.name}: PSNR fp32 {m['fp32']['psnr']:.2f} dB, int8 {m['int8']['psnr']:.2f} dB")
@@ -119,7 +116,8 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     p = argparse.ArgumentParser(prog="python -m tools.train.average", description=__doc__.splitlines()[0])
     add_arguments(p)
-    return run(p.parse_args(argv))
+    argv = sys.argv[1:] if argv is None else list(argv)
+    return run(p.parse_args(argv), argv)
 
 
 if __name__ == "__main__":
