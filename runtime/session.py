@@ -29,17 +29,24 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SessionError
+from runtime.units import HOUSE, accepted, to_house
 
 SCHEMA = "tensortouch.session"
 SCHEMA_VERSION = 1
-UNITS = {"length": "mm", "force": "N", "torque": "N*mm", "time": "s", "temperature": "degC",
-         "stress": "MPa", "angle": "rad"}
+UNITS = dict(HOUSE)   # the house units every stream is read in (runtime/units.py lists the other spellings)
 
 STREAM_COLUMNS = {
     "poses": ["t", "indenter", "x", "y", "z", "qw", "qx", "qy", "qz"],
     "wrench": ["t", "indenter", "fx", "fy", "fz", "tx", "ty", "tz"],
     "frames": ["t", "index"],
     "temperature": ["t", "celsius"],
+}
+# the physical quantity of each stream column (None: a count, an id or a unitless value)
+COLUMN_QUANTITIES = {
+    "poses": ["time", None, "length", "length", "length", None, None, None, None],
+    "wrench": ["time", None, "force", "force", "force", "torque", "torque", "torque"],
+    "frames": ["time", None],
+    "temperature": ["time", "temperature"],
 }
 STREAM_FILES = {"poses": "poses.csv", "wrench": "wrench.csv", "frames": "frames.csv",
                 "temperature": "temperature.csv"}
@@ -71,8 +78,8 @@ class Session:
                 raise SessionError(f"{self.path / 'session.json'}: no stream '{stream}' "
                                    f"(present: {sorted(self.streams)})")
             info = self.streams[stream]
-            self._cache[stream] = read_table(self.path / info.get("file", STREAM_FILES[stream]),
-                                             STREAM_COLUMNS[stream])
+            table = read_table(self.path / info.get("file", STREAM_FILES[stream]), STREAM_COLUMNS[stream])
+            self._cache[stream] = to_house_units(table, stream, self.manifest.get("units", {}))
         return self._cache[stream]
 
     def image_source(self) -> tuple[str, Path]:
@@ -107,6 +114,20 @@ def read_table(path: Path, columns: list[str]) -> np.ndarray:
     return data
 
 
+def to_house_units(table: np.ndarray, stream: str, units: dict) -> np.ndarray:
+    """A stream table read in the manifest's `units`, converted to the house units (a copy when any
+    column changes)."""
+    out = table
+    for col, quantity in enumerate(COLUMN_QUANTITIES.get(stream, [])):
+        if quantity is None or quantity not in units:
+            continue
+        scale, offset = to_house(quantity, units[quantity])
+        if scale != 1.0 or offset != 0.0:
+            out = out.copy() if out is table else out
+            out[:, col] = out[:, col] * scale + offset
+    return out
+
+
 def write_table(path: Path, columns: list[str], data: np.ndarray) -> None:
     """Write a CSV stream atomically (write to a temp file, then rename)."""
     path = Path(path)
@@ -128,10 +149,12 @@ def validate_manifest(manifest: dict, where: str = "session.json") -> None:
     if not isinstance(manifest.get("sensor_id"), str) or not manifest["sensor_id"]:
         raise SessionError(f"{where}: sensor_id must be a non-empty string")
     units = manifest.get("units", {})
+    if not isinstance(units, dict):
+        raise SessionError(f"{where}: units must be an object such as {UNITS}")
     for key, unit in units.items():
-        if key in UNITS and unit != UNITS[key]:
-            raise SessionError(f"{where}: units.{key} is {unit!r}, expected {UNITS[key]!r} "
-                               "(convert the recording to mm, N, N*mm, s, degC)")
+        if key in UNITS and to_house(key, unit) is None:
+            raise SessionError(f"{where}: units.{key} is {unit!r}, expected one of {accepted(key)} "
+                               "(streams are read in mm, N, N*mm, s, degC)")
     streams = manifest.get("streams")
     if not isinstance(streams, dict) or "frames" not in streams:
         raise SessionError(f"{where}: streams must be an object with at least 'frames'")
@@ -254,6 +277,29 @@ def load_session(path: str | Path, check_frames: bool = True) -> Session:
         else:
             _check_video(src, session.streams["frames"], n)
     return session
+
+
+def rewrite_in_units(path: str | Path, units: dict | None = None) -> Session:
+    """Rewrite a session folder's stream files in `units` (default: the house units) in place, each
+    file atomically and the manifest last. A tool that copies a recording and rewrites one stream
+    calls this first, so every stream stays in the units its manifest states."""
+    session = load_session(path, check_frames=False)
+    current = {**UNITS, **session.manifest.get("units", {})}
+    target = {**current, **dict(units or UNITS)}
+    bad = {k: u for k, u in target.items() if k in UNITS and to_house(k, u) is None}
+    if bad:
+        raise SessionError(f"{session.path}: cannot write in units {bad} (accepted: see runtime/units.py)")
+    if all(to_house(k, target[k]) == to_house(k, current[k]) for k in UNITS):
+        return session
+    for name, info in session.streams.items():
+        table = session.table(name).copy()             # house units
+        for col, quantity in enumerate(COLUMN_QUANTITIES.get(name, [])):
+            if quantity in target:
+                scale, offset = to_house(quantity, target[quantity])
+                table[:, col] = (table[:, col] - offset) / scale
+        write_table(session.path / info.get("file", STREAM_FILES[name]), STREAM_COLUMNS[name], table)
+    write_manifest(session.path, dict(session.manifest, units=target))
+    return load_session(session.path, check_frames=False)
 
 
 def write_manifest(path: str | Path, manifest: dict) -> None:

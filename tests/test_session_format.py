@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from runtime.errors import SessionError
-from runtime.session import STREAM_COLUMNS, avi_frame_count, load_session
+from runtime.session import STREAM_COLUMNS, avi_frame_count, load_session, rewrite_in_units
+from runtime.units import to_house
 from tools.sessions.writer import SessionWriter, read_frames
 from tools.twin.record import RecordConfig, record
 
@@ -137,10 +138,39 @@ def test_non_monotonic_clock_rejected(twin_session, tmp_path):
         load_session(s)
 
 
-def test_unit_mismatch_rejected(twin_session, tmp_path):
+FOREIGN = {"length": "m", "force": "mN", "torque": "N*m", "time": "ms", "temperature": "K"}
+
+
+def test_session_in_other_units_reads_in_house_units(twin_session, tmp_path):
+    """m, mN, N*m, ms and K in the manifest: every stream is read back in mm, N, N*mm, s, degC."""
     s = _copy(twin_session, tmp_path / "s")
-    _edit_manifest(s, lambda m: m["units"].update(length="m"))
-    with pytest.raises(SessionError, match=r"units.length is 'm', expected 'mm'"):
+    assert rewrite_in_units(s, FOREIGN).manifest["units"]["force"] == "mN"
+    raw = np.loadtxt(s / "wrench.csv", delimiter=",", skiprows=1)
+    ref, got = load_session(twin_session), load_session(s)
+    np.testing.assert_allclose(raw[:, 2:5], 1e3 * ref.table("wrench")[:, 2:5], rtol=1e-6, atol=1e-6)  # mN in the file
+    np.testing.assert_allclose(raw[:, 0], 1e3 * ref.table("wrench")[:, 0], rtol=1e-6)                 # ms
+    for name in ref.streams:
+        np.testing.assert_allclose(got.table(name), ref.table(name), rtol=1e-6, atol=1e-6, err_msg=name)
+    house = rewrite_in_units(s)                 # files converted in place, manifest says so
+    assert house.manifest["units"]["force"] == "N" and house.manifest["units"]["time"] == "s"
+    for name in ref.streams:
+        np.testing.assert_allclose(house.table(name), ref.table(name), rtol=1e-6, atol=1e-6, err_msg=name)
+    np.testing.assert_allclose(np.loadtxt(s / "wrench.csv", delimiter=",", skiprows=1), ref.table("wrench"),
+                               rtol=1e-6, atol=1e-6)
+
+
+def test_unit_spellings():
+    assert to_house("torque", "N·m") == (1e3, 0.0) and to_house("temperature", "°C") == (1.0, 0.0)
+    assert to_house("length", "furlong") is None and to_house("force", "mm") is None
+
+
+def test_unknown_unit_rejected(twin_session, tmp_path):
+    s = _copy(twin_session, tmp_path / "s")
+    _edit_manifest(s, lambda m: m["units"].update(length="furlong"))
+    with pytest.raises(SessionError, match=r"units.length is 'furlong', expected one of \['mm', .*'m'"):
+        load_session(s)
+    _edit_manifest(s, lambda m: m.update(units="SI"))
+    with pytest.raises(SessionError, match=r"units must be an object"):
         load_session(s)
 
 

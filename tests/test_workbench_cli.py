@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from runtime.calibration import CalibrationStore
+from runtime.session import rewrite_in_units
 from tests.workbench_alter import copy_without_truth
 from tools.workbench import cli
 from tools.workbench.scenarios import Scenario, fresh_store, record
@@ -95,6 +96,23 @@ def test_diagnosis_sees_measurements_only(env, capsys):
     assert a["verdict"] == b["verdict"] == "strain_stiffening"
     assert [r["effect"] for r in a["ranking"]] == [r["effect"] for r in b["ranking"]]
     assert np.allclose([r["reduction"] for r in a["ranking"]], [r["reduction"] for r in b["ranking"]])
+
+
+def test_session_in_other_units_gives_the_same_diagnosis(env, capsys):
+    """The hidden session's streams rewritten in m, mN, N*m, ms, K: same verdict, errors still in N."""
+    (calib, hidden), store, tmp = env
+    foreign = copy_without_truth(hidden, tmp / "foreign")
+    rewrite_in_units(foreign, {"length": "m", "force": "mN", "torque": "N*m", "time": "ms", "temperature": "K"})
+    common = ["--sensor", SENSOR, "--store", str(store), "--json"]
+    run(["compare", str(calib), "--sensor", SENSOR, "--store", str(store), "--out", str(tmp / "c"),
+         "--model-from", str(calib), "--no-pictures"], capsys)
+    a = json.loads(run(["diagnose", str(hidden), *common], capsys)[1].strip().splitlines()[-1])
+    b = json.loads(run(["diagnose", str(foreign), *common], capsys)[1].strip().splitlines()[-1])
+    assert a["verdict"] == b["verdict"] == "strain_stiffening"
+    assert [r["effect"] for r in a["ranking"]] == [r["effect"] for r in b["ranking"]]
+    for ra, rb in zip(a["ranking"], b["ranking"]):
+        assert rb["heldout_error_before"] == pytest.approx(ra["heldout_error_before"], rel=1e-3, abs=1e-6)
+        assert rb["reduction"] == pytest.approx(ra["reduction"], rel=1e-2, abs=1e-3)
 
 
 def test_effects_list_json_names_parameters_with_units(capsys):

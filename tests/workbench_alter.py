@@ -33,7 +33,7 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
-from runtime.session import STREAM_COLUMNS, load_session, write_table
+from runtime.session import STREAM_COLUMNS, load_session, rewrite_in_units, write_table
 
 
 def copy_without_truth(src: Path, dst: Path) -> Path:
@@ -44,6 +44,7 @@ def copy_without_truth(src: Path, dst: Path) -> Path:
     manifest["provenance"] = {"source": "altered copy (tests/workbench_alter.py)"}
     manifest.pop("truth", None)
     (dst / "session.json").write_text(json.dumps(manifest, indent=2))
+    rewrite_in_units(dst)     # the streams this script rewrites are written in house units
     return dst
 
 

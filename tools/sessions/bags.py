@@ -42,11 +42,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from runtime.errors import SessionError
+from runtime.units import accepted, to_house
 from tools.sessions.writer import SessionWriter
 
 log = logging.getLogger(__name__)
-LENGTH = {"m": 1000.0, "mm": 1.0}
-TORQUE = {"N*m": 1000.0, "N*mm": 1.0, "Nm": 1000.0}
+BAG_UNITS = {"length": "m", "torque": "N*m", "temperature": "degC"}   # ROS conventions (REP 103)
 
 
 @dataclass
@@ -82,9 +82,9 @@ class TopicMap:
         m = cls(**data)
         if m.clock not in ("header", "log"):
             raise SessionError(f"{where}: clock must be 'header' or 'log', got {m.clock!r}")
-        for key, table in (("length", LENGTH), ("torque", TORQUE)):
-            if m.units.get(key, next(iter(table)) if key == "length" else "N*m") not in table:
-                raise SessionError(f"{where}: units.{key} {m.units[key]!r} not one of {sorted(table)}")
+        for key, default in BAG_UNITS.items():
+            if to_house(key, m.units.get(key, default)) is None:
+                raise SessionError(f"{where}: units.{key} {m.units[key]!r} not one of {accepted(key)}")
         return m
 
     def topics(self) -> dict[str, tuple]:
@@ -204,9 +204,8 @@ def convert(bag: str | Path, mapping: TopicMap, out: str | Path) -> Path:
         raise SessionError(f"{bag}: bag not found")
     topics = mapping.topics()
     it = iter_mcap(bag, set(topics)) if bag.suffix == ".mcap" else iter_rosbag(bag, set(topics))
-    L = LENGTH[mapping.units.get("length", "m")]
-    TQ = TORQUE[mapping.units.get("torque", "N*m")]
-    kelvin = mapping.units.get("temperature", "degC") == "K"
+    L, TQ, (TS, T0) = (to_house(k, mapping.units.get(k, d)) for k, d in BAG_UNITS.items())
+    L, TQ = L[0], TQ[0]
     rows: dict = {"poses": [], "wrench": [], "temperature": [], "base": [], "frames": []}
     writer = SessionWriter(out, mapping.sensor_id, mapping.frames_format)
     seen = set()
@@ -224,7 +223,7 @@ def convert(bag: str | Path, mapping: TopicMap, out: str | Path) -> Path:
             rows[kind].append((t, ind, *v))
         elif kind == "temperature":
             c = _temperature(msg)
-            rows[kind].append((t, c - 273.15 if kelvin else c))
+            rows[kind].append((t, c * TS + T0))
         else:
             writer.frame(len(rows["frames"]), _image(msg))
             rows["frames"].append(t)
