@@ -43,3 +43,15 @@ def to_house(quantity: str, unit: str) -> tuple[float, float] | None:
         return _AFFINE[quantity].get(u)
     s = _LIN.get(quantity, {}).get(u)
     return None if s is None else (s, 0.0)
+
+
+def convert(value: float, unit: str, to_unit: str) -> float:
+    """`value` in `unit` expressed in `to_unit` (both spellings of one quantity in the tables above);
+    ValueError naming both units when they are not."""
+    if _spelling(unit) == _spelling(to_unit):
+        return float(value)
+    for quantity in HOUSE:
+        a, b = to_house(quantity, unit), to_house(quantity, to_unit)
+        if a is not None and b is not None:
+            return (float(value) * a[0] + a[1] - b[1]) / b[0]
+    raise ValueError(f"cannot convert {unit!r} to {to_unit!r}")

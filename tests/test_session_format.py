@@ -8,7 +8,7 @@ import pytest
 
 from runtime.errors import SessionError
 from runtime.session import STREAM_COLUMNS, avi_frame_count, load_session, rewrite_in_units
-from runtime.units import to_house
+from runtime.units import convert, to_house
 from tools.sessions.writer import SessionWriter, read_frames
 from tools.twin.record import RecordConfig, record
 
@@ -162,6 +162,10 @@ def test_session_in_other_units_reads_in_house_units(twin_session, tmp_path):
 def test_unit_spellings():
     assert to_house("torque", "N·m") == (1e3, 0.0) and to_house("temperature", "°C") == (1.0, 0.0)
     assert to_house("length", "furlong") is None and to_house("force", "mm") is None
+    assert convert(1500, "ms", "s") == pytest.approx(1.5) and convert(295.15, "K", "degC") == pytest.approx(22.0)
+    assert convert(2.0, "N*m", "N*mm") == pytest.approx(2000.0)
+    with pytest.raises(ValueError, match="cannot convert 'N' to 'mm'"):
+        convert(1.0, "N", "mm")
 
 
 def test_unknown_unit_rejected(twin_session, tmp_path):

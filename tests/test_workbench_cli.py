@@ -135,3 +135,22 @@ def test_clear_errors(env, capsys):
     with pytest.raises(TensorTouchError, match="tau"):
         run(["effects", "add", "viscoelastic_relaxation", "--param", "tau=1000", "--sensor", SENSOR,
              "--store", str(store)], capsys)
+
+
+def test_effect_parameters_given_with_a_unit(env, capsys):
+    """--param tau=1500ms and t_ref=295.15K are stored in the parameters' own units (s, degC)."""
+    (calib, hidden), store, tmp = env
+    from runtime.errors import TensorTouchError
+
+    common = ["--sensor", SENSOR, "--store", str(store)]
+    code, _ = run(["effects", "add", "viscoelastic_relaxation", "--param", "tau=1500ms", "--param", "g1=0.2",
+                   *common], capsys)
+    assert code == 0
+    code, _ = run(["effects", "add", "temperature_softening", "--param", "t_ref=295.15 K", *common], capsys)
+    eff = {e["name"]: e["params"] for e in CalibrationStore(store).load(SENSOR).effects}
+    assert eff["viscoelastic_relaxation"]["tau"] == pytest.approx(1.5)
+    assert eff["temperature_softening"]["t_ref"] == pytest.approx(22.0)
+    for bad, words in (("tau=2furlong", "'furlong' does not convert"), ("tau=fast", "expected P=V"),
+                       ("spin=1", "has no parameter 'spin'"), ("tau=3N", "'N' does not convert")):
+        with pytest.raises(TensorTouchError, match=words):
+            run(["effects", "add", "viscoelastic_relaxation", "--param", bad, *common], capsys)

@@ -66,10 +66,8 @@ def cmd_effects_add(args) -> int:
             raise TensorTouchError(f"{path}: effect {args.name} not in that diagnosis' ranking")
         params, source = dict(row["params"]), f"diagnosis of {diag.get('session', path)}"
     for item in args.param:
-        key, eq, val = item.partition("=")
-        if not eq:
-            raise TensorTouchError(f"--param {item!r}: expected P=V")
-        params[key.strip()] = float(val)
+        key, value = param_value(eff, item)
+        params[key] = value
     try:
         params = eff.resolve(params)
     except ValueError as exc:
@@ -134,3 +132,30 @@ def cmd_effects_remove(args) -> int:
                                                                  "effect": args.name})
     print(f"{sensor}: {args.name} removed -> calibration {version}")
     return 0
+
+
+def param_value(eff, item: str) -> tuple[str, float]:
+    """`--param P=V` or `P=V UNIT` (e.g. tau=1900ms, t_ref=295.15K): V in the parameter's own unit,
+    or converted to it from UNIT (runtime/units.py). TensorTouchError naming what was expected."""
+    import re
+
+    from runtime.errors import TensorTouchError
+    from runtime.units import convert
+
+    key, eq, val = item.partition("=")
+    key = key.strip()
+    m = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S*)\s*", val)
+    if not eq or not m:
+        raise TensorTouchError(f"--param {item!r}: expected P=V or P=V UNIT, e.g. tau=1.9 or tau=1900ms")
+    declared = {q.name: q.unit for q in eff.params}
+    if key not in declared:
+        raise TensorTouchError(f"--param {item!r}: effect {eff.name} has no parameter {key!r} "
+                               f"(has {sorted(declared)})")
+    number, unit = float(m.group(1)), m.group(2)
+    if not unit:
+        return key, number
+    try:
+        return key, convert(number, unit, declared[key])
+    except ValueError:
+        raise TensorTouchError(f"--param {item!r}: {key} is in {declared[key]!r}; {unit!r} does not convert "
+                               "to it") from None
