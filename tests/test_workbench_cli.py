@@ -4,7 +4,6 @@ Twin sessions are recorded once into the cache (tools.workbench.scenarios; analy
 frames) and reused. The calibration store and every output live in tmp_path."""
 import argparse
 import json
-import shutil
 
 import numpy as np
 import pytest
