@@ -103,6 +103,27 @@ def test_total_force_error_is_the_integrated_contact_force_difference():
     assert err[0].item() == pytest.approx(0.1, rel=1e-5) and err[1].item() == pytest.approx(0.0, abs=1e-6)
 
 
+def test_light_sample_weight_emphasises_light_contacts_only():
+    import torch
+
+    from runtime.fields import CHANNELS
+    from tools.train.model.train import FitConfig, light_sample_weight
+
+    bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit, zero at 0.5
+    area = np.full((8, 8), 0.25, np.float32)
+    span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
+    scale = torch.from_numpy(span[:, None, None] * area[None])
+    y0 = torch.full((1, 15, 1, 1), 0.5)
+    y = torch.full((5, 15, 8, 8), 0.5)
+    for i, f in enumerate((0.0, 0.01, 0.25, 1.0, 4.0)):       # total normal force per sample (N)
+        y[i, 11] -= f / (64 * 0.25)                            # fn_z spread over the 64 pixels
+    cfg = FitConfig(light_weight=0.5, light_ref_n=1.0, light_max=3.0, light_min_n=0.05)
+    w = light_sample_weight(y, y0, scale, cfg)
+    assert w.tolist() == pytest.approx([1.0, 1.0, 2.0, 1.0, 1.0], rel=1e-4)   # rest, noise, (1/0.25)^0.5, firm
+    cfg.light_weight = 2.0
+    assert light_sample_weight(y, y0, scale, cfg)[2].item() == pytest.approx(3.0)   # clipped at light_max
+
+
 def test_fit_fine_tunes_from_a_state_dict_with_the_force_term(tmp_path):
     import torch
 
@@ -117,7 +138,7 @@ def test_fit_fine_tunes_from_a_state_dict_with_the_force_term(tmp_path):
         fit(data, tmp_path / "nf", FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, force_weight=0.1))
     np.save(data / "pixel_area.npy", np.full((64, 64), 0.05, np.float32))
     tuned = FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, fg_weight=5.0, force_weight=0.1,
-                      lr=0.0, init_from=str(tmp_path / "base" / "best.pt"))
+                      light_weight=0.5, lr=0.0, init_from=str(tmp_path / "base" / "best.pt"))
     fit(data, tmp_path / "ft", tuned)                           # lr 0: the weights stay those loaded
     a = torch.load(tmp_path / "base" / "best.pt", weights_only=True)
     b = torch.load(tmp_path / "ft" / "best.pt", weights_only=True)

@@ -86,6 +86,7 @@ class BuildConfig:
     lr: float = 1e-3
     fg_weight: float = 20.0                       # foreground-weighted L1 (FitConfig.fg_weight)
     force_weight: float = 0.0                     # total-force loss term per N (FitConfig.force_weight)
+    light_weight: float = 0.0                     # light-contact sample weight exponent (FitConfig.light_weight)
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
@@ -122,12 +123,13 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe"], "correspondence": ["tables"], "simreal": [],
             "dataset": ["tables", "contact_stride", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
-            "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "init_from", "init_bounds"],
+            "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
+                    "init_bounds"],
             "export": ["name", "calibration_samples", "calibration_pick", "threshold_sessions"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
-    optional = {"force_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
+    optional = {"force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
                 "detach_force_n": 1.1, "threshold_sessions": 6, "calibration_pick": "first"}
     keys, acc = {}, {}
     for st in STAGES:
@@ -286,7 +288,7 @@ def config_from_args(args) -> BuildConfig:
     if args.config:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **read_recipe(args.config)})
     for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
-              "contact_stride", "force_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n",
+              "contact_stride", "force_weight", "light_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n",
               "calibration_samples", "calibration_pick"):
         v = getattr(args, k, None)
         if v is not None:
@@ -345,6 +347,8 @@ def register_build(ts) -> None:
         q.add_argument("--detach-force", dest="detach_force_n", type=float,
                        help="stage 1: contact ends below this |F| in N (default 0.37; seed 1.1)")
         q.add_argument("--force-weight", type=float, help="total-force loss term per N (default 0 = off)")
+        q.add_argument("--light-weight", type=float,
+                       help="light-contact emphasis: sample weight (1 N / |F|)^W, clipped to [1, 3] (default 0 = off)")
         q.add_argument("--init-from", help="fine-tune: start the fit from this state dict (a run's best.pt)")
         q.add_argument("--init-bounds", help="fine-tune: the output bounds --init-from was trained with (a bounds.json "
                                              "or a model package's manifest.json; default: the bounds.json beside it); "

@@ -53,6 +53,13 @@ class FitConfig:
     # (fn + fs, physical units via the bounds; the dataset's pixel_area.npy), i.e. the error of the force
     # the runtime integrates. 0 = off. Needs pixel_area.npy in the dataset directory.
     force_weight: float = 0.0
+    # Light-contact emphasis: a sample whose target contact force |F| (N, from the fields as the runtime
+    # integrates them) is at least light_min_n weighs clip((light_ref_n / |F|)^light_weight, 1, light_max),
+    # so a 0.3 N touch is not learnt as "rest" beside 5 N presses. 0 = off (every sample weighs 1).
+    light_weight: float = 0.0
+    light_ref_n: float = 1.0
+    light_max: float = 3.0
+    light_min_n: float = 0.05
     init_from: str = ""                  # fine-tune: start from this state dict (e.g. a shipped run's best.pt)
     # the output bounds `init_from` was trained with: a bounds.json or a model package's manifest.json;
     # default: the bounds.json a fit writes beside its best.pt. When they differ from this dataset's,
@@ -297,27 +304,29 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         model.encoder.load_state_dict(state, strict=True)
         log.info("encoder initialised from %s", encoder_init)
 
-    zero = None
-    if cfg.fg_weight > 0:
-        from runtime.fields import CHANNELS
+    from runtime.fields import CHANNELS
 
-        lo = np.array([bounds[c][0] for c in CHANNELS])
-        hi = np.array([bounds[c][1] for c in CHANNELS])
-        y0 = np.clip(-lo / np.where(hi > lo, hi - lo, 1.0), 0.0, 1.0)
-        zero = torch.tensor(y0, dtype=torch.float32).view(1, -1, 1, 1)
+    lo = np.array([bounds[c][0] for c in CHANNELS])
+    hi = np.array([bounds[c][1] for c in CHANNELS])
+    y_zero = torch.tensor(np.clip(-lo / np.where(hi > lo, hi - lo, 1.0), 0.0, 1.0),   # physical 0, normalized
+                          dtype=torch.float32).view(1, -1, 1, 1)
+    zero = y_zero if cfg.fg_weight > 0 else None
 
     force_scale = None
-    if cfg.force_weight > 0:
+    if cfg.force_weight > 0 or cfg.light_weight > 0:
         force_scale = _force_scale(data, bounds)
 
     def loss_fn(m, xb, yb):
         pred = m(xb)
-        if zero is None:
+        w = None if zero is None else 1.0 + cfg.fg_weight * (torch.abs(yb - zero) > cfg.fg_eps).float()
+        if cfg.light_weight > 0:
+            s = light_sample_weight(yb, y_zero, force_scale, cfg).view(-1, 1, 1, 1)
+            w = s.expand_as(yb) if w is None else w * s
+        if w is None:
             loss = torch.nn.functional.l1_loss(pred, yb)
         else:
-            w = 1.0 + cfg.fg_weight * (torch.abs(yb - zero) > cfg.fg_eps).float()
             loss = (w * torch.abs(pred - yb)).sum() / w.sum()
-        if force_scale is not None:
+        if cfg.force_weight > 0:
             loss = loss + cfg.force_weight * total_force_error(pred, yb, force_scale).mean()
         return loss
 
@@ -351,6 +360,17 @@ def _force_scale(data: Path, bounds: dict) -> torch.Tensor:
     area = np.load(path).astype(np.float32)
     span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
     return torch.from_numpy(span[:, None, None] * area[None])
+
+
+def light_sample_weight(target: torch.Tensor, y_zero: torch.Tensor, scale: torch.Tensor, cfg) -> torch.Tensor:
+    """(B,) per-sample loss weight of FitConfig.light_weight from normalized targets (B, 15, H, W):
+    |F| = the total contact force the runtime integrates (N); 1 below cfg.light_min_n (rest) and for
+    firm contacts, up to cfg.light_max for light ones."""
+    with torch.no_grad():
+        f = ((target[:, 9:15] - y_zero[:, 9:15]) * scale).sum(dim=(2, 3))
+        mag = torch.linalg.vector_norm(f[:, :3] + f[:, 3:], dim=1)
+        w = (cfg.light_ref_n / mag.clamp(min=1e-6)) ** cfg.light_weight
+        return torch.where(mag >= cfg.light_min_n, w.clamp(1.0, cfg.light_max), torch.ones_like(w))
 
 
 def total_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
