@@ -81,17 +81,22 @@ def test_compare_diagnose_add_compare_shows_the_error_falling(env, capsys):
     assert code == 0 and CalibrationStore(store).load(SENSOR).effects == []
 
 
+def diagnoses(env, capsys, *sessions) -> list[dict]:
+    """`diagnose --json` of each session, the model fitted on the calibration session first."""
+    (calib, _), store, tmp = env
+    common = ["--sensor", SENSOR, "--store", str(store)]
+    run(["compare", str(calib), *common, "--out", str(tmp / "c"), "--model-from", str(calib), "--no-pictures"], capsys)
+    return [json.loads(run(["diagnose", str(s), *common, "--json"], capsys)[1].strip().splitlines()[-1])
+            for s in sessions]
+
+
 def test_diagnosis_sees_measurements_only(env, capsys):
     """Same answer on a copy without truth/, provenance or effect list."""
     (calib, hidden), store, tmp = env
     blind = copy_without_truth(hidden, tmp / "blind")
     assert not (blind / "truth").exists()
     assert "strain_stiffening" not in (blind / "session.json").read_text()
-    common = ["--sensor", SENSOR, "--store", str(store), "--json"]
-    run(["compare", str(calib), "--sensor", SENSOR, "--store", str(store), "--out", str(tmp / "c"),
-         "--model-from", str(calib), "--no-pictures"], capsys)
-    a = json.loads(run(["diagnose", str(hidden), *common], capsys)[1].strip().splitlines()[-1])
-    b = json.loads(run(["diagnose", str(blind), *common], capsys)[1].strip().splitlines()[-1])
+    a, b = diagnoses(env, capsys, hidden, blind)
     assert a["verdict"] == b["verdict"] == "strain_stiffening"
     assert [r["effect"] for r in a["ranking"]] == [r["effect"] for r in b["ranking"]]
     assert np.allclose([r["reduction"] for r in a["ranking"]], [r["reduction"] for r in b["ranking"]])
@@ -102,11 +107,7 @@ def test_session_in_other_units_gives_the_same_diagnosis(env, capsys):
     (calib, hidden), store, tmp = env
     foreign = copy_without_truth(hidden, tmp / "foreign")
     rewrite_in_units(foreign, {"length": "m", "force": "mN", "torque": "N*m", "time": "ms", "temperature": "K"})
-    common = ["--sensor", SENSOR, "--store", str(store), "--json"]
-    run(["compare", str(calib), "--sensor", SENSOR, "--store", str(store), "--out", str(tmp / "c"),
-         "--model-from", str(calib), "--no-pictures"], capsys)
-    a = json.loads(run(["diagnose", str(hidden), *common], capsys)[1].strip().splitlines()[-1])
-    b = json.loads(run(["diagnose", str(foreign), *common], capsys)[1].strip().splitlines()[-1])
+    a, b = diagnoses(env, capsys, hidden, foreign)
     assert a["verdict"] == b["verdict"] == "strain_stiffening"
     assert [r["effect"] for r in a["ranking"]] == [r["effect"] for r in b["ranking"]]
     for ra, rb in zip(a["ranking"], b["ranking"]):
