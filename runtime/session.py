@@ -114,17 +114,25 @@ def read_table(path: Path, columns: list[str]) -> np.ndarray:
     return data
 
 
+def _column_maps(stream: str, units: dict) -> list[tuple[int, float, float]]:
+    """(column, scale, offset) of each column of `stream` whose unit in `units` is not the house one
+    (house = scale·v + offset)."""
+    out = []
+    for col, quantity in enumerate(COLUMN_QUANTITIES.get(stream, [])):
+        if quantity in units:
+            scale, offset = to_house(quantity, units[quantity])
+            if scale != 1.0 or offset != 0.0:
+                out.append((col, scale, offset))
+    return out
+
+
 def to_house_units(table: np.ndarray, stream: str, units: dict) -> np.ndarray:
     """A stream table read in the manifest's `units`, converted to the house units (a copy when any
     column changes)."""
-    out = table
-    for col, quantity in enumerate(COLUMN_QUANTITIES.get(stream, [])):
-        if quantity is None or quantity not in units:
-            continue
-        scale, offset = to_house(quantity, units[quantity])
-        if scale != 1.0 or offset != 0.0:
-            out = out.copy() if out is table else out
-            out[:, col] = out[:, col] * scale + offset
+    maps = _column_maps(stream, units)
+    out = table.copy() if maps else table
+    for col, scale, offset in maps:
+        out[:, col] = out[:, col] * scale + offset
     return out
 
 
@@ -293,10 +301,8 @@ def rewrite_in_units(path: str | Path, units: dict | None = None) -> Session:
         return session
     for name, info in session.streams.items():
         table = session.table(name).copy()             # house units
-        for col, quantity in enumerate(COLUMN_QUANTITIES.get(name, [])):
-            if quantity in target:
-                scale, offset = to_house(quantity, target[quantity])
-                table[:, col] = (table[:, col] - offset) / scale
+        for col, scale, offset in _column_maps(name, target):
+            table[:, col] = (table[:, col] - offset) / scale
         write_table(session.path / info.get("file", STREAM_FILES[name]), STREAM_COLUMNS[name], table)
     write_manifest(session.path, dict(session.manifest, units=target))
     return load_session(session.path, check_frames=False)

@@ -204,8 +204,7 @@ def convert(bag: str | Path, mapping: TopicMap, out: str | Path) -> Path:
         raise SessionError(f"{bag}: bag not found")
     topics = mapping.topics()
     it = iter_mcap(bag, set(topics)) if bag.suffix == ".mcap" else iter_rosbag(bag, set(topics))
-    L, TQ, (TS, T0) = (to_house(k, mapping.units.get(k, d)) for k, d in BAG_UNITS.items())
-    L, TQ = L[0], TQ[0]
+    (L, _), (TQ, _), (TS, T0) = (to_house(k, mapping.units.get(k, d)) for k, d in BAG_UNITS.items())
     rows: dict = {"poses": [], "wrench": [], "temperature": [], "base": [], "frames": []}
     writer = SessionWriter(out, mapping.sensor_id, mapping.frames_format)
     seen = set()
