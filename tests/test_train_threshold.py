@@ -7,7 +7,7 @@ import pytest
 
 from runtime.contacts import ContactConfig
 from runtime.pipeline import PipelineConfig
-from tools.train.threshold import ThresholdConfig, _has_core, choose, record
+from tools.train.threshold import ThresholdConfig, _has_core, choose, record, rest_frames
 
 
 def sweep(rest_fp, hit, n_rest=100, n_contact=50, name="S"):
@@ -34,6 +34,24 @@ def test_choose_takes_the_lowest_clean_grid_value_over_all_sessions():
     assert m["detected_at_n"] == 0.0025 and m["contact_detected_fraction"] == pytest.approx(70 / 100)
     dirty = choose([sweep([3, 2, 1, 1], [1, 1, 1, 1])], cfg)
     assert dirty["contact_threshold_n"] is None and dirty["measured"]["rest_frames_with_core"] == [3, 2, 1, 1]
+
+
+def test_release_and_approach_frames_are_not_rest_but_ft_noise_is():
+    """A frame read below rest_n just after a release still holds a real touch; an F/T noise spike
+    between rest_n and rest_touch_n drops only itself."""
+    cfg = ThresholdConfig()                                  # rest 0.05 N, touch 0.1 N, guard 0.1 s
+    t = np.arange(60) / 30.0
+    f = np.full(60, 0.03)
+    f[20:30] = 1.0                                           # a poke
+    f[30] = 0.034                                            # the release frame (TWIN-T66's case)
+    f[45] = 0.07                                             # a noise spike at rest
+    rest = rest_frames(t, f, cfg)
+    assert not rest[30] and not rest[17] and not rest[32]    # within 0.1 s of the poke
+    assert rest[16] and rest[33] and rest[44] and rest[46] and not rest[45]
+    assert not rest[20:30].any() and rest[:16].all() and rest[50:].all()
+    assert rest_frames(t, np.full(60, 0.03), cfg).all()      # never touched: all at rest
+    loose = ThresholdConfig(rest_guard_s=0.0)
+    assert rest_frames(t, f, loose)[30]                      # without the guard: the old rule
 
 
 def test_the_runtime_takes_the_threshold_from_the_manifest(tmp_path):
