@@ -132,3 +132,14 @@ def test_the_threshold_pass_measures_merging_always_and_the_support_only_on_requ
     assert plain["measured"]["merge_phantom_frames"][0] == 1
     asked = choose([sweep], ThresholdConfig(grid=(0.0015, 0.0015), measure_support=True))
     assert asked["contact_support_radius_px"] > 10.0 and "support_error_n" in asked["measured"]
+    fixed = choose([sweep], ThresholdConfig(grid=(0.0015, 0.0015), support_px=20.0))
+    assert (fixed["contact_support_radius_px"], fixed["contact_support_floor_n"]) == (20.0, 0.0)
+    assert "20 px" in fixed["measured"]["support_rule"] and fixed["contact_merge_n"] == plain["contact_merge_n"]
+
+
+def test_a_build_fixes_the_support_in_the_export_key_only_when_set():
+    from tools.train.build import BuildConfig, stage_keys
+
+    base, fixed = BuildConfig(), BuildConfig(support_px=20.0)
+    assert stage_keys(base)["fit"] == stage_keys(fixed)["fit"]          # the weights are the same ...
+    assert stage_keys(base)["export"] != stage_keys(fixed)["export"]    # ... the package is not

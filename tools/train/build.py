@@ -93,6 +93,7 @@ class BuildConfig:
     calibration_samples: int = 128                # int8 calibration inputs (ExportConfig)
     calibration_pick: str = "spread"              # spread over the train split | "first" (ExportConfig)
     threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
+    support_px: float = 0.0                       # a fixed cluster support radius (px, floor 0); 0 = the runtime default
     latency_runs: int = 50
     eval_contact_n: float = 1.5                   # stage 8: measured |F| above this = contact (seed §III.C)
     eval_demo: bool = True                        # also evaluate on runtime/demo (held out: own unit/plan)
@@ -125,12 +126,12 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
                     "init_bounds"],
-            "export": ["name", "calibration_samples", "calibration_pick", "threshold_sessions"],
+            "export": ["name", "calibration_samples", "calibration_pick", "threshold_sessions", "support_px"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
     optional = {"force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
-                "detach_force_n": 1.1, "threshold_sessions": 6, "calibration_pick": "first"}
+                "detach_force_n": 1.1, "threshold_sessions": 6, "calibration_pick": "first", "support_px": 0.0}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:
@@ -289,7 +290,7 @@ def config_from_args(args) -> BuildConfig:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **read_recipe(args.config)})
     for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
               "contact_stride", "force_weight", "light_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n",
-              "calibration_samples", "calibration_pick"):
+              "calibration_samples", "calibration_pick", "support_px"):
         v = getattr(args, k, None)
         if v is not None:
             setattr(cfg, k, v)
@@ -358,6 +359,9 @@ def register_build(ts) -> None:
         q.add_argument("--calibration-pick", choices=("spread", "first"),
                        help="int8 calibration inputs spread over the train split (default) or its first ones "
                             "(packages exported before session 10)")
+        q.add_argument("--support-px", type=float,
+                       help="export: a fixed cluster support radius in px (floor 0 N) in the package's manifest "
+                            "(default: the runtime's 10 px)")
         q.add_argument("--arch", choices=("hiera_qup", "unet", "vit"))
         q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets: gpr = stage 3 GPR from detected pokes (default); truth = the twin's true tables")
         q.add_argument("--fe", choices=("resolve", "twin"),

@@ -326,12 +326,13 @@ def stage_export(b) -> dict:
 def package_threshold(b, package_dir: Path) -> dict:
     """The package's contact threshold from up to `threshold_sessions` training sessions spread over
     the list (tools/train/threshold.py), recorded in its manifest."""
-    from tools.train.threshold import measure
+    from tools.train.threshold import ThresholdConfig, measure
 
     specs = list(b.cfg.train)
     k = max(1, min(len(specs), b.cfg.threshold_sessions))
     pick = [specs[int(i)] for i in np.unique(np.linspace(0, len(specs) - 1, k).round().astype(int))]
-    return measure(package_dir, [(b.session(s), unit_calibration(b, s.serial)) for s in pick])
+    return measure(package_dir, [(b.session(s), unit_calibration(b, s.serial)) for s in pick],
+                   ThresholdConfig(support_px=b.cfg.support_px or None))
 
 
 def update_manifest(folder: Path, change) -> None:

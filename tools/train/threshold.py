@@ -64,6 +64,9 @@ class ThresholdConfig:
     # moved the recalibration's nominal-crop errors, so its 60 % cut held on 3 of 6 units instead of 5
     # (docs/BENCHMARKS.md "Contact support and merging"); merging is always measured
     measure_support: bool = False
+    # or a fixed cluster reach (px; floor 0 N), chosen by the build (BuildConfig.support_px, `--support-px`):
+    # 20 px recovers a sliding contact's shear haze (docs/BENCHMARKS.md "Weights read back ...", session 11)
+    support_px: float | None = None
 
 
 def _has_core(mag: np.ndarray, t: float, min_pixels: int) -> bool:
@@ -195,6 +198,9 @@ def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
     cc = contact_config(chosen)                 # the runtime's reading of these keys, as it will apply them
     merge = choose_merge(samples, cals, two, two_cals, cc, cfg.support)
     chosen["measured"].update(merge.pop("measured"))
+    if cfg.support_px:
+        chosen["measured"]["support_rule"] = f"fixed by the build: {cfg.support_px:g} px, floor 0 N"
+        return dict({"contact_support_radius_px": float(cfg.support_px), "contact_support_floor_n": 0.0}, **merge)
     if not cfg.measure_support:
         return dict({"contact_support_radius_px": None, "contact_support_floor_n": None}, **merge)
     cc = replace(cc, merge_n=merge["contact_merge_n"] or 0.0)
@@ -315,6 +321,7 @@ def main(argv=None) -> int:
     ap.add_argument("--write", action="store_true", help="record the result in the package's manifest")
     ap.add_argument("--support", action="store_true",
                     help="also measure a farther cluster support (off by default: docs/model_package.md 'Support')")
+    ap.add_argument("--support-px", type=float, help="a fixed cluster support radius (px, floor 0 N) instead")
     ap.add_argument("--check", action="store_true",
                     help="measure nothing: report the package's own detection on these (e.g. held-out) sessions")
     args = ap.parse_args(argv)
@@ -329,7 +336,7 @@ def main(argv=None) -> int:
         print(json.dumps(check(args.package, pairs), indent=1))
         return 0
     cmd = "python -m tools.train.threshold " + " ".join(sys.argv[1:] if argv is None else argv)
-    cfg = ThresholdConfig(measure_support=args.support)
+    cfg = ThresholdConfig(measure_support=args.support, support_px=args.support_px)
     print(json.dumps(measure(args.package, pairs, cfg, write=args.write, command=cmd), indent=1))
     return 0
 
