@@ -244,3 +244,24 @@ def test_minp_correction_knows_correlated_candidates_and_keeps_the_family_error(
         ds = [shared[k] + 0.5 * rng.normal(0, 1, 10) for _ in range(6)]
         hits += min(minp_adjusted(ds, [ids] * 6, 10, cfg)) <= 0.05
     assert hits / 400 <= 0.08
+
+
+def test_pairs_the_blocks_cannot_tell_apart_go_by_evidence():
+    """A pair ahead by reduction but not block by block yields to a pair with a lower corrected p;
+    a pair ahead in every block keeps its place."""
+    from tools.workbench.diagnose import _stronger_pair_first
+    from tools.workbench.pairs import PairScore
+
+    def pair(name, after, p, blocks):
+        return PairScore((name, "viscoelastic_relaxation"), ({}, {}), 0.47, after, p, (0.6, 0.6), p_adjusted=p,
+                         significant=True, block_before=[0.47] * len(blocks), block_after=list(blocks))
+
+    cfg = DiagnoseConfig()
+    noisy = pair("temperature_softening", 0.223, 0.018, [0.10, 0.35, 0.12, 0.30, 0.15, 0.28, 0.11, 0.30])
+    clean = pair("rim_stiffening", 0.237, 0.0006, [0.24, 0.23, 0.24, 0.23, 0.24, 0.24, 0.23, 0.24])
+    weak = pair("strain_stiffening", 0.30, 0.2, [0.3] * 8)
+    weak.significant = False
+    assert _stronger_pair_first([noisy, clean, weak], cfg)[0] is clean
+    better = pair("temperature_softening", 0.10, 0.018, [0.10] * 8)
+    assert _stronger_pair_first([better, clean], cfg)[0] is better
+    assert _stronger_pair_first([noisy, weak], cfg)[0] is noisy

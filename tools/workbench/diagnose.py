@@ -376,11 +376,27 @@ def _pair_stage(scores: list, ch: Channels, blocks: np.ndarray, cfg: DiagnoseCon
     pairs.sort(key=lambda pr: (not pr.significant, -pr.reduction))
     if not pairs or not pairs[0].significant:
         return scores, pairs
+    pairs = _stronger_pair_first(pairs, cfg)
     pr = pairs[0]
     lead = single[pr.names[pr.lead]]
     first = EffectScore(lead.effect, "force", dict(pr.params[pr.lead]), pr.before, pr.member_after[pr.lead],
                         lead.p_value, pr.p_adjusted, True, baseline=lead.baseline, pair=pr)
     return [first] + [s for s in scores if s is not lead], pairs
+
+
+def _stronger_pair_first(pairs: list, cfg: DiagnoseConfig) -> list:
+    """Pairs sorted by reduction: when the per-block held-out errors cannot say (sign flip, p > alpha)
+    the first beats a later significant pair, the lower corrected p goes first (docs/workbench.md,
+    session 16: temperature + relaxation 52 %, p 0.018, led rim + relaxation 50 %, p 0.0006)."""
+    first = pairs[0]
+    for other in pairs[1:]:
+        if not other.significant or other.p_adjusted >= first.p_adjusted:
+            continue
+        if len(other.block_after) != len(first.block_after) or len(first.block_after) < 2:
+            continue
+        if sign_flip_pvalue(np.asarray(other.block_after) - np.asarray(first.block_after), cfg) > cfg.alpha:
+            first = other
+    return [first] + [pr for pr in pairs if pr is not first]
 
 
 def add_to_chain(chain: EffectChain, score: EffectScore) -> EffectChain:
