@@ -45,15 +45,12 @@ def test_null_sessions_no_significant_effect_in_9_of_10(bench):
     assert sum(v is None for v in verdicts.values()) >= 9, {s: v.effect.name for s, v in verdicts.items() if v}
 
 
-MEASURED = "measured 2026-11-22 ~19:19 with the shipped model v6, the light-touch rule and contact merging (docs/workbench.md): "
-FRICTION_TRUTH = ("the twin's friction also shrinks the rendered in-plane displacement, so the network sees most "
-                  "of it; ranked behind led_drift, not significant")
+MEASURED = "measured 2026-11-23 ~17:30 with the shipped model s16 (docs/workbench.md, session 16): "
+FRICTION_TRUTH = ("the twin's friction also shrinks the rendered in-plane displacement, so the network sees it; "
+                  "ranked behind led_drift, not significant (26 %): for an image model nothing is missing")
 NOT_FIRST = {"truth-friction_mismatch": MEASURED + FRICTION_TRUTH}
-# >= 50 % measured on every other case (relaxation 56 % altered and in truth since contact is unilateral)
-NOT_HALVED = {"truth-viscoelastic_relaxation-weak": "effect size 1.2 x the network's floor (0.194 N): 41 %",
-              "altered-friction_mismatch": "effect size 1.1 x the network's floor (0.194 N), and the network "
-                                           "under-predicts shear above 0.4 N in slides: 28 %",
-              "truth-friction_mismatch": FRICTION_TRUTH}
+# >= 50 % measured on every other case (altered friction 54 %, weak relaxation in truth 57 %)
+NOT_HALVED = {"truth-friction_mismatch": FRICTION_TRUTH}
 
 
 def _id(case):
@@ -92,8 +89,6 @@ def test_two_hidden_effects_in_the_twin_truth_found_one_after_the_other(bench):
     assert res["steps"][-1]["verdict"] is None
 
 
-@pytest.mark.xfail(reason=MEASURED + "no significant effect on the first diagnose (relaxation g1 = 0.3 with rim "
-                          "a = 2: each about the network's floor)")
 def test_two_weak_hidden_effects_in_the_twin_truth_found_one_after_the_other(bench):
     res = acc.two_effects(bench, truth_effects=acc.TWO_WEAK)
     assert sorted(res["found"]) == sorted(res["truth"]), res
