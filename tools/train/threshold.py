@@ -4,9 +4,10 @@ The runtime's cluster core threshold (per-pixel |f| in N, runtime/contacts.py) d
 network: how much force it paints on an untouched gel (false contacts) and how thin it spreads a
 light touch. So every package carries its own, measured after export on training sessions through
 the runtime (int8, the unit's calibration): the lowest value of a grid at which no rest frame
-(every indenter's measured |F| below `rest_n`, and no touch just before or after) has a cluster core, times a margin of 4/3. The runtime takes
-it from `manifest.runtime.contact_threshold_n` (PipelineConfig.for_package); packages without it (or
-with null: no grid value was clean, e.g. a minutes-long smoke model) use the ContactConfig default.
+(every indenter's measured |F| below `rest_n`, and no touch just before or after: `rest_frames`) has a
+cluster core, times a margin of 4/3. The runtime takes it from `manifest.runtime.contact_threshold_n`
+(PipelineConfig.for_package); packages without it (or with null: no grid value was clean, e.g. a
+minutes-long smoke model) use the ContactConfig default.
 
 Light touches spread thinner than that threshold. The light-touch rule (ContactConfig.weak_threshold_n /
 min_total_n) is measured in the same pass: per weak threshold w of `weak_grid`, min_total_n(w) = the
