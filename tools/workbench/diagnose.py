@@ -348,10 +348,8 @@ def _runner_up(scores: list, cfg: DiagnoseConfig) -> dict | None:
         return None
     a = sig[0]
     b = next((s for s in sig[1:] if s.channel == a.channel and len(s.block_after) == len(a.block_after)), None)
-    if b is None or len(a.block_after) < 2:
-        return None
-    p = sign_flip_pvalue(np.asarray(b.block_after) - np.asarray(a.block_after), cfg)
-    if p <= cfg.alpha:
+    p = _p_better(a, b, cfg) if b is not None else None
+    if p is None or p <= cfg.alpha:
         return None
     return {"effect": b.effect.name, "reduction": float(b.reduction), "params": {k: float(v) for k, v in b.params.items()},
             "p_vs_verdict": float(p)}
@@ -390,13 +388,19 @@ def _stronger_pair_first(pairs: list, cfg: DiagnoseConfig) -> list:
     session 16: temperature + relaxation 52 %, p 0.018, led rim + relaxation 50 %, p 0.0006)."""
     first = pairs[0]
     for other in pairs[1:]:
-        if not other.significant or other.p_adjusted >= first.p_adjusted:
-            continue
-        if len(other.block_after) != len(first.block_after) or len(first.block_after) < 2:
-            continue
-        if sign_flip_pvalue(np.asarray(other.block_after) - np.asarray(first.block_after), cfg) > cfg.alpha:
-            first = other
+        if other.significant and other.p_adjusted < first.p_adjusted:
+            p = _p_better(first, other, cfg)
+            if p is not None and p > cfg.alpha:
+                first = other
     return [first] + [pr for pr in pairs if pr is not first]
+
+
+def _p_better(a, b, cfg: DiagnoseConfig) -> float | None:
+    """One-sided sign-flip p that `a`'s per-block held-out errors are below `b`'s (None: the blocks
+    differ in number or are fewer than 2)."""
+    if len(a.block_after) != len(b.block_after) or len(a.block_after) < 2:
+        return None
+    return sign_flip_pvalue(np.asarray(b.block_after) - np.asarray(a.block_after), cfg)
 
 
 def add_to_chain(chain: EffectChain, score: EffectScore) -> EffectChain:
