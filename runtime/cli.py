@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shlex
 import sys
 from importlib import metadata
+
+from runtime.errors import TensorTouchError
 
 log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "tensortouch.commands"
-
-
-from runtime.errors import TensorTouchError
 
 
 class CommandError(TensorTouchError):
@@ -53,7 +53,9 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
 
 def main(argv: list[str] | None = None) -> int:
     parser, problems = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.command_line = shlex.join(["tensortouch", *argv])    # what a manifest records as "the command"
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):

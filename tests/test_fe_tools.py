@@ -143,9 +143,9 @@ def test_cli_solve_list_and_inp(tmp_path, capsys):
     for key in ("*ELEMENT, TYPE=C3D4H", "*HYPERELASTIC, YEOH", "*FRICTION\n2.2", "*RIGID BODY",
                 "KEYPOINT_1", "GEL-1.BASE, ENCASTRE", "CNORMF"):
         assert key in deck
-    from tools.fe.cli import main
+    from runtime.cli import main
 
-    assert main(["solve", str(tmp_path / "missing.json"), "--out", str(tmp_path / "x.npz")]) == 2
+    assert main(["fe", "solve", str(tmp_path / "missing.json"), "--out", str(tmp_path / "x.npz")]) == 2
     assert "scenario file not found" in capsys.readouterr().err
 
 

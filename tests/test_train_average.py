@@ -8,7 +8,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from tests.test_train_export import package  # noqa: E402,F401  (the tiny run and its dataset)
-from tools.train.average import average_run, average_states, main  # noqa: E402
+from runtime.cli import main  # noqa: E402
+from tools.train.average import average_run, average_states  # noqa: E402
 from tools.train.model.data import DatasetError  # noqa: E402
 
 
@@ -42,12 +43,12 @@ def test_averaged_run_sits_between_the_two_and_exports(package, tmp_path):
     k = next(k for k, v in tuned.items() if torch.is_floating_point(v))
     assert torch.allclose(got[k], tuned[k] + 0.25) and not cfg["heads_rescaled"]
     assert json.loads((tmp_path / "avg" / "config.json").read_text())["weight"] == 0.75
-    assert main(["--tuned", str(run), "--base", str(base_dir / "best.pt"), "--weight", "1.0", "--out",
+    assert main(["train", "average", "--tuned", str(run), "--base", str(base_dir / "best.pt"), "--weight", "1.0", "--out",
                  str(tmp_path / "same"), "--export", str(data), "--name", "tiny", "--models-dir", str(tmp_path / "m")]) == 0
     same = _load(tmp_path / "same" / "best.pt")
     assert all(torch.equal(same[k], tuned[k]) for k in tuned)
     man = json.loads((tmp_path / "m" / "tiny" / "manifest.json").read_text())
-    assert "tools.train.average" in json.dumps(man)
+    assert "tensortouch train average" in json.dumps(man)
 
 
 def test_a_missing_run_or_state_is_a_clear_error(package, tmp_path):

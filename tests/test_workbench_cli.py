@@ -10,7 +10,7 @@ import pytest
 
 from runtime.calibration import CalibrationStore
 from runtime.session import rewrite_in_units
-from tests.workbench_alter import copy_without_truth
+from tools.accept.alter import copy_without_truth
 from tools.workbench import cli
 from tools.workbench.scenarios import Scenario, fresh_store, record
 

@@ -1,6 +1,6 @@
 """Issue 6 acceptance with the deployed network as the model (slow: FE twin sessions with 30 fps
 frames are recorded on first use, ~2-10 min each on this machine, then cached; the network pass per
-session and model is cached too). The harness is tests/workbench_acceptance.py (the same code makes
+session and model is cached too). The harness is tools/accept/workbench.py (`tensortouch accept workbench`) (the same code makes
 the table in docs/workbench.md).
 
 Model = a model package over the session's frames through the runtime's SensorPipeline, plus the
@@ -14,9 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.effects import EffectChain, Registry
 from runtime.errors import ModelPackageError
-from tests import workbench_acceptance as acc
+from tools.accept import workbench as acc
 
 pytestmark = pytest.mark.slow
 

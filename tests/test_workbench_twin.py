@@ -1,7 +1,7 @@
 """Acceptance of issue 6 on twin sessions (slow: records ~20 sessions on first run, cached after).
 
 Model = nominal contact law fitted on a calibration session (no hidden effect); each test session
-has effects switched on in the twin's truth (or measurements altered by tests/workbench_alter.py,
+has effects switched on in the twin's truth (or measurements altered by tools/accept/alter.py,
 an independent script). Diagnosis reads sample tables built from measured streams only.
 """
 from pathlib import Path
@@ -10,7 +10,7 @@ import pytest
 
 from runtime.calibration import CalibrationStore
 from runtime.effects import EffectChain, Registry
-from tests.workbench_alter import alter_session
+from tools.accept.alter import alter_session
 from tools.workbench.compare import load_table
 from tools.workbench.diagnose import add_to_chain, diagnose
 from tools.workbench.models import ContactLaw

@@ -18,6 +18,7 @@ AREAS = {
     "twin": ("tools.twin.bench", "digital twin: seconds of recording per minute of compute"),
     "workbench": ("tools.workbench.bench", "compare → diagnose → add → compare"),
     "recalib": ("tools.recalib.twin_bench", "field recalibration on twin units: held-out |F| error before/after"),
+    "recalib-synthetic": ("tools.recalib.bench", "field recalibration on synthetic force fields (no network)"),
 }
 
 

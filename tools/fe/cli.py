@@ -5,7 +5,6 @@ Heavy libraries are imported inside the handlers.
 """
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
 from pathlib import Path
@@ -125,21 +124,3 @@ def register(sub) -> None:
     p.add_argument("--out", required=True)
     p.set_defaults(func=_cmd_inp)
 
-
-def main(argv=None) -> int:
-    from runtime.errors import TensorTouchError
-
-    parser = argparse.ArgumentParser(prog="python -m tools.fe.cli")
-    sub = parser.add_subparsers(dest="command")
-    register(sub)
-    args = parser.parse_args(["fe", *(argv if argv is not None else sys.argv[1:])])
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except TensorTouchError as exc:
-        print(f"fe: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Recalibration benchmark: held-out force error before/after 5–7 pokes, per unit.
 
-    python -m tools.recalib.bench [--repeats 10] [--seed 0] [--json OUT]
+    tensortouch bench recalib-synthetic [--repeats 10] [--seed 0] [--json OUT]
 
 SYNTHETIC units (tools.recalib.synthetic): a known true force field vs a shipped model with a
 position- and magnitude-dependent bias (gel stiffer/softer, shifted centre). Each session: the
@@ -52,7 +52,7 @@ def one_session(unit: SyntheticUnit, n: int, rng: np.random.Generator, cfg: FitC
             "held_before": before, "held_after": after, "reduction": 1 - after / before}
 
 
-def run(units: dict, pokes=(5, 6, 7), repeats: int = 10, seed: int = 0, progress=None) -> list[dict]:
+def run_units(units: dict, pokes=(5, 6, 7), repeats: int = 10, seed: int = 0, progress=None) -> list[dict]:
     rows = []
     total = len(units) * len(pokes)
     for k, (name, unit) in enumerate(units.items()):
@@ -83,19 +83,20 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m tools.recalib.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=0)
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--repeats", type=int, default=10, help="recalibration sessions per unit")
+    ap.add_argument("--seed", type=int, default=0, help="random seed")
     ap.add_argument("--random-units", type=int, default=6, help="also N units of random manufacturing variation")
-    ap.add_argument("--json")
-    a = ap.parse_args(argv)
+    ap.add_argument("--json", help="write all rows here")
+
+
+def run(a: argparse.Namespace) -> int:
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     t0 = time.time()
-    rows = run(ACCEPTANCE_UNITS, repeats=a.repeats, seed=a.seed, progress=say)
+    rows = run_units(ACCEPTANCE_UNITS, repeats=a.repeats, seed=a.seed, progress=say)
     rnd = {f"random #{i} (s={u.stiffness_ratio:.2f}, r={u.radial_bias:.2f})": u
            for i, u in enumerate(random_units(np.random.default_rng(a.seed + 1000), a.random_units))}
-    rows_rnd = run(rnd, repeats=a.repeats, seed=a.seed + 1, progress=say)
+    rows_rnd = run_units(rnd, repeats=a.repeats, seed=a.seed + 1, progress=say)
     print("### Acceptance-style units (stiffness ±10–25 %, centre shifted)\n")
     print(markdown(rows))
     print("\n### Random manufacturing variation (stiffness 0.8–1.3, shift ≤ 0.08, radial bias 0–0.4)\n")
@@ -106,6 +107,3 @@ def main(argv=None) -> int:
             json.dump({"acceptance": rows, "random": rows_rnd, "seed": a.seed, "repeats": a.repeats}, fh, indent=2)
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

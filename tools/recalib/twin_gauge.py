@@ -1,6 +1,6 @@
 """Twin force gauge on a serial port: plays a recording's force stream as `tt` protocol lines.
 
-    python -m tools.recalib.twin_gauge SESSION_DIR --port /dev/pts/5 [--speed 1] [--rate 50]
+    tensortouch twin gauge SESSION_DIR --port /dev/pts/5 [--speed 1] [--rate 50]
 
 Lets the serial path of `tensortouch recalibrate --gauge serial:...` run against twin (or any
 recorded) force truth: each line is `format_tt(|F|)` of the strongest indenter at that time, sent
@@ -43,17 +43,18 @@ def play(lines, write, speed: float = 1.0, sleep=time.sleep, clock=time.monotoni
     return len(lines)
 
 
-def main(argv=None) -> int:
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("session", help="session folder whose force stream is played")
+    ap.add_argument("--port", required=True, help="pyserial URL to write to (e.g. a pty, socket://...)")
+    ap.add_argument("--speed", type=float, default=1.0, help="playback speed (1 = the recording's clock)")
+    ap.add_argument("--rate", type=float, default=50.0, help="gauge lines per second")
+
+
+def run(a: argparse.Namespace) -> int:
     import serial
 
     from runtime.session import load_session
 
-    ap = argparse.ArgumentParser(prog="python -m tools.recalib.twin_gauge", description=__doc__.splitlines()[0])
-    ap.add_argument("session")
-    ap.add_argument("--port", required=True, help="pyserial URL to write to (e.g. a pty, socket://...)")
-    ap.add_argument("--speed", type=float, default=1.0)
-    ap.add_argument("--rate", type=float, default=50.0)
-    a = ap.parse_args(argv)
     w = load_session(a.session).table("wrench")
     lines = gauge_lines(w[:, 0], w[:, 1], w[:, 2:5], a.rate)
     with serial.serial_for_url(a.port, baudrate=115200) as port:
@@ -61,6 +62,3 @@ def main(argv=None) -> int:
     print(f"{n} gauge lines sent to {a.port}", file=sys.stderr)
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import logging
-import sys
 
 log = logging.getLogger(__name__)
 
@@ -40,18 +39,3 @@ def register(sub) -> None:
     c.add_argument("session")
     c.set_defaults(func=_check)
 
-
-if __name__ == "__main__":
-    import argparse
-
-    from runtime.errors import TensorTouchError
-
-    parser = argparse.ArgumentParser(prog="tensortouch")
-    register(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["session", *sys.argv[1:]])
-    logging.basicConfig(level=logging.INFO)
-    try:
-        sys.exit(int(args.func(args) or 0))
-    except TensorTouchError as exc:
-        print(f"tensortouch session: {exc}", file=sys.stderr)
-        sys.exit(2)

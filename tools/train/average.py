@@ -20,7 +20,6 @@ import argparse
 import json
 import logging
 import shutil
-import sys
 from pathlib import Path
 
 from runtime.calibration import sha256_file
@@ -97,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--models-dir", help="package root (with --export; default exported_models/)")
 
 
-def run(args, argv: list[str]) -> int:
+def run(args: argparse.Namespace) -> int:
     from runtime.paths import models_dir
     from tools.train.export import ExportConfig, export_run
 
@@ -105,20 +104,9 @@ def run(args, argv: list[str]) -> int:
                 Path(args.base_bounds) if args.base_bounds else None)
     if args.export:
         root = Path(args.models_dir) if args.models_dir else models_dir()
-        cmd = " ".join(["python -m tools.train.average"] + argv)
+        cmd = args.command_line
         man = export_run(Path(args.out), Path(args.export), args.name, root, cmd, ExportConfig())
         m = man["metrics"]
         print(f"exported {root / args.name}: PSNR fp32 {m['fp32']['psnr']:.2f} dB, int8 {m['int8']['psnr']:.2f} dB")
     return 0
 
-
-def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    p = argparse.ArgumentParser(prog="python -m tools.train.average", description=__doc__.splitlines()[0])
-    add_arguments(p)
-    argv = sys.argv[1:] if argv is None else list(argv)
-    return run(p.parse_args(argv), argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -14,7 +14,6 @@ import hashlib
 import json
 import logging
 import os
-import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -303,21 +302,12 @@ def config_from_args(args) -> BuildConfig:
     return cfg
 
 
-def _command(argv: list[str] | None) -> str:
-    import shlex
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] != ["train"]:
-        argv = ["train", *argv]
-    return shlex.join(["tensortouch", *argv])
-
-
 def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force: list[str] | None = None) -> int:
     cfg = config_from_args(args)
     stages = only or args.stages
     if upto:
         stages = list(STAGES[:STAGES.index(upto) + 1])
-    b = run_build(cfg, stages, Path(args.root) if args.root else None, _command(None),
+    b = run_build(cfg, stages, Path(args.root) if args.root else None, args.command_line,
                   force=list(args.force or []) + list(force or []))
     ex = b.read_stamp("export")
     if ex and (not stages or "export" in stages):
@@ -383,16 +373,3 @@ def register_build(ts) -> None:
     common(e)
     e.set_defaults(func=lambda args: cmd_all(args, only=["evaluate"], force=["evaluate"]), stages=None)
 
-
-def main(argv=None) -> int:
-    import argparse
-
-    ap = argparse.ArgumentParser(prog="python -m tools.train.build")
-    register_build(ap.add_subparsers(dest="cmd", required=True))
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return int(args.func(args) or 0)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -11,15 +11,25 @@ Heavy libraries (torch, onnx) are imported inside the handlers.
 """
 from __future__ import annotations
 
-import argparse
+import importlib
 import json
 import logging
 import shlex
-import sys
 import time
 from pathlib import Path
 
 log = logging.getLogger(__name__)
+
+# Tools on built packages and builds: each module exposes add_arguments(parser) and run(args).
+TOOLS = (
+    ("threshold", "tools.train.threshold",
+     "measure a package's contact thresholds, light-touch rule and merging on sessions (--write), or --check them"),
+    ("crosseval", "tools.train.crosseval",
+     "several packages side by side on held-out sessions through the runtime: detection, |F| MAE, phantoms"),
+    ("average", "tools.train.average", "weight-space average of a fine-tune and its start (optionally exported)"),
+    ("resolve-check", "tools.train.resolve_check",
+     "twin-only check of stage 2: FE re-solved from measured keypoints against the twin's own solves"),
+)
 
 
 def _atomic_json(obj, path: Path) -> None:
@@ -190,15 +200,13 @@ def register(sub) -> None:
     b.add_argument("--out", help="also write the JSON here")
     b.set_defaults(func=cmd_bench)
     __import__("tools.train.build", fromlist=["register_build"]).register_build(ts)  # all, dataset, evaluate
+    for name, module, helptext in TOOLS:
+        mod = importlib.import_module(module)
+        q = ts.add_parser(name, help=helptext, description=helptext)
+        mod.add_arguments(q)
+        q.set_defaults(func=mod.run)
+    q = ts.add_parser("budget", help="error budget of a build: label and network error per stage, held out")
+    evaluate = importlib.import_module("tools.train.evaluate")
+    evaluate.add_budget_arguments(q)
+    q.set_defaults(func=evaluate.run_budget_command)
 
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.train.cli")
-    register(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    return int(args.func(args) or 0)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,7 +1,7 @@
 """Several model packages side by side on the same held-out sessions, through the runtime (stage 8's
 `evaluate_session`): e.g. the shipped package against a rebuild, on sessions of today's twin.
 
-    python -m tools.train.crosseval --package exported_models/hiera-qup-128 \\
+    tensortouch train crosseval --package exported_models/hiera-qup-128 \\
         --package cache/train/v2/models/hiera-qup-128 --build v2 \\
         --session cache/demo_v2/demo --store cache/demo_v2/store [--json OUT]
 
@@ -17,7 +17,20 @@ import json
 from pathlib import Path
 
 
-def main(argv=None) -> int:
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    from tools.train.evaluate import EvalConfig
+
+    ap.add_argument("--package", action="append", required=True, help="model package folder (repeat)")
+    ap.add_argument("--build", help="add this build's held-out sessions (<cache>/train/BUILD)")
+    ap.add_argument("--session", action="append", default=[], help="a session folder (repeat, with --store)")
+    ap.add_argument("--store", action="append", default=[], help="calibration store root for each --session")
+    ap.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network graph to run")
+    ap.add_argument("--contact-n", type=float, default=EvalConfig.contact_n,
+                    help="contacts at or above this measured |F| (N) are scored")
+    ap.add_argument("--json", help="write all summaries here")
+
+
+def run(args: argparse.Namespace) -> int:
     from runtime.calibration import CalibrationStore
     from runtime.errors import TensorTouchError
     from runtime.model import load_package
@@ -26,17 +39,8 @@ def main(argv=None) -> int:
     from tools.train.evaluate import EvalConfig, evaluate_session, summarize
     from tools.train.stages import unit_calibration
 
-    ap = argparse.ArgumentParser(prog="python -m tools.train.crosseval")
-    ap.add_argument("--package", action="append", required=True, help="model package folder (repeat)")
-    ap.add_argument("--build", help="add this build's held-out sessions (<cache>/train/BUILD)")
-    ap.add_argument("--session", action="append", default=[], help="a session folder (repeat, with --store)")
-    ap.add_argument("--store", action="append", default=[], help="calibration store root for each --session")
-    ap.add_argument("--precision", choices=("int8", "fp32"), default="int8")
-    ap.add_argument("--contact-n", type=float, default=EvalConfig.contact_n)
-    ap.add_argument("--json", help="write all summaries here")
-    args = ap.parse_args(argv)
     if len(args.store) != len(args.session):
-        ap.error("give one --store per --session")
+        raise TensorTouchError("crosseval: give one --store per --session")
     targets = []
     if args.build:
         b = Build(BuildConfig(build=args.build))
@@ -45,7 +49,7 @@ def main(argv=None) -> int:
         sensor = load_session(folder, check_frames=False).sensor_id
         targets.append((f"{Path(folder).name}:{sensor}", Path(folder), CalibrationStore(Path(store)).load(sensor)))
     if not targets:
-        ap.error("nothing to evaluate: give --build and/or --session/--store")
+        raise TensorTouchError("crosseval: nothing to evaluate: give --build and/or --session/--store")
     out = {}
     try:
         for pk in args.package:
@@ -62,6 +66,3 @@ def main(argv=None) -> int:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -325,24 +325,21 @@ def _predictor(run: str | None, package: str | None, precision: str = "int8", bo
     return None
 
 
-def main(argv=None) -> int:
-    """`python -m tools.train.evaluate budget …`: print (and save) the error budget of a build."""
-    import argparse
-
-    from tools.train.build import Build, BuildConfig
-
-    ap = argparse.ArgumentParser(prog="python -m tools.train.evaluate budget")
-    ap.add_argument("what", choices=["budget"])
-    ap.add_argument("--build", default="main")
+def add_budget_arguments(ap) -> None:
+    """`tensortouch train budget …`: the error budget of a build (label and network error per stage)."""
+    ap.add_argument("--build", default="main", help="build folder name under cache/train/")
     ap.add_argument("--fe", choices=("resolve", "twin"), help="label source of the build (BuildConfig.fe)")
     ap.add_argument("--run", help="torch fit run folder (best.pt) to score")
     ap.add_argument("--package", help="model package name or folder to score (ONNX, --precision)")
-    ap.add_argument("--precision", default="int8", choices=("int8", "fp32"))
+    ap.add_argument("--precision", default="int8", choices=("int8", "fp32"), help="network graph to run")
     ap.add_argument("--stride", type=int, default=1, help="every n-th contact frame of the held-out sessions")
-    ap.add_argument("--heldout-only", action="store_true")
+    ap.add_argument("--heldout-only", action="store_true", help="score only the held-out sessions")
     ap.add_argument("--out", help="JSON file for the tables (default <build>/eval/budget.json)")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+def run_budget_command(args) -> int:
+    from tools.train.build import Build, BuildConfig
+
     cfg = BuildConfig(build=args.build)
     if args.fe and hasattr(cfg, "fe"):
         cfg.fe = args.fe
@@ -356,8 +353,3 @@ def main(argv=None) -> int:
     print(json.dumps(res, indent=1))
     return 0
 
-
-if __name__ == "__main__":
-    import sys
-
-    sys.exit(main())

@@ -2,14 +2,13 @@
 the twin's own physics (its plan's FE solves, read from truth/ and the twin FE cache). Nothing in the
 build reads this module; it backs the numbers in docs/train.md.
 
-    python -m tools.train.resolve_check [--build resolve] [--sessions NAME ...] [--out FILE]
+    tensortouch train resolve-check [--build resolve] [--sessions NAME ...] [--out FILE]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import logging
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -119,17 +118,17 @@ def summarize(rows: list[dict], contact_n: float = 0.5) -> dict:
             "u_max_mm": {"median": float(np.median(um))} if um else None}
 
 
-def main(argv=None) -> int:
-    from tools.train.build import Build, BuildConfig
-
-    ap = argparse.ArgumentParser(prog="python -m tools.train.resolve_check")
-    ap.add_argument("--build", default="resolve")
-    ap.add_argument("--sessions", nargs="*")
-    ap.add_argument("--out")
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--build", default="resolve", help="build folder name under cache/train/")
+    ap.add_argument("--sessions", nargs="*", help="only these sessions (default: all with FE labels)")
+    ap.add_argument("--out", help="write the rows and summaries as JSON here")
     ap.add_argument("--reference", choices=("recorded", "plan"), default="recorded",
                     help="recorded: the twin's recorded solves (truth); plan: its plan with the current tools.fe")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tools.train.build import Build, BuildConfig
+
     b = Build(BuildConfig(build=args.build))
     rows, cover = [], {}
     for spec in b.all_sessions():
@@ -148,6 +147,3 @@ def main(argv=None) -> int:
     print(json.dumps({k: v for k, v in out.items() if k != "rows"}, indent=1))
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -311,12 +310,8 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
             "bands": bands}
 
 
-def main(argv=None) -> int:
-    from runtime.calibration import CalibrationStore
-    from runtime.session import load_session
-
-    ap = argparse.ArgumentParser(prog="python -m tools.train.threshold", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--package", required=True)
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--package", required=True, help="model package folder")
     ap.add_argument("--session", nargs="+", required=True, metavar="SESSION_DIR:STORE_DIR",
                     help="a training session and the calibration store holding its unit")
     ap.add_argument("--write", action="store_true", help="record the result in the package's manifest")
@@ -325,22 +320,24 @@ def main(argv=None) -> int:
     ap.add_argument("--support-px", type=float, help="a fixed cluster support radius (px, floor 0 N) instead")
     ap.add_argument("--check", action="store_true",
                     help="measure nothing: report the package's own detection on these (e.g. held-out) sessions")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+
+
+def run(args: argparse.Namespace) -> int:
+    from runtime.calibration import CalibrationStore
+    from runtime.errors import TensorTouchError
+    from runtime.session import load_session
+
     pairs = []
     for item in args.session:
         sdir, _, store = item.partition(":")
         if not store:
-            raise SystemExit(f"--session {item!r}: expected SESSION_DIR:STORE_DIR")
+            raise TensorTouchError(f"--session {item!r}: expected SESSION_DIR:STORE_DIR")
         pairs.append((sdir, CalibrationStore(store).load(load_session(sdir).sensor_id)))
     if args.check:
         print(json.dumps(check(args.package, pairs), indent=1))
         return 0
-    cmd = "python -m tools.train.threshold " + " ".join(sys.argv[1:] if argv is None else argv)
+    cmd = args.command_line
     cfg = ThresholdConfig(measure_support=args.support, support_px=args.support_px)
     print(json.dumps(measure(args.package, pairs, cfg, write=args.write, command=cmd), indent=1))
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -6,13 +6,11 @@ error of interpolating FE keypoint frames (linear in the motion phase) against a
 """
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import shutil
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -148,12 +146,3 @@ def run(args) -> int:
         print(json.dumps({"interp": out["interp"]}), flush=True)
     return 0
 
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m tools.twin.bench")
-    add_arguments(ap)
-    return run(ap.parse_args(argv))
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

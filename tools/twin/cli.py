@@ -1,4 +1,4 @@
-"""`tensortouch twin record|show|calibration` (registered through the tensortouch.commands entry point).
+"""`tensortouch twin record|show|calibration|demo|gauge` (registered through the tensortouch.commands entry point).
 
     tensortouch twin record --unit TWIN-0001 --pokes 5 --effect temperature_softening:alpha=0.02 \\
         --out cache/sessions/s1 [--seed 0] [--physics fe|hertz-fallback] [--frames ffv1|mjpg|png]
@@ -7,6 +7,7 @@
 """
 from __future__ import annotations
 
+import importlib
 import logging
 import sys
 import time
@@ -120,23 +121,11 @@ def register(sub) -> None:
     c.add_argument("--store", help="calibration store root (default: runtime.paths.calibration_dir())")
     c.add_argument("--model-size", type=int, default=128)
     c.set_defaults(func=_calibration)
+    for name, module, helptext in (
+            ("demo", "tools.twin.demo", "regenerate the shipped demo session (runtime/demo) and its true calibration"),
+            ("gauge", "tools.recalib.twin_gauge", "play a session's force as a serial force gauge (recalibration tests)")):
+        mod = importlib.import_module(module)
+        q = tsub.add_parser(name, help=helptext, description=helptext)
+        mod.add_arguments(q)
+        q.set_defaults(func=mod.run)
 
-
-def main(argv=None) -> int:
-    import argparse
-
-    from runtime.errors import TensorTouchError
-
-    parser = argparse.ArgumentParser(prog="tensortouch")
-    register(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except TensorTouchError as exc:
-        print(f"tensortouch twin: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:] if sys.argv[1:2] == ["twin"] else ["twin", *sys.argv[1:]]))

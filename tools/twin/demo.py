@@ -1,6 +1,6 @@
 """Regenerate the shipped demo session (runtime/demo/) and its unit's true calibration.
 
-    python -m tools.twin.demo [--out runtime/demo] [--store calibration_store]
+    tensortouch twin demo [--out runtime/demo] [--store calibration_store]
 
 = `tensortouch twin record --unit TWIN-DEMO --pokes 3 --seed 7 --frames mjpg --calibration` with
 shorter rests between pokes, FE physics (solves cached under cache/twin/fe), JPEG quality 65 so the
@@ -20,16 +20,16 @@ log = logging.getLogger(__name__)
 SERIAL, POKES, SEED, QUALITY = "TWIN-DEMO", 3, 7, 65
 
 
-def main(argv=None) -> int:
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--out", default=str(paths.demo_dir()), help="session folder to (re)write")
+    ap.add_argument("--store", default=None, help="calibration store root (default: calibration_store/)")
+
+
+def run(args: argparse.Namespace) -> int:
     from tools.twin.cli import _Bar
     from tools.twin.record import RecordConfig, Recorder
     from tools.twin.unit import write_true_calibration
 
-    ap = argparse.ArgumentParser(prog="python -m tools.twin.demo")
-    ap.add_argument("--out", default=str(paths.demo_dir()))
-    ap.add_argument("--store", default=None, help="calibration store root (default: calibration_store/)")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     out = Path(args.out)
     staging = out.with_name(out.name + ".new")
     cfg = RecordConfig(serial=SERIAL, pokes=POKES, seed=SEED, physics="fe", frame_format="mjpg",
@@ -48,6 +48,3 @@ def main(argv=None) -> int:
     print(f"demo session {out} ({size / 1e6:.2f} MB), true calibration {SERIAL}/{version}")
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

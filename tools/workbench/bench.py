@@ -138,13 +138,3 @@ def run(args) -> int:
                       "verdict": diag["verdict"], "added": added, "rms_before_n": before, "rms_after_n": after}))
     return 0 if cycle < TARGET_S else 1
 
-
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="tensortouch bench workbench")
-    add_arguments(p)
-    logging.basicConfig(level=logging.WARNING)
-    return run(p.parse_args(argv))
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
 from pathlib import Path
 
 from tools.workbench.cli_common import compare_session, last_diagnosis_path, registry_of, session_args
@@ -144,24 +143,3 @@ def store_cal_correction(comp) -> dict | None:
     """The sensor's correction entry, when the comparison applied one."""
     return comp.summary.get("correction") if comp.post is not None else None
 
-
-def main(argv=None) -> int:
-    import argparse
-
-    from runtime.errors import TensorTouchError
-
-    parser = argparse.ArgumentParser(prog="tensortouch")
-    parser.add_argument("-v", "--verbose", action="store_true")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except TensorTouchError as exc:
-        print(f"tensortouch {args.command}: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

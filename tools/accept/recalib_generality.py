@@ -2,7 +2,7 @@
 seed (gel x0.75-1.30, optical centre +-7 px, focal +-4 %), variation the bench's six units do not
 have; every unit is reported (docs/BENCHMARKS.md § Recalibration).
 
-    python -m tests.recalib_generality --model exported_models/hiera-qup-128 [--units 4] [--seed 20261122]
+    tensortouch accept recalib-generality --model exported_models/hiera-qup-128 [--units 4] [--seed 20261122]
         [--calibration nominal|true] [--json OUT]
 """
 from __future__ import annotations
@@ -23,14 +23,16 @@ def random_units(n: int, seed: int) -> tuple:
                            round(float(rng.uniform(0.96, 1.04)), 3)) for k in range(1, n + 1))
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tests.recalib_generality")
-    p.add_argument("--model", default="exported_models/hiera-qup-128")
-    p.add_argument("--units", type=int, default=4)
-    p.add_argument("--seed", type=int, default=20261122)
-    p.add_argument("--calibration", choices=("nominal", "true"), default="nominal")
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default="exported_models/hiera-qup-128", help="model package folder")
+    p.add_argument("--units", type=int, default=4, help="how many random twin units")
+    p.add_argument("--seed", type=int, default=20261122, help="seed of the unit draw")
+    p.add_argument("--calibration", choices=("nominal", "true"), default="nominal",
+                   help="start from the nominal store or each unit's own (factory) calibration")
     p.add_argument("--json", help="write all numbers here")
-    a = p.parse_args(argv)
+
+
+def run(a: argparse.Namespace) -> int:
     units = random_units(a.units, a.seed)
     res = run_bench(TwinBenchConfig(units=units, nominal=None, model=a.model, variants=(), calibration=a.calibration,
                                     runtime_check=False), say=lambda m: print(m, flush=True))
@@ -40,6 +42,3 @@ def main(argv=None) -> int:
         Path(a.json).write_text(json.dumps(res, indent=1, default=float))
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

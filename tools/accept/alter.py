@@ -41,7 +41,7 @@ def copy_without_truth(src: Path, dst: Path) -> Path:
         shutil.rmtree(dst)
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("truth", ".partial"))
     manifest = json.loads((dst / "session.json").read_text())
-    manifest["provenance"] = {"source": "altered copy (tests/workbench_alter.py)"}
+    manifest["provenance"] = {"source": "altered copy (tools/accept/alter.py)"}
     manifest.pop("truth", None)
     (dst / "session.json").write_text(json.dumps(manifest, indent=2))
     rewrite_in_units(dst)     # the streams this script rewrites are written in house units

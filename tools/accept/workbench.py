@@ -1,13 +1,13 @@
 """Issue 6's acceptance on the deployed-network path, as a reusable harness (the slow tests in
 tests/test_workbench_net_twin.py and the table in docs/workbench.md both come from here).
 
-    python -m tests.workbench_acceptance --model cache/train/v2t/models/hiera-qup-128 [--nulls 10]
+    tensortouch accept workbench --model cache/train/v2t/models/hiera-qup-128 [--nulls 10]
 
 Unit TWIN-WB01 (not a training unit), FE twin sessions with 30 fps frames (tools.workbench.scenarios,
 recorded once and cached). The sensor first gets its nominal correction, fitted on a calibration
 sessions without hidden physics that together cover the gel (`CALIB_SEEDS`, 16 pokes each). Each case is one session
 with one hidden effect: switched on in the twin's truth ("truth") or put into the null session's
-measurements by tests/workbench_alter.py ("altered": written separately from the twin's effect
+measurements by tools/accept/alter.py ("altered": written separately from the twin's effect
 code). Diagnosis reads the sample table only (no provenance, truth or effect list).
 
 The model's floor = held-out rms |r| on the null session of the test plan (after the correction);
@@ -28,7 +28,7 @@ import numpy as np
 
 from runtime.calibration import CalibrationStore
 from runtime.effects import EffectChain, Registry
-from tests.workbench_alter import alter_session
+from tools.accept.alter import alter_session
 from tools.workbench.compare import run_compare
 from tools.workbench.diagnose import add_to_chain, diagnose
 from tools.workbench.fit import refit_chain
@@ -45,7 +45,7 @@ GEL_KINDS = ("strain", "rim", "mullins", "friction")   # alterations that need t
 @dataclass(frozen=True)
 class Case:
     effect: str                   # the canonical name diagnosis should find
-    source: str                   # "truth" (twin) or "altered" (tests/workbench_alter.py)
+    source: str                   # "truth" (twin) or "altered" (tools/accept/alter.py)
     params: dict
     kind: str = ""                # alteration kind
     base: str = "test"            # the null session's plan: "test" (the test plan) or "slides"
@@ -260,18 +260,19 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tests.workbench_acceptance")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", required=True, help="model package folder (explicit: the numbers name it)")
-    p.add_argument("--precision", default="int8")
+    p.add_argument("--precision", default="int8", choices=("int8", "fp32"), help="network graph to run")
     p.add_argument("--calib-seeds", type=int, nargs="+", default=list(CALIB_SEEDS),
                    help="calibration sessions (16 pokes each) for the nominal correction")
     p.add_argument("--nulls", type=int, default=10, help="null sessions: the test plan + seeds 1..N-1")
-    p.add_argument("--work", default="cache/workbench/acceptance")
+    p.add_argument("--work", default="cache/workbench/acceptance", help="folder for the recorded sessions and caches")
     p.add_argument("--out", help="write the results as JSON here")
     p.add_argument("--only", nargs="*", help="effects to run (default all)")
     p.add_argument("--skip", nargs="*", default=[], choices=("two", "unknown"), help="parts to leave out")
-    args = p.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -287,6 +288,3 @@ def main(argv=None) -> int:
         Path(args.out).write_text(json.dumps(res, indent=1, default=str))
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,9 +1,9 @@
 """Generality check of the workbench (session 6): twin-truth effects at parameters no test uses,
 fixed before the first run; every row is reported (docs/workbench.md, "Generality check").
 
-    python -m tests.workbench_generality [--model exported_models/hiera-qup-128] [--out FILE]
+    tensortouch accept workbench-generality [--model exported_models/hiera-qup-128] [--out FILE]
 
-Same unit, plan, nominal correction and network path as tests/workbench_acceptance.py.
+Same unit, plan, nominal correction and network path as tools/accept/workbench.py.
 """
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import json
 import logging
 from pathlib import Path
 
-import tests.workbench_acceptance as acc
+from tools.accept import workbench as acc
 
 CASES = (("viscoelastic_relaxation", {"g1": 0.4, "tau": 3.0}),
          ("temperature_softening", {"alpha": 0.03, "t_ref": 22.0}),
@@ -23,12 +23,13 @@ CASES = (("viscoelastic_relaxation", {"g1": 0.4, "tau": 3.0}),
          ("led_drift", {"c": 0.002}))
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tests.workbench_generality")
-    p.add_argument("--model", default="exported_models/hiera-qup-128")
-    p.add_argument("--work", default="cache/workbench/generality")
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default="exported_models/hiera-qup-128", help="model package folder")
+    p.add_argument("--work", default="cache/workbench/generality", help="folder for the recorded sessions and caches")
     p.add_argument("--out", help="write the rows as JSON here")
-    a = p.parse_args(argv)
+
+
+def run(a: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING)
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -45,6 +46,3 @@ def main(argv=None) -> int:
         Path(a.out).write_text(json.dumps(rows, indent=1, default=str))
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,26 @@
+"""`tensortouch accept <harness>`: the acceptance harnesses behind docs/BENCHMARKS.md.
+
+Each harness module exposes `add_arguments(parser)` and `run(args) -> int`, as the bench areas do.
+"""
+from __future__ import annotations
+
+import importlib
+
+HARNESSES = {
+    "workbench": ("tools.accept.workbench",
+                  "the workbench loop on twin sessions with hidden effects, nulls, two effects and a plugin"),
+    "workbench-generality": ("tools.accept.workbench_generality",
+                             "twin-truth effects at parameters no acceptance case uses"),
+    "recalib-generality": ("tools.accept.recalib_generality",
+                           "field recalibration on randomly drawn twin units"),
+}
+
+
+def register(sub) -> None:
+    p = sub.add_parser("accept", help="acceptance harnesses (" + ", ".join(HARNESSES) + ")")
+    asub = p.add_subparsers(dest="accept_harness", metavar="HARNESS", required=True)
+    for name, (module, helptext) in HARNESSES.items():
+        q = asub.add_parser(name, help=helptext, description=helptext)
+        mod = importlib.import_module(module)
+        mod.add_arguments(q)
+        q.set_defaults(func=mod.run)
