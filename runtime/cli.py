@@ -21,10 +21,6 @@ log = logging.getLogger(__name__)
 ENTRY_POINT_GROUP = "tensortouch.commands"
 
 
-class CommandError(TensorTouchError):
-    """A user-facing CLI error: printed as one clear line, exit status 2, no traceback."""
-
-
 def _register_deploy_commands(sub) -> None:
     from runtime import commands
 

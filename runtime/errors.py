@@ -26,3 +26,7 @@ class CaptureError(TensorTouchError):
 
 class DeviceNotFoundError(CaptureError):
     """A device (camera by USB serial, force gauge, CAN interface) is not attached or not reachable."""
+
+
+class CommandError(TensorTouchError):
+    """A command-line option or argument is not what the command expects."""

@@ -185,7 +185,7 @@ def _atomic_write(path: Path, data, suffix: str = ".tmp") -> None:
 # --------------------------------------------------------------------------- shell
 
 def run_listen(args) -> int:
-    from runtime.cli import CommandError
+    from runtime.errors import CommandError
     from runtime.subscriber import Subscriber, alive_sensors, query_info
 
     kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())

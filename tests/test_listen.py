@@ -114,7 +114,7 @@ def test_listen_nothing_running_exits_1_with_hint(capsys):
 
 
 def test_listen_rejects_unknown_kind():
-    from runtime.cli import CommandError
+    from runtime.errors import CommandError
 
     args = parse(["listen", "--kinds", "fields,pressure", "--timeout", "1"])
     with pytest.raises(CommandError, match="pressure"):
