@@ -1,4 +1,4 @@
-"""Generality check of the field recalibration (session 6): twin units drawn at random from a fixed
+"""Generality check of the field recalibration: twin units drawn at random from a fixed
 seed (gel x0.75-1.30, optical centre +-7 px, focal +-4 %), variation the bench's six units do not
 have; every unit is reported (docs/BENCHMARKS.md § Recalibration).
 

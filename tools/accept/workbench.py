@@ -1,7 +1,7 @@
 """Issue 6's acceptance on the deployed-network path, as a reusable harness (the slow tests in
 tests/test_workbench_net_twin.py and the table in docs/workbench.md both come from here).
 
-    tensortouch accept workbench --model cache/train/v2t/models/hiera-qup-128 [--nulls 10]
+    tensortouch accept workbench --model exported_models/hiera-qup-128 [--nulls 10]
 
 Unit TWIN-WB01 (not a training unit), FE twin sessions with 30 fps frames (tools.workbench.scenarios,
 recorded once and cached). The sensor first gets its nominal correction, fitted on a calibration
@@ -66,7 +66,7 @@ ALTERED = (
 )
 # the same effects and magnitudes switched on in the twin's truth (the twin's own effect code)
 TRUTH = tuple(Case(c.effect, "truth", c.params, base=c.base) for c in ALTERED)
-# a weaker relaxation in truth (g1 = 0.3): its size is about the network's floor (kept since session 2)
+# a weaker relaxation in truth (g1 = 0.3): its size is about the network's floor
 WEAK = (Case("viscoelastic_relaxation", "truth", {"g1": 0.3, "tau": 1.0}, tag="weak"),)
 CASES = WEAK + ALTERED + TRUTH
 TWO = (("viscoelastic_relaxation", {"g1": 0.5, "tau": 1.0}), ("rim_stiffening", {"a": 3.0, "w": 5.0}))

@@ -1,4 +1,4 @@
-"""Generality check of the workbench (session 6): twin-truth effects at parameters no test uses,
+"""Generality check of the workbench: twin-truth effects at parameters no test uses,
 fixed before the first run; every row is reported (docs/workbench.md, "Generality check").
 
     tensortouch accept workbench-generality [--model exported_models/hiera-qup-128] [--out FILE]

@@ -36,15 +36,14 @@ class FitConfig:
     # The reported held-out error is then a NESTED leave-one-out (selection redone without the held-out poke).
     # () = one gain for the whole gel (a forest that cannot split: every leaf holds all pokes). With a
     # model whose error on a unit is mostly a clean gain (a stiffer or softer gel), 5–7 pokes estimate
-    # one number far better than a forest of piecewise gains over |F| (session 4: the per-|F| forest
-    # stayed 0.07–0.09 N above the best constant gain on the stiffer twin units).
+    # one number far better than a forest of piecewise gains over |F| (on the stiffer twin units a
+    # per-|F| forest stayed 0.07–0.09 N above the best constant gain).
     candidates: tuple[tuple[str, ...], ...] = ((), ("fmag",), ("fmag", "theta"), ("fmag", "theta", "u", "v"))
     select_margin: float = 0.15
     # ... and only if the per-poke gain is consistent: a paired one-sided t statistic of the leave-one-out
     # |errors| (current choice − richer set) of at least `select_t` (1.5 ≈ p 0.09 with 6 dof). With 5–7
-    # pokes a 15 % lower mean is often one poke's luck (docs/BENCHMARKS.md, Recalibration, "Session 14": on
-    # the twin bench, sets chosen by the mean alone did worse on the held-out probe than one gain in 8–15
-    # of 21 unit × poke-count cases with each candidate network s12/s13/s13c).
+    # pokes a 15 % lower mean is often one poke's luck: on the twin bench, sets chosen by the mean alone
+    # did worse on the held-out probe than one gain in 8–15 of 21 unit × poke-count cases.
     select_t: float = 1.5
     select_estimators: int = 20                   # trees per forest inside the selection (speed; the stored one has n_estimators)
     n_estimators: int = 50                        # DESIGN §10: 50 trees ≈ 10 µs/sample in onnxruntime

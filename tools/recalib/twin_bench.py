@@ -74,8 +74,8 @@ class TwinBenchConfig:
     units: tuple = UNITS
     nominal: BenchUnit | None = NOMINAL
     fit_pokes: int = 7                                   # guided presses recorded (sessions use the first 5/6/7)
-    fit_depths_mm: tuple = (1.2, 1.6, 1.3, 1.4, 1.2, 1.8, 1.5)  # firm (≥ 1.2 mm): a 0.9 mm press (≈ 0.6 N) was
-                                                         # missed by the model on 4 of 5 units (session 2)
+    fit_depths_mm: tuple = (1.2, 1.6, 1.3, 1.4, 1.2, 1.8, 1.5)  # firm (≥ 1.2 mm): a 0.9 mm press (≈ 0.6 N)
+                                                         # can be missed by the model
     probe: str = "sphere5"
     reach_deg: float = 31.5                              # ≤ the twin training plans' θ_max (0.6 rad = 34°)
     held_out_pokes: int = 10

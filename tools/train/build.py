@@ -347,8 +347,7 @@ def register_build(ts) -> None:
         q.add_argument("--threads", type=int)
         q.add_argument("--calibration-samples", type=int, help="int8 calibration inputs (default 128)")
         q.add_argument("--calibration-pick", choices=("spread", "first"),
-                       help="int8 calibration inputs spread over the train split (default) or its first ones "
-                            "(packages exported before session 10)")
+                       help="int8 calibration inputs spread over the train split (default) or its first ones")
         q.add_argument("--support-px", type=float,
                        help="export: a fixed cluster support radius in px (floor 0 N) in the package's manifest "
                             "(default: the runtime's 10 px)")

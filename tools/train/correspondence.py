@@ -17,7 +17,7 @@ contact found on the measured F/T (stage 1 with the calibration thresholds `cont
 the nominal design centre/radius; dense tables (θ, φ, surface_xyz, normals, pixel_area, mask) on the
 model grid are then stored as a new version (`provenance.method = "gpr-pokes"`) in the build's
 calibration store. For twin units the result is checked against the unit's true tables (diagnostics
-only: nothing downstream reads them). `image_change_centroid` is session 1's detector (kept for
+only: nothing downstream reads them). `image_change_centroid` is the simple detector (kept for
 comparison: 1.6–9 px off).
 """
 from __future__ import annotations

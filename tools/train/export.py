@@ -36,10 +36,9 @@ log = logging.getLogger(__name__)
 class ExportConfig:
     opset: int = 20                      # GELU as one ONNX op (opset 20): int8 5 % faster than 17, same output
     # Activation ranges (MinMax) come from `calibration_samples` training inputs picked by
-    # `calibration_pick`: "spread" = evenly over the whole train split, "first" = its first samples
-    # (before session 10). The dataset is written session by session, so the first 32 were a few
-    # pokes of one unit: ranges too narrow for slides, whose clipped activations cost the shipped v6
-    # 0.189 -> 0.163 N rms on the workbench's slides session (fp32 0.162; docs/BENCHMARKS.md).
+    # `calibration_pick`: "spread" = evenly over the whole train split, "first" = its first samples.
+    # The dataset is written session by session, so its first samples are a few pokes of one unit:
+    # ranges too narrow for slides, whose clipped activations then move their forces.
     calibration_samples: int = 128
     calibration_pick: str = "spread"     # "spread" | "first"
     per_channel: bool = True
@@ -188,7 +187,7 @@ def parity_report(fp32_path, int8_path, inputs: np.ndarray, targets: np.ndarray 
                   bounds: dict | None = None, pixel_area: np.ndarray | None = None) -> dict:
     """Per-modality PSNR of int8 against fp32; with targets also each model against the truth; with
     bounds and the dataset's pixel area also the int8 - fp32 total force |ΔF| (N: mean, p95, max).
-    PSNR alone missed clipped int8 ranges that moved slides' forces by up to 0.56 N (session 10)."""
+    PSNR alone can miss clipped int8 ranges that move a slide's force by tenths of a newton."""
     from tools.train.model.metrics import evaluate, psnr_per_modality
 
     y32 = run_model(session(fp32_path, 2), inputs)

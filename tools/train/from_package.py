@@ -1,8 +1,8 @@
 """A model package's ONNX weights back into the training network, so a fine-tune can start from
 what ships when the build cache that made it (`<run>/best.pt`) is gone.
 
-    tensortouch train weights exported_models/hiera-qup-128 --out cache/train/from-v6
-    tensortouch train all ... --init-from cache/train/from-v6/best.pt   # bounds.json beside it: heads rescaled
+    tensortouch train weights exported_models/hiera-qup-128 --out cache/train/from-package
+    tensortouch train all ... --init-from cache/train/from-package/best.pt   # bounds.json beside it: heads rescaled
 
 How the weights are found, without a hand-written name table:
 1. A template network of the package's architecture and size gets a distinct integer id on every

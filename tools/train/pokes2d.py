@@ -3,8 +3,8 @@
 The visible change of a poke is not centred on the image of the poked surface point: the camera sees
 the inside of the dome from below, the indentation pushes the skin towards the camera, so the dots
 around the contact spread out in a pattern whose centre of expansion, magnitude peak and shading ring
-are all shifted from the contact point by amounts that depend on where the poke is (session 1's
-image-change centroid was 4–9 px off). So instead of a feature of the change, the detector matches
+are all shifted from the contact point by amounts that depend on where the poke is (an
+image-change centroid is 4–9 px off). So instead of a feature of the change, the detector matches
 the whole observed dot motion with the motion predicted from the known geometry:
 
 1. **dots** (`dot_centers`): dark skin dots of the baseline and the poke frame as sub-pixel
