@@ -14,7 +14,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 
 from runtime.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
 from tests.conftest import dome_calibration
@@ -84,7 +83,7 @@ def stop(proc: subprocess.Popen) -> str:
 
 def test_run_to_separate_listener_process(tmp_path):
     session = write_poke_session(tmp_path / "session")
-    pkg = write_difference_package(tmp_path / "models" / "difference-32", SIZE)
+    write_difference_package(tmp_path / "models" / "difference-32", SIZE)
     dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
     out = tmp_path / "saved"
     listener, err = run_and_listen(tmp_path, session, [], ["--count", "150", "--json", "--save", str(out)])

@@ -5,7 +5,6 @@ import threading
 import time
 
 import pytest
-import serial
 
 from drivers.gauge import ForceGauge, GaugeConfig, checksum, format_tt, parse_mark10, parse_tt
 from runtime.errors import CaptureError, DeviceNotFoundError

@@ -30,7 +30,7 @@ def test_average_is_the_weighted_mean_and_keeps_integer_buffers():
         average_states(a, {"w": torch.zeros(4), "n": torch.tensor(1)}, 0.5)
 
 
-def test_averaged_run_sits_between_the_two_and_exports(package, tmp_path):
+def test_averaged_run_sits_between_the_two_and_exports(package, tmp_path):  # noqa: F811 (fixture)
     _, data, run = package
     base_dir = tmp_path / "base"
     base_dir.mkdir()
@@ -51,7 +51,7 @@ def test_averaged_run_sits_between_the_two_and_exports(package, tmp_path):
     assert "tensortouch train average" in json.dumps(man)
 
 
-def test_a_missing_run_or_state_is_a_clear_error(package, tmp_path):
+def test_a_missing_run_or_state_is_a_clear_error(package, tmp_path):  # noqa: F811 (fixture)
     _, _, run = package
     with pytest.raises(DatasetError, match="no best.pt"):
         average_run(tmp_path, run / "best.pt", 0.5, tmp_path / "x")

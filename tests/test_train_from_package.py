@@ -16,7 +16,7 @@ from tools.train.from_package import assemble, dequantized, id_positions, state_
 
 
 @pytest.fixture(scope="module")
-def built(package, tmp_path_factory):
+def built(package, tmp_path_factory):  # noqa: F811 (fixture)
     """test_train_export's tiny run re-exported with both graphs (fp32 + int8) into a temp models dir."""
     _, data, run = package
     models = tmp_path_factory.mktemp("frompkg")

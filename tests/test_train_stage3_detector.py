@@ -3,7 +3,7 @@ whole GPR calibration of twin units against their true lens (slow: records twin 
 import numpy as np
 import pytest
 
-from tools.train.pokes2d import FlowPredictor, PokeDetectConfig, dot_centers, fit_offset, track_dots
+from tools.train.pokes2d import FlowPredictor, dot_centers, fit_offset, track_dots
 from tools.twin.camera import CameraConfig, FisheyeModel
 from tools.twin.geometry import GelSurface
 

@@ -6,7 +6,7 @@ import pytest
 from runtime.calibration import CalibrationStore
 from runtime.geometry import DomeProfile
 from runtime.preprocess import Preprocessor
-from tools.twin.camera import CameraConfig, FisheyeModel, Renderer
+from tools.twin.camera import CameraConfig, FisheyeModel
 from tools.twin.geometry import GelSurface
 from tools.twin.unit import TwinUnit, true_tables, unit_params, write_true_calibration
 

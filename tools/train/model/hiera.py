@@ -13,7 +13,6 @@ import logging
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from tools.train.model.layers import Mlp, attention, from_units, to_units, unit_pool
@@ -112,7 +111,7 @@ class Hiera(nn.Module):
         self.blocks = nn.ModuleList()
         self.stage_ends: list[int] = []
         self.unit_sides: list[int] = []           # unit side (tokens) at the output of each stage
-        side, dim, heads, lag_attn = cfg.mask_unit, cfg.embed_dim, cfg.heads, cfg.mask_unit_attn[0]
+        side, dim, lag_attn = cfg.mask_unit, cfg.embed_dim, cfg.mask_unit_attn[0]
         for s, depth in enumerate(cfg.stages):
             for i in range(depth):
                 pool = s > 0 and i == 0

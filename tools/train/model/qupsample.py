@@ -14,10 +14,9 @@ ending in a ×2 pixel shuffle to full resolution, give three channels each: 15 i
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from runtime.fields import MODALITIES
