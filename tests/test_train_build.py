@@ -26,44 +26,78 @@ def test_stage_keys_change_only_downstream():
     assert stage_keys(cfg) == a                                       # round trip through JSON
 
 
-def test_contact_threshold_flags_reach_the_build_config():
-    from tools.train.build import config_from_args
-    from tools.train.cli import register
+def test_set_reaches_the_build_config():
+    from tools.train.build import config_from_dict
+    from tools.train.recipe import load_recipe
 
-    p = argparse.ArgumentParser()
-    register(p.add_subparsers(dest="command"))
-    cfg = config_from_args(p.parse_args(["train", "all", "--contact-force", "1.5", "--detach-force", "1.1"]))
-    assert (cfg.contact_force_n, cfg.detach_force_n) == (1.5, 1.1)
-    assert (BuildConfig().contact_force_n, BuildConfig().detach_force_n) == (0.5, 0.37)
-
-
-def test_int8_calibration_flags_reach_the_export_key():
-    """Only the export is redone for another int8 calibration; the shipped package's older export
-    (first 32 samples) is reproduced with --calibration-samples 32 --calibration-pick first."""
-    from tools.train.build import config_from_args
-    from tools.train.cli import register
-
-    p = argparse.ArgumentParser()
-    register(p.add_subparsers(dest="command"))
-    old = config_from_args(p.parse_args(["train", "all", "--calibration-samples", "32", "--calibration-pick", "first"]))
-    new = BuildConfig()
-    assert (old.calibration_samples, old.calibration_pick) == (32, "first")
-    assert (new.calibration_samples, new.calibration_pick) == (128, "spread")
-    a, b = stage_keys(old), stage_keys(new)
-    assert a["fit"] == b["fit"] and a["export"] != b["export"]
+    r = load_recipe("hiera-qup-128", ["contact_force_n=1.5", "build.detach_force_n=1.1", "calibration_pick=first"])
+    cfg = config_from_dict(r.config(r.steps()[0]), r.source)
+    assert (cfg.contact_force_n, cfg.detach_force_n, cfg.calibration_pick) == (1.5, 1.1, "first")
+    assert r.hash != load_recipe("hiera-qup-128").hash                  # a --set is part of the recipe
+    plain = load_recipe("hiera-qup-128")
+    a, b = stage_keys(cfg), stage_keys(config_from_dict(plain.config(plain.steps()[0]), plain.source))
+    assert a["sessions"] == b["sessions"] and a["keypoints"] != b["keypoints"]
 
 
-def test_a_recipe_includes_others_sessions_once(tmp_path):
-    from tools.train.build import read_recipe
+def test_the_shipped_recipe_uses_only_what_a_rig_has():
+    from tools.train.build import config_from_dict
+    from tools.train.recipe import load_recipe
 
-    a = {"serial": "TWIN-A", "seed": 1, "pokes": 5}
-    b = {"serial": "TWIN-B", "seed": 2, "pokes": 8, "trajectory": {"kinds": ["slide"]}}
-    (tmp_path / "one.json").write_text(json.dumps({"_about": "x", "train": [a], "epochs": 3}))
-    (tmp_path / "two.json").write_text(json.dumps({"train": [a, b]}))
-    (tmp_path / "both.json").write_text(json.dumps({"include": ["one.json", "two.json"], "lr": 1e-4}))
-    d = read_recipe(tmp_path / "both.json")
-    assert d == {"train": [a, b], "lr": 1e-4}                 # only the sessions come from included recipes
-    assert [s.serial for s in BuildConfig.from_dict(d).train] == ["TWIN-A", "TWIN-B"]
+    r = load_recipe("hiera-qup-128")
+    for step in r.steps():
+        cfg = config_from_dict(r.config(step), r.source)
+        assert (cfg.fe, cfg.tables, cfg.physics) == ("resolve", "gpr", "fe") and not cfg.init_from
+    held = {s["serial"] for s in r.doc["sessions"]["heldout"]}
+    assert held and not held & {s["serial"] for s in r.doc["sessions"]["train"]}
+
+
+@pytest.mark.parametrize("text, sets, match", [
+    ('name = "x"\nbogus = 1\n', [], "unknown top-level key"),
+    ('about = "no name"\n', [], "'name'"),
+    ('name = "x"\n[[steps]]\nname = "b"\nafter = "a"\n', [], "names no earlier step"),
+    ('name = "x"\n[[steps]]\nname = "a"\n[[steps]]\nname = "a"\n', [], "used twice"),
+    ('name = "x"\n', ["epochs"], "expected key=value"),
+    ('name = "x"\n', ["steps.nope.lr=1"], "no step 'nope'"),
+    ('name = "x"\n[sessions]\ntrain = 3\n', [], "list of tables"),
+    ('name = "x"\n[build\n', [], "not a readable recipe"),
+])
+def test_a_bad_recipe_is_one_line_naming_the_place(tmp_path, text, sets, match):
+    from tools.train.recipe import RecipeError, load_recipe
+
+    f = tmp_path / "r.toml"
+    f.write_text(text)
+    with pytest.raises(RecipeError, match=match):
+        load_recipe(f, sets)
+
+
+def test_unknown_build_fields_and_session_entries_are_refused(tmp_path):
+    from tools.train.build import config_from_dict
+    from tools.train.recipe import RecipeError, load_recipe
+
+    f = tmp_path / "r.toml"
+    f.write_text('name = "x"\n[build]\nepochz = 3\n')
+    r = load_recipe(f)
+    with pytest.raises(RecipeError, match="unknown build field.*epochz"):
+        config_from_dict(r.config(r.steps()[0]), r.source)
+    f.write_text('name = "x"\n[sessions]\ntrain = [ { serial = "A", seed = 1 } ]\n')
+    r = load_recipe(f)
+    with pytest.raises(RecipeError, match=r"sessions.train\[0\] needs serial, seed, pokes"):
+        config_from_dict(r.config(r.steps()[0]), r.source)
+
+
+def test_set_values_are_read_as_toml():
+    from tools.train.recipe import parse_value
+
+    assert parse_value("1e-4") == 1e-4 and parse_value("true") is True and parse_value("[1, 2]") == [1, 2]
+    assert parse_value('"a b"') == "a b" and parse_value("gpr") == "gpr"
+
+
+def test_a_manifest_not_built_from_a_recipe_says_so(tmp_path):
+    from tools.train.recipe import RecipeError, load_recipe
+
+    (tmp_path / "manifest.json").write_text('{"training": {"command": "old"}}')
+    with pytest.raises(RecipeError, match="without training.recipe"):
+        load_recipe(tmp_path / "manifest.json")
 
 
 def test_stamps_mark_done_only_for_the_same_config(tmp_path):
@@ -74,20 +108,19 @@ def test_stamps_mark_done_only_for_the_same_config(tmp_path):
     assert not Build(BuildConfig(train=[]), tmp_path).done("keypoints")   # other sessions: redo
 
 
-def test_cli_registers_all_dataset_evaluate():
+def test_cli_registers_all_dataset_evaluate_with_a_short_help():
     from tools.train.cli import register
 
     p = argparse.ArgumentParser()
-    register(p.add_subparsers(dest="command"))
-    for argv in (["train", "all", "--tiny", "--epochs", "2"], ["train", "dataset", "--build", "x"],
-                 ["train", "evaluate", "--name", "m"]):
+    sub = p.add_subparsers(dest="command")
+    register(sub)
+    for argv in (["train", "all", "--recipe", "tiny", "--set", "epochs=2"], ["train", "dataset", "--recipe", "x"],
+                 ["train", "evaluate", "--replace"]):
         args = p.parse_args(argv)
         assert callable(args.func)
-    args = p.parse_args(["train", "all", "--tiny", "--epochs", "2", "--tables", "truth"])
-    from tools.train.build import config_from_args
-
-    cfg = config_from_args(args)
-    assert cfg.epochs == 2 and cfg.physics == "hertz-fallback" and cfg.size == 64
+    train = sub.choices["train"]._subparsers._group_actions[0].choices["all"]
+    options = [a for a in train._actions if a.option_strings and a.dest != "help"]
+    assert len(options) <= 12 and all(a.help for a in options)
 
 
 @pytest.fixture(scope="module")
@@ -126,20 +159,30 @@ def test_tiny_build_dataset_and_resume(tiny_build):
     assert {s: again.read_stamp(s)["finished"] for s in stamps} == stamps
 
 
-def test_tiny_chain_ships_a_package_the_runtime_loads(tiny_build, tmp_path):
-    """fit → export → evaluate on the tiny dataset; the package verifies and runs in the runtime."""
+def test_tiny_recipe_with_a_lineage_ships_a_package_that_names_and_rebuilds_its_recipe(tiny_build, tmp_path):
+    """fit (step base) → fit from base's weights (step more) → export → evaluate on the tiny dataset; the
+    package verifies and runs in the runtime; its manifest names the recipe and the lineage, and rebuilds."""
     from runtime.model import FieldModel, load_package
+    from tools.train.build import run_recipe
     from tools.train.export import verify_package
+    from tools.train.recipe import RecipeError, apply_set, load_recipe
 
     b, _ = tiny_build
-    b.cfg.models_dir = str(tmp_path / "models")
-    b.command = "tensortouch train all --tiny"
-    b = run_build(b.cfg, ["fit", "export", "evaluate"], b.root, b.command)
-    folder = tmp_path / "models" / b.cfg.name
+    tiny = load_recipe("tiny")
+    recipe = type(tiny)(tiny.name, tiny.source, {**tiny.doc, "steps": [
+        {"name": "base"}, {"name": "more", "after": "base", "build": {"lr": 1e-4}}]})
+    models = tmp_path / "models"
+    b = run_recipe(recipe, ["fit", "export", "evaluate"], b.root, "tensortouch train all --recipe tiny",
+                   overrides={"models_dir": str(models)})
+    folder = models / recipe.name
     man = verify_package(folder)
-    assert man["training"]["command"] == "tensortouch train all --tiny"
-    assert man["training"]["data_hash"] == b.read_stamp("dataset")["data_hash"]
-    assert man["training"]["wall_time_s"] > 0
+    t = man["training"]
+    assert t["command"] == "tensortouch train all --recipe tiny"
+    assert t["data_hash"] == b.read_stamp("dataset")["data_hash"] and t["wall_time_s"] > 0
+    assert t["recipe"]["name"] == "tiny-smoke" and t["recipe"]["hash"] == recipe.hash
+    assert [s["step"] for s in t["lineage"]] == ["base", "more"] and t["lineage"][1]["after"] == "base"
+    assert t["init_from"]["state_dict"].endswith(t["lineage"][0]["fit_run"] + "/best.pt")
+    assert load_recipe(folder / "manifest.json").hash == recipe.hash           # the manifest rebuilds it
     # the export measured the package's contact threshold on training sessions (null = no clean value)
     assert man["runtime"]["measured"]["rest_frames"] > 0 and "contact_threshold_n" in man["runtime"]
     m = FieldModel(load_package(folder))
@@ -148,3 +191,6 @@ def test_tiny_chain_ships_a_package_the_runtime_loads(tiny_build, tmp_path):
     assert set(summ) == {s.name for s in b.cfg.heldout}
     s = summ[b.cfg.heldout[0].name]
     assert s["contact_samples"] > 0 and "force_mag_mae_n" in s and s["rest_frames"] > 0
+    other = apply_set(recipe, "steps.more.lr=2e-4")                           # another recipe, same package name
+    with pytest.raises(RecipeError, match="give --replace"):
+        run_recipe(other, ["export"], b.root, overrides={"models_dir": str(models)})

@@ -1,12 +1,12 @@
-"""`tensortouch train all`: the one-command build of a shipped model package from nothing.
+"""`tensortouch train all --recipe NAME`: the one-command build of a model package from nothing.
 
-    twin sessions → (1) keypoints → (2) FE labels → (3) 2D–3D correspondence → (5) sim-to-real ratios
-    → (4) dataset → (6) [MAE pretrain] + fit → (7) export → exported_models/<name>/ → (8) evaluation
+    (0) sessions → (1) keypoints → (2) FE labels → (3) 2D–3D correspondence → (4) sim-to-real ratios
+    → (5) dataset → (6) [MAE pretrain] + fit → (7) export → exported_models/<name>/ → (8) evaluation
 
 Every stage writes under `<cache>/train/<build>/` (runtime.paths.cache_dir()) and finishes with a
 stamp file `stamps/<stage>.json` (config key, outputs, wall time); a rerun skips stamped stages whose
 configuration is unchanged, and the long stages (recording, fitting) resume inside themselves.
-The build configuration is one dataclass (`BuildConfig`) whose defaults are the shipped recipe.
+The build configuration is one dataclass (`BuildConfig`); a recipe (tools/train/recipe.py) gives its fields.
 """
 from __future__ import annotations
 
@@ -144,12 +144,13 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
 class Build:
     """Paths and stamps of one build folder."""
 
-    def __init__(self, cfg: BuildConfig, root: Path | None = None, command: str = ""):
+    def __init__(self, cfg: BuildConfig, root: Path | None = None, command: str = "", step: str = ""):
         from runtime.paths import cache_dir
 
         self.cfg = cfg
         self.root = Path(root) if root else cache_dir() / "train" / cfg.build
         self.command = command
+        self.step = step          # a recipe step: the stages from pretrain on keep one stamp per step
         self.keys = stage_keys(cfg)
         for sub in ("stamps", "sessions", "keypoints", "fe", "correspondence", "simreal", "runs", "eval"):
             (self.root / sub).mkdir(parents=True, exist_ok=True)
@@ -172,6 +173,8 @@ class Build:
 
     # -- stamps ----------------------------------------------------------------------------
     def stamp_path(self, stage: str) -> Path:
+        if self.step and STAGES.index(stage) >= STAGES.index("pretrain"):
+            return self.root / "stamps" / f"{stage}@{self.step}.json"
         return self.root / "stamps" / f"{stage}.json"
 
     def done(self, stage: str) -> bool:
@@ -235,9 +238,9 @@ def _import_stage(name: str):
 
 
 def run_build(cfg: BuildConfig, stages: list[str] | None = None, root: Path | None = None, command: str = "",
-              force: list[str] | None = None) -> Build:
+              force: list[str] | None = None, step: str = "") -> Build:
     """Run (or resume) the build; stages already stamped with the same configuration are skipped."""
-    b = Build(cfg, root, command)
+    b = Build(cfg, root, command, step)
     wanted = stages or list(STAGES)
     t_build = time.monotonic()
     for st in STAGES:
@@ -257,62 +260,132 @@ def run_build(cfg: BuildConfig, stages: list[str] | None = None, root: Path | No
 
 
 def tiny_config(name: str = "tiny-smoke", build: str = "tiny") -> BuildConfig:
-    """A minutes-long configuration of the whole chain for the smoke test / CI: analytic twin physics
-    (hertz-fallback — never the physics of a shipped model), 64² model, one short training session."""
-    return BuildConfig(name=name, build=build, size=64, physics="hertz-fallback", tables="truth",
-                       train=[SessionSpec("TWIN-S01", 11, 2, "png", 90)],
-                       heldout=[SessionSpec("TWIN-S02", 12, 1, "png", 90)], contact_stride=3,
-                       epochs=1, pretrain_epochs=1, batch=4, calibration_samples=4, latency_runs=5,
-                       eval_demo=False, figures=False,
-                       eval_contact_n=0.2)
+    """The `tiny` recipe (tools/train/recipes/tiny.toml) as one BuildConfig: the minutes-long smoke run of
+    the whole chain for tests and CI (analytic twin physics — never the physics of a shipped model)."""
+    from tools.train.recipe import load_recipe
 
-
-def read_recipe(path: str | Path) -> dict:
-    """A recipe's BuildConfig fields. `"include": [FILE, ...]` (paths beside the recipe) puts the
-    included recipes' training sessions first, each (serial, seed) once, then the recipe's own."""
-    path = Path(path)
-    d = json.loads(path.read_text())
-    if "include" in d:
-        train, seen = [], set()
-        for spec in [s for inc in d.pop("include") for s in read_recipe(path.parent / inc).get("train", [])] \
-                + d.get("train", []):
-            if (spec["serial"], spec["seed"]) not in seen:
-                seen.add((spec["serial"], spec["seed"]))
-                train.append(spec)
-        d["train"] = train
-    return d
-
-
-def config_from_args(args) -> BuildConfig:
-    cfg = tiny_config() if args.tiny else BuildConfig()
-    if args.config:
-        cfg = BuildConfig.from_dict({**cfg.to_dict(), **read_recipe(args.config)})
-    for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
-              "contact_stride", "force_weight", "light_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n",
-              "calibration_samples", "calibration_pick", "support_px"):
-        v = getattr(args, k, None)
-        if v is not None:
-            setattr(cfg, k, v)
-    if args.pretrain_epochs is not None:
-        cfg.pretrain_epochs = args.pretrain_epochs
-    if args.no_demo:
-        cfg.eval_demo = False
-    if args.no_figures:
-        cfg.figures = False
+    recipe = load_recipe("tiny")
+    cfg = config_from_dict(recipe.config(recipe.steps()[-1]), recipe.source)
+    cfg.name, cfg.build = name, build
     return cfg
 
 
+def config_from_dict(d: dict, where: str) -> BuildConfig:
+    """BuildConfig from a recipe step's fields; an unknown field or a bad session entry is one line."""
+    from dataclasses import fields
+
+    from tools.train.recipe import RecipeError
+
+    known = {f.name for f in fields(BuildConfig)}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise RecipeError(f"{where}: unknown build field(s) {unknown}; expected some of {sorted(known)}")
+    spec_keys = {f.name for f in fields(SessionSpec)}
+    for k in ("train", "heldout"):
+        for i, spec in enumerate(d.get(k) or []):
+            if not {"serial", "seed", "pokes"} <= set(spec) or set(spec) - spec_keys:
+                raise RecipeError(f"{where}: sessions.{k}[{i}] needs serial, seed, pokes (and optionally "
+                                  f"{sorted(spec_keys - {'serial', 'seed', 'pokes'})}), got {sorted(spec)}")
+    return BuildConfig.from_dict(d)
+
+
+def git_commit() -> str | None:
+    """The commit of the checkout the build runs from (+ "-dirty" with uncommitted changes), if any."""
+    import subprocess
+
+    repo = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head + ("-dirty" if dirty else "")
+
+
+def check_replace(package: Path, recipe_hash: str, data_hash: str | None, replace: bool) -> None:
+    """Export never silently replaces a package made from another recipe or other data."""
+    from tools.train.recipe import RecipeError
+
+    man_path = package / "manifest.json"
+    if replace or not man_path.is_file():
+        return
+    try:
+        training = json.loads(man_path.read_text()).get("training") or {}
+    except (OSError, ValueError, AttributeError):
+        training = {}
+    old_recipe = (training.get("recipe") or {}).get("hash")
+    if old_recipe != recipe_hash or training.get("data_hash") != data_hash:
+        what = (f"recipe {old_recipe or 'none recorded'}" if old_recipe != recipe_hash
+                else f"data {str(training.get('data_hash'))[:12]}")
+        raise RecipeError(f"{package} was built from {what}; this build would replace it: give --replace, "
+                          f"or --set models_dir=DIR to export elsewhere")
+
+
+def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None, command: str = "",
+               force: list[str] | None = None, replace: bool = False, overrides: dict | None = None) -> Build:
+    """Run (or resume) every step of a recipe in order; the last step exports the package.
+
+    All steps share one build folder (`<cache>/train/<recipe name>/`): the stages before the fit are
+    run once when the steps agree on them; each step's pretrain/fit/export/evaluate stamps are its own.
+    A step with `after = "<step>"` starts its fit from that step's best weights."""
+    from runtime.paths import cache_dir
+    from tools.train.stages import fit_dir, update_manifest
+
+    root = Path(root) if root else cache_dir() / "train" / recipe.name
+    steps = recipe.steps()
+    fits: dict[str, Path] = {}
+    lineage: list[dict] = []
+    b = None
+    for i, step in enumerate(steps):
+        last = i == len(steps) - 1
+        cfg = config_from_dict({**recipe.config(step), **(overrides or {})}, f"{recipe.source} (step {step.name})")
+        cfg.build = recipe.name
+        if step.after:
+            cfg.init_from = str(fits[step.after] / "best.pt")
+        wanted = list(stages or STAGES) if last else [s for s in (stages or STAGES) if STAGES.index(s) <= STAGES.index("fit")]
+        before_export = [s for s in wanted if STAGES.index(s) < STAGES.index("export")]
+        b = Build(cfg, root, command, step.name if len(steps) > 1 else "")
+        if before_export:
+            b = run_build(cfg, before_export, root, command, force, step=b.step)
+        fits[step.name] = fit_dir(b)
+        lineage.append({"step": step.name, "after": step.after, "fit_run": str(fits[step.name].relative_to(root)),
+                        "fit_key": b.keys["fit"]})
+        after = [s for s in wanted if s not in before_export] if last else []
+        if "export" in after:
+            package = (Path(cfg.models_dir) if cfg.models_dir else _models_dir()) / cfg.name
+            check_replace(package, recipe.hash, b.read_stamp("dataset").get("data_hash"), replace)
+        if after:
+            exported = "export" in after and not (b.done("export") and "export" not in (force or []))
+            b = run_build(cfg, after, root, command, force, step=b.step)
+            if exported:
+                update_manifest(package, lambda man: man["training"].update(
+                    recipe=recipe.record(), git_commit=git_commit(), lineage=lineage))
+    return b
+
+
+def _models_dir() -> Path:
+    from runtime.paths import models_dir
+
+    return models_dir()
+
+
 def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force: list[str] | None = None) -> int:
-    cfg = config_from_args(args)
-    stages = only or args.stages
+    from tools.train.recipe import load_recipe
+
+    recipe = load_recipe(args.recipe, args.set or [])
+    stages = only or getattr(args, "stages", None)
     if upto:
         stages = list(STAGES[:STAGES.index(upto) + 1])
-    b = run_build(cfg, stages, Path(args.root) if args.root else None, args.command_line,
-                  force=list(args.force or []) + list(force or []))
+    overrides = {k: v for k, v in (("threads", args.threads), ("models_dir", args.models_dir)) if v}
+    b = run_recipe(recipe, stages, Path(args.root) if args.root else None, args.command_line,
+                   force=list(args.force or []) + list(force or []), replace=args.replace, overrides=overrides)
     ex = b.read_stamp("export")
     if ex and (not stages or "export" in stages):
-        print(f"model package {ex['package']}: PSNR fp32 {ex['psnr_fp32']:.2f} / int8 {ex['psnr_int8']:.2f} dB, "
-              f"latency int8 {ex['latency_ms']['int8']:.2f} ms, build wall time {ex['wall_time_s']:.0f} s")
+        print(f"model package {ex['package']} (recipe {recipe.name} {recipe.hash}): PSNR fp32 {ex['psnr_fp32']:.2f} / "
+              f"int8 {ex['psnr_int8']:.2f} dB, latency int8 {ex['latency_ms']['int8']:.2f} ms, "
+              f"build wall time {ex['wall_time_s']:.0f} s")
     ev = b.read_stamp("evaluate")
     if ev and (not stages or "evaluate" in stages):
         print(json.dumps(ev.get("summary", {}), indent=1))
@@ -322,53 +395,27 @@ def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force:
 def register_build(ts) -> None:
     """`train all`, `train dataset`, `train evaluate` under the `train` subparsers."""
     def common(q):
-        q.add_argument("--build", help="build folder under <cache>/train/ (default: main)")
-        q.add_argument("--root", help="explicit build folder (overrides --build)")
-        q.add_argument("--name", help="model package name (default: hiera-qup-128)")
-        q.add_argument("--config", help="JSON file with BuildConfig fields to override")
-        q.add_argument("--tiny", action="store_true", help="minutes-long smoke configuration (hertz-fallback twin)")
-        q.add_argument("--size", type=int)
-        q.add_argument("--epochs", type=int)
-        q.add_argument("--pretrain-epochs", type=int)
-        q.add_argument("--batch", type=int)
-        q.add_argument("--lr", type=float, help="fit learning rate (default 1e-3)")
-        q.add_argument("--contact-stride", type=int, help="every n-th in-contact frame becomes a sample (default 2)")
-        q.add_argument("--contact-force", dest="contact_force_n", type=float,
-                       help="stage 1: contact starts above this measured |F| in N (default 0.5; seed 1.5)")
-        q.add_argument("--detach-force", dest="detach_force_n", type=float,
-                       help="stage 1: contact ends below this |F| in N (default 0.37; seed 1.1)")
-        q.add_argument("--force-weight", type=float, help="total-force loss term per N (default 0 = off)")
-        q.add_argument("--light-weight", type=float,
-                       help="light-contact emphasis: sample weight (1 N / |F|)^W, clipped to [1, 3] (default 0 = off)")
-        q.add_argument("--init-from", help="fine-tune: start the fit from this state dict (a run's best.pt)")
-        q.add_argument("--init-bounds", help="fine-tune: the output bounds --init-from was trained with (a bounds.json "
-                                             "or a model package's manifest.json; default: the bounds.json beside it); "
-                                             "the heads are rescaled to this dataset's bounds")
-        q.add_argument("--threads", type=int)
-        q.add_argument("--calibration-samples", type=int, help="int8 calibration inputs (default 128)")
-        q.add_argument("--calibration-pick", choices=("spread", "first"),
-                       help="int8 calibration inputs spread over the train split (default) or its first ones")
-        q.add_argument("--support-px", type=float,
-                       help="export: a fixed cluster support radius in px (floor 0 N) in the package's manifest "
-                            "(default: the runtime's 10 px)")
-        q.add_argument("--arch", choices=("hiera_qup", "unet", "vit"))
-        q.add_argument("--tables", choices=("gpr", "truth"), help="θ/φ tables of the targets: gpr = stage 3 GPR from detected pokes (default); truth = the twin's true tables")
-        q.add_argument("--fe", choices=("resolve", "twin"),
-                       help="stage 2 FE labels: resolve = FE re-solved from the measured keypoints (default); "
-                            "twin = the twin's own solves of its plan")
-        q.add_argument("--models-dir", help="root of model packages (default: exported_models/)")
-        q.add_argument("--force", nargs="+", choices=STAGES, default=[], help="rerun these stages even if stamped")
-        q.add_argument("--no-demo", action="store_true", help="do not evaluate on runtime/demo")
-        q.add_argument("--no-figures", action="store_true", help="do not write the docs/ figures")
-    a = ts.add_parser("all", help="build the shipped model from nothing: twin → FE → dataset → train → export → eval")
+        q.add_argument("--recipe", default="hiera-qup-128",
+                       help="recipe name (tools/train/recipes/NAME.toml), a .toml file, or a package's manifest.json "
+                            "to rebuild it (default: hiera-qup-128)")
+        q.add_argument("--set", action="append", metavar="KEY=VALUE",
+                       help="change one recipe field: a build field (epochs=2) or steps.STEP.FIELD=VALUE (repeat)")
+        q.add_argument("--root", help="build folder (default: <cache>/train/<recipe name>/)")
+        q.add_argument("--models-dir", help="where the package is exported (default: exported_models/)")
+        q.add_argument("--threads", type=int, help="torch threads for training (default: the recipe's)")
+        q.add_argument("--force", nargs="+", choices=STAGES, default=[], metavar="STAGE",
+                       help="rerun these stages even if stamped (" + ", ".join(STAGES) + ")")
+        q.add_argument("--replace", action="store_true",
+                       help="let export replace a package built from another recipe or other data")
+    a = ts.add_parser("all", help="build a model package from its recipe, from nothing: twin → FE → dataset → "
+                                  "train → export → eval (resumes)")
     common(a)
-    a.add_argument("--stages", nargs="+", choices=STAGES, help="run only these stages")
+    a.add_argument("--stages", nargs="+", choices=STAGES, metavar="STAGE", help="run only these stages")
     a.set_defaults(func=cmd_all)
-    d = ts.add_parser("dataset", help="the build's stages up to the dataset (twin sessions, keypoints, FE, "
+    d = ts.add_parser("dataset", help="a recipe's stages up to the dataset (twin sessions, keypoints, FE, "
                                       "correspondence, sim-to-real, field images)")
     common(d)
     d.set_defaults(func=lambda args: cmd_all(args, upto="dataset"), stages=None)
-    e = ts.add_parser("evaluate", help="stage 8: held-out twin sessions through the runtime (reruns it)")
+    e = ts.add_parser("evaluate", help="held-out twin sessions of a recipe through the runtime (reruns it)")
     common(e)
     e.set_defaults(func=lambda args: cmd_all(args, only=["evaluate"], force=["evaluate"]), stages=None)
-
