@@ -365,6 +365,18 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
     return b
 
 
+def recipe_build(ref: str, sets: list[str] | tuple = (), root: str | Path | None = None) -> Build:
+    """The build folder of a recipe's last step, for the tools that read a build (budget, crosseval,
+    resolve-check): its sessions, calibrations and dataset."""
+    from tools.train.recipe import load_recipe
+
+    recipe = load_recipe(ref, sets)
+    steps = recipe.steps()
+    cfg = config_from_dict(recipe.config(steps[-1]), recipe.source)
+    cfg.build = recipe.name
+    return Build(cfg, Path(root) if root else None, step=steps[-1].name if len(steps) > 1 else "")
+
+
 def _models_dir() -> Path:
     from runtime.paths import models_dir
 

@@ -2,10 +2,10 @@
 `evaluate_session`): e.g. the shipped package against a rebuild, on sessions of today's twin.
 
     tensortouch train crosseval --package exported_models/hiera-qup-128 \\
-        --package cache/train/v2/models/hiera-qup-128 --build v2 \\
+        --package cache/models/hiera-qup-128 --recipe hiera-qup-128 \\
         --session cache/demo_v2/demo --store cache/demo_v2/store [--json OUT]
 
-`--build` adds the build's held-out sessions with their unit calibrations (as stage 8 uses them);
+`--recipe` adds the recipe build's held-out sessions with their unit calibrations (as stage 8 uses them);
 `--session`/`--store` pairs add any other session, calibrated from that store (sensor = the
 session's sensor_id). One JSON line per (package, session) with the stage-8 summary, plus the fraction
 of single-contact frames (one indenter ≥ --contact-n, the others at rest) with a phantom second cluster.
@@ -21,7 +21,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     from tools.train.evaluate import EvalConfig
 
     ap.add_argument("--package", action="append", required=True, help="model package folder (repeat)")
-    ap.add_argument("--build", help="add this build's held-out sessions (<cache>/train/BUILD)")
+    ap.add_argument("--recipe", help="add this recipe build's held-out sessions (<cache>/train/<recipe name>/)")
     ap.add_argument("--session", action="append", default=[], help="a session folder (repeat, with --store)")
     ap.add_argument("--store", action="append", default=[], help="calibration store root for each --session")
     ap.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network graph to run")
@@ -35,21 +35,21 @@ def run(args: argparse.Namespace) -> int:
     from runtime.errors import TensorTouchError
     from runtime.model import load_package
     from runtime.session import load_session
-    from tools.train.build import Build, BuildConfig
+    from tools.train.build import recipe_build
     from tools.train.evaluate import EvalConfig, evaluate_session, summarize
     from tools.train.stages import unit_calibration
 
     if len(args.store) != len(args.session):
         raise TensorTouchError("crosseval: give one --store per --session")
     targets = []
-    if args.build:
-        b = Build(BuildConfig(build=args.build))
+    if args.recipe:
+        b = recipe_build(args.recipe)
         targets += [(s.name, b.session(s), unit_calibration(b, s.serial)) for s in b.cfg.heldout]
     for folder, store in zip(args.session, args.store):
         sensor = load_session(folder, check_frames=False).sensor_id
         targets.append((f"{Path(folder).name}:{sensor}", Path(folder), CalibrationStore(Path(store)).load(sensor)))
     if not targets:
-        raise TensorTouchError("crosseval: nothing to evaluate: give --build and/or --session/--store")
+        raise TensorTouchError("crosseval: nothing to evaluate: give --recipe and/or --session/--store")
     out = {}
     try:
         for pk in args.package:

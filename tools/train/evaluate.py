@@ -327,8 +327,9 @@ def _predictor(run: str | None, package: str | None, precision: str = "int8", bo
 
 def add_budget_arguments(ap) -> None:
     """`tensortouch train budget …`: the error budget of a build (label and network error per stage)."""
-    ap.add_argument("--build", default="main", help="build folder name under cache/train/")
-    ap.add_argument("--fe", choices=("resolve", "twin"), help="label source of the build (BuildConfig.fe)")
+    ap.add_argument("--recipe", default="hiera-qup-128", help="recipe whose build is scored (name, .toml or manifest)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a recipe field changed as in train all")
+    ap.add_argument("--root", help="build folder (default: <cache>/train/<recipe name>/)")
     ap.add_argument("--run", help="torch fit run folder (best.pt) to score")
     ap.add_argument("--package", help="model package name or folder to score (ONNX, --precision)")
     ap.add_argument("--precision", default="int8", choices=("int8", "fp32"), help="network graph to run")
@@ -338,12 +339,9 @@ def add_budget_arguments(ap) -> None:
 
 
 def run_budget_command(args) -> int:
-    from tools.train.build import Build, BuildConfig
+    from tools.train.build import recipe_build
 
-    cfg = BuildConfig(build=args.build)
-    if args.fe and hasattr(cfg, "fe"):
-        cfg.fe = args.fe
-    b = Build(cfg)
+    b = recipe_build(args.recipe, args.set, args.root)
     res = run_budget(b, _predictor(args.run, args.package, args.precision, b.dataset / "bounds.json"), args.stride,
                      not args.heldout_only)
     out = Path(args.out) if args.out else b.root / "eval" / "budget.json"

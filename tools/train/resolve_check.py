@@ -2,7 +2,7 @@
 the twin's own physics (its plan's FE solves, read from truth/ and the twin FE cache). Nothing in the
 build reads this module; it backs the numbers in docs/train.md.
 
-    tensortouch train resolve-check [--build resolve] [--sessions NAME ...] [--out FILE]
+    tensortouch train resolve-check [--recipe hiera-qup-128] [--sessions NAME ...] [--out FILE]
 """
 from __future__ import annotations
 
@@ -119,7 +119,8 @@ def summarize(rows: list[dict], contact_n: float = 0.5) -> dict:
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
-    ap.add_argument("--build", default="resolve", help="build folder name under cache/train/")
+    ap.add_argument("--recipe", default="hiera-qup-128", help="recipe whose build is checked (name, .toml or manifest)")
+    ap.add_argument("--root", help="build folder (default: <cache>/train/<recipe name>/)")
     ap.add_argument("--sessions", nargs="*", help="only these sessions (default: all with FE labels)")
     ap.add_argument("--out", help="write the rows and summaries as JSON here")
     ap.add_argument("--reference", choices=("recorded", "plan"), default="recorded",
@@ -127,9 +128,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.train.build import Build, BuildConfig
+    from tools.train.build import recipe_build
 
-    b = Build(BuildConfig(build=args.build))
+    b = recipe_build(args.recipe, (), args.root)
     rows, cover = [], {}
     for spec in b.all_sessions():
         if args.sessions and spec.name not in args.sessions:
