@@ -1,4 +1,4 @@
-"""Stage 4 (shell) — twin sessions + FE results → the training dataset (docs/train.md "Dataset").
+"""Stage 5 (shell) — twin sessions + FE results → the training dataset (docs/train.md "Dataset").
 
 For each session frame chosen as a sample:
 - input  = the runtime's own view: `runtime.preprocess.Preprocessor(cx, cy, R, S).crop` of a baseline
@@ -6,7 +6,7 @@ For each session frame chosen as a sample:
 - target = `tools.train.fields.fe_to_fields` of the FE solution at that frame (surface U, S, contact
            normal/shear forces), interpolated between the poke's keypoints with the twin's own PCHIP in the
            keypoint parameter σ (`tools.twin.physics.interpolate`), on the unit's θ/φ tables; contact
-           forces scaled by the sim-to-real ratios of the indenter that owns each node (stage 5; nodes of
+           forces scaled by the sim-to-real ratios of the indenter that owns each node (stage 4; nodes of
            two-indenter frames attributed by k-means, `attribute_contacts`); stresses scaled by the
            session's mean magnitude ratio (a displacement-controlled gel with all constants scaled);
 - rest frames (no indenter in the poke window) get all-zero fields, so no contact predicts zero force.

@@ -233,7 +233,7 @@ def budget_table(items: list[dict], key: str = "label") -> dict:
 
 def session_label_samples(b, spec, stride: int = 1):
     """(samples dict as the dataset builds them + 'nind', calibration) of one session: the build's own
-    label path (twin solves or re-solved FE, stage-5 ratios, the unit's tables), every `stride`-th frame."""
+    label path (twin solves or re-solved FE, stage-4 ratios, the unit's tables), every `stride`-th frame."""
     from tools.train import stages
     from tools.train.dataset import DatasetConfig, session_samples
 

@@ -1,4 +1,4 @@
-"""Stage 4 core — FE surface data → 15-channel field images on the θ/φ grid (seed §III.H).
+"""Stage 5 core — FE surface data → 15-channel field images on the θ/φ grid (seed §III.H).
 
 Channel contract: docs/fields.md (runtime.fields.CHANNELS). Contact channels are tractions (MPa):
 per-node contact force (N) divided by the node's tributary area (mm²); the runtime multiplies by the

@@ -1,4 +1,4 @@
-"""Stage 4 from re-solved FE (real-rig path): which camera frames get labels, and their fields.
+"""Stage 5 from re-solved FE (real-rig path): which camera frames get labels, and their fields.
 
 No twin truth is read. Per session, the stage-2 sources (one re-solved FE scenario per stage-1 contact
 period: FE frame times, indenter ids, result) define:

@@ -1,4 +1,4 @@
-"""Stage 5 — sim-to-real force calibration (seed §III.I).
+"""Stage 4 — sim-to-real force calibration (seed §III.I).
 
 The FE runs the nominal gel; the real (or twin) sensor's gel is stiffer or softer, so the measured
 force differs from the FE reaction by a ratio. Per session, per indenter and per force component,

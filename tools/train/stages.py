@@ -124,7 +124,7 @@ def unit_calibration(b, serial: str):
 
 # ------------------------------------------------------------------------------------------- stages
 
-RATIO_WARN = 1.3       # stage 5: warn when a sim-to-real force ratio is beyond ×/÷ this
+RATIO_WARN = 1.3       # stage 4: warn when a sim-to-real force ratio is beyond ×/÷ this
 
 # hertz-fallback twin physics (smoke tests only) gives ~5x smaller forces than FE: scaled contact thresholds
 FALLBACK_CONTACT_N = (0.3, 0.22)
@@ -179,7 +179,7 @@ def stage_correspondence(b) -> dict:
 
 
 def stage_simreal(b) -> dict:
-    """Stage 5: sim-to-real ratios per session and indenter → simreal/<session>.json."""
+    """Stage 4: sim-to-real ratios per session and indenter → simreal/<session>.json."""
     from runtime.session import load_session
     from tools.train.simreal import session_ratios
 
@@ -203,7 +203,7 @@ def stage_simreal(b) -> dict:
 
 
 def stage_dataset(b) -> dict:
-    """Stage 4 + sample selection: training sessions → dataset/ (per-session parts cached in .work/)."""
+    """Stage 5 + sample selection: training sessions → dataset/ (per-session parts cached in .work/)."""
     from tools.train.dataset import DatasetConfig, session_samples, split_pokes, write_dataset
 
     work = b.dataset / ".work" / b.keys["dataset"]   # per configuration: a changed label source starts anew
