@@ -6,16 +6,16 @@ Heavy libraries are imported inside the handlers.
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
+
+from tools.progress import stage_progress
 
 log = logging.getLogger(__name__)
 
 
-def _progress(prefix=""):
-    def cb(j, n, msg):
-        print(f"{prefix}[{j + 1}/{n}] {msg}", file=sys.stderr, flush=True)
-    return cb
+def _progress(desc="fe solve"):
+    bar = stage_progress(desc, "frame")
+    return lambda j, n, msg: bar("", j + 1, n)
 
 
 def _cmd_solve(args) -> int:

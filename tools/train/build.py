@@ -212,14 +212,14 @@ class Build:
 def stage_sessions(b: Build) -> dict:
     """Record the twin sessions (FE physics, cached per poke) and write each unit's TRUE calibration
     into the build's store (the twin truth the correspondence stage is checked against)."""
-    from tools.twin.cli import _Bar
+    from tools.progress import stage_progress
     from tools.twin.record import Recorder
     from tools.twin.unit import write_true_calibration
 
     out = {}
     for i, spec in enumerate(b.all_sessions()):
         path = b.session(spec)
-        rec = Recorder(spec.record_config(b.cfg.physics, b.cfg.size), path, progress=_Bar())
+        rec = Recorder(spec.record_config(b.cfg.physics, b.cfg.size), path, progress=stage_progress(spec.name))
         version = write_true_calibration(rec.unit, b.store_root, b.cfg.size)
         if (path / "session.json").is_file():
             log.info("[sessions %d/%d] %s already recorded", i + 1, len(b.all_sessions()), spec.name)

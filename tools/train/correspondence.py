@@ -88,7 +88,7 @@ def calibration_spec(serial: str, cfg: CorrespondenceConfig):
 
 def record_calibration_session(b, serial: str, cfg: CorrespondenceConfig):
     """Record (or reuse) the unit's calibration poke session; returns its path."""
-    from tools.twin.cli import _Bar
+    from tools.progress import stage_progress
     from tools.twin.record import RecordConfig, Recorder
 
     path = b.root / "correspondence" / "sessions" / f"{serial}-calib"
@@ -97,7 +97,7 @@ def record_calibration_session(b, serial: str, cfg: CorrespondenceConfig):
     rcfg.trajectory = replace(rcfg.trajectory, kinds=("poke",), indenters=(cfg.indenter,), p_two=0.0,
                               depth_poke=cfg.depth)
     if not (path / "session.json").is_file():
-        Recorder(rcfg, path, progress=_Bar()).run()
+        Recorder(rcfg, path, progress=stage_progress(path.name)).run()
     return path
 
 

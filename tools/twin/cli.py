@@ -9,33 +9,10 @@ from __future__ import annotations
 
 import importlib
 import logging
-import sys
-import time
+
+from tools.progress import stage_progress
 
 log = logging.getLogger(__name__)
-
-
-class _Bar:
-    """One-line progress on stderr (no dependency)."""
-
-    def __init__(self, stream=None):
-        self._stream, self.t0, self.last = stream, time.perf_counter(), 0.0
-
-    @property
-    def stream(self):
-        return self._stream or sys.stderr  # looked up per write: stderr may be replaced meanwhile
-
-    def __call__(self, stage: str, i: int, n: int) -> None:
-        now = time.perf_counter()
-        if i < n and now - self.last < 0.2:
-            return
-        self.last = now
-        frac = i / max(n, 1)
-        bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{stage:8s} [{bar:30s}] {i}/{n}  {now - self.t0:6.1f} s")
-        if i >= n:
-            self.stream.write("\n")
-        self.stream.flush()
 
 
 def _record(args) -> int:
@@ -58,7 +35,7 @@ def _record(args) -> int:
     cfg.noise.exposure = args.exposure
     if args.read_noise is not None:
         cfg.noise.read_sigma = args.read_noise
-    rec = Recorder(cfg, args.out, progress=_Bar())
+    rec = Recorder(cfg, args.out, progress=stage_progress(cfg.serial))
     if args.calibration:
         from tools.twin.unit import write_true_calibration
 

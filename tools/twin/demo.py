@@ -26,7 +26,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.twin.cli import _Bar
+    from tools.progress import stage_progress
     from tools.twin.record import RecordConfig, Recorder
     from tools.twin.unit import write_true_calibration
 
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
                        mjpg_quality=QUALITY)
     cfg.trajectory.t_gap = (0.4, 0.7)   # short rests keep the demo under ~5 MB
     cfg.trajectory.t_lead = 0.6
-    rec = Recorder(cfg, staging, progress=_Bar())
+    rec = Recorder(cfg, staging, progress=stage_progress(SERIAL))
     rec.run()
     old = out.with_name(out.name + ".old")
     if out.exists():

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from tools.progress import count_progress
+
 
 def session_args(p, session: bool = True) -> None:
     if session:
@@ -100,7 +102,10 @@ def model_of(args, sensor: str, store):
 
 
 def progress(i: int, n: int, seconds: float) -> None:
-    print(f"\r  network pass: frame {i}/{n} ({seconds:.0f} s)", end="\n" if i == n else "", flush=True)
+    _network_pass(i, n)
+
+
+_network_pass = count_progress("network pass", "frame")
 
 
 def compare_session(args, store=None, sensor=None):
