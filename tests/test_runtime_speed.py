@@ -126,7 +126,7 @@ def test_bench_regenerates_fp32_from_the_checkpoint(tmp_path):
     assert cli(["train", "fit", "--data", str(data), "--out", str(run), "--epochs", "1", "--batch", "6",
                 "--threads", "1"]) == 0
     assert cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "t", "--models-dir",
-                str(models), "--calibration", "4", "--latency-runs", "2"]) == 0
+                str(models), "--quantization-samples", "4", "--latency-runs", "2"]) == 0
     shutil.rmtree(run / "export")                                          # cache gone
     pkg = load_package(models / "t")
     full, source = fp32_package(pkg, tmp_path / "work")

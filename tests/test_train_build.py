@@ -30,9 +30,9 @@ def test_set_reaches_the_build_config():
     from tools.train.build import config_from_dict
     from tools.train.recipe import load_recipe
 
-    r = load_recipe("hiera-qup-128", ["contact_force_n=1.5", "build.detach_force_n=1.1", "calibration_pick=first"])
+    r = load_recipe("hiera-qup-128", ["contact_force_n=1.5", "build.detach_force_n=1.1", "quantization_pick=first"])
     cfg = config_from_dict(r.config(r.steps()[0]), r.source)
-    assert (cfg.contact_force_n, cfg.detach_force_n, cfg.calibration_pick) == (1.5, 1.1, "first")
+    assert (cfg.contact_force_n, cfg.detach_force_n, cfg.quantization_pick) == (1.5, 1.1, "first")
     assert r.hash != load_recipe("hiera-qup-128").hash                  # a --set is part of the recipe
     plain = load_recipe("hiera-qup-128")
     a, b = stage_keys(cfg), stage_keys(config_from_dict(plain.config(plain.steps()[0]), plain.source))

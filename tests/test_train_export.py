@@ -41,7 +41,7 @@ def package(tmp_path_factory):
     assert _cli(["train", "fit", "--data", str(data), "--out", str(run), "--epochs", "1", "--batch", "8",
                  "--threads", "1"]) == 0
     assert _cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "tiny",
-                 "--models-dir", str(models), "--calibration", "8", "--latency-runs", "5"]) == 0
+                 "--models-dir", str(models), "--quantization-samples", "8", "--latency-runs", "5"]) == 0
     assert (sorted(p.name for p in shipped.iterdir()) if shipped.is_dir() else []) == before
     return models / "tiny", data, run
 
@@ -65,8 +65,8 @@ def test_manifest_follows_the_contract(package):
     assert man["files"][FP32]["cache"] == str(cached.resolve())            # outside the repo: absolute
     assert man["files"][FP32]["regenerate"].endswith("--with-fp32")
     assert man["metrics"]["quantization"]["scheme"] == "hybrid"
-    assert man["metrics"]["quantization"]["calibration_pick"] == "spread"
-    assert man["metrics"]["quantization"]["calibration_samples"] == 8
+    assert man["metrics"]["quantization"]["quantization_pick"] == "spread"
+    assert man["metrics"]["quantization"]["quantization_samples"] == 8
     tr = man["training"]
     assert "train export" in tr["command"] and "--name tiny" in tr["command"]
     assert tr["data_hash"] == hashlib.sha256((data / "index.json").read_bytes()).hexdigest()
@@ -154,7 +154,7 @@ def test_with_fp32_ships_both_and_the_fp32_graph_is_reproducible(package, tmp_pa
     folder, data, run = package
     models = tmp_path / "models"
     assert _cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "tiny",
-                 "--models-dir", str(models), "--calibration", "8", "--latency-runs", "2", "--with-fp32"]) == 0
+                 "--models-dir", str(models), "--quantization-samples", "8", "--latency-runs", "2", "--with-fp32"]) == 0
     both = models / "tiny"
     assert sorted(p.name for p in both.iterdir()) == sorted(["manifest.json", INT8, FP32])
     man = verify_package(both)

@@ -21,7 +21,7 @@ def built(package, tmp_path_factory):  # noqa: F811 (fixture)
     _, data, run = package
     models = tmp_path_factory.mktemp("frompkg")
     assert _cli(["train", "export", "--run", str(run), "--data", str(data), "--name", "tiny", "--models-dir",
-                 str(models), "--calibration", "8", "--latency-runs", "2", "--with-fp32"]) == 0
+                 str(models), "--quantization-samples", "8", "--latency-runs", "2", "--with-fp32"]) == 0
     return models / "tiny", data, run
 
 

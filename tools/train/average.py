@@ -91,7 +91,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weight", type=float, default=0.5, help="the fine-tuned network's share (0..1)")
     p.add_argument("--out", required=True, help="the averaged run folder to write")
     p.add_argument("--export", metavar="DATASET", help="also export it as a package from this dataset folder "
-                                                     "(int8 calibration inputs and the parity report)")
+                                                     "(int8 quantization samples and the parity report)")
     p.add_argument("--name", default="hiera-qup-128", help="package name (with --export)")
     p.add_argument("--models-dir", help="package root (with --export; default exported_models/)")
 

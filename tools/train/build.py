@@ -89,8 +89,8 @@ class BuildConfig:
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
-    calibration_samples: int = 128                # int8 calibration inputs (ExportConfig)
-    calibration_pick: str = "spread"              # spread over the train split | "first" (ExportConfig)
+    quantization_samples: int = 128                # inputs that set the int8 ranges (ExportConfig)
+    quantization_pick: str = "spread"              # spread over the train split | "first" (ExportConfig)
     threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
     support_px: float = 0.0                       # a fixed cluster support radius (px, floor 0); 0 = the runtime default
     latency_runs: int = 50
@@ -125,12 +125,12 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
                     "init_bounds"],
-            "export": ["name", "calibration_samples", "calibration_pick", "threshold_sessions", "support_px"],
+            "export": ["name", "quantization_samples", "quantization_pick", "threshold_sessions", "support_px"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
     optional = {"force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
-                "detach_force_n": 1.1, "threshold_sessions": 6, "calibration_pick": "first", "support_px": 0.0}
+                "detach_force_n": 1.1, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:

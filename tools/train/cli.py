@@ -89,12 +89,12 @@ def cmd_export(args) -> int:
 
     t0 = time.monotonic()
     root = Path(args.models_dir) if args.models_dir else models_dir()
-    cfg = ExportConfig(calibration_samples=args.calibration, calibration_pick=args.calibration_pick,
+    cfg = ExportConfig(quantization_samples=args.quantization_samples, quantization_pick=args.quantization_pick,
                        latency_runs=args.latency_runs,
                        with_fp32=getattr(args, "with_fp32", False))
     command = args.command_line or shlex.join(
         ["tensortouch", "train", "export", "--run", str(args.run), "--data", str(args.data), "--name", args.name,
-         "--models-dir", str(root), "--calibration", str(args.calibration), "--calibration-pick", args.calibration_pick,
+         "--models-dir", str(root), "--quantization-samples", str(args.quantization_samples), "--quantization-pick", args.quantization_pick,
          "--latency-runs", str(args.latency_runs)]
         + (["--with-fp32"] if getattr(args, "with_fp32", False) else []))
     man = export_run(args.run, args.data, args.name, root, command, cfg, wall_time_s=args.wall_time)
@@ -168,12 +168,12 @@ def register(sub) -> None:
 
     e = ts.add_parser("export", help="stage 7: ONNX + static int8 + parity → exported_models/<name>/")
     e.add_argument("--run", required=True, help="fit run directory")
-    e.add_argument("--data", required=True, help="dataset (calibration inputs, evaluation, bounds, hash)")
+    e.add_argument("--data", required=True, help="dataset (quantization samples, evaluation, bounds, hash)")
     e.add_argument("--name", required=True, help="package name")
     e.add_argument("--models-dir", help="root of model packages (default: exported_models/ or $TENSORTOUCH_MODELS)")
-    e.add_argument("--calibration", type=int, default=128,
-                   help="training inputs used for int8 calibration")
-    e.add_argument("--calibration-pick", choices=("spread", "first"), default="spread",
+    e.add_argument("--quantization-samples", type=int, default=128,
+                   help="training inputs that set the int8 activation ranges")
+    e.add_argument("--quantization-pick", choices=("spread", "first"), default="spread",
                    help="which training inputs: spread evenly over the split (default) or the first ones")
     e.add_argument("--latency-runs", type=int, default=50, help="timed runs per precision for the latency figure")
     e.add_argument("--wall-time", type=float, default=0.0, help="wall time of the whole build to record (s)")

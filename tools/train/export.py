@@ -35,12 +35,12 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class ExportConfig:
     opset: int = 20                      # GELU as one ONNX op (opset 20): int8 5 % faster than 17, same output
-    # Activation ranges (MinMax) come from `calibration_samples` training inputs picked by
-    # `calibration_pick`: "spread" = evenly over the whole train split, "first" = its first samples.
+    # Activation ranges (MinMax) come from `quantization_samples` training inputs picked by
+    # `quantization_pick`: "spread" = evenly over the whole train split, "first" = its first samples.
     # The dataset is written session by session, so its first samples are a few pokes of one unit:
     # ranges too narrow for slides, whose clipped activations then move their forces.
-    calibration_samples: int = 128
-    calibration_pick: str = "spread"     # "spread" | "first"
+    quantization_samples: int = 128
+    quantization_pick: str = "spread"     # "spread" | "first"
     per_channel: bool = True
     rewrite: bool = True                 # exact graph rewrites of export_graph (fused heads, deconv)
     # Quantization scheme, measured on hiera-qup-128 (128², one thread, interleaved, CPU time per frame
@@ -255,9 +255,9 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
     model, info = load_trained(run)
     size = int(info["image_size"])
     bounds = read_bounds(data / "bounds.json")
-    if cfg.calibration_pick not in ("spread", "first"):
-        raise ModelPackageError(f"ExportConfig.calibration_pick {cfg.calibration_pick!r}: expected 'spread' or 'first'")
-    x_tr, _ = load_split(data, "train", limit=cfg.calibration_samples, spread=cfg.calibration_pick == "spread")
+    if cfg.quantization_pick not in ("spread", "first"):
+        raise ModelPackageError(f"ExportConfig.quantization_pick {cfg.quantization_pick!r}: expected 'spread' or 'first'")
+    x_tr, _ = load_split(data, "train", limit=cfg.quantization_samples, spread=cfg.quantization_pick == "spread")
     try:
         x_va, y_va = load_split(data, "val")
     except Exception:  # noqa: BLE001 — a dataset without a val split evaluates on training samples
@@ -281,8 +281,8 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
                                   "detail": lat},
                    "eval_samples": rep["samples"], "arch": info["arch"], "params": info["params"],
                    "quantization": {"scheme": cfg.scheme, "rewrite": cfg.rewrite,
-                                    "calibration_samples": int(len(x_tr)),
-                                    "calibration_pick": cfg.calibration_pick,
+                                    "quantization_samples": int(len(x_tr)),
+                                    "quantization_pick": cfg.quantization_pick,
                                     "int8_vs_fp32_force_n": rep.get("int8_vs_fp32_force_n")}}
         shipped = (INT8, FP32) if cfg.with_fp32 else (INT8,)
         cache = None

@@ -308,8 +308,8 @@ def stage_export(b) -> dict:
     t0 = time.monotonic()
     cmd = b.command or shlex.join(["tensortouch", "train", "all", "--name", b.cfg.name])
     man = export_run(fit_dir(b), b.dataset, b.cfg.name, root, cmd,
-                     ExportConfig(calibration_samples=b.cfg.calibration_samples,
-                                  calibration_pick=b.cfg.calibration_pick, latency_runs=b.cfg.latency_runs),
+                     ExportConfig(quantization_samples=b.cfg.quantization_samples,
+                                  quantization_pick=b.cfg.quantization_pick, latency_runs=b.cfg.latency_runs),
                      wall_time_s=build_wall_time(b, 0.0))
     m = man["metrics"]
     thr = package_threshold(b, root / b.cfg.name)

@@ -104,7 +104,7 @@ def load_split(root: str | Path, split: str | None = None, limit: int | None = N
                spread: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """All samples of a split as (N, 6, H, W) uint8 and (N, 15, H, W) float32 arrays: the first
     `limit` of them, or with `spread` `limit` samples spread evenly over the whole split (every unit
-    and loading kind of a dataset written session by session, e.g. for int8 calibration)."""
+    and loading kind of a dataset written session by session, e.g. for the int8 quantization samples)."""
     doc = read_index(root)
     entries = [e for e in doc["samples"] if split is None or e.get("split") == split]
     entries = [entries[i] for i in spread_indices(len(entries), limit)] if spread else entries[:limit]
