@@ -103,6 +103,31 @@ def correction_inputs(clusters: list[Cluster], cal: Calibration) -> tuple[np.nda
     return uv, tp
 
 
+def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, correction: ForceCorrection,
+                    cal: Calibration, timings: dict | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The pipeline's last steps on one frame's clusters (forces changed in place): the enabled
+    effects, then the force correction, then the wrench. Returns (status flags, total force (3,) N,
+    torque about the gel origin (3,) N*mm); `timings` gets "effects" and "correction" in ms."""
+    t0 = time.perf_counter()
+    flags = effects.apply(clusters, t)
+    t1 = time.perf_counter()
+    if clusters and correction.enabled:
+        forces = np.array([c.force_n for c in clusters])
+        uv, tp = correction_inputs(clusters, cal)
+        for c, f in zip(clusters, correction(forces, uv, tp)):
+            c.force_n = tuple(map(float, f))
+            c.force_mag_n = float(np.linalg.norm(f))
+    force = np.zeros(3)
+    torque = np.zeros(3)
+    for c in clusters:
+        force += c.force_n
+        torque += np.cross(c.centroid_mm, c.force_n)
+    if timings is not None:
+        timings["effects"] = (t1 - t0) * 1e3
+        timings["correction"] = (time.perf_counter() - t1) * 1e3
+    return flags, force, torque
+
+
 def open_pipeline(package, calibration: Calibration, *, precision: str = "int8", threads: int = 1,
                   sensor_id: str | None = None, correction: ForceCorrection | None = None,
                   effects: bool = True) -> SensorPipeline:
@@ -205,24 +230,9 @@ class SensorPipeline:
         if passed.state == "STARTUP":
             timings.update(effects=0.0, correction=0.0)
             return FrameResult(passed.seq, t, None, [], np.zeros(3), np.zeros(3), passed.state, flags, timings)
-        t35 = time.perf_counter()
-        flags += self.effects.apply(clusters, t)
-        t4 = time.perf_counter()
-        timings["effects"] = (t4 - t35) * 1e3
-        if clusters and self.correction.enabled:
-            forces = np.array([c.force_n for c in clusters])
-            uv, tp = correction_inputs(clusters, self.cal)
-            corrected = self.correction(forces, uv, tp)
-            for c, f in zip(clusters, corrected):
-                c.force_n = tuple(map(float, f))
-                c.force_mag_n = float(np.linalg.norm(f))
-        force = np.zeros(3)
-        torque = np.zeros(3)
-        for c in clusters:
-            force += c.force_n
-            torque += np.cross(c.centroid_mm, c.force_n)
+        more, force, torque = finish_clusters(clusters, t, self.effects, self.correction, self.cal, timings)
+        flags += more
         self._last_force = float(np.linalg.norm(force))
-        timings["correction"] = (time.perf_counter() - t4) * 1e3
         return FrameResult(passed.seq, t, passed.fields, clusters, force, torque, passed.state, flags, timings)
 
     def set_temperature(self, celsius: float | None) -> None:
