@@ -27,11 +27,22 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from drivers.camera import camera_from_uri
+from drivers.camera.camera import EndOfStream
 from runtime.calibration import Calibration, sha256_file
 from runtime.contacts import Cluster
 from runtime.correction import ForceCorrection
-from runtime.pipeline import FrameResult, NetworkPass, PipelineConfig, force_band, open_pipeline
+from runtime.pipeline import (
+    FrameResult,
+    NetworkPass,
+    PipelineConfig,
+    force_band,
+    open_pipeline,
+)
+from runtime.session import load_session
+from runtime.temperature import TemperatureTrack
 
 log = logging.getLogger(__name__)
 
@@ -146,23 +157,16 @@ def load_passes(path: Path) -> list[NetworkPass] | None:
 
 # ----- the replay ---------------------------------------------------------------------------------
 def _session(session):
-    from runtime.session import load_session
-
     return load_session(session) if isinstance(session, (str, Path)) else session
 
 
 def _temperature(session):
     """The session's temperature stream, as `tensortouch run` reads it for a replayed session."""
-    from runtime.temperature import TemperatureTrack
-
     return TemperatureTrack.from_session(session.path)
 
 
 def _frames(session):
     """(image RGB, t) of every frame, through the replay camera `tensortouch run` uses."""
-    from drivers.camera import camera_from_uri
-    from drivers.camera.camera import EndOfStream
-
     with camera_from_uri(f"replay:{session.path}", realtime=False) as cam:
         while True:
             try:
@@ -243,8 +247,6 @@ def network_passes(session, package, calibration: Calibration, *, cache: Path | 
 # ----- what the rig measured --------------------------------------------------------------------
 def ft_to_sensor(force_ft: np.ndarray, pose_quat_wxyz: np.ndarray, ft_rotation_wxyz) -> np.ndarray:
     """F/T force (T, 3) in the F/T frame → sensor frame, through F/T → indenter → sensor rotations."""
-    from scipy.spatial.transform import Rotation
-
     def rot(q):
         q = np.asarray(q, float).reshape(-1, 4)
         return Rotation.from_quat(q[:, [1, 2, 3, 0]])
