@@ -164,3 +164,39 @@ def test_cached_network_passes_replay_the_same_and_follow_the_key(demo, tmp_path
         assert cache_key(session, pkg, cal, "int8") != key
     finally:
         pkg.manifest["runtime"].pop("contact_merge_n")
+
+
+def test_recalibration_replays_with_the_effect_stage(tmp_path):
+    """The recalibration's fit surface (tools.recalib.replay) is the runtime's output with the
+    calibration's effects applied and the correction off; its re-applied correction is what the
+    runtime publishes with that correction on."""
+    from runtime.model import load_package
+    from tests.conftest import dome_calibration
+    from tests.test_e2e_runtime import H, SENSOR, SIZE, W, write_poke_session
+    from tools.bench.models import write_difference_package
+    from tools.recalib.replay import collect_frames, corrected_frames
+
+    session = write_poke_session(tmp_path / "session")
+    pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
+    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    store = CalibrationStore(tmp_path / "calib")
+    store.derive(SENSOR, {"effects": [{"name": "strain_stiffening", "params": {"k": 40.0}}],
+                          "correction": {"file": "correction.onnx", "inputs": ["fmag", "u", "v"], "output": "gain"}},
+                 files={"correction.onnx": gain_model(tmp_path / "gain.onnx", 3, 1.1)})
+    cal = store.load(SENSOR)
+    frames = collect_frames(session, cal, pkg, "fp32", cache=tmp_path / "cache")
+    assert len(frames) == 90 and sum(len(c) for _, c in frames) > 10
+    no_corr = list(replay_session(session, pkg, cal, precision="fp32", correction=ForceCorrection(None, None)))
+    raw = list(replay_session(session, pkg, cal, precision="fp32", correction=ForceCorrection(None, None),
+                              effects=False))
+    assert [len(c) for _, c in frames] == [len(a.clusters) for a in no_corr] == [len(b.clusters) for b in raw]
+    seen = [(c.force_n, n.force_n, r.force_n) for (_, cl), a, b in zip(frames, no_corr, raw)
+            for c, n, r in zip(cl, a.clusters, b.clusters)]
+    assert seen
+    np.testing.assert_allclose([s[0] for s in seen], [s[1] for s in seen], rtol=1e-12)     # effects applied
+    assert not np.allclose([s[0] for s in seen], [s[2] for s in seen], rtol=1e-3)          # ... and they matter
+    published = list(replay_session(session, pkg, cal, precision="fp32"))
+    refit = corrected_frames(frames, cal)
+    for (t, cl), r in zip(refit, published):
+        assert t == r.t and [c.id for c in cl] == [c.id for c in r.clusters]
+        np.testing.assert_allclose([c.force_n for c in cl], [c.force_n for c in r.clusters], rtol=1e-9, atol=1e-12)
