@@ -22,6 +22,7 @@ import hashlib
 import json
 import logging
 import os
+import time
 from collections.abc import Iterator
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -182,7 +183,7 @@ def _raw(p: NetworkPass, keep_fields: bool) -> NetworkPass:
 
 
 def _replay(session, package, calibration, cache, precision, threads, correction, effects,
-            keep_pass_fields=False) -> Iterator[tuple[NetworkPass, FrameResult]]:
+            progress=None) -> Iterator[tuple[NetworkPass, FrameResult]]:
     session = _session(session)
     temperature = _temperature(session)
 
@@ -206,13 +207,16 @@ def _replay(session, package, calibration, cache, precision, threads, correction
             yield from done
             return
     pipe, kept = pipeline(), []
-    for image, t in _frames(session):
+    n, t0 = len(session.table("frames")), time.perf_counter()
+    for i, (image, t) in enumerate(_frames(session)):
         if temperature is not None:
             pipe.set_temperature(temperature(t))
         p = pipe.network_pass(image, t)
-        raw = _raw(p, keep_pass_fields)
+        raw = _raw(p, False)
         kept.append(raw)
         yield raw, pipe.finish(p, t)
+        if progress is not None and (i % 200 == 0 or i == n - 1):
+            progress(i + 1, n, time.perf_counter() - t0)
     if path is not None:
         save_passes(path, kept)
 
@@ -233,11 +237,12 @@ def replay_session(session, package, calibration: Calibration, *, cache: Path | 
 
 def network_passes(session, package, calibration: Calibration, *, cache: Path | None = None,
                    precision: str = "int8", threads: int = 1, correction: ForceCorrection | None = None,
-                   effects: bool = True) -> tuple[list[NetworkPass], bool]:
+                   effects: bool = True, progress=None) -> tuple[list[NetworkPass], bool]:
     """Every frame's network pass (raw clusters, no fields) as `replay_session` with the same
-    arguments runs it, and whether it came from the cache."""
+    arguments runs it, and whether it came from the cache. `progress(frames done, frames, seconds)`
+    is called while the network runs."""
     passes, ran = [], False
-    gen = _replay(session, package, calibration, cache, precision, threads, correction, effects)
+    gen = _replay(session, package, calibration, cache, precision, threads, correction, effects, progress)
     for p, _ in gen:
         passes.append(p)
         ran = ran or bool(p.timings)

@@ -35,7 +35,13 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SessionError, TensorTouchError
-from runtime.offline import cache_key, match_contacts, network_passes, pack_clusters, unpack_clusters
+from runtime.offline import (
+    cache_key,
+    match_contacts,
+    network_passes,
+    pack_clusters,
+    unpack_clusters,
+)
 from tools.workbench.table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
@@ -92,10 +98,8 @@ def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path 
     key = cache_key(session, package, cal, cfg.precision)
     t0 = time.perf_counter()
     passes, cached = network_passes(session, package, cal, cache=cache_dir, precision=cfg.precision, threads=cfg.threads,
-                                    correction=ForceCorrection(None, None), effects=False)
+                                    correction=ForceCorrection(None, None), effects=False, progress=progress)
     seconds = 0.0 if cached else time.perf_counter() - t0
-    if progress and not cached:
-        progress(len(passes), len(passes), seconds)
     if not cached:
         log.info("network pass of %s: %d frames in %.1f s", session.path, len(passes), seconds)
     return pack_passes(passes), {"key": key, "cached": cached, "seconds": seconds}
