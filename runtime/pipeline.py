@@ -2,9 +2,9 @@
 
 `SensorPipeline.process(frame, t)` = `finish(network_pass(frame, t), t)`: the network pass
 (preprocess, baseline, inference, clusters, contact ids) and the finish (effects, correction,
-wrench), so an offline replay (runtime/offline.py) can keep passes and re-finish them. It is pure apart from its own state (baseline tracker, contact ids);
-it never touches devices or the network, so the frame loop (runtime/loop.py), the benchmark and
-the workbench all run exactly this code. Every stage is timed (ms) into `FrameResult.timings`.
+wrench), so an offline replay (runtime/offline.py) can keep passes and re-finish them. It is pure
+apart from its own state (baseline tracker, contact ids); it never touches devices or the network,
+so the frame loop (runtime/loop.py), the benchmark and every offline replay run exactly this code. Every stage is timed (ms) into `FrameResult.timings`.
 """
 from __future__ import annotations
 
