@@ -20,10 +20,14 @@ import pytest
 from runtime import paths
 from runtime.calibration import CalibrationStore
 from runtime.correction import ForceCorrection
+from runtime.model import load_package
 from runtime.offline import cache_key, match_contacts, network_passes, replay_session
 from runtime.session import load_session
+from tests.conftest import dome_calibration
 from tests.test_correction import gain_model
-from tests.test_e2e_runtime import free_port
+from tests.test_e2e_runtime import SENSOR, SIZE, H, W, free_port, write_poke_session
+from tools.bench.models import write_difference_package
+from tools.recalib.replay import collect_frames, corrected_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = "TWIN-DEMO"
@@ -170,12 +174,6 @@ def test_recalibration_replays_with_the_effect_stage(tmp_path):
     """The recalibration's fit surface (tools.recalib.replay) is the runtime's output with the
     calibration's effects applied and the correction off; its re-applied correction is what the
     runtime publishes with that correction on."""
-    from runtime.model import load_package
-    from tests.conftest import dome_calibration
-    from tests.test_e2e_runtime import H, SENSOR, SIZE, W, write_poke_session
-    from tools.bench.models import write_difference_package
-    from tools.recalib.replay import collect_frames, corrected_frames
-
     session = write_poke_session(tmp_path / "session")
     pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
     dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
