@@ -99,8 +99,8 @@ def cmd_run(args) -> int:
     from runtime.calibration import CalibrationStore
     from runtime.errors import TensorTouchError
     from runtime.loop import LoopConfig, SensorLoop
-    from runtime.model import FieldModel, find_package
-    from runtime.pipeline import SensorPipeline
+    from runtime.model import find_package
+    from runtime.pipeline import open_pipeline
     from runtime.publisher import Publisher
 
     import cv2
@@ -114,8 +114,7 @@ def cmd_run(args) -> int:
                                "(it names the calibration store folder of this sensor)")
     store = CalibrationStore()
     cal = store.load(sensor)
-    model = FieldModel(package, args.precision, threads=args.threads)
-    pipeline = SensorPipeline(sensor, model, cal)
+    pipeline = open_pipeline(package, cal, precision=args.precision, threads=args.threads, sensor_id=sensor)
     listen = args.listen or ([] if args.connect else [DEFAULT_ENDPOINT])
     loop = None
     with Publisher(sensor, listen=listen, connect=args.connect, info=lambda: loop.info() if loop else {}) as pub:

@@ -1,8 +1,10 @@
 """One sensor's per-frame processing: frame → baseline → fields → contacts → corrected forces.
 
-`SensorPipeline.process(frame, t)` is pure apart from its own state (baseline tracker, contact ids);
-it never touches devices or the network, so the frame loop (runtime/loop.py), the benchmark and
-the workbench all run exactly this code. Every stage is timed (ms) into `FrameResult.timings`.
+`SensorPipeline.process(frame, t)` = `finish(network_pass(frame, t), t)`: the network pass
+(preprocess, baseline, inference, clusters, contact ids) and the finish (effects, correction,
+wrench), so an offline replay (runtime/offline.py) can keep passes and re-finish them. It is pure
+apart from its own state (baseline tracker, contact ids); it never touches devices or the network,
+so the frame loop (runtime/loop.py), the benchmark and every offline replay run exactly this code. Every stage is timed (ms) into `FrameResult.timings`.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from runtime.calibration import Calibration
 from runtime.contacts import Cluster, ContactConfig, ContactTracker, find_clusters, pixel_forces
 from runtime.correction import ForceCorrection
 from runtime.effect_stage import EffectStage
+from runtime.effects import EffectChain
 from runtime.geometry import sample_bilinear
 from runtime.model import FieldModel
 from runtime.preprocess import Preprocessor
@@ -64,6 +67,80 @@ class FrameResult:
     timings: dict[str, float]              # ms per stage
 
 
+@dataclass
+class NetworkPass:
+    """One frame's network half (`SensorPipeline.network_pass`): what the model and the contact
+    tracker made of it, before effects and correction."""
+    seq: int
+    t: float
+    fields: np.ndarray | None              # (15, H, W), None before the baseline exists (or not kept)
+    clusters: list[Cluster]                # raw model forces
+    state: str                             # baseline state
+    flags: list[str]                       # frame health flags
+    timings: dict[str, float]
+    force_band: int                        # `force_band` of the force the baseline saw on this frame
+
+
+def force_band(force_n: float | None, cfg: BaselineConfig) -> int:
+    """What the baseline's contact test reads from a force estimate: 0 none, 1 below release,
+    2 between release and contact, 3 at or above contact. A pass is valid after any finish that
+    feeds the baseline the same bands."""
+    if force_n is None:
+        return 0
+    if force_n >= cfg.force_contact_n:
+        return 3
+    return 1 if force_n < cfg.force_release_n else 2
+
+
+def correction_inputs(clusters: list[Cluster], cal: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """The correction's position inputs of cluster centroids: uv (N, 2) in [0, 1] of the model image
+    and θ/φ (N, 2) rad sampled from the calibration's tables."""
+    h, w = cal.model_size
+    px = np.array([c.centroid_px for c in clusters], dtype=np.float64).reshape(-1, 2)
+    uv = px * np.array([1.0 / w, 1.0 / h])
+    tp = np.array([[sample_bilinear(cal.theta, u - 0.5, v - 0.5), sample_bilinear(cal.phi, u - 0.5, v - 0.5)]
+                   for u, v in px], dtype=np.float64).reshape(-1, 2)
+    return uv, tp
+
+
+def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, correction: ForceCorrection,
+                    cal: Calibration, timings: dict | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The pipeline's last steps on one frame's clusters (forces changed in place): the enabled
+    effects, then the force correction, then the wrench. Returns (status flags, total force (3,) N,
+    torque about the gel origin (3,) N*mm); `timings` gets "effects" and "correction" in ms."""
+    t0 = time.perf_counter()
+    flags = effects.apply(clusters, t)
+    t1 = time.perf_counter()
+    if clusters and correction.enabled:
+        forces = np.array([c.force_n for c in clusters])
+        uv, tp = correction_inputs(clusters, cal)
+        for c, f in zip(clusters, correction(forces, uv, tp)):
+            c.force_n = tuple(map(float, f))
+            c.force_mag_n = float(np.linalg.norm(f))
+    force = np.zeros(3)
+    torque = np.zeros(3)
+    for c in clusters:
+        force += c.force_n
+        torque += np.cross(c.centroid_mm, c.force_n)
+    if timings is not None:
+        timings["effects"] = (t1 - t0) * 1e3
+        timings["correction"] = (time.perf_counter() - t1) * 1e3
+    return flags, force, torque
+
+
+def open_pipeline(package, calibration: Calibration, *, precision: str = "int8", threads: int = 1,
+                  sensor_id: str | None = None, correction: ForceCorrection | None = None,
+                  effects: bool = True) -> SensorPipeline:
+    """The pipeline `tensortouch run` builds for a model package and a calibration version (the
+    package's pipeline configuration). `correction` replaces the calibration's (ForceCorrection(None,
+    None): raw model force); effects=False runs without the enabled effects."""
+    pipe = SensorPipeline(sensor_id or calibration.sensor_id, FieldModel(package, precision, threads),
+                          calibration, correction=correction)
+    if not effects:
+        pipe.effects.chain = EffectChain()
+    return pipe
+
+
 def _same_geometry(a: Calibration, b: Calibration) -> bool:
     """True when two calibration versions share the crop and every geometry table (same hashes)."""
     keys = ("gel_center_px", "gel_radius_px", "model_size")
@@ -109,25 +186,29 @@ class SensorPipeline:
         self._last_force = None
         self._prev_frame_sig = None
         self._frozen = 0
-        h, w = calibration.model_size
-        self._uv_scale = np.array([1.0 / w, 1.0 / h])
 
     def process(self, frame: np.ndarray, t: float) -> FrameResult:
         """frame: (H, W, 3) uint8 RGB camera image at time t (s)."""
+        return self.finish(self.network_pass(frame, t), t)
+
+    def network_pass(self, frame: np.ndarray, t: float) -> NetworkPass:
+        """The expensive half of a frame: preprocess, baseline, inference, clusters and contact ids.
+        It reads the force published for the previous frame (the baseline's contact test), so passes
+        must be finished in order."""
         timings: dict[str, float] = {}
-        flags: list[str] = []
         t0 = time.perf_counter()
         img = self.pre.apply(frame)                      # (3, h, w) float32 in [0, 1]
         t1 = time.perf_counter()
         timings["preprocess"] = (t1 - t0) * 1e3
-        flags += self._health(frame)
+        flags = self._health(frame)
+        band = force_band(self._last_force, self.cfg.baseline)
         step = self.baseline.update(img, self._last_force, t)
         t2 = time.perf_counter()
         timings["baseline"] = (t2 - t1) * 1e3
         self.seq += 1
         if step.baseline is None:                        # still collecting startup frames
-            timings.update(inference=0.0, contacts=0.0, effects=0.0, correction=0.0)
-            return FrameResult(self.seq, t, None, [], np.zeros(3), np.zeros(3), step.state.name, flags, timings)
+            timings.update(inference=0.0, contacts=0.0)
+            return NetworkPass(self.seq, t, None, [], step.state.name, flags, timings, band)
         x = np.concatenate([step.baseline, img], axis=0)
         fields = self.model(x)
         t3 = time.perf_counter()
@@ -137,28 +218,22 @@ class SensorPipeline:
         clusters = find_clusters(fp, cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask,
                                  disp=fields[0:3], cfg=self.cfg.contacts)
         clusters = self.tracker.update(clusters)
-        t35 = time.perf_counter()
-        timings["contacts"] = (t35 - t3) * 1e3
-        flags += self.effects.apply(clusters, t)
-        t4 = time.perf_counter()
-        timings["effects"] = (t4 - t35) * 1e3
-        if clusters and self.correction.enabled:
-            forces = np.array([c.force_n for c in clusters])
-            uv = np.array([c.centroid_px for c in clusters]) * self._uv_scale
-            tp = np.array([[sample_bilinear(cal.theta, u - 0.5, v - 0.5), sample_bilinear(cal.phi, u - 0.5, v - 0.5)]
-                           for u, v in (c.centroid_px for c in clusters)])
-            corrected = self.correction(forces, uv, tp)
-            for c, f in zip(clusters, corrected):
-                c.force_n = tuple(map(float, f))
-                c.force_mag_n = float(np.linalg.norm(f))
-        force = np.zeros(3)
-        torque = np.zeros(3)
-        for c in clusters:
-            force += c.force_n
-            torque += np.cross(c.centroid_mm, c.force_n)
+        timings["contacts"] = (time.perf_counter() - t3) * 1e3
+        return NetworkPass(self.seq, t, fields, clusters, step.state.name, flags, timings, band)
+
+    def finish(self, passed: NetworkPass, t: float) -> FrameResult:
+        """The cheap half: the enabled effects, the force correction and the wrench, on a pass's
+        clusters (changed in place). Before the baseline exists no stage runs."""
+        timings = dict(passed.timings)
+        flags = list(passed.flags)
+        clusters = passed.clusters
+        if passed.state == "STARTUP":
+            timings.update(effects=0.0, correction=0.0)
+            return FrameResult(passed.seq, t, None, [], np.zeros(3), np.zeros(3), passed.state, flags, timings)
+        more, force, torque = finish_clusters(clusters, t, self.effects, self.correction, self.cal, timings)
+        flags += more
         self._last_force = float(np.linalg.norm(force))
-        timings["correction"] = (time.perf_counter() - t4) * 1e3
-        return FrameResult(self.seq, t, fields, clusters, force, torque, step.state.name, flags, timings)
+        return FrameResult(passed.seq, t, passed.fields, clusters, force, torque, passed.state, flags, timings)
 
     def set_temperature(self, celsius: float | None) -> None:
         """Gel temperature from a sensor (°C), for effects that need it (None = unknown)."""

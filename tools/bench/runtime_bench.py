@@ -153,11 +153,9 @@ class _Config:
     def __init__(self, pkg, precision: str, video: Path, cal, threads: int, publisher, fields_every: int):
         from drivers.camera import camera_from_uri
         from runtime.loop import LatencyWindow, LoopConfig, SensorLoop
-        from runtime.model import FieldModel
-        from runtime.pipeline import SensorPipeline
+        from runtime.pipeline import open_pipeline
 
-        model = FieldModel(pkg, precision, threads=threads)
-        self.pipe = SensorPipeline(cal.sensor_id, model, cal)
+        self.pipe = open_pipeline(pkg, cal, precision=precision, threads=threads)
         self.cam = camera_from_uri(f"file:{video}", realtime=False, loop=True)
         self.cam.__enter__()
         self.loop = SensorLoop(self.cam, self.pipe, publisher,

@@ -142,8 +142,8 @@ def cmd_recalibrate(args, say=None) -> int:
     from runtime.calibration import CalibrationStore
     from runtime.correction import ForceCorrection
     from runtime.errors import TensorTouchError
-    from runtime.model import FieldModel, find_package
-    from runtime.pipeline import SensorPipeline
+    from runtime.model import find_package
+    from runtime.pipeline import open_pipeline
     from runtime.session import load_session
     from tools.recalib.pokes import PokeRules
     from tools.recalib.session import SessionConfig, analyse, run_guided, session_truth_xyz
@@ -157,8 +157,8 @@ def cmd_recalibrate(args, say=None) -> int:
         raise TensorTouchError("--source is required (the live camera, or replay:SESSION_DIR)")
     path, _, query = args.source.partition("?")
     session = load_session(path.split(":", 1)[1]) if path.startswith("replay:") else None
-    model = FieldModel(package, args.precision, threads=args.threads)
-    pipeline = SensorPipeline(args.sensor, model, cal, correction=ForceCorrection(None, None))  # raw model force
+    pipeline = open_pipeline(package, cal, precision=args.precision, threads=args.threads, sensor_id=args.sensor,
+                             correction=ForceCorrection(None, None))  # raw model force, effects on
     reach = getattr(args, "reach_deg", None)
     cfg = SessionConfig(pokes=args.pokes, rules=PokeRules(reach_theta_rad=None if reach is None else math.radians(reach)))
     reference, gauge = _reference(args, session, say)

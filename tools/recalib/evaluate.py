@@ -1,6 +1,6 @@
 """Held-out evaluation on a recording: every poke's force magnitude, with and without a correction.
 
-Replays a session (real or twin) through the runtime pipeline with a given calibration version and
+Replays a session (real or twin) through the runtime (runtime.offline.replay_session) with a given calibration version and
 pairs the sensor's force with the recording's force stream, one row per poke. Two pairings:
 - `gauge_pokes` (the default): the pokes are the reference's (episodes of the gauge force), so every
   calibration is scored on the same pokes, and a poke the sensor missed or split counts with the
@@ -17,8 +17,8 @@ import numpy as np
 
 from runtime.calibration import Calibration
 from runtime.correction import ForceCorrection
-from runtime.model import FieldModel, ModelPackage
-from runtime.pipeline import SensorPipeline
+from runtime.model import ModelPackage
+from runtime.offline import replay_session
 from runtime.session import load_session
 from tools.recalib.pokes import PokeDetector, PokeRules
 from tools.recalib.session import StreamReference
@@ -30,24 +30,11 @@ def measure_pokes(session_dir, cal: Calibration, package: ModelPackage, correcte
                   rules: PokeRules = PokeRules(), precision: str = "int8", by: str = "gauge") -> dict:
     """{'pred': (N,) |F| the runtime reports, 'ref': (N,) reference |F|} per poke; `by` "gauge" (the
     reference's pokes) or "detected" (the single-contact pokes the sensor detected)."""
-    from drivers.camera import camera_from_uri
-
     session = load_session(session_dir)
     ref = StreamReference.from_session(session, rules)
     corr = None if corrected else ForceCorrection(None, None)
-    pipe = SensorPipeline(cal.sensor_id, FieldModel(package, precision), cal, correction=corr)
-    with camera_from_uri(f"replay:{session_dir}", realtime=False) as cam:
-        from drivers.camera.camera import EndOfStream
-
-        def frames():
-            while True:
-                try:
-                    frame = cam.read()
-                except EndOfStream:
-                    return
-                yield frame.t, pipe.process(frame.image, frame.t).clusters
-
-        return gauge_pokes(list(frames()), ref, rules) if by == "gauge" else pair_pokes(frames(), ref, rules)
+    frames = [(r.t, r.clusters) for r in replay_session(session, package, cal, precision=precision, correction=corr)]
+    return gauge_pokes(frames, ref, rules) if by == "gauge" else pair_pokes(frames, ref, rules)
 
 
 def pair_pokes(frames, reference, rules: PokeRules) -> dict:

@@ -1,7 +1,7 @@
 """Stage 8 — evaluation as seed §V-A on held-out twin sessions, through the runtime's own code path.
 
-Every frame of a session goes through `runtime.pipeline.SensorPipeline` (preprocess, dynamic baseline,
-the shipped int8 model, contact clustering) exactly as `tensortouch run` does. For frames where an
+Every frame of a session goes through `runtime.offline.replay_session` (preprocess, dynamic baseline,
+the shipped int8 model, contact clustering, effects, correction): what `tensortouch run` publishes. For frames where an
 indenter's measured force (F/T rotated into the sensor frame) exceeds the seed's contact threshold,
 the cluster nearest to that indenter's mocap tip is compared with it:
 - position: cluster centroid (mm, sensor frame) − mocap tip position, per axis;
@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.offline import match_contacts, measured_at
+
 log = logging.getLogger(__name__)
 
 
@@ -33,40 +35,20 @@ class EvalConfig:
     threads: int = 1
 
 
-def measured_at(session, t: np.ndarray) -> dict[int, dict]:
-    """Per indenter id: mocap tip (T, 3) and applied force (T, 3) = −F/T rotated to the sensor frame."""
-    from tools.train.simreal import ft_to_sensor
-
-    wr, po = session.table("wrench"), session.table("poses")
-    rot = session.streams["wrench"]["ft_to_indenter"]["rotation_wxyz"]
-    out = {}
-    for k in sorted(set(wr[:, 1].astype(int))):
-        w, p = wr[wr[:, 1] == k], po[po[:, 1] == k]
-        f_ft = np.stack([np.interp(t, w[:, 0], w[:, 2 + c]) for c in range(3)], 1)
-        near = np.clip(np.searchsorted(p[:, 0], t), 0, len(p) - 1)
-        tip = np.stack([np.interp(t, p[:, 0], p[:, 2 + c]) for c in range(3)], 1)
-        out[k] = {"tip": tip, "force": -ft_to_sensor(f_ft, p[near, 5:9], rot)}
-    return out
-
-
 def frame_errors(clusters: list, tips: np.ndarray, forces: np.ndarray, cfg: EvalConfig = EvalConfig()) -> list[dict]:
-    """Match one frame's clusters (centroid_mm, force_n) to the indenters in contact (tips/forces (K, 3))
-    by nearest centroid (each cluster used once); one row per indenter in contact."""
-    rows, used = [], set()
-    for k in np.argsort(-np.linalg.norm(forces, axis=1)):
-        if np.linalg.norm(forces[k]) < cfg.contact_n:
-            continue
-        best, dist = None, np.inf
-        for ci, c in enumerate(clusters):
-            d = float(np.linalg.norm(np.asarray(c.centroid_mm) - tips[k]))
-            if ci not in used and d < dist:
-                best, dist = ci, d
+    """Match one frame's clusters (centroid_mm, force_n) to the indenters in contact (tips/forces (K, 3)):
+    strongest indenter first, each takes its nearest free cluster (runtime.offline.match_contacts);
+    one row per indenter in contact."""
+    mags = np.linalg.norm(forces, axis=1)
+    order = [k for k in np.argsort(-mags) if mags[k] >= cfg.contact_n]
+    got = match_contacts(tips, [c.centroid_mm for c in clusters], order=order)
+    rows = []
+    for k in order:
         row = {"indenter": int(k), "meas_force": forces[k].tolist(), "tip": tips[k].tolist()}
-        if best is None:
+        if got[k] < 0:
             row.update(miss=True, pred_force=[0.0, 0.0, 0.0], pred_pos=None)
         else:
-            used.add(best)
-            c = clusters[best]
+            c = clusters[got[k]]
             row.update(miss=False, pred_force=list(map(float, c.force_n)), pred_pos=list(map(float, c.centroid_mm)))
         rows.append(row)
     return rows
@@ -109,11 +91,9 @@ def has_phantom(clusters: list, frame_rows: list[dict], cfg: EvalConfig = EvalCo
 
 
 def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalConfig(), keep_fields_at=None) -> dict:
-    """Run the runtime pipeline over a session; returns rows, rest forces, per-frame traces."""
-    import cv2
-
-    from runtime.model import FieldModel
-    from runtime.pipeline import SensorPipeline
+    """Replay a session through the runtime (runtime.offline.replay_session); returns rows, rest
+    forces, per-frame traces."""
+    from runtime.offline import replay_session
     from runtime.session import load_session
     from tools.sessions.writer import read_frames
 
@@ -121,11 +101,9 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
     frames = ses.table("frames")
     meas = measured_at(ses, frames[:, 0])
     ids = sorted(meas)
-    pipe = SensorPipeline(ses.sensor_id, FieldModel(package, cfg.precision, cfg.threads), calibration)
     rows, rest, trace, kept, phantoms = [], [], [], None, []
-    for i, img in read_frames(ses):
-        t = float(frames[i, 0])
-        res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), t)
+    for i, res in enumerate(replay_session(ses, package, calibration, precision=cfg.precision, threads=cfg.threads)):
+        t = res.t
         tips = np.array([meas[k]["tip"][i] for k in ids])
         forces = np.array([meas[k]["force"][i] for k in ids])
         trace.append({"t": t, "meas": forces.sum(0).tolist(), "pred": res.force_n.tolist(),
@@ -133,6 +111,7 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
         if res.fields is None:
             continue
         if keep_fields_at is not None and i == keep_fields_at:
+            img = next(read_frames(ses, [i]))[1]
             kept = {"fields": res.fields.copy(), "frame": i, "image": img[:, :, ::-1].copy()}
         mags = np.linalg.norm(forces, axis=1)
         if np.all(mags < cfg.rest_n):

@@ -18,9 +18,9 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from runtime.errors import TensorTouchError
+from runtime.offline import ft_to_sensor
 
 log = logging.getLogger(__name__)
 
@@ -34,18 +34,6 @@ class SimRealConfig:
     min_force_n: float = 1.5              # seed §III.C contact threshold: only frames above it count
     min_component_share: float = 0.15     # component needs ≥ this share of the RMS FE force
     ratio_range: tuple[float, float] = (0.5, 2.0)   # physically plausible stiffness ratios
-
-
-def _rot_wxyz(q: np.ndarray) -> Rotation:
-    q = np.asarray(q, float).reshape(-1, 4)
-    return Rotation.from_quat(q[:, [1, 2, 3, 0]])
-
-
-def ft_to_sensor(force_ft: np.ndarray, pose_quat_wxyz: np.ndarray, ft_rotation_wxyz) -> np.ndarray:
-    """F/T force (T, 3) in the F/T frame → sensor frame, through F/T → indenter → sensor rotations."""
-    f = np.asarray(force_ft, float).reshape(-1, 3)
-    r_ft = _rot_wxyz(np.asarray(ft_rotation_wxyz, float))[0]
-    return _rot_wxyz(pose_quat_wxyz).apply(r_ft.apply(f))
 
 
 def fit_ratios(f_sensor: np.ndarray, rf_fe: np.ndarray, cfg: SimRealConfig = SimRealConfig()) -> dict:

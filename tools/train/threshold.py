@@ -99,17 +99,13 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     """Per grid value: rest frames with a cluster core, contact frames with one (counts); per weak
     threshold the largest component total on a rest frame; the light-contact frames' cores and totals."""
     from runtime.contacts import pixel_forces
-    from runtime.model import FieldModel
-    from runtime.pipeline import SensorPipeline
+    from runtime.offline import measured_at, replay_session
     from runtime.session import load_session
-    from tools.sessions.writer import read_frames
-    from tools.train.evaluate import measured_at
 
     ses = load_session(session_dir)
     frames = ses.table("frames")
     meas = measured_at(ses, frames[:, 0])
     at_rest = rest_frames(frames[:, 0], _max_force(meas), cfg)
-    pipe = SensorPipeline(ses.sensor_id, FieldModel(package, "int8", 1), calibration)
     grid = np.asarray(cfg.grid)
     rest_fp = np.zeros(len(grid), int)
     hit = np.zeros(len(grid), int)
@@ -117,8 +113,7 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     rest_weak = np.zeros(len(cfg.weak_grid))
     light = {"core": [], "weak": []}
     kept, seen = {"support": [], "two": []}, {"support": 0, "two": 0}
-    for i, img in read_frames(ses):
-        res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
+    for i, res in enumerate(replay_session(ses, package, calibration, precision="int8", threads=1)):
         if res.fields is None:
             continue
         tips = np.array([meas[k]["tip"][i] for k in meas])
@@ -270,11 +265,10 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
     measured |F| band the frames with a core by the strong threshold alone and with the light-touch
     rule, and the rest frames (`rest_frames`) with a core. Same frames and fields for both."""
     from runtime.contacts import light_cores, pixel_forces
-    from runtime.model import FieldModel, load_package
-    from runtime.pipeline import PipelineConfig, SensorPipeline
+    from runtime.model import load_package
+    from runtime.offline import measured_at, replay_session
+    from runtime.pipeline import PipelineConfig
     from runtime.session import load_session
-    from tools.sessions.writer import read_frames
-    from tools.train.evaluate import measured_at
 
     package = load_package(package_dir)
     cc = PipelineConfig.for_package(package).contacts
@@ -283,10 +277,8 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
         ses = load_session(path)
         frames = ses.table("frames")
         meas = measured_at(ses, frames[:, 0])
-        pipe = SensorPipeline(ses.sensor_id, FieldModel(package, "int8", 1), cal)
         rest_here = rest_frames(frames[:, 0], _max_force(meas), cfg)
-        for i, img in read_frames(ses):
-            res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(frames[i, 0]))
+        for i, res in enumerate(replay_session(ses, package, cal, precision="int8", threads=1)):
             if res.fields is None:
                 continue
             at_rest.append(rest_here[i])

@@ -2,17 +2,17 @@
 
 Two stages, so that changing effects or the correction never re-runs the network:
 
-1. **Frame pass** (expensive, cached): every camera frame of the session goes through
-   `runtime.pipeline.SensorPipeline` -- preprocess, dynamic baseline, onnxruntime, contact clustering,
-   stable contact ids -- with the enabled effects and the correction switched off, so what is kept
-   is the *raw* network result per frame: every cluster (id, centroid px/mm, normal, area, force, ...).
-   Cached under `cache/workbench/net/<key>.npz`, key = (frames' content hash, model package file
-   hash + precision, calibration geometry: gel circle, model size, θ/φ tables, gel cap, pipeline
-   configuration). A new calibration version that only adds an effect or a correction keeps the key.
-2. **Replay** (cheap, every compare): the cached clusters frame by frame through the runtime's
-   `EffectStage` (the sensor's enabled effects, per-contact state, the session's temperature as the
-   sensor's thermistor reading) and then the runtime's `ForceCorrection`, in the order and with the
-   arithmetic of `SensorPipeline.process` -- the numbers the runtime would publish.
+1. **Frame pass** (expensive, cached): every camera frame of the session through the runtime's
+   network pass (`runtime.offline.network_passes`: preprocess, dynamic baseline, onnxruntime, contact
+   clustering, stable contact ids) with the enabled effects and the correction switched off, so what
+   is kept is the *raw* network result per frame: every cluster (id, centroid px/mm, normal, area,
+   force, ...). Cached by the runtime under `cache/workbench/net/<key>.npz` with its one key (frames'
+   content hash, model hash + precision, calibration geometry, pipeline configuration, runtime
+   version). A new calibration version that only adds an effect or a correction keeps the key.
+2. **Replay** (cheap, every compare): the cached clusters frame by frame through the runtime's last
+   steps (`runtime.pipeline.finish_clusters`: the sensor's enabled effects with per-contact state and
+   the session's temperature as the sensor's thermistor reading, then the correction) -- the numbers
+   the runtime would publish.
 
 Line-up (`build_table`): one row per (frame, indenter). The measurements (F/T in the sensor frame,
 mocap geometry, temperature, brightness) come from the session's mocap sample table (samples.py),
@@ -28,23 +28,24 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from runtime.calibration import sha256_file
 from runtime.errors import SessionError, TensorTouchError
+from runtime.offline import (
+    cache_key,
+    match_contacts,
+    network_passes,
+    pack_clusters,
+    unpack_clusters,
+)
 from tools.workbench.table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
 
-CLUSTER_FIELDS = ("id", "centroid_px", "centroid_mm", "normal", "area_mm2", "force_n", "force_mag_n",
-                  "pixels", "perimeter_px", "circularity", "priority", "age", "indentation_mm")
-WIDTH = {"centroid_px": 2, "centroid_mm": 3, "normal": 3, "force_n": 3}
-PASS_MODULES = ("pipeline.py", "preprocess.py", "baseline.py", "model.py", "contacts.py", "geometry.py")
 RUNTIME_COVARIATES = ("depth", "max_depth", "theta", "phi", "rim_distance", "force_n", "force_t")
 
 
@@ -67,146 +68,54 @@ def model_sha(package, precision: str) -> str:
                                f"{package.name} (has {sorted(package.manifest['files'])})") from None
 
 
-def frames_hash(session) -> str:
-    """Content hash of the session's camera frames (what the network sees)."""
-    kind, src = session.image_source()
-    h = hashlib.sha256((session.path / "frames.csv").read_bytes())
-    if kind == "video":
-        h.update(sha256_file(Path(src)).encode())
-    else:
-        for p in sorted(Path(src).glob("*.png")):
-            h.update(p.name.encode() + sha256_file(p).encode())
-    return h.hexdigest()[:20]
-
-
-def geometry_key(cal) -> dict:
-    """What the network pass depends on in a calibration (not its effects or correction)."""
-    files = cal.meta.get("files", {})
-    return {"gel_center_px": cal.meta.get("gel_center_px"), "gel_radius_px": cal.meta.get("gel_radius_px"),
-            "model_size": cal.meta.get("model_size"), "gel": cal.meta.get("gel"),
-            "tables": {k: files.get(v) for k, v in sorted(cal.meta.get("tables", {}).items())}}
-
-
-def runtime_code_hash() -> str:
-    """Hash of the runtime modules the frame pass runs (a code change re-runs the network)."""
-    import runtime
-
-    h = hashlib.sha256()
-    for name in PASS_MODULES:
-        h.update((Path(runtime.__file__).parent / name).read_bytes())
-    return h.hexdigest()[:16]
-
-
 # ----- stage 1: the frame pass ------------------------------------------------------------------
-def pack_clusters(frames: list[tuple[int, float, str, list]]) -> dict[str, np.ndarray]:
-    """Per-frame results [(frame index, t, state, clusters)] -> flat arrays (npz-able)."""
-    out = {"frame_index": np.array([f[0] for f in frames], dtype=np.int64),
-           "frame_t": np.array([f[1] for f in frames], dtype=np.float64),
-           "frame_state": np.array([f[2] for f in frames], dtype="U16"),
-           "cl_frame": np.array([j for j, f in enumerate(frames) for _ in f[3]], dtype=np.int64)}
-    rows = [c for f in frames for c in f[3]]
-    for name in CLUSTER_FIELDS:
-        w = WIDTH.get(name, 1)
-        arr = np.array([getattr(c, name) for c in rows], dtype=np.float64).reshape(len(rows), w)
-        out[f"cl_{name}"] = arr if w > 1 else arr[:, 0]
+def pack_passes(passes: list) -> dict[str, np.ndarray]:
+    """Network passes (runtime.pipeline.NetworkPass) -> flat arrays (runtime.offline.pack_clusters
+    plus the frame index, time and state; "no_baseline" before the baseline exists)."""
+    out = pack_clusters([p.clusters for p in passes])
+    out.update(frame_index=np.arange(len(passes), dtype=np.int64), frame_t=np.array([p.t for p in passes], dtype=np.float64),
+               frame_state=np.array(["no_baseline" if p.state == "STARTUP" else p.state for p in passes], dtype="U16"))
+    n = len(passes)
+    out["_starts"] = np.searchsorted(out["cl_frame"], np.arange(n + 1))
     return out
 
 
 def unpack_frame(passed: dict, j: int) -> list:
-    """The clusters of frame j of a packed pass, as runtime Cluster objects."""
-    from runtime.contacts import Cluster
-
-    idx = np.flatnonzero(passed["cl_frame"] == j) if "_starts" not in passed else \
-        np.arange(passed["_starts"][j], passed["_starts"][j + 1])
-    out = []
-    for i in idx:
-        kw = {}
-        for name in CLUSTER_FIELDS:
-            v = passed[f"cl_{name}"][i]
-            kw[name] = tuple(float(x) for x in v) if np.ndim(v) else float(v)
-        for name in ("id", "pixels", "age"):
-            kw[name] = int(kw[name])
-        out.append(Cluster(**kw))
-    return out
+    """The clusters of frame j of packed passes, as runtime Cluster objects."""
+    return unpack_clusters(passed, range(passed["_starts"][j], passed["_starts"][j + 1]))
 
 
-def _index(passed: dict) -> dict:
-    n = len(passed["frame_t"])
-    passed["_starts"] = np.searchsorted(passed["cl_frame"], np.arange(n + 1))
-    return passed
-
-
-def run_frame_pass(session, package, cal, cfg: NetworkConfig, progress=None) -> dict:
-    """Every frame through SensorPipeline with effects and correction off (the raw network result)."""
-    import cv2
-
+def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path | None, progress=None) -> tuple[dict, dict]:
+    """The raw network pass (runtime.offline.network_passes with effects and correction off, its cache
+    in `cache_dir`) and its provenance {key, seconds, cached}."""
     from runtime.correction import ForceCorrection
-    from runtime.effects import EffectChain
-    from runtime.model import FieldModel
-    from runtime.pipeline import SensorPipeline
-    from tools.sessions.writer import read_frames
 
     if tuple(cal.model_size) != tuple(package.size):
         raise TensorTouchError(f"{cal.folder / 'calibration.json'}: model_size {list(cal.model_size)} does not "
                                f"match the model package {package.name} ({list(package.size)}); the network "
                                "path needs a calibration made for this model size")
-    pipe = SensorPipeline(session.sensor_id, FieldModel(package, cfg.precision, cfg.threads), cal,
-                          correction=ForceCorrection(None, None))
-    pipe.effects.chain = EffectChain()        # raw clusters: effects are replayed later
-    times = session.table("frames")[:, 0]
-    out, t0 = [], time.perf_counter()
-    for i, img in read_frames(session):
-        res = pipe.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB), float(times[i]))
-        out.append((i, float(times[i]), res.state if res.fields is not None else "no_baseline", res.clusters))
-        if progress and (i % 200 == 0 or i == len(times) - 1):
-            progress(i + 1, len(times), time.perf_counter() - t0)
-    return pack_clusters(out)
-
-
-def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path | None, progress=None) -> tuple[dict, dict]:
-    """The (cached) frame pass and its provenance {key, seconds, cached}."""
-    from runtime.pipeline import PipelineConfig
-
-    key_src = {"frames": frames_hash(session), "model": model_sha(package, cfg.precision), "precision": cfg.precision,
-               "geometry": geometry_key(cal), "pipeline": asdict(PipelineConfig.for_package(package)), "code": runtime_code_hash()}
-    key = hashlib.sha256(json.dumps(key_src, sort_keys=True, default=str).encode()).hexdigest()[:16]
-    path = cache_dir / f"{key}.npz" if cache_dir else None
-    if path is not None and path.is_file():
-        with np.load(path, allow_pickle=False) as z:
-            return _index({k: z[k] for k in z.files}), {"key": key, "cached": True, "seconds": 0.0}
+    model_sha(package, cfg.precision)
+    key = cache_key(session, package, cal, cfg.precision)
     t0 = time.perf_counter()
-    passed = run_frame_pass(session, package, cal, cfg, progress)
-    seconds = time.perf_counter() - t0
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **passed)
-        tmp.replace(path)
-    log.info("network pass of %s: %d frames in %.1f s", session.path, len(passed["frame_t"]), seconds)
-    return _index(passed), {"key": key, "cached": False, "seconds": seconds}
+    passes, cached = network_passes(session, package, cal, cache=cache_dir, precision=cfg.precision, threads=cfg.threads,
+                                    correction=ForceCorrection(None, None), effects=False, progress=progress)
+    seconds = 0.0 if cached else time.perf_counter() - t0
+    if not cached:
+        log.info("network pass of %s: %d frames in %.1f s", session.path, len(passes), seconds)
+    return pack_passes(passes), {"key": key, "cached": cached, "seconds": seconds}
 
 
 # ----- stage 2: replay (the runtime's effect stage + correction over cached clusters) ----------
-def correction_inputs(clusters: list, cal) -> tuple[np.ndarray, np.ndarray]:
-    """(uv (N,2) in [0,1], θ/φ (N,2) rad) of cluster centroids, as SensorPipeline.process computes them."""
-    from runtime.geometry import sample_bilinear
-
-    h, w = cal.model_size
-    uv = np.array([c.centroid_px for c in clusters], dtype=np.float64).reshape(-1, 2) * np.array([1.0 / w, 1.0 / h])
-    tp = np.array([[sample_bilinear(cal.theta, u - 0.5, v - 0.5), sample_bilinear(cal.phi, u - 0.5, v - 0.5)]
-                   for u, v in (c.centroid_px for c in clusters)], dtype=np.float64).reshape(-1, 2)
-    return uv, tp
-
-
 def replay(passed: dict, cal, temperature=None, correction=None, covariates: bool = False) -> dict:
-    """Cached clusters through EffectStage(cal) and the correction, frame by frame.
+    """Cached clusters through the runtime's last steps (runtime.pipeline.finish_clusters: EffectStage(cal),
+    then the correction), frame by frame.
 
     Returns per cluster row: "force" (N,3) as published (force on the gel, N), "flags" per frame;
     with covariates=True also the runtime's effect covariates per cluster row, the correction inputs
     (uv, θ/φ) and the raw force."""
     from runtime.correction import ForceCorrection
     from runtime.effect_stage import EffectStage
+    from runtime.pipeline import correction_inputs, finish_clusters
 
     stage = EffectStage(cal)
     corr = correction if correction is not None else ForceCorrection.from_calibration(cal)
@@ -233,12 +142,7 @@ def replay(passed: dict, cal, temperature=None, correction=None, covariates: boo
             cov_rows["uv"][rows], cov_rows["theta_phi"][rows] = correction_inputs(clusters, cal)
         elif covariates:
             probe.frame_covariates([], float(t))
-        flags.append(stage.apply(clusters, float(t)))
-        if clusters and corr.enabled:
-            f = np.array([c.force_n for c in clusters])
-            uv, tp = correction_inputs(clusters, cal)
-            for c, g in zip(clusters, corr(f, uv, tp)):
-                c.force_n = tuple(map(float, g))
+        flags.append(finish_clusters(clusters, float(t), stage, corr, cal)[0])
         force[rows] = [c.force_n for c in clusters] if clusters else np.zeros((0, 3))
     return {"force": force, "flags": flags, **cov_rows}
 
@@ -252,18 +156,9 @@ def _interp_rows(t_src: np.ndarray, t_dst: np.ndarray, a: np.ndarray) -> np.ndar
 
 
 def match(tips: np.ndarray, centroids: np.ndarray, max_mm: float) -> np.ndarray:
-    """Greedy nearest pairs tip k <-> cluster c within max_mm, each used once; (K,) cluster index or -1."""
-    out = np.full(len(tips), -1)
-    if len(tips) == 0 or len(centroids) == 0:
-        return out
-    d = np.linalg.norm(tips[:, None, :] - centroids[None, :, :], axis=2)
-    for flat in np.argsort(d, axis=None):
-        k, c = np.unravel_index(flat, d.shape)
-        if d[k, c] > max_mm:
-            break
-        if out[k] < 0 and c not in out:
-            out[k] = c
-    return out
+    """Greedy nearest pairs tip k <-> cluster c within max_mm, each used once (runtime.offline.match_contacts);
+    (K,) cluster index or -1."""
+    return match_contacts(tips, centroids, max_mm)
 
 
 def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -> SampleTable:

@@ -1,0 +1,306 @@
+"""The runtime run offline: a recorded session through the same pipeline `tensortouch run` builds.
+
+`replay_session(session, package, calibration)` yields, frame by frame, the `FrameResult` that
+`tensortouch run --source replay:SESSION` publishes (same replay camera, same pipeline, the session's
+own temperature stream for the effects). Evaluation, threshold measurement, the workbench,
+recalibration and the benchmarks all replay through it and differ only in what they score.
+
+The cache keeps network passes (`SensorPipeline.network_pass`: clusters with raw model forces, no
+fields), not results, so a calibration that changes only effects or the correction re-finishes them
+without running the network. Its one key: the frames' content hash, the model file hash and
+precision, the calibration geometry, the pipeline configuration and the runtime version. A pass also
+records the force band its baseline saw (`force_band`); when a different finish would feed the
+baseline another band, the cached passes are not what the runtime would compute and the session is run
+again. Stored as .npz (no pickle), written atomically.
+
+`measured_at` (the rig's measured force and indenter tip at frame times) and `match_contacts`
+(clusters ↔ indenters) are what the offline users score against.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from drivers.camera import camera_from_uri
+from drivers.camera.camera import EndOfStream
+from runtime.calibration import Calibration, sha256_file
+from runtime.contacts import Cluster
+from runtime.correction import ForceCorrection
+from runtime.pipeline import (
+    FrameResult,
+    NetworkPass,
+    PipelineConfig,
+    force_band,
+    open_pipeline,
+)
+from runtime.session import load_session
+from runtime.temperature import TemperatureTrack
+
+log = logging.getLogger(__name__)
+
+CLUSTER_FIELDS = ("id", "centroid_px", "centroid_mm", "normal", "area_mm2", "force_n", "force_mag_n",
+                  "pixels", "perimeter_px", "circularity", "priority", "age", "indentation_mm")
+WIDTH = {"centroid_px": 2, "centroid_mm": 3, "normal": 3, "force_n": 3}
+INT_FIELDS = ("id", "pixels", "age")
+CACHE_FORMAT = 1
+
+
+# ----- the cache key ------------------------------------------------------------------------------
+def frames_hash(session) -> str:
+    """Content hash of a session's camera frames (what the network sees) and their clock."""
+    kind, src = session.image_source()
+    h = hashlib.sha256((session.path / "frames.csv").read_bytes())
+    if kind == "video":
+        h.update(sha256_file(Path(src)).encode())
+    else:
+        for p in sorted(Path(src).glob("*.png")):
+            h.update(p.name.encode() + sha256_file(p).encode())
+    return h.hexdigest()[:20]
+
+
+def geometry_key(cal: Calibration) -> dict:
+    """What the network pass depends on in a calibration (not its effects or correction)."""
+    files = cal.meta.get("files", {})
+    return {"gel_center_px": cal.meta.get("gel_center_px"), "gel_radius_px": cal.meta.get("gel_radius_px"),
+            "model_size": cal.meta.get("model_size"), "gel": cal.meta.get("gel"),
+            "tables": {k: files.get(v) for k, v in sorted(cal.meta.get("tables", {}).items())}}
+
+
+def runtime_version() -> str:
+    """The runtime's version and a hash of its sources: a change to any stage re-runs the network."""
+    import runtime
+
+    root = Path(runtime.__file__).parent
+    h = hashlib.sha256(runtime.__version__.encode())
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return f"{runtime.__version__}+{h.hexdigest()[:12]}"
+
+
+def cache_key(session, package, calibration: Calibration, precision: str) -> str:
+    """The one key of a cached network pass."""
+    src = {"format": CACHE_FORMAT, "frames": frames_hash(session), "model": package.sha256(precision),
+           "precision": precision, "geometry": geometry_key(calibration),
+           "pipeline": asdict(PipelineConfig.for_package(package)), "runtime": runtime_version()}
+    return hashlib.sha256(json.dumps(src, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+# ----- one serialization of clusters and passes ---------------------------------------------------
+def pack_clusters(frames: list[list[Cluster]]) -> dict[str, np.ndarray]:
+    """Per-frame cluster lists → flat arrays (`cl_frame` = the frame's index in `frames`, `cl_<field>`)."""
+    rows = [c for f in frames for c in f]
+    out = {"cl_frame": np.array([j for j, f in enumerate(frames) for _ in f], dtype=np.int64)}
+    for name in CLUSTER_FIELDS:
+        w = WIDTH.get(name, 1)
+        arr = np.array([getattr(c, name) for c in rows], dtype=np.float64).reshape(len(rows), w)
+        out[f"cl_{name}"] = arr if w > 1 else arr[:, 0]
+    return out
+
+
+def unpack_clusters(packed: dict, rows) -> list[Cluster]:
+    """The clusters at rows `rows` of packed arrays, as runtime Cluster objects."""
+    out = []
+    for i in rows:
+        kw = {}
+        for name in CLUSTER_FIELDS:
+            v = packed[f"cl_{name}"][i]
+            kw[name] = tuple(float(x) for x in v) if np.ndim(v) else float(v)
+        for name in INT_FIELDS:
+            kw[name] = int(kw[name])
+        out.append(Cluster(**kw))
+    return out
+
+
+def save_passes(path: Path, passes: list[NetworkPass]) -> None:
+    """Network passes (without fields) → one .npz, written atomically."""
+    arrays = pack_clusters([p.clusters for p in passes])
+    arrays.update(seq=np.array([p.seq for p in passes], dtype=np.int64),
+                  t=np.array([p.t for p in passes], dtype=np.float64),
+                  state=np.array([p.state for p in passes], dtype="U16"),
+                  force_band=np.array([p.force_band for p in passes], dtype=np.int8),
+                  flags=np.array([json.dumps(p.flags) for p in passes], dtype="U200"),
+                  format=np.array(CACHE_FORMAT))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+        fh.flush()
+        os.fsync(fh.fileno())
+    tmp.replace(path)
+
+
+def load_passes(path: Path) -> list[NetworkPass] | None:
+    """Passes saved by `save_passes` (None when the file is unreadable or of another format)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        if int(a["format"]) != CACHE_FORMAT:
+            return None
+        starts = np.searchsorted(a["cl_frame"], np.arange(len(a["t"]) + 1))
+        return [NetworkPass(int(a["seq"][j]), float(a["t"][j]), None,
+                            unpack_clusters(a, range(starts[j], starts[j + 1])), str(a["state"][j]),
+                            list(json.loads(str(a["flags"][j]))), {}, int(a["force_band"][j]))
+                for j in range(len(a["t"]))]
+    except (OSError, ValueError, KeyError) as exc:
+        log.warning("%s: unreadable network-pass cache (%s); running the network again", path, exc)
+        return None
+
+
+# ----- the replay ---------------------------------------------------------------------------------
+def _session(session):
+    return load_session(session) if isinstance(session, (str, Path)) else session
+
+
+def _temperature(session):
+    """The session's temperature stream, as `tensortouch run` reads it for a replayed session."""
+    return TemperatureTrack.from_session(session.path)
+
+
+def _frames(session):
+    """(image RGB, t) of every frame, through the replay camera `tensortouch run` uses."""
+    with camera_from_uri(f"replay:{session.path}", realtime=False) as cam:
+        while True:
+            try:
+                frame = cam.read()
+            except EndOfStream:
+                return
+            yield frame.image, frame.t
+
+
+def _raw(p: NetworkPass, keep_fields: bool) -> NetworkPass:
+    return replace(p, fields=p.fields if keep_fields else None, clusters=[replace(c) for c in p.clusters],
+                   flags=list(p.flags), timings=dict(p.timings))
+
+
+def _replay(session, package, calibration, cache, precision, threads, correction, effects,
+            progress=None) -> Iterator[tuple[NetworkPass, FrameResult]]:
+    session = _session(session)
+    temperature = _temperature(session)
+
+    def pipeline():
+        return open_pipeline(package, calibration, precision=precision, threads=threads, sensor_id=session.sensor_id,
+                             correction=correction, effects=effects)
+
+    path = Path(cache) / f"{cache_key(session, package, calibration, precision)}.npz" if cache else None
+    passes = load_passes(path) if path is not None and path.is_file() else None
+    if passes is not None:
+        pipe, done = pipeline(), []
+        for p in passes:
+            if force_band(pipe._last_force, pipe.cfg.baseline) != p.force_band:
+                log.info("%s: the cached network pass saw other forces at %.3f s (another effect or correction); "
+                         "running the network again", session.path, p.t)
+                break
+            if temperature is not None:
+                pipe.set_temperature(temperature(p.t))
+            done.append((p, pipe.finish(_raw(p, False), p.t)))
+        else:
+            yield from done
+            return
+    pipe, kept = pipeline(), []
+    n, t0 = len(session.table("frames")), time.perf_counter()
+    for i, (image, t) in enumerate(_frames(session)):
+        if temperature is not None:
+            pipe.set_temperature(temperature(t))
+        p = pipe.network_pass(image, t)
+        raw = _raw(p, False)
+        kept.append(raw)
+        yield raw, pipe.finish(p, t)
+        if progress is not None and (i % 200 == 0 or i == n - 1):
+            progress(i + 1, n, time.perf_counter() - t0)
+    if path is not None:
+        save_passes(path, kept)
+
+
+def replay_session(session, package, calibration: Calibration, *, cache: Path | None = None,
+                   precision: str = "int8", threads: int = 1, correction: ForceCorrection | None = None,
+                   effects: bool = True) -> Iterator[FrameResult]:
+    """What `tensortouch run --source replay:SESSION` publishes, one FrameResult per frame.
+
+    session: a session folder or a loaded Session; package: a ModelPackage; calibration: the version
+    to run with. `correction` replaces the calibration's (ForceCorrection(None, None): the raw model
+    force, with effects); effects=False runs without its enabled effects. With `cache` (a folder) the
+    network passes are kept there and reused; results from the cache carry no fields (None) but the
+    same state, clusters, forces and flags."""
+    for _, result in _replay(session, package, calibration, cache, precision, threads, correction, effects):
+        yield result
+
+
+def network_passes(session, package, calibration: Calibration, *, cache: Path | None = None,
+                   precision: str = "int8", threads: int = 1, correction: ForceCorrection | None = None,
+                   effects: bool = True, progress=None) -> tuple[list[NetworkPass], bool]:
+    """Every frame's network pass (raw clusters, no fields) as `replay_session` with the same
+    arguments runs it, and whether it came from the cache. `progress(frames done, frames, seconds)`
+    is called while the network runs."""
+    passes, ran = [], False
+    gen = _replay(session, package, calibration, cache, precision, threads, correction, effects, progress)
+    for p, _ in gen:
+        passes.append(p)
+        ran = ran or bool(p.timings)
+    return passes, not ran
+
+
+# ----- what the rig measured --------------------------------------------------------------------
+def ft_to_sensor(force_ft: np.ndarray, pose_quat_wxyz: np.ndarray, ft_rotation_wxyz) -> np.ndarray:
+    """F/T force (T, 3) in the F/T frame → sensor frame, through F/T → indenter → sensor rotations."""
+    def rot(q):
+        q = np.asarray(q, float).reshape(-1, 4)
+        return Rotation.from_quat(q[:, [1, 2, 3, 0]])
+
+    f = np.asarray(force_ft, float).reshape(-1, 3)
+    return rot(pose_quat_wxyz).apply(rot(ft_rotation_wxyz)[0].apply(f))
+
+
+def measured_at(session, t: np.ndarray) -> dict[int, dict]:
+    """Per indenter id at times t (s): the mocap tip (T, 3) mm and the force it applies to the gel
+    (T, 3) N = −F/T reading rotated into the sensor frame (session's wrench and poses streams)."""
+    session = _session(session)
+    t = np.asarray(t, float)
+    wr, po = session.table("wrench"), session.table("poses")
+    rot = session.streams["wrench"]["ft_to_indenter"]["rotation_wxyz"]
+    out = {}
+    for k in sorted(set(wr[:, 1].astype(int))):
+        w, p = wr[wr[:, 1] == k], po[po[:, 1] == k]
+        f_ft = np.stack([np.interp(t, w[:, 0], w[:, 2 + c]) for c in range(3)], 1)
+        near = np.clip(np.searchsorted(p[:, 0], t), 0, len(p) - 1)
+        tip = np.stack([np.interp(t, p[:, 0], p[:, 2 + c]) for c in range(3)], 1)
+        out[k] = {"tip": tip, "force": -ft_to_sensor(f_ft, p[near, 5:9], rot)}
+    return out
+
+
+def match_contacts(tips: np.ndarray, centroids: np.ndarray, max_mm: float = np.inf,
+                   order: np.ndarray | None = None) -> np.ndarray:
+    """Indenter tips (K, 3) ↔ cluster centroids (N, 3), mm; each cluster used once. Returns (K,) the
+    matched cluster index or -1. Without `order`: greedy nearest pairs first, within max_mm. With
+    `order` (indenter indices, e.g. strongest first): each of those indenters in turn takes its nearest
+    free cluster within max_mm (indenters not listed stay -1)."""
+    tips = np.asarray(tips, float).reshape(-1, 3)
+    centroids = np.asarray(centroids, float).reshape(-1, 3)
+    out = np.full(len(tips), -1)
+    if len(tips) == 0 or len(centroids) == 0:
+        return out
+    d = np.linalg.norm(tips[:, None, :] - centroids[None, :, :], axis=2)
+    if order is not None:
+        free = np.ones(len(centroids), bool)
+        for k in order:
+            dk = np.where(free, d[k], np.inf)
+            c = int(np.argmin(dk))
+            if dk[c] <= max_mm:
+                out[k], free[c] = c, False
+        return out
+    for flat in np.argsort(d, axis=None, kind="stable"):
+        k, c = np.unravel_index(flat, d.shape)
+        if d[k, c] > max_mm:
+            break
+        if out[k] < 0 and c not in out:
+            out[k] = c
+    return out
