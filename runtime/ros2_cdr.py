@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -86,7 +86,7 @@ def stamp_of(t: float) -> tuple[int, int]:
     t = float(t)
     if not math.isfinite(t):
         raise ValueError(f"time stamp {t!r} is not finite")
-    ns = int(round(t * 1e9))
+    ns = round(t * 1e9)
     sec, nsec = divmod(ns, 1_000_000_000)
     if not -2**31 <= sec < 2**31:
         raise ValueError(f"time stamp {t} s does not fit builtin_interfaces/Time (int32 seconds)")

@@ -7,8 +7,8 @@ import pytest
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
 
-from runtime import ros2_cdr as cdr  # noqa: E402
-from runtime import ros2_wire as rw  # noqa: E402
+from runtime import ros2_cdr as cdr
+from runtime import ros2_wire as rw
 
 STORES = {"humble": "ROS2_HUMBLE", "jazzy": "ROS2_JAZZY", "kilted": "ROS2_KILTED",
           "rolling": "ROS2_LYRICAL"}   # rosbags' newest store stands for rolling
