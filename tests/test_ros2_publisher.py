@@ -73,3 +73,52 @@ def test_wall_stamps_and_closed_publisher_never_raises():
         assert sensor.topics["wrench"].errors == 1
         sub.undeclare()
     assert isinstance(s_pub, zenoh.Session)
+
+
+def test_hand_config_ros2_table_and_two_fingers_on_ros2(tmp_path):
+    from rosbags.typesys import Stores, get_typestore
+
+    from runtime.hand import Hand
+    from runtime.hand_config import HandConfigError, parse_hand_config
+    from tests.hand_util import (
+        hand_cfg,
+        make_package,
+        make_store,
+        make_video,
+        wait_until,
+    )
+
+    with pytest.raises(HandConfigError, match=r"\[ros2\]: unknown key 'distr'"):
+        parse_hand_config({"ros2": {"distr": "jazzy"}, "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
+    with pytest.raises(HandConfigError, match=r"\[ros2\].*distro"):
+        parse_hand_config({"ros2": {"distro": "iron"}, "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
+    cfg = parse_hand_config({"hand": {"name": "left"}, "ros2": {"domain_id": 4, "images": []},
+                             "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
+    assert cfg.listen == () and cfg.connect == ("tcp/127.0.0.1:7447",)      # connect to rmw_zenohd
+    assert cfg.ros2.node == "tensortouch_left" and cfg.ros2.images == ()
+
+    pkg = make_package(tmp_path / "models" / "difference-32")
+    make_store(tmp_path / "store", ("TT-A", "TT-B"))
+    videos = {s: make_video(tmp_path / f"{s}.avi", seed=i) for i, s in enumerate(("TT-A", "TT-B"))}
+    router = f"tcp/127.0.0.1:{free_port()}"
+    base = hand_cfg(tmp_path, pkg, {s: f"file:{v}" for s, v in videos.items()})
+    import dataclasses
+
+    cfg = dataclasses.replace(base, listen=(), connect=(router,),
+                              ros2=Ros2Config(domain_id=4, node="tensortouch_hand", images=("fn_z",), router=router))
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    tokens, wrenches = set(), {}
+    with open_session(listen=[router], multicast=False) as s:
+        lv = s.liveliness().declare_subscriber("@ros2_lv/4/**", lambda smp: tokens.add(str(smp.key_expr)),
+                                               history=True)
+        sub = s.declare_subscriber("4/tensortouch/*/wrench/**", lambda smp: wrenches.setdefault(
+            str(smp.key_expr).split("/")[2], []).append(
+            ts.deserialize_cdr(smp.payload.to_bytes(), "geometry_msgs/msg/WrenchStamped")))
+        with Hand(cfg):
+            assert wait_until(lambda: {"TT_A", "TT_B"} <= set(wrenches) and all(len(v) > 5 for v in wrenches.values()), 15)
+        assert any(t.endswith("/NN/%/%tensortouch/tensortouch_hand") for t in tokens)
+        mp = [t for t in tokens if "/MP/" in t]
+        assert len(mp) == 2 + 2 * 4          # /diagnostics, /tf + wrench, contacts, image/fn_z, surface per finger
+        assert {m.header.frame_id for m in wrenches["TT_A"]} == {"TT_A_gel"}
+        sub.undeclare()
+        lv.undeclare()
