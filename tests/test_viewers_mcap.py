@@ -8,12 +8,15 @@ import pytest
 pytest.importorskip("foxglove")
 mcap_reader = pytest.importorskip("mcap.reader")
 
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory  # noqa: E402
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from runtime import wire  # noqa: E402
-from tests.test_listen import CONTACT, parse, running_sensor  # noqa: E402, F401 (fixture)
-from tests.viewers_util import register_savers  # noqa: E402
-from tools.viewers.mcap_saver import McapSaver  # noqa: E402
+from runtime import wire
+from tests import test_listen
+from tests.test_listen import CONTACT, parse
+from tests.viewers_util import register_savers
+from tools.viewers.mcap_saver import McapSaver
+
+sensor_fixture = test_listen.running_sensor          # the fixture `running_sensor`
 
 
 def read_mcap(path):
@@ -83,7 +86,7 @@ def test_mcap_schemas_and_values(tmp_path):
     assert got[f"{base}/wrench"][0][2]["torque_nmm"] == [1.0, 2.0, 0.0]
 
 
-def test_listen_save_mcap_from_a_running_sensor(running_sensor, tmp_path, monkeypatch, capsys):
+def test_listen_save_mcap_from_a_running_sensor(running_sensor, tmp_path, monkeypatch):
     register_savers(tmp_path / "site", monkeypatch)
     out = tmp_path / "out.mcap"
     args = parse(["listen", "dome01", "--connect", running_sensor, "--count", "40", "--save", str(out)])
