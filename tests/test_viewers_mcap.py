@@ -16,7 +16,7 @@ from tests.test_listen import CONTACT, parse
 from tests.viewers_util import register_savers
 from tools.viewers.mcap_saver import McapSaver
 
-sensor_fixture = test_listen.running_sensor          # the fixture `running_sensor`
+sensor_fixture = test_listen.running_sensor          # a publisher on loopback (its endpoint)
 
 
 def read_mcap(path):
@@ -86,10 +86,10 @@ def test_mcap_schemas_and_values(tmp_path):
     assert got[f"{base}/wrench"][0][2]["torque_nmm"] == [1.0, 2.0, 0.0]
 
 
-def test_listen_save_mcap_from_a_running_sensor(running_sensor, tmp_path, monkeypatch):
+def test_listen_save_mcap_from_a_running_sensor(sensor_fixture, tmp_path, monkeypatch):
     register_savers(tmp_path / "site", monkeypatch)
     out = tmp_path / "out.mcap"
-    args = parse(["listen", "dome01", "--connect", running_sensor, "--count", "40", "--save", str(out)])
+    args = parse(["listen", "dome01", "--connect", sensor_fixture, "--count", "40", "--save", str(out)])
     assert args.func(args) == 0
     got = read_mcap(out)
     kinds = {t.rsplit("/", 1)[-1] for t in got}
