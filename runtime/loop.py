@@ -35,6 +35,13 @@ class LoopConfig:
     retry_wait_s: float = 0.05
 
 
+def _surface_grid(cal) -> dict:
+    """The gel surface for viewers (runtime.hand.surface_grid: mm, <= 32 points a side)."""
+    from runtime.hand import surface_grid
+
+    return surface_grid(cal)
+
+
 def to_wire_contacts(result: FrameResult) -> list[dict]:
     """Pipeline clusters → wire Contact dicts (docs/wire.md)."""
     return [{"id": c.id, "uv_px": c.centroid_px, "position_mm": c.centroid_mm, "normal": c.normal,
@@ -91,7 +98,8 @@ class SensorLoop:
         return {"sensor_id": p.sensor_id, "model": pkg.name, "model_hash": pkg.sha256(p.model.precision),
                 "precision": p.model.precision, "calibration_version": p.cal.version,
                 "bounds": pkg.manifest["output"]["bounds"], "model_size": list(pkg.size),
-                "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"]}
+                "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"],
+                "gel_surface": _surface_grid(p.cal)}
 
     def run(self, max_frames: int | None = None) -> int:
         failures = 0

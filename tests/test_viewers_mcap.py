@@ -1,6 +1,10 @@
 """`tensortouch listen --save out.mcap`: MCAP with Foxglove's schemas, read back with the `mcap` reader
 and the protobuf descriptors stored in the file itself."""
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,10 +16,11 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from runtime import wire
 from tests import test_listen
-from tests.test_listen import CONTACT, parse
-from tests.viewers_util import register_savers
+from tests.test_listen import CONTACT
+from tests.viewers_util import site_with_savers
 from tools.viewers.mcap_saver import McapSaver
 
+ROOT = Path(__file__).resolve().parents[1]
 sensor_fixture = test_listen.running_sensor          # a publisher on loopback (its endpoint)
 
 
@@ -86,11 +91,12 @@ def test_mcap_schemas_and_values(tmp_path):
     assert got[f"{base}/wrench"][0][2]["torque_nmm"] == [1.0, 2.0, 0.0]
 
 
-def test_listen_save_mcap_from_a_running_sensor(sensor_fixture, tmp_path, monkeypatch):
-    register_savers(tmp_path / "site", monkeypatch)
+def test_listen_save_mcap_from_a_running_sensor(sensor_fixture, tmp_path):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site_with_savers(tmp_path / "site")), str(ROOT)]))
     out = tmp_path / "out.mcap"
-    args = parse(["listen", "dome01", "--connect", sensor_fixture, "--count", "40", "--save", str(out)])
-    assert args.func(args) == 0
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "listen", "dome01", "--connect", sensor_fixture,
+                        "--count", "40", "--save", str(out)], env=env, capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 0, r.stderr[-2000:]
     got = read_mcap(out)
     kinds = {t.rsplit("/", 1)[-1] for t in got}
     assert {"fn_z", "contacts", "contact_arrows", "wrench", "status"} <= kinds, sorted(got)
