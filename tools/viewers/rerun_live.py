@@ -22,6 +22,7 @@ from runtime.errors import TensorTouchError
 log = logging.getLogger(__name__)
 
 KINDS = ("fields", "contacts", "wrench", "status")
+FIELDS_MIN_INTERVAL_S = 0.1            # live view: at most 10 field tensors per second and sensor
 
 
 def start_server(host: str, grpc_port: int, web_port: int, timeout: float = 20.0):
@@ -76,6 +77,10 @@ def run_rerun_view(args, connect, listen) -> int:
     from runtime.subscriber import Subscriber, query_info
     from tools.viewers.rerun_saver import RerunSaver
 
+    def stop_on_sigterm(*_):
+        raise KeyboardInterrupt              # so the server started below is stopped too
+
+    previous = signal.signal(signal.SIGTERM, stop_on_sigterm)
     proc, grpc_url, page = start_server(args.host, args.rerun_grpc_port, args.port)
     inbox: queue.Queue = queue.Queue(maxsize=1000)
 
@@ -87,7 +92,7 @@ def run_rerun_view(args, connect, listen) -> int:
                 pass
         return cb
 
-    saver = RerunSaver(grpc_url=grpc_url)
+    saver = RerunSaver(grpc_url=grpc_url, fields_min_interval_s=FIELDS_MIN_INTERVAL_S)
     described: set[str] = set()
     print(f"tensortouch view: Rerun at {page}  (Zenoh {' '.join(list(connect) + list(listen))}, "
           f"sensor {args.sensor}); Ctrl-C to stop", file=sys.stderr, flush=True)
@@ -113,4 +118,5 @@ def run_rerun_view(args, connect, listen) -> int:
     finally:
         saver.close()
         stop_server(proc)
+        signal.signal(signal.SIGTERM, previous)
     return 0

@@ -7,7 +7,7 @@ Per sensor `<s>`, on the timelines `frame_time` (the frame time `t`, s) and `seq
 |---|---|---|
 | `<s>/gel/dome` | Points3D (static) | the calibrated gel surface, mm (from the sensor's info) |
 | `<s>/fields` | Tensor (channel, v, u) | the 15 field channels; `<s>/fields/channels` names them with units |
-| `<s>/gel/contacts` | Points3D | contact centroids, mm, labelled with their id and |F| |
+| `<s>/gel/contacts` | Points3D | contact centroids, mm, labelled with their id and force magnitude |
 | `<s>/gel/forces` | Arrows3D | each contact's force, ending at the contact, 5 mm per N |
 | `<s>/wrench/force_n/{x,y,z}`, `<s>/wrench/torque_nmm/{x,y,z}` | Scalars | time series, N and N·mm |
 | `<s>/contacts/count`, `<s>/status/fps` | Scalars | |
@@ -31,8 +31,13 @@ class RerunSaver:
     `<name>.partial` and renamed on close; the `tensortouch.savers` entry point `rrd`) or a live
     viewer at `grpc_url` (tools/viewers/rerun_live.py)."""
 
-    def __init__(self, path: str | Path | None = None, *, grpc_url: str | None = None):
+    def __init__(self, path: str | Path | None = None, *, grpc_url: str | None = None,
+                 fields_min_interval_s: float = 0.0):
         import rerun as rr
+
+        # a 15x128x128 float32 tensor is about 1 MB: a live view keeps up with fewer of them
+        self.fields_min_interval_s = float(fields_min_interval_s)
+        self._last_fields: dict[str, float] = {}
 
         self.rr = rr
         self.rec = rr.RecordingStream("tensortouch")
@@ -48,6 +53,7 @@ class RerunSaver:
             raise ValueError("RerunSaver needs a path (.rrd) or a gRPC url")
         self.counts: dict[str, int] = {}
         self._named: set[str] = set()
+        self._sensors: list[str] = []
         self._closed = False
 
     def _time(self, msg) -> None:
@@ -58,6 +64,29 @@ class RerunSaver:
     def _log(self, entity: str, archetype, static: bool = False) -> None:
         self.rec.log(entity, archetype, static=static)
         self.counts[entity] = self.counts.get(entity, 0) + 1
+
+    def _layout(self, sensors: list[str]) -> None:
+        """A default viewer layout: the gel in 3D, the fields tensor (fn_z first), force and torque plots."""
+        import rerun.blueprint as rrb
+
+        rr = self.rr
+        cols = []
+        for s in sensors:
+            cols.append(rrb.Vertical(
+                rrb.Horizontal(
+                    rrb.Spatial3DView(origin=f"/{s}/gel", name=f"{s}: gel, contacts (mm), forces"),
+                    rrb.TensorView(origin=f"/{s}/fields", name=f"{s}: fields (channel slider)",
+                                   slice_selection=rrb.TensorSliceSelection(
+                                       width=rr.TensorDimensionSelection(dimension=2),
+                                       height=rr.TensorDimensionSelection(dimension=1),
+                                       indices=[rr.TensorDimensionIndexSelection(dimension=0, index=11)]))),
+                rrb.Horizontal(
+                    rrb.TimeSeriesView(origin=f"/{s}/wrench/force_n", name=f"{s}: force (N)"),
+                    rrb.TimeSeriesView(origin=f"/{s}/wrench/torque_nmm", name=f"{s}: torque (N·mm)"),
+                    rrb.Vertical(rrb.TextDocumentView(origin=f"/{s}/fields/channels", name="channels"),
+                                 rrb.TextLogView(origin=f"/{s}/status", name="status"))),
+                row_shares=[3, 2]))
+        self.rec.send_blueprint(rrb.Blueprint(rrb.Horizontal(*cols), collapse_panels=True))
 
     def on_info(self, info: dict) -> None:
         """The sensor's info (queryable): its gel surface becomes the static dome."""
@@ -74,7 +103,14 @@ class RerunSaver:
         rr = self.rr
         sensor = msg["sensor_id"] if isinstance(msg, dict) else msg.sensor_id
         self._time(msg)
+        if sensor not in self._sensors:
+            self._sensors.append(sensor)
+            self._layout(self._sensors)
         if kind == "fields":
+            last = self._last_fields.get(sensor)
+            if last is not None and 0.0 <= msg.t - last < self.fields_min_interval_s:
+                return self.path
+            self._last_fields[sensor] = msg.t
             if sensor not in self._named:
                 self._named.add(sensor)
                 rows = "\n".join(f"| {i} | {c} | {u} |" for i, (c, u) in enumerate(zip(msg.channels, msg.units)))
@@ -87,7 +123,7 @@ class RerunSaver:
             force = np.array([c.force_n for c in cs], np.float32).reshape(-1, 3)
             vec = force * ARROW_MM_PER_N
             self._log(f"{sensor}/gel/contacts", rr.Points3D(
-                pos, radii=np.sqrt(np.array([c.area_mm2 for c in cs], np.float32) / np.pi).clip(0.2, None),
+                pos, radii=0.5,
                 labels=[f"#{c.id} {c.force_mag_n:.2f} N" for c in cs], colors=[255, 90, 30]))
             self._log(f"{sensor}/gel/forces", rr.Arrows3D(vectors=vec, origins=pos - vec, colors=[255, 60, 20]))
             self._log(f"{sensor}/contacts/count", rr.Scalars(float(len(cs))))
