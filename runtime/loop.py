@@ -17,6 +17,7 @@ import numpy as np
 from drivers.camera.camera import EndOfStream
 from runtime.calibration import CalibrationStore
 from runtime.errors import CaptureError, TensorTouchError
+from runtime.geometry import surface_grid
 from runtime.pipeline import FrameResult, SensorPipeline
 
 log = logging.getLogger(__name__)
@@ -33,13 +34,6 @@ class LoopConfig:
     calibration_poll_s: float = 1.0    # how often the calibration store's CURRENT is checked
     max_camera_failures: int = 50      # consecutive capture errors before giving up
     retry_wait_s: float = 0.05
-
-
-def _surface_grid(cal) -> dict:
-    """The gel surface for viewers (runtime.hand.surface_grid: mm, <= 32 points a side)."""
-    from runtime.hand import surface_grid
-
-    return surface_grid(cal)
 
 
 def to_wire_contacts(result: FrameResult) -> list[dict]:
@@ -99,7 +93,7 @@ class SensorLoop:
                 "precision": p.model.precision, "calibration_version": p.cal.version,
                 "bounds": pkg.manifest["output"]["bounds"], "model_size": list(pkg.size),
                 "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"],
-                "gel_surface": _surface_grid(p.cal)}
+                "gel_surface": surface_grid(p.cal)}
 
     def run(self, max_frames: int | None = None) -> int:
         failures = 0

@@ -6,7 +6,10 @@ alone, subscribes to the data keys it derives from those tokens, checks each 33-
 and decodes every payload with rosbags' CDR deserializer. It also records the runtime's own
 `tensortouch/*/{wrench,contacts}` JSON to compare values. Prints one JSON report on stdout.
 
-    python tests/ros2_fake_subscriber.py ENDPOINT DOMAIN SECONDS
+    python tests/ros2_fake_subscriber.py ENDPOINT DOMAIN TIMEOUT_S TOPICS MIN_MSGS BUSIEST_MSGS
+
+It stops once TOPICS publishers were found, each delivered MIN_MSGS messages and the busiest one
+BUSIEST_MSGS, or after TIMEOUT_S seconds.
 """
 from __future__ import annotations
 
@@ -58,7 +61,8 @@ def summarize(rtype: str, msg) -> dict:
 
 
 def main() -> int:
-    endpoint, domain, seconds = sys.argv[1], sys.argv[2], float(sys.argv[3])
+    endpoint, domain, timeout = sys.argv[1], sys.argv[2], float(sys.argv[3])
+    n_topics, min_msgs, busiest = (int(v) for v in sys.argv[4:7])
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("scouting/multicast/enabled", "false")
@@ -122,7 +126,15 @@ def main() -> int:
     subs.append(session.declare_subscriber("tensortouch/*/contacts", on_own("contacts")))
     tokens = session.liveliness().declare_subscriber(f"@ros2_lv/{domain}/**", on_token, history=True)
     print("ready", flush=True)
-    time.sleep(seconds)
+
+    def done():
+        with lock:
+            counts = [len(p["seqs"]) for p in report["publishers"].values()]
+        return len(counts) >= n_topics and min(counts) >= min_msgs and max(counts) >= busiest
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not done():
+        time.sleep(0.1)
     with lock:
         for entry in report["publishers"].values():
             entry["gids"] = sorted(entry["gids"])

@@ -41,15 +41,16 @@ def test_run_ros2_to_a_separate_rmw_zenoh_style_subscriber(tmp_path):
     env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(tmp_path / "calib"),
                TENSORTOUCH_MODELS=str(tmp_path / "models"), PYTHONUNBUFFERED="1")
     router = f"tcp/127.0.0.1:{free_port()}"
-    sub = subprocess.Popen([sys.executable, str(ROOT / "tests" / "ros2_fake_subscriber.py"), router, DOMAIN, "5"],
+    sub = subprocess.Popen([sys.executable, str(ROOT / "tests" / "ros2_fake_subscriber.py"), router, DOMAIN,
+                            "60", "7", "2", "95"],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert sub.stdout.readline().strip() == "ready"
-    run = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--source", f"replay:{session}", "--loop",
+    run = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--source", f"replay:{session}", "--loop", "--fast",
                             "--ros2", "--ros2-router", router, "--ros2-domain", DOMAIN, "--ros2-distro", "jazzy",
                             "--ros2-images", "disp_z,fn_z", "--ros2-stamp", "frame"],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        out, err_sub = sub.communicate(timeout=60)
+        out, err_sub = sub.communicate(timeout=90)
     finally:
         err_run = stop(run)
     assert sub.returncode == 0, err_sub
