@@ -1,6 +1,7 @@
 """Deploy-side subcommands of `tensortouch`: run, listen, calib. Thin shells over runtime/ cores."""
 from __future__ import annotations
 
+import contextlib
 import logging
 import signal
 import sys
@@ -30,6 +31,9 @@ def register(sub) -> None:
     p.add_argument("--no-fields", action="store_true", help="publish contacts/wrench/status only")
     p.add_argument("--fields-every", type=int, default=1, metavar="N",
                    help="publish the dense fields on every N-th frame (contacts/wrench/status every frame)")
+    from runtime.ros2_publisher import add_ros2_arguments
+
+    add_ros2_arguments(p)
     p.set_defaults(func=cmd_run)
 
     from runtime.listen import add_listen_parser
@@ -96,14 +100,15 @@ def _temperature_source(args, cam):
 
 
 def cmd_run(args) -> int:
+    import cv2
+
     from runtime.calibration import CalibrationStore
     from runtime.errors import TensorTouchError
     from runtime.loop import LoopConfig, SensorLoop
     from runtime.model import find_package
     from runtime.pipeline import open_pipeline
     from runtime.publisher import Publisher
-
-    import cv2
+    from runtime.ros2_publisher import Ros2Node, ros2_config_from_args
 
     cv2.setNumThreads(1)                        # leave the cores to onnxruntime and other sensors
     package = find_package(args.model)          # clear message when no trained model is installed
@@ -115,16 +120,26 @@ def cmd_run(args) -> int:
     store = CalibrationStore()
     cal = store.load(sensor)
     pipeline = open_pipeline(package, cal, precision=args.precision, threads=args.threads, sensor_id=sensor)
-    listen = args.listen or ([] if args.connect else [DEFAULT_ENDPOINT])
+    ros2 = ros2_config_from_args(args, node=f"tensortouch_{sensor}")
+    connect = list(args.connect) + ([ros2.router] if ros2 is not None and ros2.router else [])
+    # with a ROS 2 router (rmw_zenohd listens on 7447), connect to it instead of listening
+    listen = args.listen or ([] if connect else [DEFAULT_ENDPOINT])
     loop = None
-    with Publisher(sensor, listen=listen, connect=args.connect, info=lambda: loop.info() if loop else {}) as pub:
+    with contextlib.ExitStack() as stack:
+        pub = stack.enter_context(Publisher(sensor, listen=listen, connect=connect,
+                                            info=lambda: loop.info() if loop else {}))
+        ros2_sensor = None
+        if ros2 is not None:
+            node = stack.enter_context(Ros2Node(pub.session, ros2))
+            ros2_sensor = node.sensor(sensor, calibration=lambda: pipeline.cal)
         loop = SensorLoop(cam, pipeline, pub, LoopConfig(publish_fields=not args.no_fields,
                                                           fields_every=max(1, args.fields_every)),
-                          store=store, temperature=_temperature_source(args, cam))
+                          store=store, temperature=_temperature_source(args, cam), ros2=ros2_sensor)
         signal.signal(signal.SIGTERM, lambda *a: loop.stop())
         print(f"tensortouch run: sensor {sensor}, model {package.name} ({args.precision}), "
-              f"calibration {cal.version}, Zenoh {' '.join(listen + args.connect)}; Ctrl-C to stop",
-              file=sys.stderr)
+              f"calibration {cal.version}, Zenoh {' '.join(listen + connect)}"
+              + (f", ROS 2 {ros2.distro} domain {ros2.domain_id} under {ros2.namespace}" if ros2 else "")
+              + "; Ctrl-C to stop", file=sys.stderr)
         try:
             with cam:
                 n = loop.run(max_frames=args.frames)

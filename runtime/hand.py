@@ -22,22 +22,12 @@ from pathlib import Path
 
 from runtime.calibration import CalibrationStore
 from runtime.errors import CaptureError, TensorTouchError
+from runtime.geometry import surface_grid
 from runtime.hand_config import FingerConfig, HandConfig
 
 log = logging.getLogger(__name__)
 
 HAND_FLAGS = frozenset({"can_errors", "model_invalid"})   # set by the hand, not by the frame loop
-
-
-def surface_grid(cal, max_side: int = 32) -> dict:
-    """The calibrated gel surface (mm) block-averaged to <= max_side per side, for viewers."""
-    h, w = cal.model_size
-    step = max(1, -(-max(h, w) // max_side))
-    gh, gw = h // step, w // step
-    xyz = cal.surface_xyz[:gh * step, :gw * step].reshape(gh, step, gw, step, 3).mean(axis=(1, 3))
-    mask = cal.mask[:gh * step, :gw * step].reshape(gh, step, gw, step).mean(axis=(1, 3)) > 0.5
-    return {"grid": [gh, gw], "step": step, "xyz_mm": [round(float(v), 3) for v in xyz.ravel()],
-            "mask": [bool(v) for v in mask.ravel()], "calibration_version": cal.version}
 
 
 class GatedModel:
@@ -66,6 +56,7 @@ class Finger:
     def __init__(self, hand: "Hand", cfg: FingerConfig, pipeline, slot: int):
         self.hand, self.cfg, self.pipeline, self.slot = hand, cfg, pipeline, slot
         self.publisher = None
+        self.ros2 = None                   # this finger's ROS 2 topics (hand config [ros2])
         self.loop = None
         self.state = "starting"            # running | camera_lost | offline | ended | stopped
         self.frames = 0
@@ -103,7 +94,7 @@ class Finger:
             loop = SensorLoop(camera, self.pipeline, self.publisher,
                               LoopConfig(publish_fields=hcfg.publish_fields, status_every_s=hcfg.status_every_s,
                                          max_camera_failures=hcfg.max_camera_failures),
-                              store=self.hand.store, on_result=self._on_result)
+                              store=self.hand.store, on_result=self._on_result, ros2=self.ros2)
             loop.frames = self.frames
             loop.flags |= self.extra_flags
             self.loop = loop
@@ -137,6 +128,8 @@ class Finger:
     def _online(self) -> None:
         if self.publisher is None:
             self.publisher = self.hand.make_publisher(self)
+        if self.ros2 is None and self.hand.ros2 is not None:
+            self.ros2 = self.hand.ros2.sensor(self.sensor_id, calibration=lambda: self.pipeline.cal)
         if self._lost_since is not None:
             self.reconnects += 1
             self.pipeline.set_calibration(self.pipeline.cal)      # fresh baseline after a replug
@@ -228,6 +221,11 @@ class Hand:
             self.fingers[f.name] = Finger(self, f, pipe, slots[f.name])
         self._own_session = session is None
         self.session = session if session is not None else open_session(listen=cfg.listen, connect=cfg.connect)
+        self.ros2 = None
+        if cfg.ros2 is not None:
+            from runtime.ros2_publisher import Ros2Node
+
+            self.ros2 = Ros2Node(self.session, cfg.ros2)
         self.can = None
         if cfg.can is not None or can_bus is not None:
             from drivers.can_bus import CanConfig, CanSummarySender
@@ -287,6 +285,8 @@ class Hand:
             if f.publisher is not None:
                 f.publisher.close()
                 f.publisher = None
+        if self.ros2 is not None:
+            self.ros2.close()
         if self._own_session:
             try:
                 self.session.close()

@@ -12,6 +12,12 @@
     listen = ["tcp/127.0.0.1:7447"]
     connect = []
 
+    [ros2]                            # optional: ROS 2 topics in rmw_zenoh's format (docs/wire.md)
+    distro = "jazzy"                  # jazzy | kilted | rolling | humble
+    domain_id = 0                     # default: $ROS_DOMAIN_ID or 0
+    router = "tcp/127.0.0.1:7447"     # rmw_zenohd; "" = none. With a router and no [zenoh] listen,
+                                      # the hand connects to it instead of listening on 7447
+
     [can]                             # optional: compact summary on CAN (python-can)
     interface = "socketcan"
     channel = "can0"
@@ -39,6 +45,8 @@ from pathlib import Path
 from drivers.can_bus import CanConfig
 from runtime import wire
 from runtime.errors import TensorTouchError
+from runtime.ros2_publisher import Ros2Config
+from runtime.ros2_wire import name_token as rw_name_token
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +97,7 @@ class HandConfig:
     status_every_s: float = 0.5
     model_poll_s: float = 1.0          # how often model files are checked for replacement
     camera_options: dict = field(default_factory=dict)   # extra camera config (e.g. realtime, loop)
+    ros2: Ros2Config | None = None     # [ros2]: also publish ROS 2 topics (runtime/ros2_publisher.py)
 
     def slots(self) -> dict[str, int]:
         return {f.name: (f.can_slot if f.can_slot >= 0 else i) for i, f in enumerate(self.fingers)}
@@ -137,10 +146,10 @@ def _check(cfg: HandConfig, where: str) -> None:
 
 def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | None = None) -> HandConfig:
     """A parsed TOML document -> validated HandConfig."""
-    unknown = set(data) - {"hand", "zenoh", "can", "finger", "camera"}
+    unknown = set(data) - {"hand", "zenoh", "can", "finger", "camera", "ros2"}
     if unknown:
         raise HandConfigError(f"{where}: unknown table(s) {sorted(unknown)} "
-                              "(expected [hand], [zenoh], [can], [camera], [[finger]])")
+                              "(expected [hand], [zenoh], [can], [camera], [ros2], [[finger]])")
     fingers_raw = data.get("finger", [])
     if not isinstance(fingers_raw, list):
         raise HandConfigError(f"{where}: 'finger' must be an array of tables ([[finger]])")
@@ -152,7 +161,7 @@ def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | N
                 raise HandConfigError(f"{where}: finger #{i + 1} needs '{req}'")
         fingers.append(FingerConfig(**kw))
     hand = _take(data.get("hand", {}), HandConfig, f"{where}: [hand]")
-    for bad in ("fingers", "listen", "connect", "can", "camera_options"):
+    for bad in ("fingers", "listen", "connect", "can", "camera_options", "ros2"):
         if bad in data.get("hand", {}):
             raise HandConfigError(f"{where}: [hand] {bad} belongs in its own table")
     zen = data.get("zenoh", {})
@@ -170,6 +179,20 @@ def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | N
             raise HandConfigError(f"{where}: [can] {exc}") from None
     if "camera" in data:
         hand["camera_options"] = dict(data["camera"])
+    if "ros2" in data:
+        kw = _take(data["ros2"], Ros2Config, f"{where}: [ros2]")
+        kw.setdefault("node", rw_name_token(f"tensortouch_{hand.get('name', 'hand')}"))
+        for k in ("images", "mount_xyz_m", "mount_xyzw"):
+            if k in kw:
+                kw[k] = tuple(kw[k])
+        try:
+            hand["ros2"] = Ros2Config(**kw)
+        except (TypeError, ValueError, TensorTouchError) as exc:
+            raise HandConfigError(f"{where}: [ros2] {exc}") from None
+        if hand["ros2"].router:
+            hand["connect"] = tuple(hand.get("connect", ())) + (hand["ros2"].router,)
+            if "listen" not in zen:           # the router (rmw_zenohd) holds 7447: connect, not listen
+                hand["listen"] = ()
     store = hand.get("calibration_store")
     if store and base_dir is not None and not Path(store).is_absolute():
         hand["calibration_store"] = str(base_dir / store)

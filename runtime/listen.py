@@ -41,7 +41,9 @@ def add_listen_parser(subparsers) -> None:
                    help="stop after this many seconds (0 = no limit)")
     p.add_argument("--kinds", default=",".join(KINDS),
                    help=f"comma-separated streams to show (default {','.join(KINDS)})")
-    p.add_argument("--save", type=Path, metavar="DIR", help="save fields as .npy, the rest as JSONL")
+    p.add_argument("--save", type=Path, metavar="DIR|FILE",
+                   help="DIR: fields as .npy, the rest as JSONL; FILE.mcap: MCAP with Foxglove schemas; "
+                        "FILE.rrd: a Rerun recording (.mcap/.rrd need the viewers extra)")
     p.add_argument("--json", action="store_true", help="one JSON object per line instead of text")
     p.add_argument("--info", action="store_true",
                    help="first list alive sensors and print their info (queryable)")
@@ -182,6 +184,32 @@ def _atomic_write(path: Path, data, suffix: str = ".tmp") -> None:
         raise SessionError(f"{path}: cannot save ({exc}); nothing half-written was kept (disk full?)") from exc
 
 
+SAVER_GROUP = "tensortouch.savers"       # entry points: file suffix -> factory(path) with save()/close()
+FILE_SAVERS = {"mcap": "MCAP (Foxglove schemas)", "rrd": "Rerun recording"}
+
+
+def open_saver(path: Path):
+    """`--save` target: a file whose suffix names a `tensortouch.savers` entry point (`out.mcap`,
+    `out.rrd`, from the `viewers` extra) gets that recorder; anything else is a folder (Saver)."""
+    from importlib import metadata
+
+    from runtime.cli import CommandError
+
+    suffix = Path(path).suffix.lower().lstrip(".")
+    eps = [ep for ep in metadata.entry_points(group=SAVER_GROUP) if suffix and ep.name == suffix]
+    if not eps:
+        if suffix in FILE_SAVERS:
+            raise CommandError(f"--save {path}: writing a {FILE_SAVERS[suffix]} needs the viewers extra "
+                               "(pip install 'tensortouch[viewers]')")
+        return Saver(path)
+    try:
+        factory = eps[0].load()
+    except Exception as exc:  # noqa: BLE001 - the extra is missing or broken
+        raise CommandError(f"--save {path}: the .{suffix} recorder is unavailable ({exc}); "
+                           "pip install 'tensortouch[viewers]'") from None
+    return factory(path)
+
+
 # --------------------------------------------------------------------------- shell
 
 def run_listen(args) -> int:
@@ -207,7 +235,8 @@ def run_listen(args) -> int:
     from runtime.publisher import zenoh_config
 
     cfg = zenoh_config(listen=args.listen, connect=args.connect, multicast=multicast)
-    saver = Saver(args.save) if args.save else None
+    saver = open_saver(args.save) if args.save else None
+    described: set[str] = set()           # sensors whose info went to a saver that wants it
     out = sys.stdout
     n = 0
     with Subscriber(args.sensor, zenoh_config=cfg, **callbacks) as sub:
@@ -238,6 +267,13 @@ def run_listen(args) -> int:
                 n += 1
                 line = json.dumps(summarize(kind, msg)) if args.json else format_line(kind, msg)
                 if saver is not None:
+                    sid = msg["sensor_id"] if isinstance(msg, dict) else msg.sensor_id
+                    if hasattr(saver, "on_info") and sid not in described:
+                        described.add(sid)
+                        try:
+                            saver.on_info(query_info(sub, sid))
+                        except Exception as exc:  # noqa: BLE001 - the recording goes on without it
+                            log.warning("sensor %s: no info for the recording: %s", sid, exc)
                     saver.save(kind, msg)
                 print(line, file=out, flush=True)
         except KeyboardInterrupt:

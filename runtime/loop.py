@@ -17,6 +17,7 @@ import numpy as np
 from drivers.camera.camera import EndOfStream
 from runtime.calibration import CalibrationStore
 from runtime.errors import CaptureError, TensorTouchError
+from runtime.geometry import surface_grid
 from runtime.pipeline import FrameResult, SensorPipeline
 
 log = logging.getLogger(__name__)
@@ -67,8 +68,10 @@ class SensorLoop:
     """Runs one sensor until the source ends or `stop()` is called."""
 
     def __init__(self, camera, pipeline: SensorPipeline, publisher=None, config: LoopConfig | None = None,
-                 store: CalibrationStore | None = None, on_result=None, temperature=None):
+                 store: CalibrationStore | None = None, on_result=None, temperature=None, ros2=None):
         self.camera, self.pipeline, self.publisher = camera, pipeline, publisher
+        # optional second output with the Publisher's calls: ROS 2 topics (runtime/ros2_publisher.py)
+        self.ros2 = ros2
         # optional gel temperature source: callable(frame time s) -> °C (runtime/temperature.py)
         self.temperature = temperature
         self.cfg = config or LoopConfig()
@@ -89,7 +92,8 @@ class SensorLoop:
         return {"sensor_id": p.sensor_id, "model": pkg.name, "model_hash": pkg.sha256(p.model.precision),
                 "precision": p.model.precision, "calibration_version": p.cal.version,
                 "bounds": pkg.manifest["output"]["bounds"], "model_size": list(pkg.size),
-                "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"]}
+                "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"],
+                "gel_surface": surface_grid(p.cal)}
 
     def run(self, max_frames: int | None = None) -> int:
         failures = 0
@@ -147,18 +151,25 @@ class SensorLoop:
         self._status(time.monotonic(), fps, force=True)
         return self.frames
 
+    def _outputs(self) -> list:
+        return [out for out in (self.publisher, self.ros2) if out is not None]
+
     def _publish(self, r: FrameResult) -> None:
-        if self.publisher is None:
+        outputs = self._outputs()
+        if not outputs:
             return
         if r.fields is not None and self.cfg.publish_fields:
             if self._field_frames % max(1, self.cfg.fields_every) == 0:
-                self.publisher.publish_fields(r.fields, r.seq, r.t)
+                for out in outputs:
+                    out.publish_fields(r.fields, r.seq, r.t)
             self._field_frames += 1
-        self.publisher.publish_contacts(to_wire_contacts(r), r.seq, r.t)
-        self.publisher.publish_wrench(r.force_n, r.torque_nmm, r.seq, r.t)
+        contacts = to_wire_contacts(r)
+        for out in outputs:
+            out.publish_contacts(contacts, r.seq, r.t)
+            out.publish_wrench(r.force_n, r.torque_nmm, r.seq, r.t)
 
     def _status(self, now: float, fps: float, result: FrameResult | None = None, force: bool = False) -> None:
-        if self.publisher is None:
+        if not self._outputs():
             return
         p = self.pipeline
         status = {"state": result.state if result else p.baseline.state.name,
@@ -168,7 +179,8 @@ class SensorLoop:
                   "frames": self.frames, "model": p.model.package.name,
                   "model_hash": p.model.package.sha256(p.model.precision),
                   "calibration_version": p.cal.version}
-        self.publisher.publish_status(status, seq=p.seq, t=result.t if result else None)
+        for out in self._outputs():
+            out.publish_status(dict(status), seq=p.seq, t=result.t if result else None)
 
     def _maybe_reload(self) -> None:
         sid = self.pipeline.sensor_id

@@ -21,6 +21,11 @@ def register(sub) -> None:
     p.add_argument("--host", default="127.0.0.1", help="HTTP address (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8765)
     p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--rerun", action="store_true",
+                   help="show the sensors in a Rerun web viewer (viewers extra) served on --host:--port "
+                        "instead of the built-in page")
+    p.add_argument("--rerun-grpc-port", type=int, default=9876, metavar="PORT",
+                   help="gRPC port of the Rerun server, also bound to --host (default 9876)")
     p.set_defaults(func=cmd_view)
 
 
@@ -29,6 +34,10 @@ def cmd_view(args) -> int:
     from tools.view.server import ViewState, serve
 
     connect = args.connect or ([] if args.listen else [DEFAULT_CONNECT])
+    if getattr(args, "rerun", False):
+        from tools.viewers.rerun_live import run_rerun_view
+
+        return run_rerun_view(args, connect, args.listen)
     session = open_session(connect=connect, listen=args.listen)
     state = ViewState(session, args.sensor)
     httpd = serve(state, args.host, args.port)

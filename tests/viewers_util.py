@@ -1,0 +1,17 @@
+"""Helpers for the viewer tests: register the `tensortouch.savers` entry points of this worktree the way
+an install of the `viewers` extra does (a dist-info folder with entry_points.txt on the PYTHONPATH of
+a `tensortouch listen` process), so it finds them through importlib.metadata, with no mock."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def site_with_savers(folder: Path) -> Path:
+    """A folder holding the dist-info; put it on a process's PYTHONPATH."""
+    dist = folder / "tensortouch_viewers_test-0.0.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: tensortouch-viewers-test\nVersion: 0.0.0\n")
+    (dist / "entry_points.txt").write_text("[tensortouch.savers]\nmcap = tools.viewers.mcap_saver:McapSaver\n"
+                                           "rrd = tools.viewers.rerun_saver:RerunSaver\n")
+    return folder
+
