@@ -193,7 +193,7 @@ def open_saver(path: Path):
     `out.rrd`, from the `viewers` extra) gets that recorder; anything else is a folder (Saver)."""
     from importlib import metadata
 
-    from runtime.cli import CommandError
+    from runtime.errors import CommandError
 
     suffix = Path(path).suffix.lower().lstrip(".")
     eps = [ep for ep in metadata.entry_points(group=SAVER_GROUP) if suffix and ep.name == suffix]

@@ -106,7 +106,7 @@ def test_listen_save_mcap_from_a_running_sensor(sensor_fixture, tmp_path):
 def test_listen_save_mcap_without_the_extra_says_how_to_get_it(tmp_path):
     from importlib import metadata
 
-    from runtime.cli import CommandError
+    from runtime.errors import CommandError
     from runtime.listen import SAVER_GROUP, open_saver
 
     if any(ep.name == "rrd" for ep in metadata.entry_points(group=SAVER_GROUP)):
