@@ -1,15 +1,15 @@
 """Deploy-side subcommands of `tensortouch`: run, listen, calib. Thin shells over runtime/ cores."""
 from __future__ import annotations
 
+import argparse
 import logging
 import signal
 import sys
 from pathlib import Path
 
+from runtime.zenoh_session import add_zenoh_options, config_from_args, describe
+
 log = logging.getLogger(__name__)
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-
 
 def register(sub) -> None:
     """Add the deploy subcommands to the `tensortouch` parser."""
@@ -22,11 +22,11 @@ def register(sub) -> None:
     p.add_argument("--model", help="model package name in exported_models/ or a path (default: newest installed)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
-    p.add_argument("--listen", action="append", help=f"Zenoh listen endpoint (default {DEFAULT_ENDPOINT})")
-    p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to")
+    add_zenoh_options(p, "sensor")
     p.add_argument("--frames", type=int, help="stop after N frames")
     p.add_argument("--fast", action="store_true", help="replay as fast as possible (default: recorded clock)")
-    p.add_argument("--loop", action="store_true", help="replay the recording in a loop")
+    p.add_argument("--loop", action=argparse.BooleanOptionalAction, default=None,
+                   help="replay the recording in a loop (default: on for the shipped demo, off otherwise)")
     p.add_argument("--no-fields", action="store_true", help="publish contacts/wrench/status only")
     p.add_argument("--fields-every", type=int, default=1, metavar="N",
                    help="publish the dense fields on every N-th frame (contacts/wrench/status every frame)")
@@ -64,16 +64,21 @@ def _open_source(args):
     from runtime.session import load_session
 
     source = args.source
+    loop = bool(args.loop)
     if not source:
         demo = paths.demo_dir()
         if not (demo / "session.json").is_file():
             raise CaptureError(f"no --source given and no demo recording at {demo}; "
                                "record one with `tensortouch twin record ... --out runtime/demo`")
         source = f"replay:{demo}"
+        if args.loop is None:
+            loop = True
+            print("tensortouch run: replaying the shipped demo in a loop (--no-loop: play it once)",
+                  file=sys.stderr)
     config = config_from_uri(source)
     session_sensor = None
     if isinstance(config, ReplayCameraConfig):
-        config = config_from_uri(source, realtime=not args.fast, loop=args.loop or config.loop)
+        config = config_from_uri(source, realtime=not args.fast, loop=loop or config.loop)
         if not Path(config.path).exists():
             raise CaptureError(f"{config.path}: no such recording (expected a session folder or a video file)")
         if Path(config.path).is_dir():
@@ -102,6 +107,7 @@ def cmd_run(args) -> int:
     from runtime.model import FieldModel, find_package
     from runtime.pipeline import SensorPipeline
     from runtime.publisher import Publisher
+    from runtime.wire import check_sensor_id
 
     import cv2
 
@@ -112,19 +118,20 @@ def cmd_run(args) -> int:
     if not sensor:
         raise TensorTouchError("--sensor is required unless --source is a session folder "
                                "(it names the calibration store folder of this sensor)")
+    check_sensor_id(sensor)                     # before it names a folder or a Zenoh key
     store = CalibrationStore()
     cal = store.load(sensor)
     model = FieldModel(package, args.precision, threads=args.threads)
     pipeline = SensorPipeline(sensor, model, cal)
-    listen = args.listen or ([] if args.connect else [DEFAULT_ENDPOINT])
     loop = None
-    with Publisher(sensor, listen=listen, connect=args.connect, info=lambda: loop.info() if loop else {}) as pub:
+    with Publisher(sensor, zenoh_config=config_from_args(args, "sensor"),
+                   info=lambda: loop.info() if loop else {}) as pub:
         loop = SensorLoop(cam, pipeline, pub, LoopConfig(publish_fields=not args.no_fields,
                                                           fields_every=max(1, args.fields_every)),
                           store=store, temperature=_temperature_source(args, cam))
         signal.signal(signal.SIGTERM, lambda *a: loop.stop())
         print(f"tensortouch run: sensor {sensor}, model {package.name} ({args.precision}), "
-              f"calibration {cal.version}, Zenoh {' '.join(listen + args.connect)}; Ctrl-C to stop",
+              f"calibration {cal.version}, Zenoh {describe(args, 'sensor')}; Ctrl-C to stop",
               file=sys.stderr)
         try:
             with cam:

@@ -227,7 +227,8 @@ class Hand:
             pipe = SensorPipeline(f.calibration_id, model, cals[f.name])
             self.fingers[f.name] = Finger(self, f, pipe, slots[f.name])
         self._own_session = session is None
-        self.session = session if session is not None else open_session(listen=cfg.listen, connect=cfg.connect)
+        self.session = session if session is not None else open_session(
+            listen=cfg.listen, connect=cfg.connect, config_file=cfg.zenoh_config, multicast=cfg.multicast)
         self.can = None
         if cfg.can is not None or can_bus is not None:
             from drivers.can_bus import CanConfig, CanSummarySender

@@ -1,7 +1,7 @@
 """`tensortouch listen`: subscribe to sensors over Zenoh, print one line per message, optionally save.
 
-    tensortouch listen                     # every sensor found by multicast scouting
-    tensortouch listen dome01 --connect tcp/127.0.0.1:7447 --count 100 --save out/ --json
+    tensortouch listen                     # every sensor at the meeting point, tcp/127.0.0.1:7447
+    tensortouch listen dome01 --connect tcp/10.0.0.5:7447 --count 100 --save out/ --json
 
 Saving: <DIR>/<sensor>/fields/<seq>.npy (float32 (15,H,W), written atomically) plus meta.json
 (channels, units), and contacts.jsonl / wrench.jsonl / status.jsonl (one message per line).
@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from runtime.errors import SessionError
+from runtime.zenoh_session import add_zenoh_options, config_from_args, describe
 
 log = logging.getLogger(__name__)
 
@@ -30,12 +31,7 @@ def add_listen_parser(subparsers) -> None:
     p = subparsers.add_parser("listen", help="print/save what sensors publish over Zenoh",
                               description=__doc__.splitlines()[0])
     p.add_argument("sensor", nargs="?", default="*", help="sensor id, or * for all (default)")
-    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                   help="zenoh endpoint to listen on (repeatable)")
-    p.add_argument("--multicast", action=argparse.BooleanOptionalAction, default=None,
-                   help="multicast scouting (default: on only when no endpoint is given)")
+    add_zenoh_options(p, "subscriber")
     p.add_argument("--count", type=int, default=0, help="stop after N messages (0 = no limit)")
     p.add_argument("--timeout", type=float, default=0.0,
                    help="stop after this many seconds (0 = no limit)")
@@ -184,6 +180,17 @@ def _atomic_write(path: Path, data, suffix: str = ".tmp") -> None:
 
 # --------------------------------------------------------------------------- shell
 
+NOTHING_YET_S = 3.0     # a listen that has received nothing says so after this long
+
+
+def nothing_yet_hint(sensor: str, where: str, decode_errors: int = 0) -> str:
+    """What a listen that receives nothing prints (once, and it keeps waiting)."""
+    bad = f" {decode_errors} message(s) arrived that could not be decoded (wire version?)." if decode_errors else ""
+    return (f"tensortouch listen: nothing from {sensor!r} yet after {NOTHING_YET_S:.0f} s ({where}); "
+            f"still waiting.{bad} Try: start a sensor with `tensortouch run` (it listens on the same "
+            "meeting point), check the sensor id (`tensortouch listen '*' --info` lists the alive "
+            "ones), or give the sensor's endpoint with --connect.")
+
 def run_listen(args) -> int:
     from runtime.cli import CommandError
     from runtime.subscriber import Subscriber, alive_sensors, query_info
@@ -203,10 +210,8 @@ def run_listen(args) -> int:
         return put
 
     callbacks = {f"on_{k}": enqueue(k) for k in kinds}
-    multicast = args.multicast if args.multicast is not None else not (args.connect or args.listen)
-    from runtime.publisher import zenoh_config
-
-    cfg = zenoh_config(listen=args.listen, connect=args.connect, multicast=multicast)
+    cfg = config_from_args(args, "subscriber")
+    where = describe(args, "subscriber")
     saver = Saver(args.save) if args.save else None
     out = sys.stdout
     n = 0
@@ -225,7 +230,9 @@ def run_listen(args) -> int:
                     info = {"sensor_id": sid, "error": str(exc)}
                 print(json.dumps({"info": info}) if args.json else f"info {sid}: {json.dumps(info)}",
                       file=out, flush=True)
-        deadline = time.monotonic() + args.timeout if args.timeout > 0 else None
+        started = time.monotonic()
+        deadline = started + args.timeout if args.timeout > 0 else None
+        hinted = False
         try:
             while not (args.count and n >= args.count):
                 wait = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
@@ -234,6 +241,9 @@ def run_listen(args) -> int:
                 try:
                     kind, msg = inbox.get(timeout=wait)
                 except queue.Empty:
+                    if n == 0 and not hinted and time.monotonic() - started >= NOTHING_YET_S:
+                        hinted = True
+                        print(nothing_yet_hint(args.sensor, where, sub.errors), file=sys.stderr, flush=True)
                     continue
                 n += 1
                 line = json.dumps(summarize(kind, msg)) if args.json else format_line(kind, msg)
@@ -249,8 +259,7 @@ def run_listen(args) -> int:
             print(f"note: {sub.errors} message(s) could not be decoded; last: {sub.last_error}",
                   file=sys.stderr)
     if n == 0:
-        print(f"tensortouch listen: no messages from {args.sensor!r} "
-              f"(connect={args.connect or '-'}, multicast={multicast}); is a sensor running?",
+        print(f"tensortouch listen: no messages from {args.sensor!r} ({where}); is a sensor running?",
               file=sys.stderr)
         return 1
     return 0

@@ -1,0 +1,94 @@
+"""The newcomer's two shells: `tensortouch run` (the shipped demo) and `tensortouch listen TWIN-DEMO`,
+both with no network option, meet on the default endpoint and messages flow within 5 s.
+
+Real processes, real Zenoh on loopback, the shipped model and demo. The meeting point is moved to a
+free port through TENSORTOUCH_ENDPOINT (the one place it is configured), so the commands run their
+default code path without colliding with anything already on 7447.
+"""
+import os
+import select
+import subprocess
+import sys
+import time
+
+import pytest
+
+from runtime.paths import ROOT
+from tests.test_e2e_runtime import free_port, stop
+
+MODEL = ROOT / "exported_models" / "hiera-qup-128"
+DEMO = ROOT / "runtime" / "demo"
+CLI = [sys.executable, "-m", "runtime.cli"]
+
+needs_demo = pytest.mark.skipif(not (MODEL / "manifest.json").is_file() or not (DEMO / "session.json").is_file(),
+                                reason="no shipped model or demo in this checkout")
+
+
+def _env() -> dict:
+    env = dict(os.environ, PYTHONUNBUFFERED="1", TENSORTOUCH_ENDPOINT=f"tcp/127.0.0.1:{free_port()}")
+    for name in ("TENSORTOUCH_MODELS", "TENSORTOUCH_CALIBRATION", "TENSORTOUCH_DEMO"):
+        env.pop(name, None)
+    return env
+
+
+def _wait_for_line(proc: subprocess.Popen, stream, needle: str, timeout: float) -> tuple[str, float]:
+    """Read `stream` of `proc` until a line contains `needle`; return (text read, seconds taken)."""
+    t0, text = time.monotonic(), ""
+    while time.monotonic() - t0 < timeout:
+        ready, _, _ = select.select([stream], [], [], 0.2)
+        if ready:
+            line = stream.readline()
+            if not line and proc.poll() is not None:
+                break
+            text += line
+            if needle in line:
+                return text, time.monotonic() - t0
+        elif proc.poll() is not None:
+            break
+    raise AssertionError(f"no line with {needle!r} within {timeout} s (rc={proc.poll()}):\n{text[-2000:]}")
+
+
+@needs_demo
+def test_default_run_and_default_listen_meet_within_5_s():
+    env = _env()
+    run = subprocess.Popen(CLI + ["run"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    listen = None
+    try:
+        log, _ = _wait_for_line(run, run.stderr, "Ctrl-C to stop", 120)
+        assert "in a loop" in log, log            # the demo loops: a second shell has time to start
+        assert env["TENSORTOUCH_ENDPOINT"] in log
+        listen = subprocess.Popen(CLI + ["listen", "TWIN-DEMO"], env=env, stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True)
+        line, took = _wait_for_line(listen, listen.stdout, "tensortouch/TWIN-DEMO/", 5.0)
+        assert took < 5.0, took
+    finally:
+        if listen is not None:
+            listen.kill()
+            listen.wait(10)
+        stop(run)
+
+
+@needs_demo
+def test_default_run_loops_the_shipped_demo():
+    """The demo has 279 frames; the default run replays it again and again (here as fast as it can)."""
+    env = _env()
+    r = subprocess.run(CLI + ["run", "--fast", "--frames", "400", "--no-fields"], env=env,
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "replaying the shipped demo in a loop" in r.stderr
+    assert "tensortouch run: 400 frames" in r.stderr, r.stderr[-1000:]
+
+
+def test_listen_that_hears_nothing_says_so_and_keeps_waiting():
+    env = _env()
+    listen = subprocess.Popen(CLI + ["listen", "TWIN-DEMO"], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        text, took = _wait_for_line(listen, listen.stderr, "still waiting", 10.0)
+        assert took < 6.0, took
+        assert "tensortouch run" in text and env["TENSORTOUCH_ENDPOINT"] in text, text
+        time.sleep(0.5)
+        assert listen.poll() is None, "listen gave up instead of waiting"
+    finally:
+        listen.kill()
+        listen.wait(10)
