@@ -13,7 +13,15 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import dome_calibration
-from tests.test_e2e_runtime import SENSOR, SIZE, H, W, free_port, stop, write_poke_session
+from tests.test_e2e_runtime import (
+    SENSOR,
+    SIZE,
+    H,
+    W,
+    free_port,
+    stop,
+    write_poke_session,
+)
 from tools.bench.models import write_difference_package
 
 CLI = [sys.executable, "-m", "runtime.cli"]
