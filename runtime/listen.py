@@ -104,18 +104,41 @@ class Saver:
 
     A failed write (disk full, ...) raises SessionError naming the file, and leaves nothing
     half-written: a partial .npy temp file is removed, a JSONL file is cut back to its last
-    complete line."""
+    complete line. Folder names are sensor ids checked against the id pattern, so nothing lands
+    outside DIR; at most `max_open` JSONL files are open at once (least recently used closed first)."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, max_open: int = 16):
+        from collections import OrderedDict
+
         self.root = Path(root)
-        self._files: dict[tuple[str, str], int] = {}   # (sensor, kind) -> fd opened for append
+        self.max_open = max(1, int(max_open))
+        self._files: OrderedDict[tuple[str, str], int] = OrderedDict()  # (sensor, kind) -> append fd
         self._meta_written: set[str] = set()
+
+    def _folder(self, sensor: Any) -> Path:
+        from runtime.wire import check_sensor_id
+
+        folder = self.root / check_sensor_id(sensor)
+        if folder.resolve().parent != self.root.resolve():
+            raise SessionError(f"{folder}: sensor folder would be outside {self.root}")
+        return folder
+
+    def _fd(self, sensor: str, kind: str, folder: Path, path: Path) -> int:
+        fd = self._files.get((sensor, kind))
+        if fd is not None:
+            self._files.move_to_end((sensor, kind))
+            return fd
+        while len(self._files) >= self.max_open:
+            os.close(self._files.popitem(last=False)[1])
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = self._files[(sensor, kind)] = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        return fd
 
     def save(self, kind: str, msg: Any) -> Path:
         import numpy as np
 
         sensor = msg["sensor_id"] if isinstance(msg, dict) else msg.sensor_id
-        folder = self.root / sensor
+        folder = self._folder(sensor)
         if kind == "fields":
             fdir = folder / "fields"
             fdir.mkdir(parents=True, exist_ok=True)
@@ -136,11 +159,8 @@ class Saver:
             record = msg
         path = folder / f"{kind}.jsonl"
         data = (json.dumps(record, separators=(",", ":")) + "\n").encode("utf-8")
-        fd = self._files.get((sensor, kind))
         try:
-            if fd is None:
-                folder.mkdir(parents=True, exist_ok=True)
-                fd = self._files[(sensor, kind)] = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            fd = self._fd(sensor, kind, folder, path)
             end = os.lseek(fd, 0, os.SEEK_END)
             done = 0
             try:
