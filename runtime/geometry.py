@@ -90,3 +90,14 @@ def sample_bilinear(table: np.ndarray, u: float, v: float) -> np.ndarray:
     a, b = u - u0, v - v0
     return ((1 - a) * (1 - b) * table[v0, u0] + a * (1 - b) * table[v0, u1]
             + (1 - a) * b * table[v1, u0] + a * b * table[v1, u1])
+
+
+def surface_grid(cal, max_side: int = 32) -> dict:
+    """The calibrated gel surface (mm) block-averaged to <= max_side per side, for viewers."""
+    h, w = cal.model_size
+    step = max(1, -(-max(h, w) // max_side))
+    gh, gw = h // step, w // step
+    xyz = cal.surface_xyz[:gh * step, :gw * step].reshape(gh, step, gw, step, 3).mean(axis=(1, 3))
+    mask = cal.mask[:gh * step, :gw * step].reshape(gh, step, gw, step).mean(axis=(1, 3)) > 0.5
+    return {"grid": [gh, gw], "step": step, "xyz_mm": [round(float(v), 3) for v in xyz.ravel()],
+            "mask": [bool(v) for v in mask.ravel()], "calibration_version": cal.version}

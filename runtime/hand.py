@@ -22,22 +22,12 @@ from pathlib import Path
 
 from runtime.calibration import CalibrationStore
 from runtime.errors import CaptureError, TensorTouchError
+from runtime.geometry import surface_grid
 from runtime.hand_config import FingerConfig, HandConfig
 
 log = logging.getLogger(__name__)
 
 HAND_FLAGS = frozenset({"can_errors", "model_invalid"})   # set by the hand, not by the frame loop
-
-
-def surface_grid(cal, max_side: int = 32) -> dict:
-    """The calibrated gel surface (mm) block-averaged to <= max_side per side, for viewers."""
-    h, w = cal.model_size
-    step = max(1, -(-max(h, w) // max_side))
-    gh, gw = h // step, w // step
-    xyz = cal.surface_xyz[:gh * step, :gw * step].reshape(gh, step, gw, step, 3).mean(axis=(1, 3))
-    mask = cal.mask[:gh * step, :gw * step].reshape(gh, step, gw, step).mean(axis=(1, 3)) > 0.5
-    return {"grid": [gh, gw], "step": step, "xyz_mm": [round(float(v), 3) for v in xyz.ravel()],
-            "mask": [bool(v) for v in mask.ravel()], "calibration_version": cal.version}
 
 
 class GatedModel:

@@ -17,6 +17,7 @@ import numpy as np
 from drivers.camera.camera import EndOfStream
 from runtime.calibration import CalibrationStore
 from runtime.errors import CaptureError, TensorTouchError
+from runtime.geometry import surface_grid
 from runtime.pipeline import FrameResult, SensorPipeline
 
 log = logging.getLogger(__name__)
@@ -89,7 +90,8 @@ class SensorLoop:
         return {"sensor_id": p.sensor_id, "model": pkg.name, "model_hash": pkg.sha256(p.model.precision),
                 "precision": p.model.precision, "calibration_version": p.cal.version,
                 "bounds": pkg.manifest["output"]["bounds"], "model_size": list(pkg.size),
-                "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"]}
+                "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"],
+                "gel_surface": surface_grid(p.cal)}       # viewers draw the calibrated gel
 
     def run(self, max_frames: int | None = None) -> int:
         failures = 0
