@@ -73,7 +73,7 @@ def chromium_dom(url: str, tmp_path, budget_ms: int = 6000) -> str:
     profile = tmp_path / f"chromium-{time.monotonic_ns()}"
     r = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                         "--disable-component-update", "--no-first-run", f"--user-data-dir={profile}",
-                        f"--virtual-time-budget={budget_ms}", "--dump-dom", url],
+                        f"--virtual-time-budget={budget_ms}", "--timeout=30000", "--dump-dom", url],
                        capture_output=True, text=True, timeout=120, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     return r.stdout
