@@ -14,6 +14,7 @@ import time
 import pytest
 
 from runtime.paths import ROOT
+from runtime.subscriber import Subscriber, query_info
 from tests.test_e2e_runtime import free_port, stop
 
 MODEL = ROOT / "exported_models" / "hiera-qup-128"
@@ -61,6 +62,11 @@ def test_default_run_and_default_listen_meet_within_5_s():
                                   stderr=subprocess.PIPE, text=True)
         _, took = _wait_for_line(listen, listen.stdout, "tensortouch/TWIN-DEMO/", 5.0)
         assert took < 5.0, took
+        # the run describes its calibrated gel, so a viewer does not fall back to the nominal dome
+        with Subscriber("TWIN-DEMO", connect=[env["TENSORTOUCH_ENDPOINT"]]) as sub:
+            geo = query_info(sub, "TWIN-DEMO", timeout=5.0)["gel_surface"]
+        gh, gw = geo["grid"]
+        assert len(geo["xyz_mm"]) == 3 * gh * gw and sum(geo["mask"]) > gh * gw // 2
     finally:
         if listen is not None:
             listen.kill()
