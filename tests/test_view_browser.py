@@ -16,7 +16,6 @@ import pytest
 import zenoh
 
 from runtime import wire
-from runtime.fields import CHANNEL_UNITS, CHANNELS
 from runtime.publisher import Publisher
 from runtime.zenoh_session import open_session, zenoh_config
 from tests.test_listen import CONTACT, free_endpoint
@@ -89,7 +88,7 @@ def _hostile(session: zenoh.Session, evil: str, stop: threading.Event) -> None:
     seq = 0
     while not stop.is_set():
         for key_id in (sid, evil[:40].replace("/", ""), "x<script>y"):
-            head = {"schema": wire.SCHEMAS["fields"], "sensor_id": key_id if key_id != sid else sid, "seq": seq,
+            head = {"schema": wire.SCHEMAS["fields"], "sensor_id": key_id, "seq": seq,
                     "t": 0.5, "shape": [15, 8, 8], "dtype": wire.FIELDS_DTYPE, "channels": channels, "units": units,
                     "clipped": [evil]}
             status = {"schema": wire.SCHEMAS["status"], "sensor_id": key_id, "seq": seq, "t": 0.5, "state": evil,
