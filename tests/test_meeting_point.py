@@ -98,3 +98,16 @@ def test_listen_that_hears_nothing_says_so_and_keeps_waiting():
     finally:
         listen.kill()
         listen.wait(10)
+
+
+@pytest.mark.parametrize("text", [None, "{ mode: 'peer', listen: { endpoints: 7 } }", "{ transport: { link: { tls: { nope: 1 } } } }"],
+                         ids=["missing", "wrong-type", "unknown-key"])
+def test_bad_zenoh_config_is_one_line_and_exit_2(tmp_path, text):
+    path = tmp_path / "z.json5"
+    if text is not None:
+        path.write_text(text)
+    r = subprocess.run(CLI + ["listen", "--zenoh-config", str(path), "--timeout", "1"], env=_env(),
+                       capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 2, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(path) in lines[0] and "Traceback" not in r.stderr, r.stderr
