@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -65,8 +66,7 @@ def load_zenoh_config(path: str | os.PathLike, *, listen: Sequence[str] = (),
         if connect:
             cfg.insert_json5("connect/endpoints", json.dumps([str(e) for e in connect]))
     except zenoh.ZError as exc:
-        detail = " ".join(str(exc).split())
-        raise TensorTouchError(f"{path}: not a valid Zenoh config ({detail})") from None
+        raise TensorTouchError(f"{path}: not a valid Zenoh config ({_zerror(exc)})") from None
     return cfg
 
 
@@ -100,9 +100,14 @@ def open_session(config: zenoh.Config | None = None, *, listen: Sequence[str] = 
         return zenoh.open(config)
     except zenoh.ZError as exc:
         where = f"config {config_file}, " if config_file else ""
-        detail = " ".join(str(exc).split())
         raise TensorTouchError(f"cannot open zenoh session ({where}listen={_endpoints(config, 'listen')}, "
-                               f"connect={_endpoints(config, 'connect')}): {detail}") from None
+                               f"connect={_endpoints(config, 'connect')}): {_zerror(exc)}") from None
+
+
+def _zerror(exc: Exception) -> str:
+    """A Zenoh error on one line, without the Rust source location it carries."""
+    text = " ".join(str(exc).split())
+    return re.sub(r"\s+at /\S+\.rs:\d+\.?", "", text).strip()
 
 
 def _endpoints(config: zenoh.Config, which: str) -> str:
