@@ -73,7 +73,7 @@ def _open_source(args):
         source = f"replay:{demo}"
         if args.loop is None:
             loop = True
-            print("tensortouch run: replaying the shipped demo in a loop (--no-loop: play it once)",
+            print(f"tensortouch run: replaying the demo recording {demo} in a loop (--no-loop: play it once)",
                   file=sys.stderr)
     config = config_from_uri(source)
     session_sensor = None

@@ -74,15 +74,26 @@ def test_default_run_and_default_listen_meet_within_5_s():
         stop(run)
 
 
-@needs_demo
-def test_default_run_loops_the_shipped_demo():
-    """The demo has 279 frames; the default run replays it again and again (here as fast as it can)."""
-    env = _env()
-    r = subprocess.run(CLI + ["run", "--fast", "--frames", "400", "--no-fields"], env=env, check=False,
-                       capture_output=True, text=True, timeout=240)
+def test_default_run_loops_the_built_in_demo(tmp_path):
+    """With no --source the run replays the built-in demo again and again (here a 10-frame one,
+    through TENSORTOUCH_DEMO, with a test network, as fast as it can): 25 frames come out."""
+    from tests.conftest import dome_calibration
+    from tests.test_e2e_runtime import SENSOR, SIZE, H, W, write_poke_session
+    from tools.bench.models import write_difference_package
+
+    demo = write_poke_session(tmp_path / "demo", n=10)
+    write_difference_package(tmp_path / "models" / "difference-32", SIZE)
+    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    env = dict(_env(), TENSORTOUCH_DEMO=str(demo), TENSORTOUCH_MODELS=str(tmp_path / "models"),
+               TENSORTOUCH_CALIBRATION=str(tmp_path / "calib"))
+    r = subprocess.run(CLI + ["run", "--fast", "--frames", "25", "--no-fields"], env=env, check=False,
+                       capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "replaying the shipped demo in a loop" in r.stderr
-    assert "tensortouch run: 400 frames" in r.stderr, r.stderr[-1000:]
+    assert f"replaying the demo recording {demo} in a loop" in r.stderr
+    assert "tensortouch run: 25 frames" in r.stderr, r.stderr[-1000:]
+    once = subprocess.run(CLI + ["run", "--fast", "--frames", "25", "--no-fields", "--no-loop"], env=env,
+                          check=False, capture_output=True, text=True, timeout=120)
+    assert once.returncode == 0 and "tensortouch run: 10 frames" in once.stderr, once.stderr[-1000:]
 
 
 def test_listen_that_hears_nothing_says_so_and_keeps_waiting():
