@@ -160,3 +160,28 @@ def test_view_escapes_everything_a_hostile_publisher_sends(tmp_path):
     # the hostile strings are on the page, as text only
     assert "&lt;img src=x onerror=" in dom and "<img src=\"x\"" not in dom and "<svg" not in dom
     assert "<iframe" not in dom
+
+
+def test_3d_view_is_right_handed_and_arrows_point_along_the_force(tmp_path):
+    """The page's own `project` in Chromium: sensor x, y, z map to a right-handed screen frame
+    (right, up, toward the viewer), so the gel is not drawn mirrored, and a force arrow (tail at
+    p - s·F, head at p) points along F on screen."""
+    from tools.view.server import PAGE
+
+    probe = """<script>
+    const J = [[1,0,0],[0,1,0],[0,0,1]].map(e => { const a = project(e, 460), o = project([0,0,0], 460);
+      return [a[0] - o[0], -(a[1] - o[1]), a[2] - o[2]]; });          // screen right, up, toward
+    const det = J[0][0]*(J[1][1]*J[2][2]-J[1][2]*J[2][1]) - J[0][1]*(J[1][0]*J[2][2]-J[1][2]*J[2][0])
+              + J[0][2]*(J[1][0]*J[2][1]-J[1][1]*J[2][0]);
+    const p = [3, 0, 14], F = [1, 0, -2], s = 8, tail = project(p.map((v, j) => v - s * F[j]), 460),
+          head = project(p, 460), px = project([4, 0, 14], 460), pz = project([3, 0, 13], 460), o = head;
+    const dot = (a, b) => (a[0] - o[0]) * b[0] + (a[1] - o[1]) * b[1];
+    const along = [head[0] - tail[0], head[1] - tail[1]];
+    document.title = JSON.stringify({det: det, alongX: dot(px, along) > 0, alongMinusZ: dot(pz, along) > 0});
+    </script></body>"""
+    page = tmp_path / "probe.html"
+    page.write_text(PAGE.read_text().replace("</body>", probe))
+    dom = chromium_dom(page.as_uri(), tmp_path, 2000)
+    got = json.loads(dom.split("<title>")[1].split("</title>")[0].replace("&quot;", '"'))
+    assert got["det"] > 0, got                        # right-handed (a mirrored projection gives < 0)
+    assert got["alongX"] and got["alongMinusZ"], got
