@@ -1,16 +1,16 @@
 """Deploy-side subcommands of `tensortouch`: run, listen, calib. Thin shells over runtime/ cores."""
 from __future__ import annotations
 
+import argparse
 import contextlib
 import logging
 import signal
 import sys
 from pathlib import Path
 
+from runtime.zenoh_session import add_zenoh_options, config_from_args, describe
+
 log = logging.getLogger(__name__)
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-
 
 def register(sub) -> None:
     """Add the deploy subcommands to the `tensortouch` parser."""
@@ -23,11 +23,11 @@ def register(sub) -> None:
     p.add_argument("--model", help="model package name in exported_models/ or a path (default: newest installed)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
-    p.add_argument("--listen", action="append", help=f"Zenoh listen endpoint (default {DEFAULT_ENDPOINT})")
-    p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to")
+    add_zenoh_options(p, "sensor")
     p.add_argument("--frames", type=int, help="stop after N frames")
     p.add_argument("--fast", action="store_true", help="replay as fast as possible (default: recorded clock)")
-    p.add_argument("--loop", action="store_true", help="replay the recording in a loop")
+    p.add_argument("--loop", action=argparse.BooleanOptionalAction, default=None,
+                   help="replay the recording in a loop (default: on for the shipped demo, off otherwise)")
     p.add_argument("--no-fields", action="store_true", help="publish contacts/wrench/status only")
     p.add_argument("--fields-every", type=int, default=1, metavar="N",
                    help="publish the dense fields on every N-th frame (contacts/wrench/status every frame)")
@@ -68,16 +68,21 @@ def _open_source(args):
     from runtime.session import load_session
 
     source = args.source
+    loop = bool(args.loop)
     if not source:
         demo = paths.demo_dir()
         if not (demo / "session.json").is_file():
             raise CaptureError(f"no --source given and no demo recording at {demo}; "
                                "record one with `tensortouch twin record ... --out runtime/demo`")
         source = f"replay:{demo}"
+        if args.loop is None:
+            loop = True
+            print(f"tensortouch run: replaying the demo recording {demo} in a loop (--no-loop: play it once)",
+                  file=sys.stderr)
     config = config_from_uri(source)
     session_sensor = None
     if isinstance(config, ReplayCameraConfig):
-        config = config_from_uri(source, realtime=not args.fast, loop=args.loop or config.loop)
+        config = config_from_uri(source, realtime=not args.fast, loop=loop or config.loop)
         if not Path(config.path).exists():
             raise CaptureError(f"{config.path}: no such recording (expected a session folder or a video file)")
         if Path(config.path).is_dir():
@@ -109,6 +114,9 @@ def cmd_run(args) -> int:
     from runtime.pipeline import open_pipeline
     from runtime.publisher import Publisher
     from runtime.ros2_publisher import Ros2Node, ros2_config_from_args
+    from runtime.wire import check_sensor_id
+
+    import cv2
 
     cv2.setNumThreads(1)                        # leave the cores to onnxruntime and other sensors
     package = find_package(args.model)          # clear message when no trained model is installed
@@ -117,16 +125,17 @@ def cmd_run(args) -> int:
     if not sensor:
         raise TensorTouchError("--sensor is required unless --source is a session folder "
                                "(it names the calibration store folder of this sensor)")
+    check_sensor_id(sensor)                     # before it names a folder or a Zenoh key
     store = CalibrationStore()
     cal = store.load(sensor)
     pipeline = open_pipeline(package, cal, precision=args.precision, threads=args.threads, sensor_id=sensor)
     ros2 = ros2_config_from_args(args, node=f"tensortouch_{sensor}")
-    connect = list(args.connect) + ([ros2.router] if ros2 is not None and ros2.router else [])
-    # with a ROS 2 router (rmw_zenohd listens on 7447), connect to it instead of listening
-    listen = args.listen or ([] if connect else [DEFAULT_ENDPOINT])
+    if ros2 is not None and ros2.router:
+        # with a ROS 2 router (rmw_zenohd listens on 7447), connect to it instead of listening
+        args.connect = list(args.connect) + [ros2.router]
     loop = None
     with contextlib.ExitStack() as stack:
-        pub = stack.enter_context(Publisher(sensor, listen=listen, connect=connect,
+        pub = stack.enter_context(Publisher(sensor, zenoh_config=config_from_args(args, "sensor"),
                                             info=lambda: loop.info() if loop else {}))
         ros2_sensor = None
         if ros2 is not None:
@@ -137,7 +146,7 @@ def cmd_run(args) -> int:
                           store=store, temperature=_temperature_source(args, cam), ros2=ros2_sensor)
         signal.signal(signal.SIGTERM, lambda *a: loop.stop())
         print(f"tensortouch run: sensor {sensor}, model {package.name} ({args.precision}), "
-              f"calibration {cal.version}, Zenoh {' '.join(listen + connect)}"
+              f"calibration {cal.version}, Zenoh {describe(args, 'sensor')}"
               + (f", ROS 2 {ros2.distro} domain {ros2.domain_id} under {ros2.namespace}" if ros2 else "")
               + "; Ctrl-C to stop", file=sys.stderr)
         try:

@@ -24,6 +24,7 @@ from runtime.calibration import CalibrationStore
 from runtime.errors import CaptureError, TensorTouchError
 from runtime.geometry import surface_grid
 from runtime.hand_config import FingerConfig, HandConfig
+from runtime.zenoh_session import default_endpoint
 
 log = logging.getLogger(__name__)
 
@@ -220,7 +221,8 @@ class Hand:
             pipe = SensorPipeline(f.calibration_id, model, cals[f.name])
             self.fingers[f.name] = Finger(self, f, pipe, slots[f.name])
         self._own_session = session is None
-        self.session = session if session is not None else open_session(listen=cfg.listen, connect=cfg.connect)
+        self.session = session if session is not None else open_session(
+            listen=cfg.listen, connect=cfg.connect, config_file=cfg.zenoh_config, multicast=cfg.multicast)
         self.ros2 = None
         if cfg.ros2 is not None:
             from runtime.ros2_publisher import Ros2Node
@@ -258,7 +260,7 @@ class Hand:
         log.info("hand %s: %d finger(s) %s, model %s (%s, %s), Zenoh %s", self.cfg.name, len(self.fingers),
                  ", ".join(f"{n}={f.sensor_id}" for n, f in self.fingers.items()), self.package.name,
                  self.cfg.precision, "shared session" if self.cfg.share_model else "one session per finger",
-                 " ".join(self.cfg.listen + self.cfg.connect))
+                 " ".join(self.cfg.listen + self.cfg.connect) or f"listen {default_endpoint()}")
         return self
 
     def wait(self, timeout: float | None = None) -> bool:

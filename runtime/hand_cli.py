@@ -5,6 +5,7 @@ import time
 
 from runtime.hand import Hand
 from runtime.hand_config import load_hand_config
+from runtime.zenoh_session import add_zenoh_options, default_endpoint
 
 
 def register_hand(sub) -> None:
@@ -15,8 +16,7 @@ def register_hand(sub) -> None:
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--fast", action="store_true", help="replays: as fast as possible")
     p.add_argument("--loop", action="store_true", help="replays: start over at the end")
-    p.add_argument("--listen", action="append", help="Zenoh listen endpoint (overrides the config)")
-    p.add_argument("--connect", action="append", help="Zenoh connect endpoint (overrides the config)")
+    add_zenoh_options(p, "sensor")      # given here, they override the config's [zenoh] table
     p.set_defaults(func=cmd_hand)
 
 
@@ -36,11 +36,16 @@ def cmd_hand(args) -> int:
         changes["listen"] = tuple(args.listen)
     if args.connect:
         changes["connect"] = tuple(args.connect)
+    if args.zenoh_config:
+        changes["zenoh_config"] = args.zenoh_config
+    if args.multicast:
+        changes["multicast"] = True
     cfg = dataclasses.replace(cfg, **changes)
     hand = Hand(cfg)
     signal.signal(signal.SIGTERM, lambda *a: hand.stop_event.set())
     print(f"tensortouch hand {cfg.name}: {len(hand.fingers)} finger(s), model {hand.package.name} "
-          f"({cfg.precision}), Zenoh {' '.join(cfg.listen + cfg.connect)}"
+          f"({cfg.precision}), Zenoh {' '.join(cfg.listen + cfg.connect) or 'listen ' + default_endpoint()}"
+          f"{' config ' + cfg.zenoh_config if cfg.zenoh_config else ''}"
           f"{', CAN ' + cfg.can.interface + ':' + cfg.can.channel if cfg.can else ''}; Ctrl-C to stop",
           file=sys.stderr)
     hand.start()

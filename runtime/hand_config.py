@@ -9,8 +9,9 @@
     calibration_store = "calibration_store"   # relative paths are relative to this file
 
     [zenoh]
-    listen = ["tcp/127.0.0.1:7447"]
+    listen = ["tcp/127.0.0.1:7447"]   # default: the meeting point (runtime/zenoh_session.py)
     connect = []
+    config = "sensor.json5"           # optional: Zenoh's own JSON5 config (TLS, access control)
 
     [ros2]                            # optional: ROS 2 topics in rmw_zenoh's format (docs/wire.md)
     distro = "jazzy"                  # jazzy | kilted | rolling | humble
@@ -50,8 +51,6 @@ from runtime.ros2_wire import name_token as rw_name_token
 
 log = logging.getLogger(__name__)
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-
 
 class HandConfigError(TensorTouchError):
     """The hand configuration file is missing, malformed or inconsistent."""
@@ -86,8 +85,10 @@ class HandConfig:
     inference_workers: int = field(default_factory=lambda: os.cpu_count() or 2)
     calibration_store: str | None = None
     publish_fields: bool = True
-    listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    listen: tuple[str, ...] = ()       # listen and connect both empty: listen on the meeting point
     connect: tuple[str, ...] = ()
+    zenoh_config: str | None = None    # Zenoh's JSON5 config file; listen/connect replace its endpoints
+    multicast: bool = False            # multicast + gossip scouting
     can: CanConfig | None = None
     # camera faults: SensorLoop gives up after max_camera_failures reads; the hand then
     # reconnects every reconnect_s and drops the sensor's liveliness token after offline_after_s
@@ -161,13 +162,23 @@ def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | N
                 raise HandConfigError(f"{where}: finger #{i + 1} needs '{req}'")
         fingers.append(FingerConfig(**kw))
     hand = _take(data.get("hand", {}), HandConfig, f"{where}: [hand]")
-    for bad in ("fingers", "listen", "connect", "can", "camera_options", "ros2"):
+    for bad in ("fingers", "listen", "connect", "zenoh_config", "multicast", "can", "camera_options", "ros2"):
         if bad in data.get("hand", {}):
             raise HandConfigError(f"{where}: [hand] {bad} belongs in its own table")
     zen = data.get("zenoh", {})
-    extra = set(zen) - {"listen", "connect"}
+    extra = set(zen) - {"listen", "connect", "config", "multicast"}
     if extra:
-        raise HandConfigError(f"{where}: [zenoh] unknown key(s) {sorted(extra)} (known: listen, connect)")
+        raise HandConfigError(f"{where}: [zenoh] unknown key(s) {sorted(extra)} "
+                              "(known: listen, connect, config, multicast)")
+    if "config" in zen:
+        zpath = Path(str(zen["config"]))
+        if base_dir is not None and not zpath.is_absolute():
+            zpath = base_dir / zpath
+        hand["zenoh_config"] = str(zpath)
+    if "multicast" in zen:
+        if not isinstance(zen["multicast"], bool):
+            raise HandConfigError(f"{where}: [zenoh] multicast must be true or false")
+        hand["multicast"] = zen["multicast"]
     if "listen" in zen:
         hand["listen"] = tuple(zen["listen"])
     if "connect" in zen:

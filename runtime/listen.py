@@ -1,7 +1,7 @@
 """`tensortouch listen`: subscribe to sensors over Zenoh, print one line per message, optionally save.
 
-    tensortouch listen                     # every sensor found by multicast scouting
-    tensortouch listen dome01 --connect tcp/127.0.0.1:7447 --count 100 --save out/ --json
+    tensortouch listen                     # every sensor at the meeting point, tcp/127.0.0.1:7447
+    tensortouch listen dome01 --connect tcp/10.0.0.5:7447 --count 100 --save out/ --json
 
 Saving: <DIR>/<sensor>/fields/<seq>.npy (float32 (15,H,W), written atomically) plus meta.json
 (channels, units), and contacts.jsonl / wrench.jsonl / status.jsonl (one message per line).
@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from runtime.errors import SessionError
+from runtime.zenoh_session import add_zenoh_options, config_from_args, describe
 
 log = logging.getLogger(__name__)
 
@@ -30,12 +31,7 @@ def add_listen_parser(subparsers) -> None:
     p = subparsers.add_parser("listen", help="print/save what sensors publish over Zenoh",
                               description=__doc__.splitlines()[0])
     p.add_argument("sensor", nargs="?", default="*", help="sensor id, or * for all (default)")
-    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                   help="zenoh endpoint to listen on (repeatable)")
-    p.add_argument("--multicast", action=argparse.BooleanOptionalAction, default=None,
-                   help="multicast scouting (default: on only when no endpoint is given)")
+    add_zenoh_options(p, "subscriber")
     p.add_argument("--count", type=int, default=0, help="stop after N messages (0 = no limit)")
     p.add_argument("--timeout", type=float, default=0.0,
                    help="stop after this many seconds (0 = no limit)")
@@ -110,18 +106,41 @@ class Saver:
 
     A failed write (disk full, ...) raises SessionError naming the file, and leaves nothing
     half-written: a partial .npy temp file is removed, a JSONL file is cut back to its last
-    complete line."""
+    complete line. Folder names are sensor ids checked against the id pattern, so nothing lands
+    outside DIR; at most `max_open` JSONL files are open at once (least recently used closed first)."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, max_open: int = 16):
+        from collections import OrderedDict
+
         self.root = Path(root)
-        self._files: dict[tuple[str, str], int] = {}   # (sensor, kind) -> fd opened for append
+        self.max_open = max(1, int(max_open))
+        self._files: OrderedDict[tuple[str, str], int] = OrderedDict()  # (sensor, kind) -> append fd
         self._meta_written: set[str] = set()
+
+    def _folder(self, sensor: Any) -> Path:
+        from runtime.wire import check_sensor_id
+
+        folder = self.root / check_sensor_id(sensor)
+        if folder.resolve().parent != self.root.resolve():
+            raise SessionError(f"{folder}: sensor folder would be outside {self.root}")
+        return folder
+
+    def _fd(self, sensor: str, kind: str, folder: Path, path: Path) -> int:
+        fd = self._files.get((sensor, kind))
+        if fd is not None:
+            self._files.move_to_end((sensor, kind))
+            return fd
+        while len(self._files) >= self.max_open:
+            os.close(self._files.popitem(last=False)[1])
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = self._files[(sensor, kind)] = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        return fd
 
     def save(self, kind: str, msg: Any) -> Path:
         import numpy as np
 
         sensor = msg["sensor_id"] if isinstance(msg, dict) else msg.sensor_id
-        folder = self.root / sensor
+        folder = self._folder(sensor)
         if kind == "fields":
             fdir = folder / "fields"
             fdir.mkdir(parents=True, exist_ok=True)
@@ -142,11 +161,8 @@ class Saver:
             record = msg
         path = folder / f"{kind}.jsonl"
         data = (json.dumps(record, separators=(",", ":")) + "\n").encode("utf-8")
-        fd = self._files.get((sensor, kind))
         try:
-            if fd is None:
-                folder.mkdir(parents=True, exist_ok=True)
-                fd = self._files[(sensor, kind)] = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            fd = self._fd(sensor, kind, folder, path)
             end = os.lseek(fd, 0, os.SEEK_END)
             done = 0
             try:
@@ -212,6 +228,17 @@ def open_saver(path: Path):
 
 # --------------------------------------------------------------------------- shell
 
+NOTHING_YET_S = 3.0     # a listen that has received nothing says so after this long
+
+
+def nothing_yet_hint(sensor: str, where: str, decode_errors: int = 0) -> str:
+    """What a listen that receives nothing prints (once, and it keeps waiting)."""
+    bad = f" {decode_errors} message(s) arrived that could not be decoded (wire version?)." if decode_errors else ""
+    return (f"tensortouch listen: nothing from {sensor!r} yet after {NOTHING_YET_S:.0f} s ({where}); "
+            f"still waiting.{bad} Try: start a sensor with `tensortouch run` (it listens on the same "
+            "meeting point), check the sensor id (`tensortouch listen '*' --info` lists the alive "
+            "ones), or give the sensor's endpoint with --connect.")
+
 def run_listen(args) -> int:
     from runtime.errors import CommandError
     from runtime.subscriber import Subscriber, alive_sensors, query_info
@@ -231,10 +258,8 @@ def run_listen(args) -> int:
         return put
 
     callbacks = {f"on_{k}": enqueue(k) for k in kinds}
-    multicast = args.multicast if args.multicast is not None else not (args.connect or args.listen)
-    from runtime.publisher import zenoh_config
-
-    cfg = zenoh_config(listen=args.listen, connect=args.connect, multicast=multicast)
+    cfg = config_from_args(args, "subscriber")
+    where = describe(args, "subscriber")
     saver = open_saver(args.save) if args.save else None
     described: set[str] = set()           # sensors whose info went to a saver that wants it
     out = sys.stdout
@@ -254,7 +279,9 @@ def run_listen(args) -> int:
                     info = {"sensor_id": sid, "error": str(exc)}
                 print(json.dumps({"info": info}) if args.json else f"info {sid}: {json.dumps(info)}",
                       file=out, flush=True)
-        deadline = time.monotonic() + args.timeout if args.timeout > 0 else None
+        started = time.monotonic()
+        deadline = started + args.timeout if args.timeout > 0 else None
+        hinted = False
         try:
             while not (args.count and n >= args.count):
                 wait = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
@@ -263,6 +290,9 @@ def run_listen(args) -> int:
                 try:
                     kind, msg = inbox.get(timeout=wait)
                 except queue.Empty:
+                    if n == 0 and not hinted and time.monotonic() - started >= NOTHING_YET_S:
+                        hinted = True
+                        print(nothing_yet_hint(args.sensor, where, sub.errors), file=sys.stderr, flush=True)
                     continue
                 n += 1
                 line = json.dumps(summarize(kind, msg)) if args.json else format_line(kind, msg)
@@ -285,8 +315,7 @@ def run_listen(args) -> int:
             print(f"note: {sub.errors} message(s) could not be decoded; last: {sub.last_error}",
                   file=sys.stderr)
     if n == 0:
-        print(f"tensortouch listen: no messages from {args.sensor!r} "
-              f"(connect={args.connect or '-'}, multicast={multicast}); is a sensor running?",
+        print(f"tensortouch listen: no messages from {args.sensor!r} ({where}); is a sensor running?",
               file=sys.stderr)
         return 1
     return 0

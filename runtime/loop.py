@@ -93,7 +93,7 @@ class SensorLoop:
                 "precision": p.model.precision, "calibration_version": p.cal.version,
                 "bounds": pkg.manifest["output"]["bounds"], "model_size": list(pkg.size),
                 "channels": pkg.manifest["output"]["channels"], "units": pkg.manifest["output"]["units"],
-                "gel_surface": surface_grid(p.cal)}
+                "gel_surface": surface_grid(p.cal)}       # viewers draw the calibrated gel
 
     def run(self, max_frames: int | None = None) -> int:
         failures = 0

@@ -6,7 +6,6 @@ counts go out in the next status message (`wire` block + `publish_errors` flag).
 """
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -16,10 +15,14 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 import zenoh
 
-from runtime import __version__, wire
+from runtime import __version__, wire, zenoh_session
 from runtime.errors import TensorTouchError
 
 log = logging.getLogger(__name__)
+
+# kept here too: callers and tests import them from runtime.publisher
+open_session = zenoh_session.open_session
+zenoh_config = zenoh_session.zenoh_config
 
 
 @dataclass
@@ -33,37 +36,11 @@ class PublisherConfig:
     log_every_n_errors: int = 1000                 # first error per stream is logged, then 1 in N
 
 
-def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 multicast: bool = False) -> zenoh.Config:
-    """Build a zenoh.Config from plain arguments (endpoints like `tcp/127.0.0.1:7447`)."""
-    if mode not in ("peer", "client", "router"):
-        raise TensorTouchError(f"zenoh mode {mode!r}: expected 'peer', 'client' or 'router'")
-    cfg = zenoh.Config()
-    try:
-        cfg.insert_json5("mode", json.dumps(mode))
-        cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
-        if listen:
-            cfg.insert_json5("listen/endpoints", json.dumps([str(e) for e in listen]))
-        if connect:
-            cfg.insert_json5("connect/endpoints", json.dumps([str(e) for e in connect]))
-    except zenoh.ZError as exc:
-        raise TensorTouchError(f"zenoh config (listen={list(listen)}, connect={list(connect)}): "
-                               f"{exc}") from None
-    return cfg
-
-
-def open_session(config: zenoh.Config | None = None, *, listen: Sequence[str] = (),
-                 connect: Sequence[str] = (), multicast: bool | None = None) -> zenoh.Session:
-    """Open a zenoh session from a Config or from endpoints, with a clear error on failure."""
-    if config is None:
-        if multicast is None:
-            multicast = not (listen or connect)
-        config = zenoh_config(listen=listen, connect=connect, multicast=multicast)
-    try:
-        return zenoh.open(config)
-    except zenoh.ZError as exc:
-        raise TensorTouchError(f"cannot open zenoh session (listen={list(listen)}, "
-                               f"connect={list(connect)}): {exc}") from None
+def _open(config, listen, connect, role: str) -> zenoh.Session:
+    """A session from a zenoh.Config, a config file path or endpoints (Publisher, Subscriber)."""
+    if config is None or isinstance(config, zenoh.Config):
+        return open_session(config, listen=listen, connect=connect, role=role)
+    return open_session(listen=listen, connect=connect, role=role, config_file=config)
 
 
 @dataclass
@@ -84,13 +61,15 @@ class Publisher:
     """Publishes one sensor under `tensortouch/<sensor_id>/...`.
 
     Pass an open `session` to share one zenoh session between several sensors (it is then not
-    closed by `close()`), or a `zenoh_config` / `listen` / `connect` to open one.
+    closed by `close()`), or a `zenoh_config` (a zenoh.Config, or the path of Zenoh's JSON5 config
+    file) / `listen` / `connect` to open one. With neither, it listens on the meeting point
+    (runtime.zenoh_session.default_endpoint(), loopback).
     `info` is a callable returning a dict (model name/hash, calibration version, bounds, ...)
     answered on `tensortouch/<sensor_id>/info`. `status_extra` members (e.g. `finger`) go into
     every status unless the status dict itself carries them.
     """
 
-    def __init__(self, sensor_id: str, zenoh_config: zenoh.Config | None = None, *,
+    def __init__(self, sensor_id: str, zenoh_config: zenoh.Config | str | None = None, *,
                  session: zenoh.Session | None = None, listen: Sequence[str] = (),
                  connect: Sequence[str] = (), info: Callable[[], dict] | None = None,
                  config: PublisherConfig | None = None, status_extra: dict | None = None):
@@ -104,8 +83,7 @@ class Publisher:
         self._clipped_at_last_status = 0
         self._closed = False
         self._owns_session = session is None
-        self.session = session if session is not None else open_session(
-            zenoh_config, listen=listen, connect=connect)
+        self.session = session if session is not None else _open(zenoh_config, listen, connect, "sensor")
         try:
             self._declare()
         except Exception:

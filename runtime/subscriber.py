@@ -1,7 +1,7 @@
 """Subscriber library: receive and decode what `runtime.publisher.Publisher` sends (docs/wire.md).
 
     from runtime.subscriber import Subscriber
-    with Subscriber("*", connect=["tcp/127.0.0.1:7447"]) as sub:
+    with Subscriber("*") as sub:                        # connects to tcp/127.0.0.1:7447
         frame = sub.wait_for("fields", timeout=5.0)     # wire.FieldsFrame, float32 (15, H, W)
 
 Callbacks run on a zenoh thread: keep them short (copy / enqueue, do not compute there).
@@ -18,7 +18,7 @@ import zenoh
 
 from runtime import wire
 from runtime.errors import TensorTouchError
-from runtime.publisher import open_session
+from runtime.publisher import _open
 
 log = logging.getLogger(__name__)
 
@@ -54,12 +54,14 @@ class Subscriber:
     """Subscribes to one sensor (or `*` for all) and decodes each stream.
 
     Pass an open `session` to share it (not closed by `close()`), or `connect`/`listen` endpoints
-    or a `zenoh_config`. `on_fields(FieldsFrame)`, `on_contacts(ContactsFrame)`,
+    or a `zenoh_config` (a zenoh.Config, or the path of Zenoh's JSON5 config file). With neither,
+    it connects to the meeting point (runtime.zenoh_session.default_endpoint(), loopback) and
+    listens nowhere. `on_fields(FieldsFrame)`, `on_contacts(ContactsFrame)`,
     `on_wrench(Wrench)`, `on_status(dict)` are called for each decoded message.
     """
 
     def __init__(self, sensor_id: str = "*", *, session: zenoh.Session | None = None,
-                 zenoh_config: zenoh.Config | None = None, connect: Sequence[str] = (),
+                 zenoh_config: zenoh.Config | str | None = None, connect: Sequence[str] = (),
                  listen: Sequence[str] = (), on_fields: Callback | None = None,
                  on_contacts: Callback | None = None, on_wrench: Callback | None = None,
                  on_status: Callback | None = None):
@@ -75,8 +77,7 @@ class Subscriber:
         self.last_error: str | None = None
         self._closed = False
         self._owns_session = session is None
-        self.session = session if session is not None else open_session(
-            zenoh_config, listen=listen, connect=connect)
+        self.session = session if session is not None else _open(zenoh_config, listen, connect, "subscriber")
         try:
             self._sub = self.session.declare_subscriber(wire.key(sensor_id, "*"), self._on_sample)
         except zenoh.ZError as exc:

@@ -38,6 +38,15 @@ _HALF_SIGN, _HALF_ABS, _HALF_INF, _HALF_MAX_BITS = 0x8000, 0x7FFF, 0x7C00, 0x7BF
 
 # --------------------------------------------------------------------------- fields
 
+
+def _received_id(kind: str, obj: dict) -> str:
+    """The `sensor_id` of a received payload, checked against the id pattern (docs/wire.md Keys)."""
+    sensor_id = _need(kind, obj, "sensor_id")
+    try:
+        return check_sensor_id(sensor_id)
+    except WireError as exc:
+        raise WireError(f"{kind} payload: {exc}") from None
+
 @dataclass(frozen=True)
 class FieldsFrame:
     """One decoded field image: float32 (C, H, W) in the units of `units`, channel order `channels`."""
@@ -121,7 +130,7 @@ def decode_fields(payload: bytes | bytearray, attachment: bytes | bytearray | st
         raise WireError(f"fields: payload is {len(payload)} bytes, expected {expected} "
                         f"(float16 x {shape})")
     data = np.frombuffer(payload, dtype=_HALF).reshape(shape).astype(np.float32)
-    return FieldsFrame(sensor_id=str(_need("fields", head, "sensor_id")),
+    return FieldsFrame(sensor_id=_received_id("fields", head),
                        seq=int(_need("fields", head, "seq")), t=float(_need("fields", head, "t")),
                        data=data, channels=channels, units=units,
                        clipped=tuple(head.get("clipped", ())))
@@ -220,7 +229,7 @@ def decode_contacts(payload: bytes | bytearray | str, encoding: Any = None) -> C
     items = _need("contacts", obj, "contacts")
     if not isinstance(items, list):
         raise WireError("contacts payload: field 'contacts' must be a list")
-    return ContactsFrame(sensor_id=str(_need("contacts", obj, "sensor_id")),
+    return ContactsFrame(sensor_id=_received_id("contacts", obj),
                          seq=int(_need("contacts", obj, "seq")), t=float(_need("contacts", obj, "t")),
                          contacts=[Contact.from_dict(c) for c in items])
 
@@ -258,7 +267,7 @@ def encode_wrench(force_n: Sequence[float], torque_nmm: Sequence[float], seq: in
 def decode_wrench(payload: bytes | bytearray | str, encoding: Any = None) -> Wrench:
     _check_encoding("wrench", encoding)
     obj = _loads("wrench", payload)
-    return Wrench(sensor_id=str(_need("wrench", obj, "sensor_id")), seq=int(_need("wrench", obj, "seq")),
+    return Wrench(sensor_id=_received_id("wrench", obj), seq=int(_need("wrench", obj, "seq")),
                   t=float(_need("wrench", obj, "t")),
                   force_n=_vec(_need("wrench", obj, "force_n"), 3, "force_n"),
                   torque_nmm=_vec(_need("wrench", obj, "torque_nmm"), 3, "torque_nmm"))
@@ -289,6 +298,7 @@ def decode_status(payload: bytes | bytearray | str, encoding: Any = None) -> dic
     obj = _loads("status", payload)
     for name in ("sensor_id", "seq", "t", "state", "flags", "timings_ms"):
         _need("status", obj, name)
+    _received_id("status", obj)
     if not isinstance(obj["flags"], list) or not isinstance(obj["timings_ms"], dict):
         raise WireError("status payload: 'flags' must be a list and 'timings_ms' an object")
     return obj
@@ -308,5 +318,5 @@ def encode_info(info: dict, sensor_id: str, runtime_version: str) -> bytes:
 def decode_info(payload: bytes | bytearray | str, encoding: Any = None) -> dict:
     _check_encoding(INFO, encoding)
     obj = _loads(INFO, payload)
-    _need(INFO, obj, "sensor_id")
+    _received_id(INFO, obj)
     return obj

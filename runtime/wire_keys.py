@@ -25,7 +25,9 @@ MIME = {"fields": "application/octet-stream", "contacts": "application/json",
 # Zenoh Encoding strings ("<mime>;<schema>") for each payload kind.
 ENCODINGS = {kind: f"{MIME[kind]};{schema}" for kind, schema in SCHEMAS.items()}
 
-_SENSOR_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
+# The one pattern for sensor ids, the key chunks and the file names made from them (docs/wire.md Keys).
+SENSOR_ID_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}"
+_SENSOR_ID = re.compile(rf"\A{SENSOR_ID_PATTERN}\Z")
 
 
 class WireError(TensorTouchError):
@@ -37,8 +39,9 @@ class WireError(TensorTouchError):
 def check_sensor_id(sensor_id: str) -> str:
     """Return `sensor_id` if it is one valid key chunk (letters, digits, `_.-`, 1-64 chars)."""
     if not isinstance(sensor_id, str) or not _SENSOR_ID.match(sensor_id):
-        raise WireError(f"sensor id {sensor_id!r}: expected 1-64 characters of [A-Za-z0-9_.-] "
-                        "starting with a letter or digit (it becomes one Zenoh key chunk)")
+        raise WireError(f"sensor id {str(sensor_id)[:80]!r}: expected {SENSOR_ID_PATTERN} (1-64 characters of "
+                        "[A-Za-z0-9_.-] starting with a letter or digit; it becomes a Zenoh key chunk and a "
+                        "folder name)")
     return sensor_id
 
 
@@ -65,6 +68,7 @@ def parse_key(key_expr: str) -> tuple[str, str]:
     parts = str(key_expr).split("/")
     if len(parts) != 3 or parts[0] != KEY_PREFIX:
         raise WireError(f"key {key_expr!r}: expected '{KEY_PREFIX}/<sensor-id>/<kind>'")
+    check_sensor_id(parts[1])
     return parts[1], parts[2]
 
 

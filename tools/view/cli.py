@@ -5,9 +5,9 @@ import logging
 import sys
 import time
 
-log = logging.getLogger(__name__)
+from runtime.zenoh_session import add_zenoh_options, describe, session_from_args
 
-DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+log = logging.getLogger(__name__)
 
 
 def register(sub) -> None:
@@ -16,10 +16,9 @@ def register(sub) -> None:
                                    "field channel as a colour map with units, the contacts on the image "
                                    "and on a 3D gel view.")
     p.add_argument("sensor", nargs="?", default="*", help="sensor id, or * for every sensor (default)")
-    p.add_argument("--connect", action="append", help=f"Zenoh endpoint of the runtime (default {DEFAULT_CONNECT})")
-    p.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on")
+    add_zenoh_options(p, "subscriber")
     p.add_argument("--host", default="127.0.0.1", help="HTTP address (default 127.0.0.1: this machine only)")
-    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--port", type=int, default=8765, help="HTTP port (default 8765; 0: any free port)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--rerun", action="store_true",
                    help="show the sensors in a Rerun web viewer (viewers extra) served on --host:--port "
@@ -30,19 +29,17 @@ def register(sub) -> None:
 
 
 def cmd_view(args) -> int:
-    from runtime.publisher import open_session
     from tools.view.server import ViewState, serve
 
-    connect = args.connect or ([] if args.listen else [DEFAULT_CONNECT])
     if getattr(args, "rerun", False):
         from tools.viewers.rerun_live import run_rerun_view
 
-        return run_rerun_view(args, connect, args.listen)
-    session = open_session(connect=connect, listen=args.listen)
+        return run_rerun_view(args)
+    session = session_from_args(args, "subscriber")
     state = ViewState(session, args.sensor)
     httpd = serve(state, args.host, args.port)
     host, port = httpd.server_address[:2]
-    print(f"tensortouch view: http://{host}:{port}/  (Zenoh {' '.join(connect + args.listen)}, "
+    print(f"tensortouch view: http://{host}:{port}/  (Zenoh {describe(args, 'subscriber')}, "
           f"sensor {args.sensor}); Ctrl-C to stop", file=sys.stderr)
     t0 = time.monotonic()
     try:

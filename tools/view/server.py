@@ -8,11 +8,19 @@ sensor that does not publish it is drawn on the nominal dome (said on the page).
 
 Routes: `/` page, `/api/sensors`, `/api/frame?sensor=ID&channel=NAME`, `/api/geometry?sensor=ID`,
 `/api/lut`. Everything is JSON; the colour map image travels as base64 PNG inside it.
+
+What sensors send is untrusted: the page puts every string into the DOM as text (never markup) and
+is served with a Content-Security-Policy that lets only its own script run. The view keeps at most
+`max_sensors` sensors and forgets one not heard from for `forget_after_s`; idle HTTP connections
+are closed after `HTTP_IDLE_S`.
 """
 from __future__ import annotations
 
+import base64
+import hashlib
 import json
 import logging
+import re
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -28,6 +36,26 @@ log = logging.getLogger(__name__)
 PAGE = Path(__file__).with_name("page.html")
 NOMINAL_GRID = 24
 NOMINAL_THETA_EDGE_RAD = np.deg2rad(100.0)
+HTTP_IDLE_S = 10.0                # an HTTP connection that sends nothing for this long is closed
+STATUS_KEYS = ("state", "flags", "fps", "calibration_version", "model", "finger", "hand")
+
+
+def page_and_policy() -> tuple[bytes, str]:
+    """The page and its Content-Security-Policy: only the page's own inline script (by hash) runs,
+    data comes from this server, images from data: URLs."""
+    page = PAGE.read_bytes()
+    scripts = re.findall(rb"<script>(.*?)</script>", page, flags=re.S)
+    hashes = " ".join("'sha256-" + base64.b64encode(hashlib.sha256(s).digest()).decode() + "'" for s in scripts)
+    policy = (f"default-src 'none'; script-src {hashes}; style-src 'unsafe-inline'; img-src data:; "
+              "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+    return page, policy
+
+
+def _status_view(status: dict | None) -> dict | None:
+    """The few status members the page shows (a status may carry anything a sender put in it)."""
+    if status is None:
+        return None
+    return {k: status.get(k) for k in STATUS_KEYS}
 
 
 def nominal_surface(grid: int = NOMINAL_GRID) -> dict:
@@ -44,9 +72,11 @@ def nominal_surface(grid: int = NOMINAL_GRID) -> dict:
 class ViewState:
     """Latest fields / contacts / status per sensor, fed by a runtime Subscriber."""
 
-    def __init__(self, session, sensor: str = "*"):
+    def __init__(self, session, sensor: str = "*", *, forget_after_s: float = 10.0, max_sensors: int = 32):
         from runtime.subscriber import Subscriber
 
+        self.forget_after_s = float(forget_after_s)
+        self.max_sensors = max(1, int(max_sensors))
         self.session = session
         self.lock = threading.Lock()
         self.fields: dict = {}
@@ -62,24 +92,42 @@ class ViewState:
 
         def cb(msg):
             sid = msg["sensor_id"] if isinstance(msg, dict) else msg.sensor_id
+            now = time.monotonic()
             with self.lock:
+                if sid not in self.received:
+                    self._forget(now)
+                    if len(self.received) >= self.max_sensors:     # full of live ids: drop the quietest
+                        self._drop(min(self.received, key=self.received.get))
                 store[sid] = msg
-                self.received[sid] = time.monotonic()
+                self.received[sid] = now
         return cb
+
+    def _drop(self, sid: str) -> None:
+        for table in (self.fields, self.contacts, self.status, self.received, self._geometry):
+            table.pop(sid, None)
+
+    def _forget(self, now: float) -> None:
+        """Drop sensors not heard from for forget_after_s (call with the lock held)."""
+        for sid in [s for s, t in self.received.items() if now - t > self.forget_after_s]:
+            self._drop(sid)
 
     def sensors(self) -> list[dict]:
         with self.lock:
-            ids = sorted(set(self.fields) | set(self.status) | set(self.contacts))
             now = time.monotonic()
+            self._forget(now)
             return [{"sensor_id": s, "has_fields": s in self.fields,
-                     "age_s": round(now - self.received.get(s, now), 2),
-                     "status": {k: self.status[s].get(k) for k in ("state", "flags", "fps", "calibration_version",
-                                                                  "model", "finger", "hand")} if s in self.status else None}
-                    for s in ids]
+                     "age_s": round(now - self.received[s], 2),
+                     "status": _status_view(self.status.get(s))}
+                    for s in sorted(self.received)]
 
     def geometry(self, sensor: str) -> dict:
-        if sensor in self._geometry:
-            return self._geometry[sensor]
+        with self.lock:
+            known = sensor in self.received
+            cached = self._geometry.get(sensor)
+        if cached is not None:
+            return cached
+        if not known:
+            return nominal_surface()
         from runtime.errors import TensorTouchError
         from runtime.subscriber import query_info
 
@@ -90,7 +138,9 @@ class ViewState:
             return nominal_surface()
         geo = info.get("gel_surface") or nominal_surface()
         geo = {**geo, "finger": info.get("finger"), "model": info.get("model")}
-        self._geometry[sensor] = geo
+        with self.lock:
+            if sensor in self.received:
+                self._geometry[sensor] = geo
         return geo
 
     def frame(self, sensor: str, channel: str) -> dict | None:
@@ -102,7 +152,7 @@ class ViewState:
             return None
         grid = tuple(self.geometry(sensor)["grid"])
         out = frame_view(fields, contacts, channel, grid)
-        out["status"] = status
+        out["status"] = _status_view(status)
         return out
 
     def close(self) -> None:
@@ -110,7 +160,11 @@ class ViewState:
 
 
 def make_handler(state: ViewState):
+    page, policy = page_and_policy()
+
     class Handler(BaseHTTPRequestHandler):
+        timeout = HTTP_IDLE_S                       # socket timeout: idle keep-alive connections end
+
         def log_message(self, fmt, *args):          # quiet: one line per request is too much at 15 Hz
             log.debug(fmt, *args)
 
@@ -119,6 +173,8 @@ def make_handler(state: ViewState):
             self.send_header("Content-Type", ctype)
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "no-store")
+            self.send_header("X-Content-Type-Options", "nosniff")
+            self.send_header("Content-Security-Policy", policy)
             self.end_headers()
             self.wfile.write(body)
 
@@ -130,7 +186,7 @@ def make_handler(state: ViewState):
             q = {k: v[0] for k, v in parse_qs(url.query).items()}
             try:
                 if url.path in ("/", "/index.html"):
-                    self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8")
+                    self._send(200, page, "text/html; charset=utf-8")
                 elif url.path == "/api/sensors":
                     self._json(state.sensors())
                 elif url.path == "/api/lut":

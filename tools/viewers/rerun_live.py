@@ -73,8 +73,9 @@ def stop_server(proc) -> None:
     proc.wait()
 
 
-def run_rerun_view(args, connect, listen) -> int:
+def run_rerun_view(args) -> int:
     from runtime.subscriber import Subscriber, query_info
+    from runtime.zenoh_session import config_from_args, describe
     from tools.viewers.rerun_saver import RerunSaver
 
     def stop_on_sigterm(*_):
@@ -94,11 +95,11 @@ def run_rerun_view(args, connect, listen) -> int:
 
     saver = RerunSaver(grpc_url=grpc_url, fields_min_interval_s=FIELDS_MIN_INTERVAL_S)
     described: set[str] = set()
-    print(f"tensortouch view: Rerun at {page}  (Zenoh {' '.join(list(connect) + list(listen))}, "
+    print(f"tensortouch view: Rerun at {page}  (Zenoh {describe(args, 'subscriber')}, "
           f"sensor {args.sensor}); Ctrl-C to stop", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     try:
-        with Subscriber(args.sensor, connect=connect, listen=listen,
+        with Subscriber(args.sensor, zenoh_config=config_from_args(args, "subscriber"),
                         **{f"on_{k}": put(k) for k in KINDS}) as sub:
             while args.duration is None or time.monotonic() - t0 < args.duration:
                 try:
