@@ -116,8 +116,6 @@ def cmd_run(args) -> int:
     from runtime.ros2_publisher import Ros2Node, ros2_config_from_args
     from runtime.wire import check_sensor_id
 
-    import cv2
-
     cv2.setNumThreads(1)                        # leave the cores to onnxruntime and other sensors
     package = find_package(args.model)          # clear message when no trained model is installed
     cam, session_sensor = _open_source(args)

@@ -102,7 +102,7 @@ def test_listen_that_hears_nothing_says_so_and_keeps_waiting():
                               stderr=subprocess.PIPE, text=True)
     try:
         text, took = _wait_for_line(listen, listen.stderr, "still waiting", 10.0)
-        assert took < 6.0, took
+        assert took < 9.0, took          # 3 s after start-up (imports take seconds on a loaded machine)
         assert "tensortouch run" in text and env["TENSORTOUCH_ENDPOINT"] in text, text
         time.sleep(0.5)
         assert listen.poll() is None, "listen gave up instead of waiting"
