@@ -10,7 +10,7 @@ def _line_graph(n=6):
     edges, w = graph.knn_edges(q, 1)
     z = np.zeros((n, 3))
     T = np.tile(np.eye(4), (n, 1, 1))
-    return graph.ContactGraph(q, z, z, z, z, T, T, edges, w, np.array([4.3, 0.0]))
+    return graph.ContactGraph(q, z, z, z, z, z, z, T, T, edges, w, np.array([4.3, 0.0]))
 
 
 def test_knn_edges_are_undirected_and_weighted_by_joint_distance():
@@ -58,7 +58,7 @@ def test_load_rejects_a_foreign_npz(tmp_path):
         graph.load(tmp_path / "bad.npz")
 
 
-def test_allegro_graph_has_2700_contact_nodes_fast():
+def test_allegro_graph_contact_nodes_paths_and_sensor_positions():
     pytest.importorskip("pinocchio")
     pytest.importorskip("coal")
     from tools.grasp import hand_model
@@ -66,12 +66,18 @@ def test_allegro_graph_has_2700_contact_nodes_fast():
     spec = hand_model.HandSpec()
     model = hand_model.load(None, spec)
     hand_model.apply_variant(model, spec, hand_model.nominal_placement(model, spec), 0.043, 0.0)
-    g = graph.build(model, spec, (4.3, 0.0))
-    assert len(g) == 2700
+    g = graph.build(model, spec, (4.3, 0.0), graph.GraphConfig(nodes=600))
+    assert len(g) == 600
     # every node is a contact: fingertip centres 2 × 10.2 mm apart within the contact band
     d = np.linalg.norm(g.tip_thumb[:, :3, 3] - g.tip_index[:, :3, 3], axis=1)
     assert np.all(d <= 0.0204 + 0.001) and np.all(d >= 0.0204 - 0.003)
     np.testing.assert_allclose(np.linalg.norm(g.dir_thumb, axis=1), 1.0)
+    # every contact lands on both gels: pad angle inside the mount's cone, gel point on the dome
+    from tools.grasp.sensor_mount import SensorMount
+
+    m = SensorMount()
+    assert np.all(g.dir_thumb @ np.array(m.axis_tip) >= m.cone_cos() - 1e-9)
+    np.testing.assert_allclose(m.gel_to_direction(g.sensor_index_mm), g.dir_index, atol=1e-9)
     costs = g.reachable_costs(0)
     far = int(np.argmax(np.where(np.isfinite(costs), costs, -1)))
     path = g.path(0, far)

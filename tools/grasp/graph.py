@@ -1,9 +1,9 @@
 """The thumb–index contact graph (seed §V-B).
 
 Nodes: contact configurations of the chosen hand variant, each with its joint angles (thumb then
-index), the world contact point p_c and the contact direction on each fingertip sensor (unit vector
-in the fingertip frame, from the sphere centre to the nearest point: where each sensor reports its
-contact cluster). Edges: the k nearest neighbours in joint space, weighted by joint-space distance
+index), the world contact point p_c, the contact direction in each fingertip frame (unit vector from
+the sphere centre to coal's nearest point) and where each fingertip sensor reports that contact
+(gel point in the sensor frame, mm, through the SensorMount). Only contacts on both gels are kept. Edges: the k nearest neighbours in joint space, weighted by joint-space distance
 (rad). Paths: Dijkstra (scipy.sparse.csgraph). Stored as one .npz (no pickle).
 
 Nodes are collected the way the seed describes it — exploring the joint space while keeping thumb
@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from runtime.errors import TensorTouchError
 from tools.grasp.hand_model import HandSpec, atomic_write_bytes, limits
+from tools.grasp.sensor_mount import SensorMount
 from tools.grasp.workspace import WorkspaceConfig, evaluate, sample_q
 
 SCHEMA = "tensortouch.contact_graph/1"
@@ -50,6 +51,8 @@ class ContactGraph:
     normal: np.ndarray        # (N, 3) contact normal, index → thumb
     dir_thumb: np.ndarray     # (N, 3) contact direction in the thumb fingertip frame (unit)
     dir_index: np.ndarray     # (N, 3) contact direction in the index fingertip frame (unit)
+    sensor_thumb_mm: np.ndarray  # (N, 3) where the thumb sensor reports the contact (sensor frame, mm)
+    sensor_index_mm: np.ndarray  # (N, 3) the same for the index sensor
     tip_thumb: np.ndarray     # (N, 4, 4) fingertip poses
     tip_index: np.ndarray
     edges: np.ndarray         # (E, 2) int node pairs, i < j
@@ -104,9 +107,13 @@ def _tip_directions(T: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def build(model, spec: HandSpec, variant=(np.nan, np.nan), cfg: GraphConfig | None = None,
-          ws_cfg: WorkspaceConfig | None = None, progress=None) -> ContactGraph:
-    """Explore contacts on `model` (already set to the chosen variant) and connect them."""
+          ws_cfg: WorkspaceConfig | None = None, progress=None, mount: SensorMount | None = None) -> ContactGraph:
+    """Explore contacts on `model` (already set to the chosen variant) and connect them. Only
+    contacts that land on both sensors' gels (within `mount`'s cone) are kept."""
     cfg = cfg or GraphConfig()
+    mount = mount or SensorMount()
+    cone = mount.cone_cos()
+    axis = np.asarray(mount.axis_tip, float) / np.linalg.norm(mount.axis_tip)
     ws_cfg = ws_cfg or WorkspaceConfig()
     rng = np.random.default_rng(cfg.seed)
     lo = np.concatenate(limits(model, spec.thumb)[:1] + limits(model, spec.index)[:1])
@@ -122,7 +129,11 @@ def build(model, spec: HandSpec, variant=(np.nan, np.nan), cfg: GraphConfig | No
             base = np.concatenate(keep["q"])[rng.integers(0, count, cfg.batch)]
             q = np.clip(base + rng.normal(0, cfg.step_rad, base.shape), lo, hi)
         ws = evaluate(model, spec, q, ws_cfg)
-        c = ws.contact
+        c = ws.contact.copy()
+        if c.any():
+            on_t = _tip_directions(ws.tip_thumb[c], ws.p_thumb[c]) @ axis >= cone
+            on_i = _tip_directions(ws.tip_index[c], ws.p_index[c]) @ axis >= cone
+            c[np.flatnonzero(c)[~(on_t & on_i)]] = False
         for key, arr in (("q", ws.q), ("point", ws.point), ("normal", ws.normal), ("p_thumb", ws.p_thumb),
                          ("p_index", ws.p_index), ("Tt", ws.tip_thumb), ("Ti", ws.tip_index)):
             keep[key].append(arr[c])
@@ -134,12 +145,12 @@ def build(model, spec: HandSpec, variant=(np.nan, np.nan), cfg: GraphConfig | No
     n = min(count, cfg.nodes)
     a = {k: np.concatenate(v)[:n] for k, v in keep.items()}
     edges, weights = knn_edges(a["q"], cfg.k)
-    return ContactGraph(a["q"], a["point"], a["normal"], _tip_directions(a["Tt"], a["p_thumb"]),
-                        _tip_directions(a["Ti"], a["p_index"]), a["Tt"], a["Ti"], edges, weights,
-                        np.asarray(variant, float))
+    dt, di = _tip_directions(a["Tt"], a["p_thumb"]), _tip_directions(a["Ti"], a["p_index"])
+    return ContactGraph(a["q"], a["point"], a["normal"], dt, di, mount.direction_to_gel(dt),
+                        mount.direction_to_gel(di), a["Tt"], a["Ti"], edges, weights, np.asarray(variant, float))
 
 
-_FIELDS = ("q", "point", "normal", "dir_thumb", "dir_index", "tip_thumb", "tip_index", "edges", "weights",
+_FIELDS = ("q", "point", "normal", "dir_thumb", "dir_index", "sensor_thumb_mm", "sensor_index_mm", "tip_thumb", "tip_index", "edges", "weights",
            "variant")
 
 
