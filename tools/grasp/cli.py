@@ -33,6 +33,24 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_mount)
 
+    g = sub.add_parser("grasp", help="selective grasp trials in simulation, closed through the sensor runtime",
+                       description="MuJoCo trials of the seed's selective grasp: two objects pinched between "
+                                   "thumb and index, one pulled; the simulated fingertip sensors render frames "
+                                   "that the runtime turns into contacts on Zenoh; the controller subscribes, "
+                                   "decides which object moved and follows the contact graph. Writes the table "
+                                   "of success / false detection / other beside the seed's.")
+    g.add_argument("--pair", action="append", choices=["A+A", "A+B", "cable+rigid", "rigid+rigid"],
+                   help="object pair (repeatable; default: all four)")
+    g.add_argument("--trials", type=int, default=20, help="trials per pair (default 20)")
+    g.add_argument("--hand", default=str(DEFAULT_OUT),
+                   help=f"folder of `tensortouch mount`'s outputs: hand_mounted.urdf, contact_graph.npz "
+                        f"(default {DEFAULT_OUT}; made by `tensortouch mount` when missing)")
+    g.add_argument("--out", default=str(DEFAULT_OUT), help="where the table, trials JSON and pictures go")
+    g.add_argument("--model", help="model package folder or name (default: the shipped one)")
+    g.add_argument("--seed", type=int, default=0, help="first trial seed")
+    g.add_argument("--picture", action="store_true", help="draw the first trial as a picture sequence")
+    g.set_defaults(func=cmd_grasp)
+
 
 def cmd_mount(args) -> int:
     import numpy as np
@@ -86,4 +104,55 @@ def cmd_mount(args) -> int:
           f"of {ch.n_contacts} contacts); {len(res.variants)} variants × {args.samples} configurations in "
           f"{res.seconds:.1f} s; wrote {out}/mount.json, mount_heatmaps.png, mount_contacts_3d.png, "
           f"hand_mounted.urdf" + (", contact_graph.npz" if args.graph_nodes > 0 else ""))
+    return 0
+
+
+def cmd_grasp(args) -> int:
+    import time
+
+    from runtime.errors import TensorTouchError
+    from tools.grasp import trial
+
+    if args.trials < 1:
+        print(f"--trials: expected at least 1, got {args.trials}", file=sys.stderr)
+        return 2
+    hand, out = Path(args.hand), Path(args.out)
+    graph_path, urdf = hand / "contact_graph.npz", hand / "hand_mounted.urdf"
+    try:
+        if not graph_path.is_file() or not urdf.is_file():
+            print(f"tensortouch grasp: no mounted hand in {hand}; running `tensortouch mount --out {hand}` first",
+                  file=sys.stderr)
+            import argparse
+
+            margs = argparse.Namespace(urdf=None, out=str(hand), samples=10_000, z_cm="3.5,3.9,4.3,4.7,5.1,5.5",
+                                       pitch_deg="-30,-20,-10,0,10,20,30", graph_nodes=2700, seed=0)
+            if cmd_mount(margs) != 0:
+                return 2
+        bench = trial.Bench(graph_path, urdf, model=args.model)
+    except TensorTouchError as exc:
+        print(f"tensortouch grasp: {exc}", file=sys.stderr)
+        return 2
+    pairs = args.pair or list(trial.PAPER)
+    results: dict = {}
+    t0 = time.monotonic()
+    try:
+        for pair in pairs:
+            results[pair] = []
+            for i in range(args.trials):
+                frames = [] if (args.picture and i == 0 and pair == pairs[0]) else None
+                r = bench.trial(pair, args.seed + i, frames)
+                results[pair].append(r)
+                n_ok = sum(x.outcome == "success" for x in results[pair])
+                print(f"  {pair} trial {i + 1}/{args.trials}: pulled {r.pulled}, judged {r.judged}, {r.outcome} "
+                      f"({r.seconds:.1f} s; {n_ok} successes so far; {time.monotonic() - t0:.0f} s total)",
+                      file=sys.stderr, flush=True)
+                if frames:
+                    from tools.grasp.pictures import trial_sequence
+
+                    trial_sequence(frames, r, out / f"grasp_trial_{pair.replace('+', '_')}.png")
+                trial.save_results(results, out)
+    finally:
+        bench.close()
+    print(trial.table(results), end="")
+    print(f"wrote {out}/grasp_table.md and grasp_trials.json", file=sys.stderr)
     return 0
