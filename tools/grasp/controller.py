@@ -34,8 +34,8 @@ class ControllerConfig:
     shear_only: bool = True                 # score the change of the force along the gel surface
     match_mm: float = 3.0
     group_mm: float = 4.0
-    min_change_n: float = 0.12
-    lead_ratio: float = 1.5
+    min_change_n: float = 0.15
+    lead_ratio: float = 1.2
     confirm_frames: int = 2
     shift_mm: float = 3.0
     max_normal_deg: float = 25.0

@@ -75,13 +75,14 @@ def free_endpoint() -> str:
 
 
 def start_node(g: graph_mod.ContactGraph, mount: SensorMount) -> int:
-    """The pinch whose contacts sit nearest both gels' apexes, in the largest connected part."""
+    """The pinch whose contacts sit nearest both gels' apexes (the larger of the two angles is
+    smallest), in the largest connected part of the graph."""
     from scipy.sparse.csgraph import connected_components
 
     _, lab = connected_components(g.matrix())
     big = lab == np.bincount(lab).argmax()
     ax = np.asarray(mount.axis_tip, float)
-    ang = np.arccos(np.clip(g.dir_thumb @ ax, -1, 1)) + np.arccos(np.clip(g.dir_index @ ax, -1, 1))
+    ang = np.maximum(np.arccos(np.clip(g.dir_thumb @ ax, -1, 1)), np.arccos(np.clip(g.dir_index @ ax, -1, 1)))
     return int(np.argmin(np.where(big, ang, np.inf)))
 
 
@@ -185,6 +186,9 @@ class Bench:
             gel_touch.relax()
             advance(cfg.settle_s)
             ctrl.watch()
+            for _ in range(ctrl.cfg.reference_frames):   # the reference, before anything is pulled
+                advance(cfg.frame_dt)
+                ctrl.update()
             n_pull = max(1, round(cfg.pull_ramp_s / cfg.frame_dt))
             decision = None
             steps = round(cfg.decide_timeout_s / cfg.frame_dt)
