@@ -52,8 +52,21 @@ def register(sub) -> None:
     g.set_defaults(func=cmd_grasp)
 
 
+def _extra_missing() -> str | None:
+    import importlib.util
+
+    missing = [m for m in ("pinocchio", "coal", "mujoco", "matplotlib") if importlib.util.find_spec(m) is None]
+    return (f"the hand extra is not installed (missing {', '.join(missing)}): pip install -e '.[hand]'"
+            if missing else None)
+
+
 def cmd_mount(args) -> int:
     import numpy as np
+
+    why = _extra_missing()
+    if why:
+        print(f"tensortouch mount: {why}", file=sys.stderr)
+        return 2
 
     from runtime.errors import TensorTouchError
     from tools.grasp import figures, graph, hand_model, mount
@@ -115,6 +128,10 @@ def cmd_grasp(args) -> int:
 
     if args.trials < 1:
         print(f"--trials: expected at least 1, got {args.trials}", file=sys.stderr)
+        return 2
+    why = _extra_missing()
+    if why:
+        print(f"tensortouch grasp: {why}", file=sys.stderr)
         return 2
     hand, out = Path(args.hand), Path(args.out)
     graph_path, urdf = hand / "contact_graph.npz", hand / "hand_mounted.urdf"

@@ -196,9 +196,14 @@ class Bench:
                 scene.pull(pulled, cfg.pull_n * min(1.0, (k + 1) / n_pull))
                 scene.step(cfg.frame_dt)
                 sim_t += cfg.frame_dt
-                frame("pull" if k == n_pull else "")
+                frame()
                 decision = ctrl.update()
-                if decision is not None:
+                if decision is not None or k == steps - 1:
+                    if frames_out is not None:   # the frame the decision was made on (or the last)
+                        frames_out.append({"label": "pull", "t": sim_t, "scene": scene, "touching": scene.touching(),
+                                           "model": scene.snapshot(),
+                                           "frames": {n: sen.last_frame for n, sen in sensors.items()},
+                                           "contacts": {n: list(ctrl.latest[n]) for n in sensors}})
                     break
             if decision is not None:
                 own = np.linalg.norm(decision.moving_point - np.array(scene.object_axis(pulled)[0]))
