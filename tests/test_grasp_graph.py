@@ -66,8 +66,8 @@ def test_allegro_graph_contact_nodes_paths_and_sensor_positions():
     spec = hand_model.HandSpec()
     model = hand_model.load(None, spec)
     hand_model.apply_variant(model, spec, hand_model.nominal_placement(model, spec), 0.043, 0.0)
-    g = graph.build(model, spec, (4.3, 0.0), graph.GraphConfig(nodes=600))
-    assert len(g) == 600
+    g = graph.build(model, spec, (4.3, 0.0), graph.GraphConfig(nodes=300))
+    assert len(g) == 300
     # every node is a contact: fingertip centres 2 × 10.2 mm apart within the contact band
     d = np.linalg.norm(g.tip_thumb[:, :3, 3] - g.tip_index[:, :3, 3], axis=1)
     assert np.all(d <= 0.0204 + 0.001) and np.all(d >= 0.0204 - 0.003)
