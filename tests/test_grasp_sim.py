@@ -1,0 +1,183 @@
+"""Selective grasp pieces (tools/grasp): sensor mount, gel line contact, object placement,
+the controller's decision on synthetic contacts, and one simulated fingertip through the real
+runtime and a real Zenoh session on loopback."""
+import ast
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tools.grasp import graph as graph_mod
+from tools.grasp.controller import ControllerConfig, SelectiveGraspController
+from tools.grasp.dome_contact import ObjectContact, displacement
+from tools.grasp.sensor_mount import SensorMount
+from tools.twin.geometry import GelSurface
+
+
+def test_mount_maps_pad_axis_to_apex_and_round_trips():
+    m = SensorMount()
+    apex = m.direction_to_gel(np.array([1.0, 0, 0]))
+    np.testing.assert_allclose(apex, [0, 0, GelSurface().top_z], atol=1e-9)
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(50, 3)) + [3, 0, 0]
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    u = u[u @ [1, 0, 0] >= m.cone_cos()]
+    np.testing.assert_allclose(m.gel_to_direction(m.direction_to_gel(u)), u, atol=1e-9)
+    # arc length from the apex is kept: 12 mm tip sphere, θ = 0.3 rad → 3.6 mm on the gel
+    p = m.direction_to_gel(np.array([np.cos(0.3), 0, np.sin(0.3)]))
+    th, _ = m.gel.theta_phi(p)
+    assert th * m.gel.sphere_radius == pytest.approx(0.3 * 12.0)
+
+
+def test_line_contact_depth_profile_and_shear():
+    gel = GelSurface()
+    pts = gel.samples(0.4)
+    nrm = gel.normals(pts)
+    apex = np.array([0, 0, gel.top_z])
+    ob = ObjectContact(apex, np.array([0, 1.0, 0]), 1.09, 1.0, np.array([0.3, 0, 0]))
+    u = displacement(gel, pts, nrm, [ob])
+    i0 = int(np.argmin(np.linalg.norm(pts - apex, axis=1)))
+    assert -u[i0] @ nrm[i0] == pytest.approx(1.0, abs=0.05)       # depth d at the contact line
+    assert u[i0, 0] == pytest.approx(0.3, abs=0.02)                 # the skin follows the object
+    far = np.abs(pts[:, 0]) > 8
+    assert np.abs(u[far]).max() < 0.35
+    along = (np.abs(pts[:, 0]) < 0.3) & (np.abs(pts[:, 1]) > 9)     # the straight object leaves the dome
+    assert np.abs(u[along] @ np.array([0, 0, 1.0])).max() < 0.2
+    assert np.allclose(displacement(gel, pts, nrm, []), 0)
+
+
+def test_placement_lets_both_objects_touch_one_pinch():
+    pytest.importorskip("mujoco")
+    from tools.grasp.scene import placement
+
+    R, gap = 0.011, 0.005
+    for r1, r2 in ((0.00109, 0.00109), (0.00109, 0.0015), (0.00109, 0.004), (0.004, 0.004)):
+        x1, x2 = placement(r1, r2, R, gap)
+        assert x2 - x1 >= r1 + r2 + gap - 1e-9
+        # same sphere distance D closes on both: D = 2r + 2√(R² − x²) for each
+        D1 = 2 * r1 + 2 * np.sqrt(R * R - x1 * x1)
+        D2 = 2 * r2 + 2 * np.sqrt(R * R - x2 * x2)
+        assert D1 == pytest.approx(D2, abs=1e-7)
+
+
+def _line_graph():
+    """Five pinches along world x (mm apart), fingertips above/below, sensor pads facing the pinch."""
+    n = 9
+    xs = np.linspace(-0.008, 0.008, n)
+    q = np.stack([xs * 10, np.zeros(n)], 1)
+    point = np.stack([xs, np.zeros(n), np.zeros(n)], 1)
+    normal = np.tile([0, 0, 1.0], (n, 1))
+    Tt, Ti = np.tile(np.eye(4), (n, 1, 1)), np.tile(np.eye(4), (n, 1, 1))
+    # thumb above looking down (pad +x_tip → world −z), index below looking up (pad → +z)
+    Tt[:, :3, :3] = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])
+    Ti[:, :3, :3] = np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    Tt[:, :3, 3] = point + [0, 0, 0.012]
+    Ti[:, :3, 3] = point - [0, 0, 0.012]
+    edges, w = graph_mod.knn_edges(q, 2)
+    z = np.zeros((n, 3))
+    return graph_mod.ContactGraph(q, point, normal, z, z, z, z, Tt, Ti, edges, w, np.array([4.3, 0.0]))
+
+
+def _frame(contacts):
+    return SimpleNamespace(seq=0, contacts=[SimpleNamespace(position_mm=p, force_n=f, normal=(0, 0, 1.0))
+                                            for p, f in contacts])
+
+
+def _on_gel(mount, T, world):
+    u = T[:3, :3].T @ (world - T[:3, 3])
+    return mount.direction_to_gel(u / np.linalg.norm(u))
+
+
+def test_controller_names_the_sheared_object_and_plans_past_it():
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    ctrl = SelectiveGraspController(g, start, m, ControllerConfig(confirm_frames=2))
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    ctrl.watch()
+
+    def send(shear_on):
+        for s in ("thumb", "index"):
+            fs = [np.array([0, 0, -1.0]) + (np.array([0.4, 0, 0]) if k == shear_on else 0) for k in range(2)]
+            ctrl.on_contacts(s, _frame(list(zip(pos[s], fs))))
+        return ctrl.update()
+
+    for _ in range(4):
+        assert send(None) is None          # the reference
+    assert send(1) is None                 # first sighting, not yet confirmed
+    d = send(1)
+    assert d is not None
+    assert np.linalg.norm(d.moving_point - [0.0035, 0, 0]) < 0.0015
+    assert d.path[0] == start and g.point[d.goal][0] > 0.0035   # beyond the moving object
+    times, qs = ctrl.trajectory()
+    assert len(qs) == len(d.path) and np.all(np.diff(times) > 0)
+
+
+def test_controller_stays_put_without_a_clear_change():
+    g = _line_graph()
+    ctrl = SelectiveGraspController(g, 4, SensorMount())
+    ctrl.watch()
+    frame = _frame([((0, 0, 8.0), (0, 0, -1.0))])
+    for _ in range(10):
+        ctrl.on_contacts("thumb", frame)
+        ctrl.on_contacts("index", frame)
+        assert ctrl.update() is None
+
+
+def test_controller_module_cannot_see_the_simulator():
+    """Structural: the controller imports only numpy, the graph and the sensor mount."""
+    src = Path(__file__).resolve().parents[1] / "tools" / "grasp" / "controller.py"
+    mods = set()
+    for node in ast.walk(ast.parse(src.read_text())):
+        if isinstance(node, ast.Import):
+            mods |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            mods.add(node.module)
+    assert mods <= {"__future__", "threading", "dataclasses", "numpy", "tools.grasp.graph",
+                    "tools.grasp.sensor_mount", "runtime.subscriber"}, mods
+
+
+def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
+    """Twin render → SensorLoop (shipped int8 model, TWIN-DEMO calibration) → Publisher → a real
+    Zenoh session on loopback → the controller's subscriber sees two clusters where the objects are."""
+    from runtime.calibration import CalibrationStore
+    from runtime.model import FieldModel, find_package
+    from runtime.pipeline import SensorPipeline
+    from runtime.publisher import open_session
+    from tools.grasp.controller import ControllerNode
+    from tools.grasp.sim_sensor import SimFingertip
+    from tools.grasp.trial import free_endpoint
+    from tools.twin.unit import TwinUnit
+
+    unit = TwinUnit("TWIN-DEMO")
+    pipe = SensorPipeline("TWIN-DEMO", FieldModel(find_package(None), "int8", threads=1),
+                          CalibrationStore().load("TWIN-DEMO"))
+    ep = free_endpoint()
+    pub_s, sub_s = open_session(listen=[ep]), open_session(connect=[ep])
+    try:
+        deadline = time.monotonic() + 10
+        while not list(sub_s.info.peers_zid()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        ctrl = SelectiveGraspController(_line_graph(), 4)
+        node = ControllerNode(ctrl, sub_s, {"thumb": "test-thumb"})
+        sen = SimFingertip("test-thumb", unit, pipe, pub_s)
+        try:
+            gel = unit.gel
+            objs = [ObjectContact(gel.point_at(abs(x) / gel.sphere_radius, 0.0 if x > 0 else np.pi), np.array([0, 1.0, 0]),
+                                  1.09, 1.0, np.zeros(3)) for x in (-4.0, 4.0)]
+            for i in range(36):
+                sen.show([] if i < 32 else objs, i * 0.04)
+            assert ctrl.wait_frames({"thumb": 36}, timeout=30)
+            seen = sorted(p[0] for p, _, _ in ctrl.latest["thumb"])
+            assert len(seen) == 2, ctrl.latest["thumb"]
+            assert seen[0] == pytest.approx(-4.0, abs=1.5) and seen[1] == pytest.approx(4.0, abs=1.5)
+        finally:
+            sen.close()
+            node.close()
+    finally:
+        sub_s.close()
+        pub_s.close()

@@ -1,0 +1,175 @@
+"""`tensortouch mount` (fingertip pose selection) and `tensortouch grasp` (selective grasp trials)."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+DEFAULT_OUT = Path("cache/hand")
+
+
+def _floats(text: str, name: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise SystemExit(f"--{name}: expected comma-separated numbers, got {text!r}") from None
+    if not vals:
+        raise SystemExit(f"--{name}: expected at least one number")
+    return vals
+
+
+def register(sub) -> None:
+    p = sub.add_parser("mount", help="choose where to mount the thumb's sensor on a hand URDF (Pinocchio + coal)",
+                       description="Sweep the thumb distal joint over z-offset × pitch, sample thumb+index "
+                                   "configurations, keep thumb–index contacts (coal, shrunk fingertip spheres), "
+                                   "score mean manipulability and principal-axis inliers, write the heatmaps, "
+                                   "a 3D figure, the chosen variant (JSON), its URDF and the contact graph.")
+    p.add_argument("--urdf", help="hand URDF (default: the Allegro right hand from example-robot-data)")
+    p.add_argument("--out", default=str(DEFAULT_OUT), help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--samples", type=int, default=10_000, help="joint configurations per variant (default 10000)")
+    p.add_argument("--z-cm", default="3.5,3.9,4.3,4.7,5.1,5.5", help="thumb distal z-offsets in cm")
+    p.add_argument("--pitch-deg", default="-30,-20,-10,0,10,20,30", help="thumb distal pitches in degrees")
+    p.add_argument("--graph-nodes", type=int, default=2700, help="contact-graph nodes (0: no graph)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_mount)
+
+    g = sub.add_parser("grasp", help="selective grasp trials in simulation, closed through the sensor runtime",
+                       description="MuJoCo trials of the seed's selective grasp: two objects pinched between "
+                                   "thumb and index, one pulled; the simulated fingertip sensors render frames "
+                                   "that the runtime turns into contacts on Zenoh; the controller subscribes, "
+                                   "decides which object moved and follows the contact graph. Writes the table "
+                                   "of success / false detection / other beside the seed's.")
+    g.add_argument("--pair", action="append", choices=["A+A", "A+B", "cable+rigid", "rigid+rigid"],
+                   help="object pair (repeatable; default: all four)")
+    g.add_argument("--trials", type=int, default=20, help="trials per pair (default 20)")
+    g.add_argument("--hand", default=str(DEFAULT_OUT),
+                   help=f"folder of `tensortouch mount`'s outputs: hand_mounted.urdf, contact_graph.npz "
+                        f"(default {DEFAULT_OUT}; made by `tensortouch mount` when missing)")
+    g.add_argument("--out", default=str(DEFAULT_OUT), help="where the table, trials JSON and pictures go")
+    g.add_argument("--model", help="model package folder or name (default: the shipped one)")
+    g.add_argument("--seed", type=int, default=0, help="first trial seed")
+    g.add_argument("--picture", action="store_true", help="draw the first trial as a picture sequence")
+    g.set_defaults(func=cmd_grasp)
+
+
+def _extra_missing() -> str | None:
+    import importlib.util
+
+    missing = [m for m in ("pinocchio", "coal", "mujoco", "matplotlib") if importlib.util.find_spec(m) is None]
+    return (f"the hand extra is not installed (missing {', '.join(missing)}): pip install -e '.[hand]'"
+            if missing else None)
+
+
+def cmd_mount(args) -> int:
+    import numpy as np
+
+    why = _extra_missing()
+    if why:
+        print(f"tensortouch mount: {why}", file=sys.stderr)
+        return 2
+
+    from runtime.errors import TensorTouchError
+    from tools.grasp import figures, graph, hand_model, mount
+    from tools.grasp.workspace import WorkspaceConfig
+
+    if args.samples < 10:
+        print(f"--samples: expected at least 10, got {args.samples}", file=sys.stderr)
+        return 2
+    cfg = mount.MountConfig(z_cm=_floats(args.z_cm, "z-cm"), pitch_deg=_floats(args.pitch_deg, "pitch-deg"),
+                            workspace=WorkspaceConfig(samples=args.samples, seed=args.seed))
+    out = Path(args.out)
+
+    def progress(i, n, v):
+        print(f"\r  variant {i}/{n}: z {v.z_cm:g} cm, pitch {v.pitch_deg:+g}°, {v.n_contacts} contacts, "
+              f"{v.inliers} inliers   ", end="\n" if i == n else "", file=sys.stderr, flush=True)
+
+    try:
+        urdf = Path(args.urdf) if args.urdf else hand_model.default_urdf()
+        res = mount.select(urdf, cfg=cfg, progress=progress)
+        spec = hand_model.HandSpec()
+        ch = res.chosen
+        figures.heatmaps(res, out / "mount_heatmaps.png")
+        figures.contacts_3d(res, out / "mount_contacts_3d.png")
+        hand_model.write_urdf(urdf, out / "hand_mounted.urdf", spec, ch.z_cm / 100, np.radians(ch.pitch_deg))
+        summary = {"urdf": str(urdf), "chosen": {"z_cm": ch.z_cm, "pitch_deg": ch.pitch_deg,
+                                                 "mean_manipulability": ch.mean_w, "contacts": ch.n_contacts,
+                                                 "inliers": ch.inliers},
+                   "samples_per_variant": args.samples, "seconds": round(res.seconds, 2),
+                   "grid": {"z_cm": list(cfg.z_cm), "pitch_deg": list(cfg.pitch_deg),
+                            "mean_manipulability": res.grid("mean_w").tolist(),
+                            "inliers": res.grid("inliers").astype(int).tolist(),
+                            "contacts": res.grid("n_contacts").astype(int).tolist()}}
+        if args.graph_nodes > 0:
+            model = hand_model.load(urdf, spec)
+            hand_model.apply_variant(model, spec, hand_model.nominal_placement(model, spec),
+                                     ch.z_cm / 100, np.radians(ch.pitch_deg))
+            g = graph.build(model, spec, (ch.z_cm, ch.pitch_deg), graph.GraphConfig(nodes=args.graph_nodes),
+                            progress=lambda i, n: print(f"\r  contact graph: {i}/{n} nodes", end="",
+                                                        file=sys.stderr, flush=True))
+            print(file=sys.stderr)
+            graph.save(g, out / "contact_graph.npz")
+            summary["graph"] = {"nodes": len(g), "edges": len(g.edges)}
+        hand_model.atomic_write_bytes(out / "mount.json", (json.dumps(summary, indent=1) + "\n").encode())
+    except TensorTouchError as exc:
+        print(f"tensortouch mount: {exc}", file=sys.stderr)
+        return 2
+    print(f"chosen: z = {ch.z_cm:g} cm, pitch = {ch.pitch_deg:g}° (mean w {ch.mean_w:.3g}, {ch.inliers} inliers "
+          f"of {ch.n_contacts} contacts); {len(res.variants)} variants × {args.samples} configurations in "
+          f"{res.seconds:.1f} s; wrote {out}/mount.json, mount_heatmaps.png, mount_contacts_3d.png, "
+          f"hand_mounted.urdf" + (", contact_graph.npz" if args.graph_nodes > 0 else ""))
+    return 0
+
+
+def cmd_grasp(args) -> int:
+    import time
+
+    from runtime.errors import TensorTouchError
+    from tools.grasp import trial
+
+    if args.trials < 1:
+        print(f"--trials: expected at least 1, got {args.trials}", file=sys.stderr)
+        return 2
+    why = _extra_missing()
+    if why:
+        print(f"tensortouch grasp: {why}", file=sys.stderr)
+        return 2
+    hand, out = Path(args.hand), Path(args.out)
+    graph_path, urdf = hand / "contact_graph.npz", hand / "hand_mounted.urdf"
+    try:
+        if not graph_path.is_file() or not urdf.is_file():
+            print(f"tensortouch grasp: no mounted hand in {hand}; running `tensortouch mount --out {hand}` first",
+                  file=sys.stderr)
+            import argparse
+
+            margs = argparse.Namespace(urdf=None, out=str(hand), samples=10_000, z_cm="3.5,3.9,4.3,4.7,5.1,5.5",
+                                       pitch_deg="-30,-20,-10,0,10,20,30", graph_nodes=2700, seed=0)
+            if cmd_mount(margs) != 0:
+                return 2
+        bench = trial.Bench(graph_path, urdf, model=args.model)
+    except TensorTouchError as exc:
+        print(f"tensortouch grasp: {exc}", file=sys.stderr)
+        return 2
+    pairs = args.pair or list(trial.PAPER)
+    results: dict = {}
+    t0 = time.monotonic()
+    try:
+        for pair in pairs:
+            results[pair] = []
+            for i in range(args.trials):
+                frames = [] if (args.picture and i == 0 and pair == pairs[0]) else None
+                r = bench.trial(pair, args.seed + i, frames)
+                results[pair].append(r)
+                n_ok = sum(x.outcome == "success" for x in results[pair])
+                print(f"  {pair} trial {i + 1}/{args.trials}: pulled {r.pulled}, judged {r.judged}, {r.outcome} "
+                      f"({r.seconds:.1f} s; {n_ok} successes so far; {time.monotonic() - t0:.0f} s total)",
+                      file=sys.stderr, flush=True)
+                if frames:
+                    from tools.grasp.pictures import trial_sequence
+
+                    trial_sequence(frames, r, out / f"grasp_trial_{pair.replace('+', '_')}.png")
+                trial.save_results(results, out)
+    finally:
+        bench.close()
+    print(trial.table(results), end="")
+    print(f"wrote {out}/grasp_table.md and grasp_trials.json", file=sys.stderr)
+    return 0

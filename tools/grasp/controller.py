@@ -1,0 +1,204 @@
+"""The selective-grasp controller (seed §V-B): which of two pinched objects is being pulled, and
+the contact-graph path to a pinch on that object alone.
+
+Inputs, and the only ones: the contact messages the two fingertip sensors publish (decoded
+`runtime.wire.ContactsFrame`s, delivered by a `runtime.subscriber.Subscriber`) and the contact
+graph (joint angles, fingertip poses and contact points of known pinches). It never sees the
+simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
+
+1. Reference: when told to watch, the mean force of each contact cluster over a few frames.
+2. Detection: each frame, every reference cluster is matched to the nearest current cluster
+   (≤ `match_mm`); its change |ΔF| (by default only the part along the gel surface: a pull
+   shears the gel, a change of squeeze presses it). Clusters are placed on the hand through the current graph
+   node's fingertip poses and the sensor mount and grouped into objects (≤ `group_mm` apart);
+   an object's score is the sum of its clusters' |ΔF| over both sensors. The object whose score
+   exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
+3. Plan: the target pinch point lies `shift_mm` beyond the moving object, away from the other;
+   the goal is the reachable graph node nearest that point with a pinch normal within
+   `max_normal_deg` of the current one; Dijkstra gives the joint path.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tools.grasp.graph import ContactGraph
+from tools.grasp.sensor_mount import SensorMount
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    reference_frames: int = 4
+    shear_only: bool = True                 # score the change of the force along the gel surface
+    match_mm: float = 3.0
+    group_mm: float = 4.0
+    min_change_n: float = 0.15
+    lead_ratio: float = 1.2
+    confirm_frames: int = 2
+    shift_mm: float = 3.0
+    max_normal_deg: float = 25.0
+    cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
+    step_s: float = 0.04                    # time per path node when executing
+
+
+@dataclass
+class Decision:
+    moving_point: np.ndarray                # world (m): where the moving object is pinched
+    other_point: np.ndarray | None
+    goal: int
+    path: list[int]
+    scores: list[float] = field(default_factory=list)
+
+
+class SelectiveGraspController:
+    SENSORS = ("thumb", "index")
+
+    def __init__(self, graph: ContactGraph, start: int, mount: SensorMount | None = None,
+                 cfg: ControllerConfig | None = None):
+        self.graph, self.node, self.start = graph, int(start), int(start)
+        self.mount = mount or SensorMount()
+        self.cfg = cfg or ControllerConfig()
+        self._lock = threading.Condition()
+        self.latest: dict[str, list] = {s: [] for s in self.SENSORS}
+        self.received = {s: 0 for s in self.SENSORS}    # newest frame seq per sensor
+        self._ref: dict[str, list] | None = None
+        self._ref_acc: dict[str, list] = {s: [] for s in self.SENSORS}
+        self._watching = False
+        self._streak = (None, 0)
+        self.decision: Decision | None = None
+        self.log: list[dict] = []
+
+    # ------------------------------------------------------------------ inputs
+    def on_contacts(self, sensor: str, frame) -> None:
+        """A decoded ContactsFrame from `sensor` ("thumb" or "index")."""
+        with self._lock:
+            self.latest[sensor] = [(np.array(c.position_mm), np.array(c.force_n), np.array(c.normal))
+                                   for c in frame.contacts]
+            self.received[sensor] = max(self.received[sensor], int(frame.seq))
+            self._lock.notify_all()
+
+    def wait_frames(self, counts: dict[str, int], timeout: float = 10.0) -> bool:
+        """Block until each sensor's contacts of frame `counts[s]` (its seq) arrived (lock-step
+        simulation; a message lost on the way is superseded by a newer one)."""
+        with self._lock:
+            return self._lock.wait_for(lambda: all(self.received[s] >= n for s, n in counts.items()), timeout)
+
+    def watch(self) -> None:
+        with self._lock:
+            self._watching = True
+            self._ref, self._ref_acc = None, {s: [] for s in self.SENSORS}
+
+    # ------------------------------------------------------------------ per frame
+    def update(self) -> Decision | None:
+        """Call once per frame pair; returns the decision once made."""
+        if self.decision is not None or not self._watching:
+            return self.decision
+        with self._lock:
+            latest = {s: list(v) for s, v in self.latest.items()}
+        if self._ref is None:
+            for s in self.SENSORS:
+                self._ref_acc[s].append(latest[s])
+            if len(self._ref_acc["thumb"]) >= self.cfg.reference_frames:
+                self._ref = {s: self._reference(self._ref_acc[s]) for s in self.SENSORS}
+            return None
+        objects = self._objects(latest)
+        if len(objects) == 0:
+            return None
+        scores = [o["change"] for o in objects]
+        order = np.argsort(scores)[::-1]
+        best = int(order[0])
+        second = scores[order[1]] if len(order) > 1 else 0.0
+        ok = scores[best] >= self.cfg.min_change_n and scores[best] >= self.cfg.lead_ratio * second
+        key = tuple(np.round(objects[best]["point"] * 1000 / self.cfg.group_mm).astype(int)) if ok else None
+        streak = self._streak[1] + 1 if ok and key == self._streak[0] else (1 if ok else 0)
+        self._streak = (key, streak)
+        self.log.append({"scores": [float(x) for x in scores], "n_objects": len(objects)})
+        if streak < self.cfg.confirm_frames:
+            return None
+        other = objects[int(order[1])]["point"] if len(order) > 1 else None
+        self.decision = self._plan(objects[best]["point"], other, [float(x) for x in scores])
+        return self.decision
+
+    def _reference(self, frames: list[list]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Clusters of the last reference frame with their force averaged over the frames."""
+        last = frames[-1]
+        out = []
+        for p, _, nrm in last:
+            fs = []
+            for fr in frames:
+                if fr:
+                    d = [np.linalg.norm(q - p) for q, _, _ in fr]
+                    k = int(np.argmin(d))
+                    if d[k] <= self.cfg.match_mm:
+                        fs.append(fr[k][1])
+            out.append((p, np.mean(fs, axis=0), nrm))
+        return out
+
+    def _world(self, sensor: str, p_mm: np.ndarray) -> np.ndarray:
+        T = self.graph.tip_thumb[self.node] if sensor == "thumb" else self.graph.tip_index[self.node]
+        u = self.mount.gel_to_direction(p_mm)
+        return T[:3, 3] + T[:3, :3] @ u * (self.mount.tip_radius_mm / 1000.0)
+
+    def _objects(self, latest: dict[str, list]) -> list[dict]:
+        pts, changes = [], []
+        for s in self.SENSORS:
+            for p_ref, f_ref, nrm in self._ref[s]:
+                cur = latest[s]
+                d = [np.linalg.norm(q - p_ref) for q, _, _ in cur]
+                if d and min(d) <= self.cfg.match_mm:
+                    f = cur[int(np.argmin(d))][1]
+                else:
+                    f = np.zeros(3)                    # the cluster vanished: its force changed fully
+                pts.append(self._world(s, p_ref))
+                df = f - f_ref
+                if self.cfg.shear_only:                # a pull drags the gel along its surface
+                    df = df - (df @ nrm) * nrm
+                changes.append(float(np.linalg.norm(df)))
+        objects: list[dict] = []
+        for p, ch in zip(pts, changes):
+            for o in objects:
+                if np.linalg.norm(o["point"] - p) * 1000 <= self.cfg.group_mm:
+                    o["members"].append(p)
+                    o["point"] = np.mean(o["members"], axis=0)
+                    o["change"] += ch
+                    break
+            else:
+                objects.append({"point": p, "members": [p], "change": ch})
+        return objects
+
+    def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float]) -> Decision:
+        g, cfg = self.graph, self.cfg
+        away = moving - (other if other is not None else g.point[self.node])
+        nrm = np.linalg.norm(away)
+        away = away / nrm if nrm > 1e-9 else np.zeros(3)
+        target = moving + away * cfg.shift_mm / 1000.0
+        costs = g.reachable_costs(self.node)
+        ok = np.isfinite(costs) & (g.normal @ g.normal[self.node] >= np.cos(np.radians(cfg.max_normal_deg)))
+        score = np.linalg.norm(g.point - target, axis=1) * 1000 + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=1e9)
+        score[~ok] = np.inf
+        goal = int(np.argmin(score))
+        return Decision(moving, other, goal, g.path(self.node, goal), scores)
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """(times from now, joint targets) along the decided path."""
+        if self.decision is None or not self.decision.path:
+            return np.zeros(0), np.zeros((0, self.graph.q.shape[1]))
+        qs = self.graph.q[self.decision.path]
+        return np.arange(1, len(qs) + 1) * self.cfg.step_s, qs
+
+
+class ControllerNode:
+    """Wires a controller to Zenoh: one Subscriber per fingertip sensor id."""
+
+    def __init__(self, controller: SelectiveGraspController, session, sensor_ids: dict[str, str]):
+        from runtime.subscriber import Subscriber
+
+        self.controller = controller
+        self.subs = [Subscriber(sid, session=session, on_contacts=lambda fr, s=name: controller.on_contacts(s, fr))
+                     for name, sid in sensor_ids.items()]
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.close()

@@ -1,0 +1,182 @@
+"""The thumb–index contact graph (seed §V-B).
+
+Nodes: contact configurations of the chosen hand variant, each with its joint angles (thumb then
+index), the world contact point p_c, the contact direction in each fingertip frame (unit vector from
+the sphere centre to coal's nearest point) and where each fingertip sensor reports that contact
+(gel point in the sensor frame, mm, through the SensorMount). Only contacts on both gels are kept. Edges: the k nearest neighbours in joint space, weighted by joint-space distance
+(rad). Paths: Dijkstra (scipy.sparse.csgraph). Stored as one .npz (no pickle).
+
+Nodes are collected the way the seed describes it — exploring the joint space while keeping thumb
+and index in contact: uniform samples seed the set, then random small joint steps from stored nodes
+that stay in contact are added until the set has `nodes` entries.
+"""
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from runtime.errors import TensorTouchError
+from tools.grasp.hand_model import HandSpec, atomic_write_bytes, limits
+from tools.grasp.sensor_mount import SensorMount
+from tools.grasp.workspace import WorkspaceConfig, evaluate, sample_q
+
+SCHEMA = "tensortouch.contact_graph/1"
+
+
+class GraphError(TensorTouchError):
+    """A contact graph file is not what was expected."""
+
+
+@dataclass(frozen=True)
+class GraphConfig:
+    nodes: int = 2700            # seed §V-B: about 2,700 contact configurations
+    k: int = 12                  # neighbours per node
+    step_rad: float = 0.06       # joint step of the exploration
+    seed_nodes: int = 100        # uniform samples until this many contacts, then exploration steps
+    batch: int = 4000
+    max_rounds: int = 400
+    seed: int = 1
+
+
+@dataclass
+class ContactGraph:
+    q: np.ndarray             # (N, n) joint angles, thumb joints then index joints (rad)
+    point: np.ndarray         # (N, 3) world contact point p_c (m)
+    normal: np.ndarray        # (N, 3) contact normal, index → thumb
+    dir_thumb: np.ndarray     # (N, 3) contact direction in the thumb fingertip frame (unit)
+    dir_index: np.ndarray     # (N, 3) contact direction in the index fingertip frame (unit)
+    sensor_thumb_mm: np.ndarray  # (N, 3) where the thumb sensor reports the contact (sensor frame, mm)
+    sensor_index_mm: np.ndarray  # (N, 3) the same for the index sensor
+    tip_thumb: np.ndarray     # (N, 4, 4) fingertip poses
+    tip_index: np.ndarray
+    edges: np.ndarray         # (E, 2) int node pairs, i < j
+    weights: np.ndarray       # (E,) joint-space distance (rad)
+    variant: np.ndarray       # (2,) z_cm, pitch_deg of the hand variant
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def matrix(self) -> csr_matrix:
+        n = len(self)
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        return csr_matrix((np.concatenate([self.weights, self.weights]),
+                           (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n))
+
+    def nearest(self, q: np.ndarray) -> int:
+        """Node closest to joint configuration q."""
+        return int(np.argmin(np.linalg.norm(self.q - np.asarray(q), axis=1)))
+
+    def path(self, start: int, goal: int) -> list[int]:
+        """Shortest joint-space path start → goal (node ids); [] when unreachable."""
+        _, pred = dijkstra(self.matrix(), indices=start, return_predecessors=True)
+        if start != goal and pred[goal] < 0:
+            return []
+        out = [goal]
+        while out[-1] != start:
+            out.append(int(pred[out[-1]]))
+        return out[::-1]
+
+    def reachable_costs(self, start: int) -> np.ndarray:
+        return dijkstra(self.matrix(), indices=start)
+
+
+def knn_edges(q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Undirected k-NN edges in joint space with their Euclidean lengths."""
+    k = min(k, len(q) - 1)
+    if k < 1:
+        return np.zeros((0, 2), int), np.zeros(0)
+    d, j = cKDTree(q).query(q, k=k + 1)
+    i = np.repeat(np.arange(len(q)), k)
+    j, d = j[:, 1:].ravel(), d[:, 1:].ravel()
+    pairs = np.stack([np.minimum(i, j), np.maximum(i, j)], 1)
+    pairs, first = np.unique(pairs, axis=0, return_index=True)
+    return pairs, d[first]
+
+
+def _tip_directions(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Unit direction from each fingertip frame's origin to point p, in that frame."""
+    rel = p - T[:, :3, 3]
+    local = np.einsum("sji,sj->si", T[:, :3, :3], rel)
+    return local / np.maximum(np.linalg.norm(local, axis=1, keepdims=True), 1e-12)
+
+
+def build(model, spec: HandSpec, variant=(np.nan, np.nan), cfg: GraphConfig | None = None,
+          ws_cfg: WorkspaceConfig | None = None, progress=None, mount: SensorMount | None = None) -> ContactGraph:
+    """Explore contacts on `model` (already set to the chosen variant) and connect them. Only
+    contacts that land on both sensors' gels (within `mount`'s cone) are kept."""
+    cfg = cfg or GraphConfig()
+    mount = mount or SensorMount()
+    cone = mount.cone_cos()
+    axis = np.asarray(mount.axis_tip, float) / np.linalg.norm(mount.axis_tip)
+    ws_cfg = ws_cfg or WorkspaceConfig()
+    rng = np.random.default_rng(cfg.seed)
+    lo = np.concatenate(limits(model, spec.thumb)[:1] + limits(model, spec.index)[:1])
+    hi = np.concatenate(limits(model, spec.thumb)[1:] + limits(model, spec.index)[1:])
+    keep: dict[str, list] = {k: [] for k in ("q", "point", "normal", "p_thumb", "p_index", "Tt", "Ti")}
+    count = 0
+    for _ in range(cfg.max_rounds):
+        if count >= cfg.nodes:
+            break
+        if count < cfg.seed_nodes:
+            q = sample_q(model, spec, cfg.batch, rng)
+        else:
+            base = np.concatenate(keep["q"])[rng.integers(0, count, cfg.batch)]
+            q = np.clip(base + rng.normal(0, cfg.step_rad, base.shape), lo, hi)
+        ws = evaluate(model, spec, q, ws_cfg)
+        c = ws.contact.copy()
+        if c.any():
+            on_t = _tip_directions(ws.tip_thumb[c], ws.p_thumb[c]) @ axis >= cone
+            on_i = _tip_directions(ws.tip_index[c], ws.p_index[c]) @ axis >= cone
+            c[np.flatnonzero(c)[~(on_t & on_i)]] = False
+        for key, arr in (("q", ws.q), ("point", ws.point), ("normal", ws.normal), ("p_thumb", ws.p_thumb),
+                         ("p_index", ws.p_index), ("Tt", ws.tip_thumb), ("Ti", ws.tip_index)):
+            keep[key].append(arr[c])
+        count += int(c.sum())
+        if progress:
+            progress(min(count, cfg.nodes), cfg.nodes)
+    if count < 2:
+        raise GraphError(f"only {count} contact configurations found; is the hand able to pinch?")
+    n = min(count, cfg.nodes)
+    a = {k: np.concatenate(v)[:n] for k, v in keep.items()}
+    edges, weights = knn_edges(a["q"], cfg.k)
+    dt, di = _tip_directions(a["Tt"], a["p_thumb"]), _tip_directions(a["Ti"], a["p_index"])
+    return ContactGraph(a["q"], a["point"], a["normal"], dt, di, mount.direction_to_gel(dt),
+                        mount.direction_to_gel(di), a["Tt"], a["Ti"], edges, weights, np.asarray(variant, float))
+
+
+_FIELDS = ("q", "point", "normal", "dir_thumb", "dir_index", "sensor_thumb_mm", "sensor_index_mm", "tip_thumb", "tip_index", "edges", "weights",
+           "variant")
+
+
+def save(graph: ContactGraph, path: str | Path) -> Path:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, schema=np.array(SCHEMA), **{f: getattr(graph, f) for f in _FIELDS})
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def load(path: str | Path) -> ContactGraph:
+    path = Path(path)
+    if not path.is_file():
+        raise GraphError(f"{path}: no such contact graph file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "schema" not in z or str(z["schema"]) != SCHEMA:
+                raise GraphError(f"{path}: field 'schema' should be {SCHEMA!r}")
+            missing = [f for f in _FIELDS if f not in z]
+            if missing:
+                raise GraphError(f"{path}: missing arrays {missing}")
+            g = ContactGraph(**{f: np.asarray(z[f]) for f in _FIELDS})
+    except (OSError, ValueError) as exc:
+        raise GraphError(f"{path}: not a contact graph .npz ({exc})") from exc
+    n = len(g.q)
+    if g.edges.ndim != 2 or g.edges.shape[1:] != (2,) or (len(g.edges) and (g.edges.min() < 0 or g.edges.max() >= n)):
+        raise GraphError(f"{path}: field 'edges' should be (E,2) node ids in [0, {n})")
+    if len(g.weights) != len(g.edges) or not np.all(np.isfinite(g.weights)) or np.any(g.weights < 0):
+        raise GraphError(f"{path}: field 'weights' should be {len(g.edges)} finite non-negative lengths")
+    return g

@@ -1,0 +1,257 @@
+"""Selective-grasp trials (seed §V-B, Table II) in simulation, closed through the sensor runtime.
+
+One trial: build the scene for a pair of objects at the start pinch (with a random placement
+jitter), open the hand, let both simulated sensors collect their startup baseline, close the
+pinch, tell the controller to watch, pull one object (chosen at random) along its length, run the
+controller's decision and path, hold, and judge from the simulator:
+
+    success          the controller named the pulled object, and at the end both fingertips touch
+                     it and neither touches the other;
+    false detection  the controller named the other object;
+    other            no decision in time, no path, or the final pinch is wrong.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tools.grasp import graph as graph_mod
+from tools.grasp.controller import (
+    ControllerConfig,
+    ControllerNode,
+    SelectiveGraspController,
+)
+from tools.grasp.hand_model import HandSpec, atomic_write_bytes
+from tools.grasp.scene import PAIRS, Scene, SceneConfig
+from tools.grasp.sensor_mount import SensorMount
+from tools.grasp.touch import GelTouch
+
+log = logging.getLogger(__name__)
+
+PAPER = {  # seed Table II: success, false detection, other, trials
+    "A+A": (21, 4, 6, 31), "A+B": (15, 2, 3, 20), "cable+rigid": (17, 1, 2, 20), "rigid+rigid": (18, 0, 2, 20)}
+SENSOR_IDS = {"thumb": "hand-thumb", "index": "hand-index"}
+
+
+@dataclass(frozen=True)
+class TrialConfig:
+    frame_dt: float = 0.04             # s of simulated time between sensor frames (25 Hz)
+    open_mm: float = 8.0
+    close_s: float = 0.4
+    settle_s: float = 0.24
+    pull_n: float = 0.6
+    pull_ramp_s: float = 0.2
+    decide_timeout_s: float = 0.8
+    hold_s: float = 0.3
+    jitter_mm: float = 1.0
+    startup_frames: int = 32
+    sensor_unit: str = "TWIN-DEMO"     # twin unit rendered, and its calibration in the store
+    release_after_decision: bool = False
+
+
+@dataclass
+class TrialResult:
+    pair: str
+    seed: int
+    pulled: int
+    judged: int | None
+    outcome: str
+    touching: list
+    path_len: int
+    seconds: float
+    scores: list = field(default_factory=list)
+
+
+def free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def start_node(g: graph_mod.ContactGraph, mount: SensorMount) -> int:
+    """The pinch whose contacts sit nearest both gels' apexes (the larger of the two angles is
+    smallest), in the largest connected part of the graph."""
+    from scipy.sparse.csgraph import connected_components
+
+    _, lab = connected_components(g.matrix())
+    big = lab == np.bincount(lab).argmax()
+    ax = np.asarray(mount.axis_tip, float)
+    ang = np.maximum(np.arccos(np.clip(g.dir_thumb @ ax, -1, 1)), np.arccos(np.clip(g.dir_index @ ax, -1, 1)))
+    return int(np.argmin(np.where(big, ang, np.inf)))
+
+
+class Bench:
+    """Everything shared by a series of trials: graph, model, calibration, a Zenoh session."""
+
+    def __init__(self, graph_path, urdf, cfg: TrialConfig | None = None, model=None, store=None,
+                 ctrl_cfg: ControllerConfig | None = None, scene_cfg: SceneConfig | None = None):
+        from runtime.calibration import CalibrationStore
+        from runtime.model import FieldModel, find_package
+        from runtime.publisher import open_session
+        from tools.twin.unit import TwinUnit
+
+        self.cfg = cfg or TrialConfig()
+        self.graph = graph_mod.load(graph_path)
+        self.urdf = str(urdf)
+        self.mount = SensorMount()
+        self.start = start_node(self.graph, self.mount)
+        self.model = FieldModel(find_package(model), "int8", threads=1)
+        self.cal = (store or CalibrationStore()).load(self.cfg.sensor_unit)
+        self.unit = TwinUnit(self.cfg.sensor_unit)
+        self.unit.renderer  # noqa: B018 - build the rest view once
+        ep = free_endpoint()
+        self.pub_session = open_session(listen=[ep])
+        self.sub_session = open_session(connect=[ep])
+        self.ctrl_cfg = ctrl_cfg or ControllerConfig()
+        self.scene_cfg = scene_cfg or SceneConfig()
+        self.joints = list(HandSpec().thumb.joints + HandSpec().index.joints)
+        deadline = time.monotonic() + 10.0   # the controller's session must reach the sensors' one
+        while not list(self.sub_session.info.peers_zid()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if not list(self.sub_session.info.peers_zid()):
+            raise RuntimeError(f"zenoh: the controller session did not connect to {ep} within 10 s")
+
+    def close(self) -> None:
+        self.sub_session.close()
+        self.pub_session.close()
+
+    def trial(self, pair: str, seed: int, frames_out: list | None = None) -> TrialResult:
+        from runtime.pipeline import SensorPipeline
+        from tools.grasp.sim_sensor import SimFingertip
+
+        t0 = time.perf_counter()
+        cfg, g, s = self.cfg, self.graph, self.start
+        rng = np.random.default_rng(seed)
+        pulled = int(rng.integers(0, 2))
+        jitter = rng.uniform(-1, 1, 3) * cfg.jitter_mm / 1000.0
+        jitter -= (jitter @ g.normal[s]) * g.normal[s]
+        scene = Scene(self.urdf, self.joints, PAIRS[pair], g.point[s], g.normal[s], g.tip_index[s][:3, 2],
+                      self.scene_cfg, jitter)
+        q_open = scene.opened(g.q[s], g.normal[s], cfg.open_mm)
+        scene.set_hand(q_open)
+        sensors = {name: SimFingertip(sid, self.unit, SensorPipeline(self.cfg.sensor_unit, self.model, self.cal),
+                                      self.pub_session, seed=seed * 2 + i)
+                   for i, (name, sid) in enumerate(SENSOR_IDS.items())}
+        ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg)
+        node = ControllerNode(ctrl, self.sub_session, SENSOR_IDS)
+        gel_touch = GelTouch(scene, self.mount)
+        sim_t = 0.0
+        judged, outcome, path_len = None, "other", 0
+
+        def frame(record: str = ""):
+            nonlocal sim_t
+            felt = {name: gel_touch.contacts(i) for i, name in enumerate(sensors)}
+            for _ in range(20):   # a message dropped on the way: show the same state again
+                for name, sen in sensors.items():
+                    sen.show(felt[name], sim_t)
+                if ctrl.wait_frames({n: sen.pushed for n, sen in sensors.items()}, timeout=2.0):
+                    break
+            else:
+                raise RuntimeError("the sensors' contacts did not arrive over Zenoh within 40 s")
+            if frames_out is not None and record:
+                frames_out.append({"label": record, "t": sim_t, "scene": scene, "felt": felt,
+                                   "touching": scene.touching(), "model": scene.snapshot(),
+                                   "frames": {n: sen.last_frame for n, sen in sensors.items()},
+                                   "contacts": {n: list(ctrl.latest[n]) for n in sensors}})
+
+        def advance(seconds: float, q_from=None, q_to=None, label: str = ""):
+            nonlocal sim_t
+            n = max(1, round(seconds / cfg.frame_dt))
+            for k in range(n):
+                if q_from is not None:
+                    a = (k + 1) / n
+                    scene.command((1 - a) * q_from + a * q_to)
+                scene.step(cfg.frame_dt)
+                sim_t += cfg.frame_dt
+                frame(label if k == n - 1 else "")
+
+        try:
+            # rest frames (the runtime's startup baseline) until the controller hears both sensors
+            for sen in sensors.values():
+                sen.show([], sim_t)
+            for _ in range(200):
+                if ctrl.wait_frames({n: 1 for n in sensors}, timeout=0.05):
+                    break
+                for sen in sensors.values():
+                    sen.show([], sim_t)
+            for _ in range(cfg.startup_frames):
+                frame()
+            advance(cfg.close_s, q_open, g.q[s], label="pinch")
+            gel_touch.relax()
+            advance(cfg.settle_s)
+            ctrl.watch()
+            for _ in range(ctrl.cfg.reference_frames):   # the reference, before anything is pulled
+                advance(cfg.frame_dt)
+                ctrl.update()
+            n_pull = max(1, round(cfg.pull_ramp_s / cfg.frame_dt))
+            decision = None
+            steps = round(cfg.decide_timeout_s / cfg.frame_dt)
+            for k in range(steps):
+                scene.pull(pulled, cfg.pull_n * min(1.0, (k + 1) / n_pull))
+                scene.step(cfg.frame_dt)
+                sim_t += cfg.frame_dt
+                frame()
+                decision = ctrl.update()
+                if decision is not None or k == steps - 1:
+                    if frames_out is not None:   # the frame the decision was made on (or the last)
+                        frames_out.append({"label": "pull", "t": sim_t, "scene": scene, "touching": scene.touching(),
+                                           "model": scene.snapshot(),
+                                           "frames": {n: sen.last_frame for n, sen in sensors.items()},
+                                           "contacts": {n: list(ctrl.latest[n]) for n in sensors}})
+                    break
+            if decision is not None:
+                own = np.linalg.norm(decision.moving_point - np.array(scene.object_axis(pulled)[0]))
+                oth = np.linalg.norm(decision.moving_point - np.array(scene.object_axis(1 - pulled)[0]))
+                judged = pulled if own <= oth else 1 - pulled
+                if cfg.release_after_decision:
+                    scene.release()
+                _, qs = ctrl.trajectory()
+                path_len = len(qs)
+                q_prev = g.q[s]
+                for q in qs:
+                    advance(ctrl.cfg.step_s, q_prev, q)
+                    q_prev = q
+                advance(cfg.hold_s, label="final")
+            touching = scene.touching()
+            if judged is None:
+                outcome = "other"
+            elif judged != pulled:
+                outcome = "false detection"
+            elif touching[:, pulled].all() and not touching[:, 1 - pulled].any():
+                outcome = "success"
+            else:
+                outcome = "other"
+        finally:
+            node.close()
+            for sen in sensors.values():
+                sen.close()
+        return TrialResult(pair, seed, pulled, judged, outcome, touching.astype(int).tolist(), path_len,
+                           round(time.perf_counter() - t0, 2), decision.scores if decision else [])
+
+
+def table(results: dict[str, list[TrialResult]]) -> str:
+    """Markdown table: ours beside the seed's, per pair."""
+    rows = ["| objects | success | false detection | other | seed: success | seed: false det. | seed: other |",
+            "|---|---|---|---|---|---|---|"]
+    names = {"A+A": "two identical cables (A+A)", "A+B": "different cables (A+B)",
+             "cable+rigid": "cable + rigid (A+pen)", "rigid+rigid": "two rigid (pen+pen)"}
+    for pair, res in results.items():
+        n = len(res)
+        c = {k: sum(r.outcome == k for r in res) for k in ("success", "false detection", "other")}
+        ps, pf, po, pn = PAPER[pair]
+        rows.append(f"| {names[pair]} | {c['success']}/{n} ({100 * c['success'] / max(n, 1):.1f} %) | "
+                    f"{c['false detection']}/{n} | {c['other']}/{n} | {ps}/{pn} ({100 * ps / pn:.1f} %) | "
+                    f"{pf}/{pn} | {po}/{pn} |")
+    return "\n".join(rows) + "\n"
+
+
+def save_results(results: dict[str, list[TrialResult]], out: Path) -> None:
+    body = {pair: [asdict(r) for r in res] for pair, res in results.items()}
+    atomic_write_bytes(out / "grasp_trials.json", (json.dumps(body, indent=1) + "\n").encode())
+    atomic_write_bytes(out / "grasp_table.md", table(results).encode())
