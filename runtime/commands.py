@@ -69,6 +69,14 @@ def register(sub) -> None:
     for q in (cl, cs, cr, ci):
         q.add_argument("--store", help="calibration store folder (default: calibration_store/)")
 
+    f = sub.add_parser("find", help="list connected cameras: USB serial, vendor/product, /dev/video nodes, capture node",
+                       description="List USB cameras with their serial number, vendor and product, every /dev/video "
+                                   "node (UVC cameras usually have two: capture and metadata) and which one captures "
+                                   "(VIDIOC_QUERYCAP). The serial is what --source usb:SERIAL takes. docs/bringup.md")
+    f.add_argument("--json", action="store_true", help="one JSON object per camera")
+    f.add_argument("--all", action="store_true", help="every USB device, not only cameras")
+    f.set_defaults(func=cmd_find)
+
     from runtime.hand_cli import register_hand
 
     register_hand(sub)
@@ -233,4 +241,41 @@ def cmd_calib_init(args) -> int:
     print(f"{args.sensor}: gel centre ({fit.center[0]:.1f}, {fit.center[1]:.1f}) px, radius {fit.radius:.1f} px "
           f"(rim rms {fit.rms_px:.2f} px on {fit.points} rays); nominal calibration {version} stored in {store.root}")
     print(f"next: poke it with `tensortouch recalibrate --sensor {args.sensor} --geometry ...` (docs/bringup.md)")
+    return 0
+
+
+def format_camera(cam) -> str:
+    """One `tensortouch find` entry (drivers.usb.CameraInfo) as text."""
+    d = cam.device
+    label = f" ({d.name})" if d.name else ""
+    names = " ".join(x for x in (cam.manufacturer, cam.product) if x) or "?"
+    lines = [f"{d.serial or '(no readable serial)'}  {d.vid_pid}{label}  {names}  bus {d.bus:03d} address {d.address:03d}"]
+    for n in cam.nodes:
+        mark = "  <- capture node" if n.path == cam.capture_node else ""
+        lines.append(f"    {n.path}  {n.kind}{f'  {n.card}' if n.card else ''}{mark}")
+    if cam.stable_name:
+        lines.append(f"    {cam.stable_name}  (udev rule: drivers/udev/99-tensortouch.rules)")
+    if d.serial and cam.capture_node:
+        lines.append(f"    tensortouch run --source usb:{d.serial} --sensor {d.serial}")
+    elif cam.capture_node:
+        lines.append(f"    tensortouch run --source v4l2:{cam.capture_node} --sensor ID")
+    return "\n".join(lines)
+
+
+def cmd_find(args, backend=None, sysfs_root=None, dev_root=None, query=None) -> int:
+    import json
+
+    from drivers import usb
+
+    cams = usb.list_cameras(backend=backend, sysfs_root=sysfs_root or usb.SYSFS_ROOT,
+                            dev_root=dev_root or usb.DEV_ROOT, query=query, include_all=args.all)
+    if args.json:
+        for cam in cams:
+            print(json.dumps(cam.to_dict(), sort_keys=True))
+        return 0
+    if not cams:
+        print("no USB cameras found (is the sensor plugged in? in a container, are /dev and /sys mapped?)")
+        return 1
+    for cam in cams:
+        print(format_camera(cam))
     return 0

@@ -1,0 +1,154 @@
+"""A new sensor's first hour on the twin: a unit the calibration store does not know, as if it were a
+new camera. `calib init` (gel rim + nominal θ/φ) → `record` (the camera = a replay of the unit's twin
+recording, the force gauge and the mocap = TCP line streams replaying its wrench and poses on the
+wall clock) → `recalibrate --geometry` (GPR θ/φ + force correction from the recorded pokes) → `run`
+(a separate process, contacts read by a real Zenoh subscriber on loopback).
+
+Real parts throughout: the twin renderer (hertz-fallback physics: no FE), OpenCV, pyserial socket://,
+the shipped int8 model in onnxruntime, the calibration store, Zenoh. About 2–3 minutes: slow.
+"""
+import argparse
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from drivers.gauge import format_tt
+from drivers.mocap import format_pose
+from runtime import commands
+from runtime.calibration import CalibrationStore
+from runtime.session import load_session, read_table
+from runtime.subscriber import Subscriber
+from tests.test_e2e_runtime import free_port, stop
+from tests.test_record import LineServer
+
+pytestmark = pytest.mark.slow
+UNIT = "TWIN-BRINGUP-7"
+
+
+def parse(argv):
+    from tools.recalib import cli as recal_cli
+    from tools.sessions import cli as sess_cli
+
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers(dest="command")
+    commands.register(sub)
+    sess_cli.register(sub)
+    recal_cli.register(sub)
+    return parser.parse_args(argv)
+
+
+class Timed:
+    """Lines due at recording times `t` (s), sent on the wall clock from the client's connection on."""
+
+    def __init__(self, t, lines):
+        self.t, self.lines, self.k, self.start = np.asarray(t), lines, 0, None
+
+    def __call__(self, _):
+        if self.start is None:
+            self.start = time.monotonic()
+        now = time.monotonic() - self.start
+        out = []
+        while self.k < len(self.t) and self.t[self.k] <= now:
+            out.append(self.lines[self.k])
+            self.k += 1
+        return b"".join(out)
+
+
+def feeds(twin_dir):
+    """Gauge lines (|F| of the pressing indenter, 200 Hz) and mocap lines (the touching indenter's tip
+    pose, as indenter 0) from the twin recording."""
+    s = load_session(twin_dir)
+    w = s.table("wrench")
+    tw = np.unique(w[:, 0])
+    mags = np.array([np.linalg.norm(w[w[:, 0] == t][:, 2:5], axis=1).max() for t in tw])
+    gauge = Timed(tw, [format_tt(m) for m in mags])
+    p = s.table("poses")
+    touch = read_table(twin_dir / "truth" / "contact.csv", ["t", "indenter", "depth", "x", "y", "z", "area", "touching"])
+    touch = touch[touch[:, 7] > 0]
+    rows = []
+    for t in np.unique(p[:, 0]):
+        near = touch[np.abs(touch[:, 0] - t) < 0.02]
+        if len(near):
+            ind = near[0, 1]
+            r = p[(p[:, 0] == t) & (p[:, 1] == ind)][0]
+            rows.append((t, format_pose(0, r[2:5], r[5:9])))
+    mocap = Timed([r[0] for r in rows], [r[1] for r in rows])
+    return gauge, mocap
+
+
+def test_new_twin_unit_first_hour(tmp_path):
+    twin = tmp_path / "twin"
+    env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(tmp_path / "unused-store"))
+    done = subprocess.run([sys.executable, "-m", "runtime.cli", "twin", "record", "--unit", UNIT, "--pokes", "6",
+                           "--physics", "hertz-fallback", "--frames", "mjpg", "--out", str(twin)],
+                          env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    store = CalibrationStore(tmp_path / "store")
+    assert UNIT not in store.sensors()
+
+    # 1. calib init: the rim and a nominal lens model
+    args = parse(["calib", "init", "--source", f"replay:{twin}?realtime=0", "--sensor", UNIT, "--store", str(store.root)])
+    assert args.func(args) == 0
+    v1 = store.load(UNIT)
+    assert v1.version == "v0001" and v1.meta["provenance"]["method"] == "nominal-lens"
+    from tools.twin.unit import TwinUnit, true_tables
+
+    unit = TwinUnit(UNIT)
+    assert np.hypot(*np.subtract(v1.gel_center_px, unit.gel_center_px)) < 0.5
+    assert abs(v1.gel_radius_px / unit.gel_radius_px - 1) < 0.01
+    truth = true_tables(unit, v1.model_size[0])
+    both = v1.mask & truth["mask"]
+    err1 = np.degrees(np.abs(v1.theta - truth["theta"])[both])
+    assert both.sum() > 0.7 * truth["mask"].sum() and err1.mean() < 1.0, err1.mean()
+
+    # 2. record: camera = paced replay of the twin recording, gauge + mocap over TCP
+    gauge_lines, mocap_lines = feeds(twin)
+    gauge, mocap = LineServer(gauge_lines, 0.002), LineServer(mocap_lines, 0.004)
+    rec = tmp_path / "rec"
+    try:
+        args = parse(["record", "--source", f"replay:{twin}", "--sensor", UNIT, "--out", str(rec),
+                      "--ft", gauge.url, "--mocap", mocap.url])
+        assert args.func(args) == 0
+    finally:
+        gauge.close()
+        mocap.close()
+    s = load_session(rec)
+    assert {"frames", "wrench", "poses"} <= set(s.streams)
+    assert s.table("wrench")[:, 4].max() > 0.5
+
+    # 3. recalibrate with the geometry step (GPR θ/φ from the mocap poses) and the force correction
+    args = parse(["recalibrate", "--sensor", UNIT, "--source", f"replay:{rec}", "--store", str(store.root),
+                  "--gauge", "session", "--geometry", "--pokes", "6", "--force", "--report", str(tmp_path / "r.json")])
+    lines = []
+    assert args.func(args, say=lines.append) == 0, "\n".join(lines)
+    v2 = store.load(UNIT)
+    assert v2.version == "v0002" and v2.meta["correction"] is not None
+    both2 = v2.mask & truth["mask"]
+    err2 = np.degrees(np.abs(v2.theta - truth["theta"])[both2])
+    print(f"θ error vs the unit's truth: nominal {err1.mean():.2f}° mean, after pokes {err2.mean():.2f}° mean")
+    assert err2.mean() < 3.0, err2.mean()
+
+    # 4. run it: contacts over Zenoh from the recorded session with the new calibration
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    got, status = [], []
+    with Subscriber(UNIT, listen=[endpoint], on_contacts=got.append, on_status=status.append):
+        proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--source", f"replay:{rec}", "--sensor", UNIT,
+                                 "--fast", "--no-fields", "--connect", endpoint],
+                                env=dict(os.environ, TENSORTOUCH_CALIBRATION=str(store.root)),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            proc.wait(timeout=300)
+        finally:
+            err = stop(proc)
+        time.sleep(0.5)
+    assert proc.returncode == 0, err
+    assert status and status[-1]["calibration_version"] == "v0002"
+    pressed = [f for f in got if f.contacts]
+    assert len(pressed) > 50, len(pressed)
+    peak = max(sum(c.force_mag_n for c in f.contacts) for f in pressed)
+    assert 0.3 * s.table("wrench")[:, 4].max() < peak < 3 * s.table("wrench")[:, 4].max()
