@@ -60,13 +60,9 @@ def _record(args) -> int:
             mocap = PoseStream(MocapConfig(url, baudrate=args.mocap_baud)).open().start()
         with camera_from_uri(args.source) as cam:
             print(f"tensortouch record: {cam.name} -> {args.out}; Ctrl-C to stop", file=sys.stderr)
-            try:
-                record(cam, args.out, sensor, gauge, mocap, RecordLimits(args.frames, args.duration),
-                       frame_format=args.format, ft_indenter=args.ft_indenter, stop=stop,
-                       provenance={"ft": args.ft, "mocap": args.mocap},
-                       say=lambda m: print(m, file=sys.stderr))
-            except KeyboardInterrupt:
-                raise TensorTouchError("interrupted before the session was finished") from None
+            record(cam, args.out, sensor, gauge, mocap, RecordLimits(args.frames, args.duration),
+                   frame_format=args.format, ft_indenter=args.ft_indenter, stop=stop,
+                   provenance={"ft": args.ft, "mocap": args.mocap}, say=lambda m: print(m, file=sys.stderr))
     finally:
         for dev in (gauge, mocap):
             if dev is not None:
@@ -78,7 +74,7 @@ def register_record(sub) -> None:
     r = sub.add_parser("record", help="record a session (camera frames, force gauge, mocap poses) without ROS",
                        description="Record camera frames, and the force gauge and mocap poses when given, into a "
                                    "session folder (docs/session.md) on one clock. Stops at the end of a replay, "
-                                   "after --frames / --duration, or on SIGTERM; give --frames or --duration for live cameras.")
+                                   "after --frames / --duration, or on Ctrl-C / SIGTERM (the session is finished either way).")
     r.add_argument("--source", required=True, help="usb:SERIAL | v4l2:/dev/videoN | replay:SESSION_DIR | file:VIDEO")
     r.add_argument("--sensor", help="sensor id written into the session (default: the USB serial of usb:SERIAL)")
     r.add_argument("--out", required=True, help="new session folder")

@@ -56,7 +56,7 @@ def _increasing(rows: np.ndarray) -> np.ndarray:
 def record(camera, out: str | Path, sensor_id: str, gauge=None, mocap=None, limits: RecordLimits = RecordLimits(),
            frame_format: str = "ffv1", ft_indenter: int = 0, stop: threading.Event | None = None,
            provenance: dict | None = None, say=print) -> Path:
-    """Record until the source ends, `limits` are reached or `stop` is set. `camera` is a connected
+    """Record until the source ends, `limits` are reached, `stop` is set or Ctrl-C. `camera` is a connected
     drivers.camera Camera; `gauge` a started drivers.gauge.ForceGauge; `mocap` a started
     drivers.mocap.PoseStream. Returns the session folder."""
     import cv2
@@ -77,6 +77,8 @@ def record(camera, out: str | Path, sensor_id: str, gauge=None, mocap=None, limi
         try:
             frame = camera.read()
         except EndOfStream:
+            break
+        except KeyboardInterrupt:          # Ctrl-C ends a live recording; the session is still finished
             break
         now = time.monotonic()
         if t0 is None:
