@@ -1,10 +1,11 @@
 """A new sensor's first hour on the twin: a unit the calibration store does not know, as if it were a
-new camera. `calib init` (gel rim + nominal θ/φ) → `record` (the camera = a replay of the unit's twin
+new camera. The unit is poked where a recalibration guides (twin_bench's guided presses);
+`calib init` (gel rim + nominal θ/φ) → `record` (the camera = a replay of the unit's twin
 recording, the force gauge and the mocap = TCP line streams replaying its wrench and poses on the
 wall clock) → `recalibrate --geometry` (GPR θ/φ + force correction from the recorded pokes) → `run`
 (a separate process, contacts read by a real Zenoh subscriber on loopback).
 
-Real parts throughout: the twin renderer (8 pokes, hertz-fallback physics: no FE), OpenCV, pyserial socket://,
+Real parts throughout: the twin renderer (7 guided presses, hertz-fallback physics: no FE), OpenCV, pyserial socket://,
 the shipped int8 model in onnxruntime, the calibration store, Zenoh. About 5 minutes: slow.
 """
 import argparse
@@ -80,13 +81,28 @@ def feeds(twin_dir):
     return gauge, mocap
 
 
+def record_twin(out):
+    """The unit poked where a recalibration session guides (7 single-probe presses at the spots the
+    shipped nominal geometry suggests), rendered with hertz-fallback physics (no FE)."""
+    from tools.recalib.twin_bench import (
+        TwinBenchConfig,
+        guided_points,
+        nominal_calibration,
+        record_once,
+    )
+    from tools.twin.record import RecordConfig
+    from tools.twin.trajectory import GuidedConfig
+
+    bench = TwinBenchConfig()
+    tables, _ = nominal_calibration(128)
+    points = guided_points(tables, 7, np.radians(bench.reach_deg))
+    cfg = RecordConfig(serial=UNIT, pokes=7, seed=1, physics="hertz-fallback", model_size=128, frame_format="mjpg",
+                       guided=GuidedConfig(points, list(bench.fit_depths_mm), bench.probe, seed=1))
+    return record_once(cfg, out, say=print)
+
+
 def test_new_twin_unit_first_hour(tmp_path):
-    twin = tmp_path / "twin"
-    env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(tmp_path / "unused-store"))
-    done = subprocess.run([sys.executable, "-m", "runtime.cli", "twin", "record", "--unit", UNIT, "--pokes", "8",
-                           "--physics", "hertz-fallback", "--frames", "mjpg", "--out", str(twin)],
-                          env=env, capture_output=True, text=True, timeout=900, check=False)
-    assert done.returncode == 0, done.stderr[-2000:]
+    twin = record_twin(tmp_path / "twin")
     store = CalibrationStore(tmp_path / "store")
     assert UNIT not in store.sensors()
 
@@ -122,7 +138,7 @@ def test_new_twin_unit_first_hour(tmp_path):
 
     # 3. recalibrate with the geometry step (GPR θ/φ from the mocap poses) and the force correction
     args = parse(["recalibrate", "--sensor", UNIT, "--source", f"replay:{rec}", "--store", str(store.root),
-                  "--gauge", "session", "--geometry", "--pokes", "6", "--force", "--report", str(tmp_path / "r.json")])
+                  "--gauge", "session", "--geometry", "--pokes", "7", "--force", "--report", str(tmp_path / "r.json")])
     lines = []
     assert args.func(args, say=lines.append) == 0, "\n".join(lines)
     v2 = store.load(UNIT)
