@@ -31,6 +31,7 @@ class TensorTouchCamera(Camera):
         self._seq = -1               # its runtime sequence number
         self._count = 0              # frames received
         self._returned = 0           # value of _count when read()/async_read() last returned
+        self.last_read_seq = -1      # runtime sequence number of the frame read()/async_read() last returned
 
     def __str__(self) -> str:
         return f"TensorTouchCamera({self.config.sensor_id})"
@@ -96,6 +97,7 @@ class TensorTouchCamera(Camera):
                     raise TimeoutError(f"{self}: no new fields within {timeout_ms:.0f} ms")
                 self._cond.wait(left)
             self._returned = self._count
+            self.last_read_seq = self._seq
             return self._frame
 
     def read_latest(self, max_age_ms: int = 500) -> np.ndarray:
