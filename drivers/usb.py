@@ -169,3 +169,109 @@ def find_camera(serial: str, **kwargs) -> str:
         raise DeviceNotFoundError(f"{device.video_node}: listed in sysfs for serial {serial!r} "
                                   "but missing in /dev (container without the device mapped?)")
     return device.video_node
+
+
+# -- cameras: every /dev/video node of a USB device, and which one captures ----------------------
+DEV_ROOT = Path("/dev")
+STABLE_PREFIX = "tensortouch-"   # drivers/udev/99-tensortouch.rules: /dev/tensortouch-<serial>
+
+
+@dataclass(frozen=True)
+class VideoNode:
+    """One /dev/videoN of a camera. `kind`: capture | metadata | other (VIDIOC_QUERYCAP), or
+    capture? / metadata? when only sysfs's `index` could be read (index 0 is the capture node)."""
+
+    path: str
+    kind: str
+    card: str | None = None
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    device: UsbDevice
+    manufacturer: str | None
+    product: str | None
+    nodes: tuple[VideoNode, ...]
+    stable_name: str | None          # /dev/tensortouch-<serial> when the udev rule made it
+
+    @property
+    def capture_node(self) -> str | None:
+        for wanted in ("capture", "capture?"):
+            for n in self.nodes:
+                if n.kind == wanted:
+                    return n.path
+        return None
+
+    def to_dict(self) -> dict:
+        d = self.device
+        return {"serial": d.serial, "vendor_id": f"{d.vid:04x}", "product_id": f"{d.pid:04x}",
+                "manufacturer": self.manufacturer, "product": self.product, "bus": d.bus, "address": d.address,
+                "nodes": [{"path": n.path, "kind": n.kind, "card": n.card} for n in self.nodes],
+                "capture_node": self.capture_node, "stable_name": self.stable_name,
+                "source": f"usb:{d.serial}" if d.serial else self.capture_node}
+
+
+def video_nodes_for(bus: int, address: int, sysfs_root: Path = SYSFS_ROOT, dev_root: Path = DEV_ROOT,
+                    query=None) -> list[VideoNode]:
+    """Every V4L2 node of the USB device at bus/address, in node-number order, each with its kind
+    (`query(path)` → drivers.v4l2.V4l2Caps or None; default: the VIDIOC_QUERYCAP ioctl)."""
+    if query is None:
+        from drivers.v4l2 import query_caps as query
+    v4l = sysfs_root / "class" / "video4linux"
+    if not v4l.is_dir():
+        return []
+    found = []
+    for node in v4l.iterdir():
+        try:
+            usb_dir = (node / "device").resolve().parent
+        except OSError:
+            continue
+        if _read(usb_dir / "busnum") != str(bus) or _read(usb_dir / "devnum") != str(address):
+            continue
+        path = str(dev_root / node.name)
+        caps = query(path)
+        if caps is not None:
+            kind, card = caps.kind, caps.card
+        else:
+            index = _read(node / "index")
+            kind = "capture?" if index in (None, "0") else "metadata?"
+            card = _read(node / "name")
+        number = int("".join(c for c in node.name if c.isdigit()) or 0)
+        found.append((number, VideoNode(path, kind, card)))
+    return [n for _, n in sorted(found)]
+
+
+def _descriptor_text(dev, attr: str) -> str | None:
+    try:
+        return getattr(dev, attr)
+    except Exception as exc:  # noqa: BLE001 - USBError, ValueError ("no langid"), NotImplementedError
+        log.debug("cannot read %s of %04x:%04x: %s", attr, dev.idVendor, dev.idProduct, exc)
+        return None
+
+
+def list_cameras(backend=None, sysfs_root: Path = SYSFS_ROOT, dev_root: Path = DEV_ROOT, query=None,
+                 include_all: bool = False) -> list[CameraInfo]:
+    """USB devices with at least one V4L2 node (every USB device with `include_all`): serial,
+    vendor/product ids and names, their /dev/video nodes and which one captures."""
+    out = []
+    for vid, pid, bus, address, dev in _pyusb_devices(backend):
+        nodes = video_nodes_for(bus, address, sysfs_root, dev_root, query)
+        if not nodes and not include_all:
+            continue
+        usb_dir = _sysfs_usb_dir(bus, address, sysfs_root)
+        serial = _read(usb_dir / "serial") if usb_dir is not None else None
+        manufacturer = _read(usb_dir / "manufacturer") if usb_dir is not None else None
+        product = _read(usb_dir / "product") if usb_dir is not None else None
+        serial = serial or _descriptor_serial(dev)
+        manufacturer = manufacturer or _descriptor_text(dev, "manufacturer")
+        product = product or _descriptor_text(dev, "product")
+        labels = {ids: name for name, ids in KNOWN_DEVICES.items()}
+        capture = next((n.path for n in nodes if n.kind.startswith("capture")), None)
+        stable = None
+        if serial:
+            link = dev_root / f"{STABLE_PREFIX}{serial}"
+            if link.exists() and (capture is None or os.path.realpath(link) == os.path.realpath(capture)):
+                stable = str(link)
+        device = UsbDevice(vid, pid, bus, address, serial, labels.get((vid, pid)), capture)
+        out.append(CameraInfo(device, manufacturer, product, tuple(nodes), stable))
+    return out

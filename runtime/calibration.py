@@ -113,7 +113,8 @@ class CalibrationStore:
         if not pointer.is_file():
             known = ", ".join(self.sensors()) or "none"
             raise CalibrationError(f"{pointer}: no calibration for sensor '{sensor_id}' "
-                                   f"(store {self.root} has: {known})")
+                                   f"(store {self.root} has: {known}); a new sensor's first one: "
+                                   f"tensortouch calib init --source ... --sensor {sensor_id} (docs/bringup.md)")
         return pointer.read_text().strip()
 
     def load(self, sensor_id: str, version: str | None = None, verify: bool = True) -> Calibration:

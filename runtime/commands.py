@@ -8,6 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
+from runtime.bringup import LensModel
 from runtime.zenoh_session import add_zenoh_options, config_from_args, describe
 
 log = logging.getLogger(__name__)
@@ -52,8 +53,32 @@ def register(sub) -> None:
     cr.add_argument("sensor")
     cr.add_argument("--to", dest="version")
     cr.set_defaults(func=cmd_calib_rollback)
-    for q in (cl, cs, cr):
+    ci = csub.add_parser("init", help="a new sensor's first calibration: gel rim + nominal θ/φ from a lens model",
+                         description="Find the gel rim and centre in rest frames of the camera (gel untouched, lit) "
+                                     "and store nominal θ/φ tables from an equidistant fisheye model as the "
+                                     "sensor's first calibration version. Refine with `tensortouch recalibrate "
+                                     "--geometry` (pokes). docs/bringup.md")
+    ci.add_argument("--source", required=True, help="usb:SERIAL | v4l2:/dev/videoN | replay:SESSION_DIR | file:VIDEO")
+    ci.add_argument("--sensor", required=True, help="sensor id = calibration store folder (e.g. the USB serial)")
+    ci.add_argument("--rest-frames", type=int, default=10, help="frames averaged to find the rim (default 10)")
+    ci.add_argument("--model", help="model package whose input size the tables use (default: newest installed)")
+    ci.add_argument("--fov-deg", type=float, default=LensModel.fov_deg, help="lens field of view (default 220)")
+    ci.add_argument("--camera-z-mm", type=float, default=LensModel.camera_z_mm,
+                    help="optical centre below the gel base, mm (default -1)")
+    ci.add_argument("--gel", default=None, metavar="BASE,CAP,SKIRT",
+                    help="gel base radius, cap height, skirt height in mm (default 12,6,2)")
+    ci.add_argument("--force", action="store_true", help="add a nominal version even if the sensor has calibrations")
+    ci.set_defaults(func=cmd_calib_init)
+    for q in (cl, cs, cr, ci):
         q.add_argument("--store", help="calibration store folder (default: calibration_store/)")
+
+    f = sub.add_parser("find", help="list connected cameras: USB serial, vendor/product, /dev/video nodes, capture node",
+                       description="List USB cameras with their serial number, vendor and product, every /dev/video "
+                                   "node (UVC cameras usually have two: capture and metadata) and which one captures "
+                                   "(VIDIOC_QUERYCAP). The serial is what --source usb:SERIAL takes. docs/bringup.md")
+    f.add_argument("--json", action="store_true", help="one JSON object per camera")
+    f.add_argument("--all", action="store_true", help="every USB device, not only cameras")
+    f.set_defaults(func=cmd_find)
 
     from runtime.hand_cli import register_hand
 
@@ -191,3 +216,86 @@ def cmd_calib_rollback(args) -> int:
     print(f"{args.sensor}: active calibration is now {v}")
     return 0
 
+
+
+def cmd_calib_init(args) -> int:
+    from dataclasses import fields
+
+    from drivers.camera import camera_from_uri
+    from drivers.camera.camera import EndOfStream
+    from runtime.bringup import GelShape, init_calibration
+    from runtime.errors import CalibrationError, TensorTouchError
+    from runtime.model import find_package
+
+    store = _store(args)
+    if args.sensor in store.sensors() and not args.force:
+        raise CalibrationError(f"sensor {args.sensor} already has calibration {store.current(args.sensor)} in "
+                               f"{store.root}; use --force to add a nominal version on top")
+    gel = GelShape()
+    if args.gel:
+        try:
+            values = [float(v) for v in args.gel.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != 3 or min(values) < 0 or values[0] <= 0 or values[1] <= 0:
+            raise TensorTouchError(f"--gel {args.gel!r}: expected BASE,CAP,SKIRT in mm (e.g. 12,6,2)")
+        gel = GelShape(*values)
+    if not 0 < args.fov_deg <= 360:
+        raise TensorTouchError(f"--fov-deg {args.fov_deg}: expected a field of view in (0, 360]")
+    if args.rest_frames < 1:
+        raise TensorTouchError(f"--rest-frames {args.rest_frames}: expected at least 1")
+    package = find_package(args.model)
+    lens = LensModel(fov_deg=args.fov_deg, camera_z_mm=args.camera_z_mm)
+    frames = []
+    with camera_from_uri(args.source) as cam:
+        try:
+            for _ in range(args.rest_frames):
+                frames.append(cam.read().image)
+        except EndOfStream:
+            pass
+    if not frames:
+        raise TensorTouchError(f"--source {args.source}: no frames")
+    version, fit = init_calibration(store, args.sensor, frames, tuple(package.size), lens, gel,
+                                    provenance={"source": args.source, "model": package.name,
+                                                "gel_shape": {f.name: getattr(gel, f.name) for f in fields(gel)}})
+    print(f"{args.sensor}: gel centre ({fit.center[0]:.1f}, {fit.center[1]:.1f}) px, radius {fit.radius:.1f} px "
+          f"(rim rms {fit.rms_px:.2f} px on {fit.points} rays); nominal calibration {version} stored in {store.root}")
+    print(f"next: poke it with `tensortouch recalibrate --sensor {args.sensor} --geometry ...` (docs/bringup.md)")
+    return 0
+
+
+def format_camera(cam) -> str:
+    """One `tensortouch find` entry (drivers.usb.CameraInfo) as text."""
+    d = cam.device
+    label = f" ({d.name})" if d.name else ""
+    names = " ".join(x for x in (cam.manufacturer, cam.product) if x) or "?"
+    lines = [f"{d.serial or '(no readable serial)'}  {d.vid_pid}{label}  {names}  bus {d.bus:03d} address {d.address:03d}"]
+    for n in cam.nodes:
+        mark = "  <- capture node" if n.path == cam.capture_node else ""
+        lines.append(f"    {n.path}  {n.kind}{f'  {n.card}' if n.card else ''}{mark}")
+    if cam.stable_name:
+        lines.append(f"    {cam.stable_name}  (udev rule: drivers/udev/99-tensortouch.rules)")
+    if d.serial and cam.capture_node:
+        lines.append(f"    tensortouch run --source usb:{d.serial} --sensor {d.serial}")
+    elif cam.capture_node:
+        lines.append(f"    tensortouch run --source v4l2:{cam.capture_node} --sensor ID")
+    return "\n".join(lines)
+
+
+def cmd_find(args, backend=None, sysfs_root=None, dev_root=None, query=None) -> int:
+    import json
+
+    from drivers import usb
+
+    cams = usb.list_cameras(backend=backend, sysfs_root=sysfs_root or usb.SYSFS_ROOT,
+                            dev_root=dev_root or usb.DEV_ROOT, query=query, include_all=args.all)
+    if args.json:
+        for cam in cams:
+            print(json.dumps(cam.to_dict(), sort_keys=True))
+        return 0
+    if not cams:
+        print("no USB cameras found (is the sensor plugged in? in a container, are /dev and /sys mapped?)")
+        return 1
+    for cam in cams:
+        print(format_camera(cam))
+    return 0
