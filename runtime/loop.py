@@ -84,7 +84,11 @@ class SensorLoop:
         self._rejected: str | None = None    # the activated version refused at the last reload
 
     def stop(self) -> None:
+        """Ask the loop to end after the current frame; a replay waiting across a recorded gap ends its wait."""
         self._stop.set()
+        interrupt = getattr(self.camera, "interrupt", None)
+        if interrupt is not None:
+            interrupt()
 
     def info(self) -> dict:
         p = self.pipeline
