@@ -62,12 +62,31 @@ def main(argv: list[str] | None = None) -> int:
             print("note:", line, file=sys.stderr)
         return 0 if args.command is None else 2
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
     except TensorTouchError as exc:
         print(f"tensortouch {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    if getattr(args, "exit_without_finalizing", False):
+        _exit_now(code)
+    return code
+
+
+def _exit_now(code: int) -> None:
+    """End the process without interpreter finalization, for commands that already closed everything
+    they opened (sessions, devices, files) but whose native libraries may still run threads that call
+    back into Python: during finalization such a call aborts the process ("FATAL: exception not
+    rethrown", rc 134) instead of exiting with `code`."""
+    import os
+
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -75,4 +75,7 @@ def _serve(args, stop) -> int:
         print(f"  {name:<8} {s['sensor_id']:<16} {s['state']:<11} {s['frames']:6d} frames  "
               f"p50 {p50:6.2f} ms  p99 {p99:6.2f} ms  reconnects {s['reconnects']}  flags {s['flags']}",
               file=sys.stderr)
+    # fingers joined, publishers undeclared, Zenoh session and CAN closed: the `tensortouch` shell may
+    # end the process now, before Zenoh's and OpenCV's native threads meet interpreter finalization
+    args.exit_without_finalizing = True
     return 0
