@@ -116,6 +116,37 @@ def mcap_bytes(kind: str = "json", n: int = 3, stamps=None, wrench_nan: bool = F
     return buf.getvalue()
 
 
+def cdr_mcap_bytes(payloads) -> bytes:
+    """An MCAP file with a ROS 2 sensor_msgs/Image channel (cdr) carrying the given raw payloads."""
+    import io
+
+    from mcap.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    typ = "sensor_msgs/msg/Image"
+    buf = io.BytesIO()
+    w = Writer(buf)
+    w.start(profile="ros2")
+    sid = w.register_schema(typ, "ros2msg", ts.generate_msgdef(typ, ros_version=2)[0].encode())
+    ch = w.register_channel("/cam", "cdr", sid)
+    for i, data in enumerate(payloads):
+        w.add_message(ch, (i + 1) * 10**8, data, 0)
+    w.finish()
+    return buf.getvalue()
+
+
+def good_cdr_image() -> bytes:
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    t = ts.types
+    m = t["sensor_msgs/msg/Image"](header=t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](
+        sec=1, nanosec=0), frame_id="c"), height=4, width=4, encoding="bgr8", is_bigendian=0, step=12,
+        data=np.full(48, 7, np.uint8))
+    return bytes(ts.serialize_cdr(m, "sensor_msgs/msg/Image"))
+
+
 def ros1_bag_bytes(tmp: Path) -> bytes:
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -274,6 +305,9 @@ MAP = {"sensor_id": "IMP-1", "clock": "log", "frames": {"topic": "/cam"}}
     ("empty.mcap", lambda tmp: b"", "cannot read as a MCAP file"),
     ("random.mcap", lambda tmp: np.random.default_rng(1).bytes(4000), "cannot read as a MCAP file"),
     ("truncated.mcap", lambda tmp: mcap_bytes()[:300], "cannot read as a MCAP file"),
+    ("truncated-cdr.mcap", lambda tmp: cdr_mcap_bytes([good_cdr_image()[:30]] * 2), "cannot read as a MCAP file"),
+    ("random-cdr.mcap", lambda tmp: cdr_mcap_bytes([np.random.default_rng(4).bytes(80)]), "cannot read as a MCAP"),
+    ("wrong-type-cdr.mcap", lambda tmp: cdr_mcap_bytes([good_cdr_image()[:4] + b"\xff" * 60]), "cannot read as a MCAP"),
     ("empty.bag", lambda tmp: b"", "cannot read as a ROS bag"),
     ("random.bag", lambda tmp: np.random.default_rng(2).bytes(4000), "cannot read as a ROS bag"),
     ("truncated.bag", lambda tmp: ros1_bag_bytes(tmp)[:700], "cannot read as a ROS bag"),
