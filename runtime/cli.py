@@ -52,8 +52,17 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser, problems = build_parser()
-    args = parser.parse_args(argv)
+    held = _SignalHold()           # SIGTERM/SIGINT while the subcommands are imported: remembered
+    try:
+        parser, problems = build_parser()
+        args = parser.parse_args(argv)
+    finally:
+        pending = held.release()
+    if pending:
+        if getattr(args, "handles_stop_signals", False):
+            args.pending_signals = pending   # the command stops cleanly at once (tensortouch hand)
+        else:
+            return held.redeliver(pending[0])
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):
@@ -71,6 +80,41 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "exit_without_finalizing", False):
         _exit_now(code)
     return code
+
+
+class _SignalHold:
+    """Holds SIGTERM and SIGINT during start-up; `release()` restores the handlers and returns what came."""
+
+    SIGNALS = ("SIGTERM", "SIGINT")
+
+    def __init__(self):
+        import signal
+
+        self.pending: list[int] = []
+        self.previous = {}
+        try:
+            for name in self.SIGNALS:
+                sig = getattr(signal, name)
+                self.previous[sig] = signal.signal(sig, lambda n, frame: self.pending.append(n))
+        except ValueError:          # not the main thread (an embedding caller): leave signals alone
+            self.previous = {}
+
+    def release(self) -> list[int]:
+        import signal
+
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+        return list(self.pending)
+
+    @staticmethod
+    def redeliver(sig: int) -> int:
+        """What the signal would have done without the hold: SIGINT → exit 130, others → raised again."""
+        import signal
+
+        if sig == signal.SIGINT:
+            return 130
+        signal.raise_signal(sig)
+        return 128 + sig
 
 
 def _exit_now(code: int) -> None:

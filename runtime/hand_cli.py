@@ -17,7 +17,7 @@ def register_hand(sub) -> None:
     p.add_argument("--loop", action="store_true", help="replays: start over at the end")
     p.add_argument("--listen", action="append", help="Zenoh listen endpoint (overrides the config)")
     p.add_argument("--connect", action="append", help="Zenoh connect endpoint (overrides the config)")
-    p.set_defaults(func=cmd_hand)
+    p.set_defaults(func=cmd_hand, handles_stop_signals=True)
 
 
 def cmd_hand(args) -> int:
@@ -29,6 +29,8 @@ def cmd_hand(args) -> int:
 
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *a: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
+    if getattr(args, "pending_signals", None):     # came while `tensortouch` was still starting
+        stop.set()
     try:
         return _serve(args, stop)
     finally:
