@@ -155,32 +155,38 @@ def _check_meta(meta, where: str) -> None:
         raise CalibrationError(f"{where}: provenance must be an object")
 
 
-# Physical range of each table (finite everywhere): θ is a polar angle, φ an azimuth, mm and mm² bounded
-# by any plausible gel; normals are unit vectors (or zero off the gel).
+# Physical range of each table: θ is a polar angle, φ an azimuth, mm and mm² bounded by any plausible
+# gel; normals are unit vectors (or zero off the gel). θ and φ are checked on gel pixels only (off the
+# gel they mean nothing and may be NaN); the other tables everywhere.
 TABLE_RANGES = {"theta": (0.0, math.pi), "phi": (-2 * math.pi, 2 * math.pi), "surface_xyz": (-1000.0, 1000.0),
                 "normals": (-1.001, 1.001), "pixel_area": (0.0, 1000.0)}
+ON_GEL_ONLY = ("theta", "phi")
 
 
 def check_tables(arrays: dict[str, np.ndarray], where: str) -> None:
     """Every table finite and in TABLE_RANGES, normals of length <= 1, at least one gel pixel."""
+    mask = arrays["mask"]
+    if mask.dtype != bool and not (np.issubdtype(mask.dtype, np.integer) and np.isin(mask, (0, 1)).all()):
+        raise CalibrationError(f"{where}: table mask has dtype {mask.dtype}, expected bool")
+    mask = mask.astype(bool)
+    if not mask.any():
+        raise CalibrationError(f"{where}: table mask has no gel pixel")
     for key, (lo, hi) in TABLE_RANGES.items():
         a = arrays[key]
         if not np.issubdtype(a.dtype, np.floating) and not np.issubdtype(a.dtype, np.integer):
             raise CalibrationError(f"{where}: table {key} has dtype {a.dtype}, expected float32")
+        if key in ON_GEL_ONLY and a.shape == mask.shape:
+            a = a[mask]
         bad = ~np.isfinite(a)
         if bad.any():
-            raise CalibrationError(f"{where}: table {key} has {int(bad.sum())} non-finite value(s) (inf/NaN)")
+            on = " on the gel" if key in ON_GEL_ONLY else ""
+            raise CalibrationError(f"{where}: table {key} has {int(bad.sum())} non-finite value(s) (inf/NaN){on}")
         if a.size and (a.min() < lo or a.max() > hi):
             raise CalibrationError(f"{where}: table {key} spans [{float(a.min()):.6g}, {float(a.max()):.6g}], "
                                    f"expected within [{lo:.6g}, {hi:.6g}]")
     normals = arrays["normals"]
     if normals.size and np.linalg.norm(normals, axis=-1).max() > 1.001:
         raise CalibrationError(f"{where}: table normals has vectors longer than 1")
-    mask = arrays["mask"]
-    if mask.dtype != bool and not (np.issubdtype(mask.dtype, np.integer) and np.isin(mask, (0, 1)).all()):
-        raise CalibrationError(f"{where}: table mask has dtype {mask.dtype}, expected bool")
-    if not mask.any():
-        raise CalibrationError(f"{where}: table mask has no gel pixel")
 
 
 def _fsync_dir(path: Path) -> None:

@@ -188,13 +188,16 @@ def test_table_symlink_out_of_the_store_is_refused(store, tmp_path):
     ("pixel_area", np.nan, "pixel_area has 1 non-finite"),
     ("pixel_area", -1.0, "pixel_area spans"),
     ("theta", 7.0, "theta spans"),
-    ("surface_xyz", np.nan, "surface_xyz has 1 non-finite"),
+    ("theta", np.nan, r"theta has 1 non-finite value.*on the gel"),
+    ("phi", np.inf, "phi has 1 non-finite"),
+    ("surface_xyz", np.nan, "surface_xyz has 3 non-finite"),
     ("normals", 3.0, "normals spans"),
 ])
 def test_non_finite_or_out_of_range_tables_are_refused_at_write_and_load(store, table, value, match):
     cal = store.load(SENSOR)
     tables = {k: getattr(cal, k).copy() for k in rc.TABLES}
-    tables[table].reshape(-1)[5] = value
+    assert cal.mask[8, 8]
+    tables[table][8, 8] = value                                   # a pixel on the gel
     meta = {k: cal.meta[k] for k in ("gel_center_px", "gel_radius_px", "model_size")}
     with pytest.raises(CalibrationError, match=match):
         store.write(SENSOR, tables, meta)
@@ -205,6 +208,18 @@ def test_non_finite_or_out_of_range_tables_are_refused_at_write_and_load(store, 
     _rewrite_meta(store, lambda m: {**m, "files": {**m["files"], f"{table}.npy": rc.sha256_file(vdir / f"{table}.npy")}})
     with pytest.raises(CalibrationError, match=match):
         store.load(SENSOR)
+
+
+def test_theta_phi_off_the_gel_may_be_nan(store):
+    cal = store.load(SENSOR)
+    tables = {k: getattr(cal, k).copy() for k in rc.TABLES}
+    tables["theta"][~cal.mask] = np.nan
+    tables["phi"][~cal.mask] = np.nan
+    v = store.write(SENSOR, tables, {k: cal.meta[k] for k in ("gel_center_px", "gel_radius_px", "model_size")})
+    assert np.isnan(store.load(SENSOR, v).theta[~cal.mask]).all()
+    tables["pixel_area"][~cal.mask] = np.nan                      # the other tables: finite everywhere
+    with pytest.raises(CalibrationError, match="pixel_area has"):
+        store.write(SENSOR, tables, {k: cal.meta[k] for k in ("gel_center_px", "gel_radius_px", "model_size")})
 
 
 def test_write_error_message_says_what_happened(store, monkeypatch):
