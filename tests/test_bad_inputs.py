@@ -250,6 +250,16 @@ def test_session_bad_inputs(tmp_path):
     raises_one_line(load_session, s, match="frames.csv")
 
 
+def test_hand_config_not_utf8(tmp_path):
+    from runtime.hand_config import load_hand_config
+
+    cfg = tmp_path / "hand.toml"
+    cfg.write_bytes(b'[hand]\nname = "h\xff"\n')
+    raises_one_line(load_hand_config, cfg, match="hand.toml: not UTF-8")
+    cfg.write_text('[hand\nname = "h"\n')
+    raises_one_line(load_hand_config, cfg, match="not valid TOML")
+
+
 def test_avi_of_nested_list_chunks(tmp_path):
     s = tiny_session(tmp_path / "s")
     meta = json.loads((s / "session.json").read_text())

@@ -111,9 +111,15 @@ def _stops(rig, n, delays, marker=None):
         if marker:
             assert proc.wait_for(marker), proc.err[-2000:]
         time.sleep(delays[i % len(delays)])
-        rc, took = proc.stop(signal.SIGTERM if i % 2 == 0 else signal.SIGINT)
+        sig = signal.SIGTERM if i % 2 == 0 else signal.SIGINT
+        started = any("tensortouch hand" in line or "INFO" in line for _, line in proc.lines)
+        rc, took = proc.stop(sig)
         results.append((rc, took))
-        assert rc == 0 and "FATAL" not in proc.err and "Traceback" not in proc.err, (i, rc, proc.err[-3000:])
+        assert "FATAL" not in proc.err and rc not in (-6, 134, 1), (i, rc, proc.err[-3000:])
+        if started or rc == 0:       # the command was running: a clean stop, nothing else
+            assert rc == 0 and "Traceback" not in proc.err, (i, rc, proc.err[-3000:])
+        else:                        # still in Python's own start-up: the signal's default (docs/runtime.md)
+            assert rc == -sig, (i, rc, proc.err[-3000:])
     return results
 
 
