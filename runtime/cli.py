@@ -48,10 +48,19 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser, problems = build_parser()
+    held = _SignalHold()           # SIGTERM/SIGINT while the subcommands are imported: remembered
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(argv)
+    try:
+        parser, problems = build_parser()
+        args = parser.parse_args(argv)
+    finally:
+        pending = held.release()
     args.command_line = shlex.join(["tensortouch", *argv])    # what a manifest records as "the command"
+    if pending:
+        if getattr(args, "handles_stop_signals", False):
+            args.pending_signals = pending   # the command stops cleanly at once (tensortouch hand)
+        else:
+            return held.redeliver(pending[0])
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):
@@ -60,12 +69,66 @@ def main(argv: list[str] | None = None) -> int:
             print("note:", line, file=sys.stderr)
         return 0 if args.command is None else 2
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
     except TensorTouchError as exc:
         print(f"tensortouch {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    if getattr(args, "exit_without_finalizing", False):
+        _exit_now(code)
+    return code
+
+
+class _SignalHold:
+    """Holds SIGTERM and SIGINT during start-up; `release()` restores the handlers and returns what came."""
+
+    SIGNALS = ("SIGTERM", "SIGINT")
+
+    def __init__(self):
+        import signal
+
+        self.pending: list[int] = []
+        self.previous = {}
+        try:
+            for name in self.SIGNALS:
+                sig = getattr(signal, name)
+                self.previous[sig] = signal.signal(sig, lambda n, frame: self.pending.append(n))
+        except ValueError:          # not the main thread (an embedding caller): leave signals alone
+            self.previous = {}
+
+    def release(self) -> list[int]:
+        import signal
+
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+        return list(self.pending)
+
+    @staticmethod
+    def redeliver(sig: int) -> int:
+        """What the signal would have done without the hold: SIGINT → exit 130, others → raised again."""
+        import signal
+
+        if sig == signal.SIGINT:
+            return 130
+        signal.raise_signal(sig)
+        return 128 + sig
+
+
+def _exit_now(code: int) -> None:
+    """End the process without interpreter finalization, for commands that already closed everything
+    they opened (sessions, devices, files) but whose native libraries may still run threads that call
+    back into Python: during finalization such a call aborts the process ("FATAL: exception not
+    rethrown", rc 134) instead of exiting with `code`."""
+    import os
+
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -220,7 +220,9 @@ def load_hand_config(path: str | Path) -> HandConfig:
     if not path.is_file():
         raise HandConfigError(f"{path}: hand config file not found")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise HandConfigError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start}); expected TOML") from None
     except tomllib.TOMLDecodeError as exc:
         raise HandConfigError(f"{path}: not valid TOML ({exc})") from None
     return parse_hand_config(data, str(path), path.parent)

@@ -22,6 +22,8 @@ from runtime.pipeline import FrameResult, SensorPipeline
 
 log = logging.getLogger(__name__)
 
+FRAME_FLAGS = frozenset({"frame_black", "camera_frozen", "model_output_invalid"})  # re-judged every frame
+
 
 @dataclass(frozen=True)
 class LoopConfig:
@@ -82,9 +84,14 @@ class SensorLoop:
         self.frames = 0
         self.flags: set[str] = set()
         self._field_frames = 0
+        self._rejected: str | None = None    # the activated version refused at the last reload
 
     def stop(self) -> None:
+        """Ask the loop to end after the current frame; a replay waiting across a recorded gap ends its wait."""
         self._stop.set()
+        interrupt = getattr(self.camera, "interrupt", None)
+        if interrupt is not None:
+            interrupt()
 
     def info(self) -> dict:
         p = self.pipeline
@@ -139,7 +146,7 @@ class SensorLoop:
             now = time.monotonic()
             if now - fps_t0 >= 1.0:
                 fps, fps_t0, fps_n = fps_n / (now - fps_t0), now, 0
-            self.flags = (self.flags - {"frame_black", "camera_frozen"}) | set(result.flags)
+            self.flags = (self.flags - FRAME_FLAGS) | set(result.flags)
             if self.on_result:
                 self.on_result(result)
             if now - last_status >= self.cfg.status_every_s:
@@ -183,15 +190,24 @@ class SensorLoop:
             out.publish_status(dict(status), seq=p.seq, t=result.t if result else None)
 
     def _maybe_reload(self) -> None:
+        """Load a newly activated version; one that fails (pointer, hashes, types, non-finite or out-of-range
+        tables, model size) is refused: the running version stays and `calibration_invalid` is raised
+        until CURRENT names a good version again."""
         sid = self.pipeline.sensor_id
+        current = None
         try:
             current = self.store.current(sid)
-            if current != self.pipeline.cal.version:
+            if current == self.pipeline.cal.version:
+                self.flags.discard("calibration_invalid")
+                self._rejected = None
+            elif current != self._rejected:
                 cal = self.store.load(sid, current)
                 self.pipeline.set_calibration(cal)
                 self.flags.discard("calibration_invalid")
+                self._rejected = None
                 log.info("%s: calibration %s loaded without restart", sid, current)
-        except TensorTouchError as exc:
-            if "calibration_invalid" not in self.flags:
-                log.error("%s: new calibration rejected, keeping %s: %s", sid, self.pipeline.cal.version, exc)
+        except (TensorTouchError, OSError, ValueError) as exc:
+            self._rejected = current
+            log.error("%s: calibration %s refused, keeping %s: %s", sid, current or "(unreadable CURRENT)",
+                      self.pipeline.cal.version, exc)
             self.flags.add("calibration_invalid")

@@ -82,6 +82,25 @@ def _fail(where, msg):
     raise ModelPackageError(f"{where}: {msg}")
 
 
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _check_runtime(rt, mpath) -> None:
+    """The manifest's optional `runtime` section: every contact_* setting null or a finite number >= 0
+    (the threshold > 0)."""
+    if rt is None:
+        return
+    if not isinstance(rt, dict):
+        _fail(mpath, f"runtime must be an object, got {type(rt).__name__}")
+    for key, v in rt.items():
+        if not key.startswith("contact_") or v is None:
+            continue
+        if not _number(v) or v < 0 or (key == "contact_threshold_n" and v == 0):
+            need = "> 0" if key == "contact_threshold_n" else ">= 0"
+            _fail(mpath, f"runtime.{key} is {v!r}, expected null or a finite number {need}")
+
+
 def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage:
     """Read and check a model package folder (manifest, hashes, channel contract)."""
     folder = Path(folder)
@@ -91,9 +110,13 @@ def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage
     if not mpath.is_file():
         _fail(mpath, "missing (every model package has a manifest.json)")
     try:
-        m = json.loads(mpath.read_text())
-    except json.JSONDecodeError as exc:
-        _fail(mpath, f"not valid JSON ({exc})")
+        m = json.loads(mpath.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        _fail(mpath, f"not UTF-8 text ({exc.reason} at byte {exc.start}); expected a JSON object")
+    except (json.JSONDecodeError, RecursionError) as exc:
+        _fail(mpath, f"not valid JSON ({str(exc)[:200]})")
+    if not isinstance(m, dict):
+        _fail(mpath, f"expected a JSON object, got {type(m).__name__}")
     if m.get("schema") != SCHEMA:
         _fail(mpath, f"schema is {m.get('schema')!r}, expected {SCHEMA!r}")
     if not isinstance(m.get("schema_version"), int) or m["schema_version"] > SCHEMA_VERSION:
@@ -104,17 +127,27 @@ def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage
     size = m["input"].get("size")
     if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
         _fail(mpath, f"input.size is {size!r}, expected [H, W] positive integers")
-    if len(m["input"].get("channels", [])) != 6:
+    channels = m["input"].get("channels", [])
+    if not isinstance(channels, list) or len(channels) != 6:
         _fail(mpath, "input.channels must list 6 channels (baseline RGB + current RGB)")
     out = m["output"]
-    if tuple(out.get("channels", ())) != CHANNELS:
+    if not isinstance(out.get("channels"), list) or tuple(out["channels"]) != CHANNELS:
         _fail(mpath, f"output.channels must be the 15 channels of docs/fields.md in order {list(CHANNELS)}")
-    bounds = out.get("bounds", {})
+    bounds = out.get("bounds")
+    if not isinstance(bounds, dict):
+        _fail(mpath, "output.bounds must be an object {channel: [lo, hi]}")
     for c in CHANNELS:
         b = bounds.get(c)
-        if not (isinstance(b, list) and len(b) == 2 and all(np.isfinite(b)) and b[0] <= b[1]):
+        if not (isinstance(b, list) and len(b) == 2 and all(_number(v) for v in b) and b[0] <= b[1]):
             _fail(mpath, f"output.bounds.{c} is {b!r}, expected [lo, hi] finite with lo <= hi")
+    _check_runtime(m.get("runtime"), mpath)
+    if not m["files"]:
+        _fail(mpath, "files is empty: every model file must be listed with its sha256")
     for name, info in m["files"].items():
+        if not (isinstance(info, dict) and isinstance(info.get("sha256"), str)):
+            _fail(mpath, f"files.{name} must be an object with a \"sha256\" string")
+        if Path(name).name != name or name in (".", ".."):
+            _fail(mpath, f"files: {name!r} must be a file name inside the package folder")
         path = folder / name
         if not path.is_file():
             if info.get("optional"):
@@ -169,6 +202,8 @@ class FieldModel:
         self._check_shape(path, "output", outputs[0].shape, [N_CHANNELS, h, w])
         self.input_name = inputs[0].name
         self.output_name = outputs[0].name
+        if not all(isinstance(d, int) for d in [*inputs[0].shape[1:], *outputs[0].shape[1:]]):
+            self._probe(path, h, w)     # symbolic dims: the real shapes show only when it runs
         lo, hi = package.bounds()
         self.lo = lo[:, None, None]
         self.span = (hi - lo)[:, None, None]
@@ -180,6 +215,17 @@ class FieldModel:
         for got, want, axis in zip(shape[1:], expect, ("C", "H", "W")):
             if isinstance(got, int) and got != want:
                 _fail(path, f"{what} {axis} = {got}, manifest says {want} (shape {list(shape)})")
+
+    def _probe(self, path, h: int, w: int) -> None:
+        """One inference on a blank input: the output must be (1, 15, H, W) as the manifest says."""
+        try:
+            y = self.session.run([self.output_name], {self.input_name: np.zeros((1, 6, h, w), np.float32)})[0]
+        except Exception as exc:  # noqa: BLE001 - onnxruntime's own exception types
+            _fail(path, f"does not run on a (1, 6, {h}, {w}) input ({type(exc).__name__}: "
+                        f"{str(exc).splitlines()[0][:200] if str(exc) else ''})")
+        if tuple(y.shape) != (1, N_CHANNELS, h, w):
+            _fail(path, f"output shape {list(y.shape)} for a (1, 6, {h}, {w}) input, expected "
+                        f"[1, {N_CHANNELS}, {h}, {w}] (manifest input.size {h}x{w})")
 
     def run_normalized(self, x: np.ndarray) -> np.ndarray:
         """x: (6, H, W) or (N, 6, H, W) float32 in [0, 1] → raw network output (N, 15, H, W)."""

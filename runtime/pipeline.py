@@ -171,11 +171,12 @@ class SensorPipeline:
                 f"{list(calibration.model_size)} does not match model {self.model.package.name} "
                 f"input size {list(self.model.package.size)}")
         previous = getattr(self, "cal", None)
-        self.cal = calibration
-        self.correction = correction if correction is not None else ForceCorrection.from_calibration(calibration)
+        # build everything that can fail before swapping anything: a refused version leaves the old one whole
+        correction = correction if correction is not None else ForceCorrection.from_calibration(calibration)
+        effects = EffectStage(calibration)
         temperature = self.effects.temperature if previous is not None else None
         max_depth = self.effects.max_depth if previous is not None else 0.0   # the gel's memory stays
-        self.effects = EffectStage(calibration)
+        self.cal, self.correction, self.effects = calibration, correction, effects
         self.effects.temperature, self.effects.max_depth = temperature, max_depth
         if previous is not None and _same_geometry(previous, calibration):
             return  # only correction/effects changed: keep the baseline and the contact ids
@@ -211,6 +212,10 @@ class SensorPipeline:
             return NetworkPass(self.seq, t, None, [], step.state.name, flags, timings, band)
         x = np.concatenate([step.baseline, img], axis=0)
         fields = self.model(x)
+        finite = np.isfinite(fields)
+        if not finite.all():                             # NaN/inf from the model: flagged, read as zero
+            flags.append("model_output_invalid")
+            fields = np.where(finite, fields, 0.0).astype(fields.dtype)
         t3 = time.perf_counter()
         timings["inference"] = (t3 - t2) * 1e3
         cal = self.cal

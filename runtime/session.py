@@ -97,19 +97,30 @@ def read_table(path: Path, columns: list[str]) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise SessionError(f"{path}: stream file missing (expected columns {','.join(columns)})")
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header != columns:
-            raise SessionError(f"{path}: header {header} does not match expected {columns}")
-        rows = []
-        for lineno, row in enumerate(reader, start=2):
-            if len(row) != len(columns):
-                raise SessionError(f"{path}:{lineno}: {len(row)} values, expected {len(columns)} (truncated file?)")
-            try:
-                rows.append([float(v) for v in row])
-            except ValueError:
-                raise SessionError(f"{path}:{lineno}: non-numeric value in {row}") from None
+    lineno = 1
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header != columns:
+                raise SessionError(f"{path}: header {str(header)[:200]} does not match expected {columns}")
+            rows = []
+            for lineno, row in enumerate(reader, start=2):
+                if len(row) != len(columns):
+                    raise SessionError(f"{path}:{lineno}: {len(row)} values, expected {len(columns)} "
+                                       f"(truncated file?)")
+                try:
+                    rows.append([float(v) for v in row])
+                except ValueError:
+                    raise SessionError(f"{path}:{lineno}: non-numeric value in {str(row)[:200]}") from None
+    except UnicodeDecodeError as exc:
+        raise SessionError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start}); expected CSV with "
+                           f"columns {','.join(columns)}") from None
+    except csv.Error as exc:
+        raise SessionError(f"{path}:{lineno + 1}: not readable as CSV ({exc}); expected numbers in columns "
+                           f"{','.join(columns)}") from None
+    except OSError as exc:
+        raise SessionError(f"{path}: cannot read ({exc.strerror or exc})") from None
     data = np.asarray(rows, dtype=np.float64).reshape(-1, len(columns))
     return data
 
@@ -149,6 +160,8 @@ def write_table(path: Path, columns: list[str], data: np.ndarray) -> None:
 
 def validate_manifest(manifest: dict, where: str = "session.json") -> None:
     """Raise SessionError naming the first field that breaks the contract."""
+    if not isinstance(manifest, dict):
+        raise SessionError(f"{where}: expected a JSON object, got {type(manifest).__name__}")
     if manifest.get("schema") != SCHEMA:
         raise SessionError(f"{where}: schema is {manifest.get('schema')!r}, expected {SCHEMA!r}")
     version = manifest.get("schema_version")
@@ -169,6 +182,23 @@ def validate_manifest(manifest: dict, where: str = "session.json") -> None:
     unknown = set(streams) - set(STREAM_COLUMNS)
     if unknown:
         raise SessionError(f"{where}: unknown streams {sorted(unknown)} (known: {sorted(STREAM_COLUMNS)})")
+    for name, info in streams.items():
+        if not isinstance(info, dict):
+            raise SessionError(f"{where}: streams.{name} must be an object such as {{\"file\": \"{name}.csv\"}}")
+        for key in ("file", "video", "images"):
+            if key in info and not (isinstance(info[key], str) and _plain_name(info[key])):
+                raise SessionError(f"{where}: streams.{name}.{key} is {info[key]!r}, expected a file name "
+                                   f"inside the session folder")
+        for key in ("rows", "bytes"):
+            if info.get(key) is not None and (not isinstance(info[key], int) or isinstance(info[key], bool)
+                                              or info[key] < 0):
+                raise SessionError(f"{where}: streams.{name}.{key} is {info[key]!r}, expected a count >= 0")
+
+
+def _plain_name(name: str) -> bool:
+    """A relative path inside the session folder (no absolute path, no '..')."""
+    p = Path(name)
+    return bool(name) and not p.is_absolute() and ".." not in p.parts and "\x00" not in name
 
 
 def _check_clock(name: str, t: np.ndarray, per_indenter: np.ndarray | None, where: Path) -> None:
@@ -186,23 +216,22 @@ def avi_frame_count(path: Path) -> int:
     size = path.stat().st_size
     count = 0
     with open(path, "rb") as fh:
-        def walk(start: int, end: int, in_movi: bool) -> None:
-            nonlocal count
-            pos = start
-            while pos + 8 <= end:
-                fh.seek(pos)
-                head = fh.read(12)
-                if len(head) < 8:
-                    return
-                cid, clen = head[:4], struct.unpack("<I", head[4:8])[0]
-                body_end = pos + 8 + clen
-                if cid in (b"RIFF", b"LIST"):
-                    walk(pos + 12, min(body_end, end), head[8:12] == b"movi" or in_movi)
-                elif in_movi and cid[2:4] in (b"dc", b"db") and body_end <= size:
-                    count += 1
-                pos = body_end + (clen & 1)
-
-        walk(0, size, False)
+        stack = [(0, size, False)]            # (position, end, inside 'movi') of each open list
+        while stack:
+            pos, end, in_movi = stack.pop()
+            if pos + 8 > end:
+                continue
+            fh.seek(pos)
+            head = fh.read(12)
+            if len(head) < 8:
+                continue
+            cid, clen = head[:4], struct.unpack("<I", head[4:8])[0]
+            body_end = pos + 8 + clen
+            stack.append((body_end + (clen & 1), end, in_movi))          # the next sibling, after the children
+            if cid in (b"RIFF", b"LIST"):
+                stack.append((pos + 12, min(body_end, end), head[8:12] == b"movi" or in_movi))
+            elif in_movi and cid[2:4] in (b"dc", b"db") and body_end <= size:
+                count += 1
     return count
 
 
@@ -254,9 +283,12 @@ def load_session(path: str | Path, check_frames: bool = True) -> Session:
     if not manifest_path.is_file():
         raise SessionError(f"{path}: not a session (no session.json)")
     try:
-        manifest = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise SessionError(f"{manifest_path}: not valid JSON ({exc})") from None
+        manifest = json.loads(manifest_path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SessionError(f"{manifest_path}: not UTF-8 text ({exc.reason} at byte {exc.start}); "
+                           f"expected a JSON object") from None
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise SessionError(f"{manifest_path}: not valid JSON ({str(exc)[:200]})") from None
     validate_manifest(manifest, str(manifest_path))
     session = Session(path, manifest)
     for name in session.streams:

@@ -31,9 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def snapshot(root: Path) -> dict:
-    """Every file under the sensor folder → sha256 (CURRENT included)."""
+    """Every file under the sensor folder → sha256 (CURRENT included; not the writers' lock file)."""
     return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file()}
+            for p in sorted(root.rglob("*")) if p.is_file() and p.name != ".lock"}
 
 
 def committed(root: Path) -> dict:

@@ -33,6 +33,33 @@ MODELS = {  # name -> (parameter names, initial guess, lower bounds)
 }
 
 
+# spellings people write for each model and test mode (compared case-insensitively, '-'/' ' read as '_')
+MODEL_ALIASES = {"yeoh": "yeoh", "neo_hookean": "neo_hookean", "neohookean": "neo_hookean", "nh": "neo_hookean",
+                 "neo_hooke": "neo_hookean", "mooney_rivlin": "mooney_rivlin", "mooneyrivlin": "mooney_rivlin",
+                 "mr": "mooney_rivlin", "ogden": "ogden", "ogden2": "ogden", "ogden_2": "ogden"}
+MODE_ALIASES = {"uniaxial": "uniaxial", "uni": "uniaxial", "uniaxial_tension": "uniaxial",
+                "biaxial": "biaxial", "equibiaxial": "biaxial", "equi_biaxial": "biaxial", "bi": "biaxial",
+                "equibiaxial_tension": "biaxial", "biaxial_tension": "biaxial"}
+
+
+def _key(text: str) -> str:
+    return "_".join(str(text).strip().lower().replace("-", " ").split())
+
+
+def model_name(text: str) -> str:
+    """The MODELS name for a spelling such as 'Yeoh', 'neo-Hookean', 'MR' or 'Ogden'; FEError otherwise."""
+    name = MODEL_ALIASES.get(_key(text))
+    if name is None:
+        raise FEError(f"--models: unknown material model {text!r}; expected one of yeoh, neo_hookean (nh), "
+                      f"mooney_rivlin (mr), ogden (2-term)")
+    return name
+
+
+def mode_name(text: str) -> str | None:
+    """'uniaxial' or 'biaxial' for a test-mode spelling (equibiaxial, equi-biaxial, ...); None if unknown."""
+    return MODE_ALIASES.get(_key(text))
+
+
 @dataclass
 class TestData:
     mode: np.ndarray     # (n,) "uniaxial" | "biaxial"
@@ -112,6 +139,9 @@ def hysteresis_width(data: TestData) -> float:
 
 
 def fit_report(data: TestData, models=("yeoh", "neo_hookean", "mooney_rivlin", "ogden"), plot=None) -> dict:
+    models = list(dict.fromkeys(model_name(m) for m in models if str(m).strip()))
+    if not models:
+        raise FEError("--models: no model named; expected e.g. yeoh,neo_hookean,mooney_rivlin,ogden")
     fits = [fit_model(m, data) for m in models]
     loop = hysteresis_width(data)
     lines = [f"{'model':14s} {'R2':>8s} {'RMSE MPa':>10s} {'uni':>9s} {'biax':>9s} {'stable':>6s}  params",
@@ -153,18 +183,31 @@ def load_test_data(path) -> TestData:
     path = Path(path)
     if not path.is_file():
         raise FEError(f"{path}: material test data not found")
-    rows = list(csv.DictReader(path.open()))
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except UnicodeDecodeError as exc:
+        raise FEError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start}); expected CSV columns "
+                      f"mode,stretch,stress_MPa") from None
+    except csv.Error as exc:
+        raise FEError(f"{path}: not readable as CSV ({exc})") from None
     need = {"mode", "stretch", "stress_MPa"}
     if not rows or not need <= set(rows[0]):
         raise FEError(f"{path}: expected CSV columns {sorted(need)} (+ optional branch), got "
-                      f"{sorted(rows[0]) if rows else 'no rows'}")
-    mode = np.array([r["mode"].strip() for r in rows])
-    bad = set(mode) - {"uniaxial", "biaxial"}
+                      f"{sorted(k for k in rows[0] if k is not None) if rows else 'no rows'}")
+    modes = [mode_name(r["mode"] or "") for r in rows]
+    bad = sorted({str(r["mode"]) for r, m in zip(rows, modes) if m is None})
     if bad:
-        raise FEError(f"{path}: column mode: expected uniaxial|biaxial, got {sorted(bad)}")
-    stretch = np.array([float(r["stretch"]) for r in rows])
-    branch = np.array([float(r.get("branch") or 1) for r in rows])
-    return TestData(mode, stretch, np.array([float(r["stress_MPa"]) for r in rows]), branch)
+        raise FEError(f"{path}: column mode: expected uniaxial|biaxial (or equibiaxial), got {bad[:5]}")
+    values = {}
+    for col in ("stretch", "stress_MPa", "branch"):
+        try:
+            values[col] = np.array([float(r.get(col) or 1) if col == "branch" else float(r[col]) for r in rows])
+        except (TypeError, ValueError):
+            raise FEError(f"{path}: column {col}: expected numbers") from None
+        if not np.isfinite(values[col]).all():
+            raise FEError(f"{path}: column {col}: expected finite numbers")
+    return TestData(np.array(modes), values["stretch"], values["stress_MPa"], values["branch"])
 
 
 def synthetic_test_data(C=(0.03, 0.002, 0.0002), cycles=3, max_strain=0.5, loop=0.03,

@@ -146,10 +146,17 @@ def cmd_recalibrate(args, say=None) -> int:
     from runtime.pipeline import open_pipeline
     from runtime.session import load_session
     from tools.recalib.pokes import PokeRules
-    from tools.recalib.session import SessionConfig, analyse, run_guided, session_truth_xyz
+    from tools.recalib.session import (
+        SessionConfig,
+        analyse,
+        run_guided,
+        session_truth_xyz,
+    )
     from tools.recalib.store_ops import store_recalibration
 
     say = say or (lambda msg: print(msg, file=sys.stderr))
+    if args.report:
+        _check_report_path(args.report)        # before anything is stored
     store = CalibrationStore(args.store) if args.store else CalibrationStore()
     cal = stored = store.load(args.sensor)
     package = find_package(args.model)
@@ -226,9 +233,57 @@ def cmd_recalibrate(args, say=None) -> int:
             f"(was {stored.version}); undo with: tensortouch calib rollback {args.sensor}")
         code = 1
     if args.report:
-        with open(args.report, "w") as fh:
-            json.dump(report, fh, indent=2, default=float)
+        try:
+            _write_report(args.report, report)
+        except OSError as exc:
+            stored = report.get("stored_version")
+            what = (f"{args.sensor}/{stored} was stored and is active (was {cal.version}; undo with: "
+                    f"tensortouch calib rollback {args.sensor})" if stored and store.current(args.sensor) == stored
+                    else f"{args.sensor}/{stored} was stored" if stored
+                    else f"nothing was stored, the active calibration is still {store.current(args.sensor)}")
+            raise TensorTouchError(f"--report {args.report}: cannot write the report ({exc.strerror or exc}); "
+                                   f"{what}") from None
     return code
+
+
+def _check_report_path(path: str) -> None:
+    """--report must name a file in an existing, writable folder: checked before anything is stored."""
+    import os
+    from pathlib import Path
+
+    from runtime.errors import TensorTouchError
+
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        raise TensorTouchError(f"--report {path}: is a folder, expected a file name; nothing was stored")
+    if not folder.is_dir():
+        raise TensorTouchError(f"--report {path}: folder {folder} does not exist; nothing was stored")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise TensorTouchError(f"--report {path}: folder {folder} is not writable; nothing was stored")
+
+
+def _write_report(path: str, report: dict) -> None:
+    """The report as JSON, written to a temp file beside `path`, fsynced and renamed into place."""
+    import os
+    import tempfile
+    from pathlib import Path
+
+    text = json.dumps(report, indent=2, default=float)
+    p = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=p.parent if str(p.parent) else ".", prefix=f".tmp-{p.name}.")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, p)
+    except OSError:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
 
 
 if __name__ == "__main__":

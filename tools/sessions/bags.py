@@ -42,6 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from runtime.errors import SessionError
+from runtime.session import load_session
 from runtime.units import accepted, to_house
 from tools.sessions.writer import SessionWriter
 
@@ -70,15 +71,21 @@ class TopicMap:
             p = Path(path_or_dict)
             where = str(p)
             try:
-                data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
-            except (OSError, ValueError) as exc:
-                raise SessionError(f"{p}: cannot read topic map ({exc})") from None
+                text = p.read_bytes().decode("utf-8")
+                data = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
+            except UnicodeDecodeError as exc:
+                raise SessionError(f"{p}: topic map is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+            except (OSError, ValueError, RecursionError) as exc:
+                raise SessionError(f"{p}: cannot read topic map ({str(exc)[:200]})") from None
+        if not isinstance(data, dict):
+            raise SessionError(f"{where}: expected a table/object of keys, got {type(data).__name__}")
         known = set(cls.__dataclass_fields__)
         unknown = set(data) - known
         if unknown:
             raise SessionError(f"{where}: unknown keys {sorted(unknown)} (known: {sorted(known)})")
-        if "sensor_id" not in data or "frames" not in data or "topic" not in data["frames"]:
+        if "sensor_id" not in data or not isinstance(data.get("frames"), dict) or "topic" not in data["frames"]:
             raise SessionError(f"{where}: needs sensor_id and frames.topic")
+        _check_map_types(data, where)
         m = cls(**data)
         if m.clock not in ("header", "log"):
             raise SessionError(f"{where}: clock must be 'header' or 'log', got {m.clock!r}")
@@ -88,6 +95,7 @@ class TopicMap:
         return m
 
     def topics(self) -> dict[str, tuple]:
+        """topic → (stream, indenter id); a topic mapped twice is an error."""
         out = {self.frames["topic"]: ("frames", None)}
         for p in self.poses:
             out[p["topic"]] = ("poses", int(p["indenter"]))
@@ -98,6 +106,51 @@ class TopicMap:
         if self.temperature:
             out[self.temperature["topic"]] = ("temperature", None)
         return out
+
+
+def _check_map_types(data: dict, where: str) -> None:
+    """Types of every topic-map field, each error naming the field and what was expected."""
+    def fail(field_, want):
+        raise SessionError(f"{where}: {field_} must be {want}")
+
+    def topic_entry(entry, name, indenter):
+        if not isinstance(entry, dict):
+            fail(name, "a table/object with a topic")
+        if not isinstance(entry.get("topic"), str) or not entry["topic"]:
+            fail(f"{name}.topic", "a topic name string")
+        if indenter:
+            ind = entry.get("indenter")
+            if ind is None:
+                fail(f"{name}.indenter", "given (the indenter id, an integer >= 0)")
+            if not isinstance(ind, int) or isinstance(ind, bool) or ind < 0:
+                fail(f"{name}.indenter", f"an integer >= 0, not {ind!r}")
+        if "base_topic" in entry and entry["base_topic"] is not None and not isinstance(entry["base_topic"], str):
+            fail(f"{name}.base_topic", "a topic name string")
+
+    if not isinstance(data["sensor_id"], str) or not data["sensor_id"]:
+        fail("sensor_id", "a non-empty string")
+    topic_entry(data["frames"], "frames", False)
+    for kind in ("poses", "wrench"):
+        entries = data.get(kind, [])
+        if not isinstance(entries, list):
+            fail(kind, "a list of tables ([[poses]] in TOML) with topic and indenter")
+        for i, e in enumerate(entries):
+            topic_entry(e, f"{kind}[{i}]", True)
+    if data.get("temperature") is not None:
+        topic_entry(data["temperature"], "temperature", False)
+    for key in ("clock", "frames_format"):
+        if key in data and not isinstance(data[key], str):
+            fail(key, "a string")
+    units = data.get("units", {})
+    if not isinstance(units, dict) or not all(isinstance(v, str) for v in units.values()):
+        fail("units", "a table of unit strings, e.g. {length = \"m\"}")
+    ft = data.get("ft_to_indenter")
+    if ft is not None:
+        nums = lambda v, n: (isinstance(v, list) and len(v) == n
+                             and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
+                                     for x in v))
+        if not isinstance(ft, dict) or not nums(ft.get("rotation_wxyz"), 4) or not nums(ft.get("translation_mm"), 3):
+            fail("ft_to_indenter", "rotation_wxyz (4 numbers) and translation_mm (3 numbers)")
 
 
 def _stamp(msg, log_ns: int, clock: str) -> float:
@@ -203,6 +256,30 @@ def convert(bag: str | Path, mapping: TopicMap, out: str | Path) -> Path:
     if not bag.exists():
         raise SessionError(f"{bag}: bag not found")
     topics = mapping.topics()
+    out = Path(out)
+    try:
+        _convert(bag, mapping, topics, out)
+    except SessionError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - bag/MCAP/CDR decoders raise their own types on corrupt input
+        what = "MCAP file" if bag.suffix == ".mcap" else "ROS bag"
+        raise SessionError(f"{bag}: cannot read as a {what} with this topic map ({type(exc).__name__}: "
+                           f"{_first_line(exc)})") from None
+    try:                                   # the same check as `tensortouch session check`
+        load_session(out)
+    except SessionError as exc:
+        (out / "session.json").unlink(missing_ok=True)
+        raise SessionError(f"{bag}: the converted recording fails the session check, so {out} was not "
+                           f"made a session: {exc}") from None
+    return out
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0][:200] if text else "no detail"
+
+
+def _convert(bag: Path, mapping: TopicMap, topics: dict, out: Path) -> None:
     it = iter_mcap(bag, set(topics)) if bag.suffix == ".mcap" else iter_rosbag(bag, set(topics))
     (L, _), (TQ, _), (TS, T0) = (to_house(k, mapping.units.get(k, d)) for k, d in BAG_UNITS.items())
     rows: dict = {"poses": [], "wrench": [], "temperature": [], "base": [], "frames": []}
@@ -255,5 +332,5 @@ def convert(bag: str | Path, mapping: TopicMap, out: str | Path) -> Path:
         writer.table("temperature", a[np.argsort(a[:, 0], kind="stable")])
     fps = (len(ft) - 1) / (ft[-1] - ft[0]) if len(ft) > 1 and ft[-1] > ft[0] else 30.0
     writer.finish_frames(ft, fps)
-    return writer.finish({"source": "bag", "bag": str(bag), "topics": sorted(topics)},
-                         {"source": mapping.clock, "t0_unix_s": t0, "unit": "s"}).parent
+    writer.finish({"source": "bag", "bag": str(bag), "topics": sorted(topics)},
+                  {"source": mapping.clock, "t0_unix_s": t0, "unit": "s"})

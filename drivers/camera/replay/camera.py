@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from pathlib import Path
 
@@ -53,6 +54,7 @@ class ReplayCamera(Camera):
         self._last: Frame | None = None
         self._shape: tuple | None = None
         self._wall0: float | None = None
+        self._interrupted = threading.Event()     # set by interrupt(): a paced wait ends at once
         self._first: np.ndarray | None = None     # decoded row 0, checked at connect
 
     @property
@@ -94,6 +96,7 @@ class ReplayCamera(Camera):
         if self._video is not None:
             self._open_video()
         self._next, self._last, self._shape, self._wall0 = 0, None, None, None
+        self._interrupted.clear()
         self._connected = True
         try:
             self._first = self._decode(0)
@@ -226,9 +229,14 @@ class ReplayCamera(Camera):
             self._start_clock()
             due = self._wall0 + (self._time(k) - self._time(0)) / self.config.speed
             delay = due - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
+            if delay > 0 and self._interrupted.wait(delay):
+                raise EndOfStream(f"{self.name}: stopped while waiting {delay:.1f} s for the next recorded frame")
         return self._frame(k)
+
+    def interrupt(self) -> None:
+        """End a paced wait now (from another thread or a signal handler): the pending `read()` raises
+        EndOfStream. A recorded gap of minutes does not delay a stop. `connect()` re-arms the camera."""
+        self._interrupted.set()
 
     def read_latest(self) -> Frame:
         self._require_connected()
