@@ -87,18 +87,30 @@ def _number(v) -> bool:
 
 
 def _check_runtime(rt, mpath) -> None:
-    """The manifest's optional `runtime` section: every contact_* setting null or a finite number >= 0
-    (the threshold > 0)."""
+    """The manifest's optional `runtime` section: `runtime.contacts` holds ContactConfig fields by their
+    own names, each null or a finite number >= 0 (the threshold > 0)."""
+    from dataclasses import fields
+
+    from runtime.contacts import ContactConfig
+
     if rt is None:
         return
     if not isinstance(rt, dict):
         _fail(mpath, f"runtime must be an object, got {type(rt).__name__}")
-    for key, v in rt.items():
-        if not key.startswith("contact_") or v is None:
+    contacts = rt.get("contacts")
+    if contacts is None:
+        return
+    if not isinstance(contacts, dict):
+        _fail(mpath, f"runtime.contacts must be an object, got {type(contacts).__name__}")
+    known = {f.name for f in fields(ContactConfig)}
+    for key, v in contacts.items():
+        if key not in known:
+            _fail(mpath, f"runtime.contacts.{key}: not a contact setting (expected some of {sorted(known)})")
+        if v is None:
             continue
-        if not _number(v) or v < 0 or (key == "contact_threshold_n" and v == 0):
-            need = "> 0" if key == "contact_threshold_n" else ">= 0"
-            _fail(mpath, f"runtime.{key} is {v!r}, expected null or a finite number {need}")
+        if not _number(v) or v < 0 or (key == "threshold_n" and v == 0):
+            need = "> 0" if key == "threshold_n" else ">= 0"
+            _fail(mpath, f"runtime.contacts.{key} is {v!r}, expected null or a finite number {need}")
 
 
 def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -35,23 +35,20 @@ class PipelineConfig:
 
     @staticmethod
     def for_package(package) -> "PipelineConfig":
-        """Defaults, with the package's own measured contact threshold when its manifest has one
-        (`runtime.contact_threshold_n`, the light-touch rule `contact_weak_threshold_n` /
-        `contact_min_total_n`, the cluster support `contact_support_radius_px` /
-        `contact_support_floor_n` and merging `contact_merge_n`, written at export by
-        tools/train/threshold.py; null or absent = default)."""
+        """Defaults, with the package's own measured contact settings when its manifest has them
+        (`runtime.contacts`: ContactConfig fields such as `threshold_n`, the light-touch rule
+        `weak_threshold_n` / `min_total_n`, the cluster support `support_radius_px` / `support_floor_n`
+        and merging `merge_n`, written at export by tools/train/threshold.py; null or absent = default)."""
         rt = (getattr(package, "manifest", None) or {}).get("runtime") or {}
         return PipelineConfig(contacts=contact_config(rt))
 
 
-MANIFEST_CONTACT_KEYS = (("threshold_n", "contact_threshold_n"), ("weak_threshold_n", "contact_weak_threshold_n"),
-                         ("min_total_n", "contact_min_total_n"), ("support_radius_px", "contact_support_radius_px"),
-                         ("support_floor_n", "contact_support_floor_n"), ("merge_n", "contact_merge_n"))
-
-
 def contact_config(runtime: dict) -> ContactConfig:
-    """ContactConfig from a manifest's `runtime` section (null or absent keys keep the defaults)."""
-    return ContactConfig(**{k: float(runtime[m]) for k, m in MANIFEST_CONTACT_KEYS if runtime.get(m) is not None})
+    """ContactConfig from a manifest's `runtime` section: `runtime.contacts` holds ContactConfig fields by
+    their own names (null or absent keys keep the defaults)."""
+    contacts = runtime.get("contacts") or {}
+    ints = {f.name for f in fields(ContactConfig) if f.type in ("int", int)}
+    return ContactConfig(**{k: (int(v) if k in ints else float(v)) for k, v in contacts.items() if v is not None})
 
 
 @dataclass

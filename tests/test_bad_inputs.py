@@ -208,19 +208,19 @@ def test_model_manifest_bad_inputs(tmp_path):
     raises_one_line(load_package, with_manifest(json.dumps([good])), match="expected a JSON object, got list")
     raises_one_line(load_package, with_manifest(b"\xff\xfe{\x00"), match="not UTF-8")
     raises_one_line(load_package, with_manifest("[" * 100000), match="not valid JSON")
-    for value, want in (("abc", "contact_threshold_n is 'abc'"), (-1, "contact_threshold_n is -1"),
-                        (0, "contact_threshold_n is 0")):
-        raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"contact_threshold_n": value}})),
+    for value, want in (("abc", "threshold_n is 'abc'"), (-1, "threshold_n is -1"),
+                        (0, "threshold_n is 0")):
+        raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"contacts": {"threshold_n": value}}})),
                         match=want)
-    raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"contact_merge_n": -0.5}})),
-                    match="contact_merge_n")
+    raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"contacts": {"merge_n": -0.5}}})),
+                    match="merge_n")
     raises_one_line(load_package, with_manifest(json.dumps({**good, "files": {}})), match="files is empty")
     raises_one_line(load_package, with_manifest(json.dumps({**good, "files": {"model.int8.onnx": "abc"}})),
                     match="files.model.int8.onnx must be an object")
     raises_one_line(load_package, with_manifest(json.dumps({**good, "output": {**good["output"], "bounds": []}})),
                     match="output.bounds must be an object")
-    with_manifest(json.dumps({**good, "runtime": {"contact_threshold_n": 0.2, "contact_merge_n": None}}))
-    assert load_package(pkg).manifest["runtime"]["contact_threshold_n"] == 0.2
+    with_manifest(json.dumps({**good, "runtime": {"contacts": {"threshold_n": 0.2, "merge_n": None}}}))
+    assert load_package(pkg).manifest["runtime"]["contacts"]["threshold_n"] == 0.2
 
 
 def test_model_with_symbolic_dims_and_wrong_output_size(tmp_path):
@@ -385,7 +385,7 @@ def test_cli_one_line_exit_2(tmp_path):
     (s / "session.json").write_text("[]")
     pkg = make_package(tmp_path / "pkg")
     manifest = json.loads((pkg / "manifest.json").read_text())
-    (pkg / "manifest.json").write_text(json.dumps({**manifest, "runtime": {"contact_threshold_n": "abc"}}))
+    (pkg / "manifest.json").write_text(json.dumps({**manifest, "runtime": {"contacts": {"threshold_n": "abc"}}}))
     store = tmp_path / "calib"
     dome_calibration(store, "TT-CLI", size=16)
     cal_json = store / "TT-CLI" / "versions" / "v0001" / "calibration.json"
@@ -396,7 +396,7 @@ def test_cli_one_line_exit_2(tmp_path):
     mapf.write_text(json.dumps({**MAP, "wrench": [{"topic": "/ft"}]}))
     cases = [
         (["session", "check", s], "session.json: expected a JSON object"),
-        (["run", "--model", pkg, "--sensor", "TT-CLI"], "runtime.contact_threshold_n is 'abc'"),
+        (["run", "--model", pkg, "--sensor", "TT-CLI"], "runtime.contacts.threshold_n is 'abc'"),
         (["calib", "show", "TT-CLI", "--store", store], "calibration.json: expected a JSON object"),
         (["session", "import", bag, "--map", mapf, "--out", tmp_path / "o"], "wrench[0].indenter must be given"),
         (["fe", "fit-material", "synthetic", "--models", "ogden3"], "unknown material model 'ogden3'"),

@@ -182,11 +182,13 @@ def test_cached_network_passes_replay_the_same_and_follow_the_key(demo, tmp_path
     assert cache_key(session, pkg, store.load(DEMO), "int8") == key
     store.derive(DEMO, {"gel_radius_px": cal.meta["gel_radius_px"] + 1.0})
     assert cache_key(session, pkg, store.load(DEMO), "int8") != key
-    pkg.manifest.setdefault("runtime", {})["contact_merge_n"] = 123.0
+    contacts = pkg.manifest.setdefault("runtime", {}).setdefault("contacts", {})
+    old = contacts.get("merge_n")
+    contacts["merge_n"] = 123.0
     try:
         assert cache_key(session, pkg, cal, "int8") != key
     finally:
-        pkg.manifest["runtime"].pop("contact_merge_n")
+        contacts["merge_n"] = old
 
 
 def test_recalibration_replays_with_the_effect_stage(tmp_path):

@@ -184,7 +184,7 @@ def test_tiny_recipe_with_a_lineage_ships_a_package_that_names_and_rebuilds_its_
     assert t["init_from"]["state_dict"].endswith(t["lineage"][0]["fit_run"] + "/best.pt")
     assert load_recipe(folder / "manifest.json").hash == recipe.hash           # the manifest rebuilds it
     # the export measured the package's contact threshold on training sessions (null = no clean value)
-    assert man["runtime"]["measured"]["rest_frames"] > 0 and "contact_threshold_n" in man["runtime"]
+    assert man["runtime"]["measured"]["rest_frames"] > 0 and "threshold_n" in man["runtime"]["contacts"]
     m = FieldModel(load_package(folder))
     assert m(np.zeros((6, 64, 64), np.float32)).shape == (15, 64, 64)
     summ = json.loads((b.root / "eval" / "summary.json").read_text())

@@ -44,10 +44,10 @@ def test_a_broad_shear_tail_takes_a_farther_support_and_a_compact_contact_keeps_
     out = choose_support([sample(fp, total)] * 3, [cal] * 3, cc, cfg)
     errs = out["measured"]["support_error_n"]
     assert errs[0] > 0.05 and min(errs) < 1e-6                    # 10 px misses the ring, 30 px holds it
-    assert out["contact_support_radius_px"] == 30.0 and out["contact_support_floor_n"] == 0.0
+    assert out["support_radius_px"] == 30.0 and out["support_floor_n"] == 0.0
     fp2, total2 = contact(tail=(0.0, 0.0, 0.0))
     same = choose_support([sample(fp2, total2)], [cal], cc, cfg)
-    assert (same["contact_support_radius_px"], same["contact_support_floor_n"]) == cfg.candidates[0]
+    assert (same["support_radius_px"], same["support_floor_n"]) == cfg.candidates[0]
 
 
 def test_a_missed_contact_counts_its_whole_force_and_no_samples_leave_the_default():
@@ -55,7 +55,7 @@ def test_a_missed_contact_counts_its_whole_force_and_no_samples_leave_the_defaul
     blank = sample(np.zeros((3, S, S)), np.array([0.0, 0.0, -1.0]))
     assert score([blank], [cal], ContactConfig(), 10, 1e-4) == pytest.approx(1.0)
     none = choose_support([], [], ContactConfig())
-    assert none["contact_support_radius_px"] is None and none["measured"]["support_frames"] == 0
+    assert none["support_radius_px"] is None and none["measured"]["support_frames"] == 0
 
 
 def test_support_frames_have_exactly_one_indenter_in_contact():
@@ -72,14 +72,14 @@ def test_threshold_sweeps_without_support_frames_leave_the_support_off():
          "contact_with_core": [10, 10]}
     from tools.train.threshold import ThresholdConfig
     out = choose([s], ThresholdConfig(grid=(0.001, 0.002)))
-    assert out["contact_support_radius_px"] is None and out["contact_support_floor_n"] is None
+    assert out["support_radius_px"] is None and out["support_floor_n"] is None
 
 
 def test_the_runtime_takes_the_support_from_the_manifest_including_a_zero_floor():
-    man = {"runtime": {"contact_threshold_n": 0.002, "contact_support_radius_px": 20.0, "contact_support_floor_n": 0.0}}
+    man = {"runtime": {"contacts": {"threshold_n": 0.002, "support_radius_px": 20.0, "support_floor_n": 0.0}}}
     c = PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts
     assert (c.support_radius_px, c.support_floor_n) == (20.0, 0.0)
-    old = {"runtime": {"contact_threshold_n": 0.002, "contact_support_radius_px": None}}
+    old = {"runtime": {"contacts": {"threshold_n": 0.002, "support_radius_px": None}}}
     c = PipelineConfig.for_package(SimpleNamespace(manifest=old)).contacts
     assert (c.support_radius_px, c.support_floor_n) == (ContactConfig().support_radius_px, ContactConfig().support_floor_n)
 
@@ -104,17 +104,17 @@ def test_merging_joins_a_split_contact_and_keeps_two_real_contacts_apart():
     two = [{"fp": far.astype(np.float32), "tips": np.array([[6.0, 9.6, 0.0], [13.2, 9.6, 0.0]])}]
     assert merge_counts(single, [cal] * 2, two, [cal], cc) == (2, 1)
     out = choose_merge(single, [cal] * 2, two, [cal], cc)
-    assert out["contact_merge_n"] == pytest.approx(0.0012)
+    assert out["merge_n"] == pytest.approx(0.0012)
     assert out["measured"]["merge_phantom_frames"] == [2, 0, 0] and out["measured"]["merge_two_apart_frames"] == [1, 1, 1]
     # when the "two contacts" are bridged too, merging would publish them as one: stays off
     joined = [{"fp": split.astype(np.float32), "tips": np.array([[8.0, 9.6, 0.0], [11.2, 9.6, 0.0]])}]
-    assert choose_merge(single, [cal] * 2, joined, [cal], cc)["contact_merge_n"] is None
+    assert choose_merge(single, [cal] * 2, joined, [cal], cc)["merge_n"] is None
 
 
 def test_the_runtime_takes_merging_from_the_manifest():
-    man = {"runtime": {"contact_threshold_n": 0.002, "contact_merge_n": 0.0012}}
+    man = {"runtime": {"contacts": {"threshold_n": 0.002, "merge_n": 0.0012}}}
     assert PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts.merge_n == 0.0012
-    assert PipelineConfig.for_package(SimpleNamespace(manifest={"runtime": {"contact_merge_n": None}})).contacts.merge_n == 0.0
+    assert PipelineConfig.for_package(SimpleNamespace(manifest={"runtime": {"contacts": {"merge_n": None}}})).contacts.merge_n == 0.0
 
 
 def test_the_threshold_pass_measures_merging_always_and_the_support_only_on_request():
@@ -128,13 +128,13 @@ def test_the_threshold_pass_measures_merging_always_and_the_support_only_on_requ
              "support": [sample(fp, total), sample(split, split.reshape(3, -1).sum(1), c=(40, 48))], "two": []}
     cfg = ThresholdConfig(grid=(0.0015, 0.0015))
     plain = choose([sweep], cfg)
-    assert plain["contact_support_radius_px"] is None and plain["contact_merge_n"] is not None
+    assert plain["support_radius_px"] is None and plain["merge_n"] is not None
     assert plain["measured"]["merge_phantom_frames"][0] == 1
     asked = choose([sweep], ThresholdConfig(grid=(0.0015, 0.0015), measure_support=True))
-    assert asked["contact_support_radius_px"] > 10.0 and "support_error_n" in asked["measured"]
+    assert asked["support_radius_px"] > 10.0 and "support_error_n" in asked["measured"]
     fixed = choose([sweep], ThresholdConfig(grid=(0.0015, 0.0015), support_px=20.0))
-    assert (fixed["contact_support_radius_px"], fixed["contact_support_floor_n"]) == (20.0, 0.0)
-    assert "20 px" in fixed["measured"]["support_rule"] and fixed["contact_merge_n"] == plain["contact_merge_n"]
+    assert (fixed["support_radius_px"], fixed["support_floor_n"]) == (20.0, 0.0)
+    assert "20 px" in fixed["measured"]["support_rule"] and fixed["merge_n"] == plain["merge_n"]
 
 
 def test_a_build_fixes_the_support_in_the_export_key_only_when_set():

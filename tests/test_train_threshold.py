@@ -28,12 +28,12 @@ def test_choose_takes_the_lowest_clean_grid_value_over_all_sessions():
     a = sweep([9, 2, 0, 0], [50, 50, 50, 40], name="A")
     b = sweep([4, 0, 0, 0], [50, 49, 45, 30], name="B")
     out = choose([a, b], cfg)
-    assert out["contact_threshold_n"] == pytest.approx(0.002 * 4 / 3, abs=1e-5)
+    assert out["threshold_n"] == pytest.approx(0.002 * 4 / 3, abs=1e-5)
     m = out["measured"]
     assert m["rest_frames_with_core"] == [13, 2, 0, 0] and m["sessions"] == ["A", "B"]
     assert m["detected_at_n"] == 0.0025 and m["contact_detected_fraction"] == pytest.approx(70 / 100)
     dirty = choose([sweep([3, 2, 1, 1], [1, 1, 1, 1])], cfg)
-    assert dirty["contact_threshold_n"] is None and dirty["measured"]["rest_frames_with_core"] == [3, 2, 1, 1]
+    assert dirty["threshold_n"] is None and dirty["measured"]["rest_frames_with_core"] == [3, 2, 1, 1]
 
 
 def test_release_and_approach_frames_are_not_rest_but_ft_noise_is():
@@ -56,11 +56,11 @@ def test_release_and_approach_frames_are_not_rest_but_ft_noise_is():
 
 def test_the_runtime_takes_the_threshold_from_the_manifest(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps({"name": "m", "files": {}}))
-    record(tmp_path, {"contact_threshold_n": 0.00275, "measured": {"rule": "test"}})
+    record(tmp_path, {"threshold_n": 0.00275, "measured": {"rule": "test"}})
     man = json.loads((tmp_path / "manifest.json").read_text())
-    assert man["files"] == {} and man["runtime"]["contact_threshold_n"] == 0.00275
+    assert man["files"] == {} and man["runtime"]["contacts"]["threshold_n"] == 0.00275
     assert PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts.threshold_n == 0.00275
-    for old in ({"name": "old"}, {"runtime": {"contact_threshold_n": None}}):
+    for old in ({"name": "old"}, {"runtime": {"contacts": {"threshold_n": None}}}):
         assert PipelineConfig.for_package(SimpleNamespace(manifest=old)).contacts.threshold_n == ContactConfig().threshold_n
 
 
@@ -86,21 +86,21 @@ def test_choose_weak_takes_the_rest_maximum_times_the_margin_and_the_best_light_
     b = dict(sweep([0, 0], [10, 10], name="B"), rest_weak_max=[0.1, 0.02], light={"core": [], "weak": []})
     out = choose([a, b], cfg)
     # strong threshold: grid[1] = 0.002 -> ×4/3; the light frames detected at it: frame 2 only
-    assert out["contact_threshold_n"] == pytest.approx(0.002 * 4 / 3, abs=1e-5)
+    assert out["threshold_n"] == pytest.approx(0.002 * 4 / 3, abs=1e-5)
     m = out["measured"]
     assert m["weak_min_total_n"] == pytest.approx([0.3, 0.075]) and m["light_frames"] == 3
     # w=0.0005 (F_min 0.3): frames 1 (0.5) + 2 -> 2/3; w=0.001 (F_min 0.075): frames 1, 2, 3 -> 3/3
     assert m["light_detected_by_weak_n"] == pytest.approx([2 / 3, 1.0], abs=1e-4)
-    assert out["contact_weak_threshold_n"] == 0.001 and out["contact_min_total_n"] == pytest.approx(0.075)
+    assert out["weak_threshold_n"] == 0.001 and out["min_total_n"] == pytest.approx(0.075)
     assert m["light_detected_strong_only"] == pytest.approx(1 / 3)
     # old sweeps without light frames: the rule stays off
     old = choose([sweep([1, 0], [10, 10])], cfg)
-    assert old["contact_weak_threshold_n"] is None and old["contact_min_total_n"] is None
+    assert old["weak_threshold_n"] is None and old["min_total_n"] is None
 
 
 def test_the_runtime_takes_the_light_touch_rule_from_the_manifest():
-    man = {"runtime": {"contact_threshold_n": 0.002, "contact_weak_threshold_n": 0.0012, "contact_min_total_n": 0.04}}
+    man = {"runtime": {"contacts": {"threshold_n": 0.002, "weak_threshold_n": 0.0012, "min_total_n": 0.04}}}
     c = PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts
     assert (c.threshold_n, c.weak_threshold_n, c.min_total_n) == (0.002, 0.0012, 0.04)
-    off = {"runtime": {"contact_threshold_n": 0.002, "contact_weak_threshold_n": None, "contact_min_total_n": None}}
+    off = {"runtime": {"contacts": {"threshold_n": 0.002, "weak_threshold_n": None, "min_total_n": None}}}
     assert PipelineConfig.for_package(SimpleNamespace(manifest=off)).contacts.min_total_n == 0.0

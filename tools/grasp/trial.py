@@ -92,7 +92,7 @@ class Bench:
     def __init__(self, graph_path, urdf, cfg: TrialConfig | None = None, model=None, store=None,
                  ctrl_cfg: ControllerConfig | None = None, scene_cfg: SceneConfig | None = None):
         from runtime.calibration import CalibrationStore
-        from runtime.model import FieldModel, find_package
+        from runtime.model import find_package
         from runtime.publisher import open_session
         from tools.twin.unit import TwinUnit
 
@@ -101,7 +101,7 @@ class Bench:
         self.urdf = str(urdf)
         self.mount = SensorMount()
         self.start = start_node(self.graph, self.mount)
-        self.model = FieldModel(find_package(model), "int8", threads=1)
+        self.package = find_package(model)
         self.cal = (store or CalibrationStore()).load(self.cfg.sensor_unit)
         self.unit = TwinUnit(self.cfg.sensor_unit)
         self.unit.renderer  # noqa: B018 - build the rest view once
@@ -122,7 +122,7 @@ class Bench:
         self.pub_session.close()
 
     def trial(self, pair: str, seed: int, frames_out: list | None = None) -> TrialResult:
-        from runtime.pipeline import SensorPipeline
+        from runtime.pipeline import open_pipeline
         from tools.grasp.sim_sensor import SimFingertip
 
         t0 = time.perf_counter()
@@ -135,7 +135,7 @@ class Bench:
                       self.scene_cfg, jitter)
         q_open = scene.opened(g.q[s], g.normal[s], cfg.open_mm)
         scene.set_hand(q_open)
-        sensors = {name: SimFingertip(sid, self.unit, SensorPipeline(self.cfg.sensor_unit, self.model, self.cal),
+        sensors = {name: SimFingertip(sid, self.unit, open_pipeline(self.package, self.cal, sensor_id=self.cfg.sensor_unit),
                                       self.pub_session, seed=seed * 2 + i)
                    for i, (name, sid) in enumerate(SENSOR_IDS.items())}
         ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg)

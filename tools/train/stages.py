@@ -320,7 +320,7 @@ def stage_export(b) -> dict:
     _set_wall_time(root / b.cfg.name, total)
     return {"package": str(root / b.cfg.name), "psnr_fp32": m["fp32"]["psnr"], "psnr_int8": m["int8"]["psnr"],
             "latency_ms": {"fp32": m["latency_ms"]["fp32"], "int8": m["latency_ms"]["int8"]},
-            "wall_time_s": total, "contact_threshold_n": thr["contact_threshold_n"]}
+            "wall_time_s": total, "threshold_n": thr["threshold_n"]}
 
 
 def package_threshold(b, package_dir: Path) -> dict:

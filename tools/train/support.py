@@ -93,15 +93,15 @@ def merge_counts(single: list[dict], single_cals: list, two: list[dict], two_cal
 
 
 def choose_merge(single, single_cals, two, two_cals, contacts, cfg: SupportConfig = SupportConfig()) -> dict:
-    """{"contact_merge_n", "measured": {...}}; None (off) without single-contact samples."""
+    """{"merge_n", "measured": {...}}; None (off) without single-contact samples."""
     if not single:
-        return {"contact_merge_n": None, "measured": {}}
+        return {"merge_n": None, "measured": {}}
     values = [round(f * contacts.threshold_n, 6) for f in cfg.merge_fractions]
     counts = [merge_counts(single, single_cals, two, two_cals, replace(contacts, merge_n=v), cfg) for v in values]
     off_apart = counts[0][1]
     ok = [i for i, (_, a) in enumerate(counts) if a >= off_apart - cfg.separation_slack * len(two)]
     best = min(ok, key=lambda i: (counts[i][0], i))          # fewest phantoms; ties: the earlier (less merging)
-    return {"contact_merge_n": float(values[best]) if values[best] > 0 else None,
+    return {"merge_n": float(values[best]) if values[best] > 0 else None,
             "measured": {"merge_rule": f"fewest single-contact frames with an extra cluster > {cfg.phantom_n} N, keeping "
                                        f"two-contact frames apart within {100 * cfg.separation_slack:.0f} % of no merging",
                          "merge_candidates_n": values, "merge_phantom_frames": [c[0] for c in counts],
@@ -124,16 +124,16 @@ def score(samples: list[dict], calibrations: list, contacts, radius: float, floo
 
 
 def choose_support(samples: list[dict], calibrations: list, contacts, cfg: SupportConfig = SupportConfig()) -> dict:
-    """{"contact_support_radius_px", "contact_support_floor_n", "measured": {...}}; both None (runtime
+    """{"support_radius_px", "support_floor_n", "measured": {...}}; both None (runtime
     default) when there are no samples."""
     if not samples:
-        return {"contact_support_radius_px": None, "contact_support_floor_n": None,
+        return {"support_radius_px": None, "support_floor_n": None,
                 "measured": {"support_frames": 0}}
     errs = [score(samples, calibrations, contacts, r, f) for r, f in cfg.candidates]
     best = float(np.nanmin(errs))
     k = next(i for i, e in enumerate(errs) if e <= best * (1.0 + cfg.margin))
     r, f = cfg.candidates[k]
-    return {"contact_support_radius_px": float(r), "contact_support_floor_n": float(f),
+    return {"support_radius_px": float(r), "support_floor_n": float(f),
             "measured": {"support_rule": f"smallest reach whose mean |F_cluster - F_measured| over single-contact "
                                          f"frames (|F| > {cfg.contact_n} N) is within {100 * cfg.margin:.0f} % of the best",
                          "support_candidates": [list(c) for c in cfg.candidates],

@@ -5,7 +5,7 @@ network: how much force it paints on an untouched gel (false contacts) and how t
 light touch. So every package carries its own, measured after export on training sessions through
 the runtime (int8, the unit's calibration): the lowest value of a grid at which no rest frame
 (every indenter's measured |F| below `rest_n`, and no touch just before or after: `rest_frames`) has a
-cluster core, times a margin of 4/3. The runtime takes it from `manifest.runtime.contact_threshold_n`
+cluster core, times a margin of 4/3. The runtime takes it from `manifest.runtime.contacts.threshold_n`
 (PipelineConfig.for_package); packages without it (or with null: no grid value was clean, e.g. a
 minutes-long smoke model) use the ContactConfig default.
 
@@ -169,13 +169,13 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
     if not len(clean):   # no value is clean: say so, and let the runtime keep its default
         log.warning("contact threshold: every grid value up to %g N leaves false contacts on rest frames (%d at "
                     "the top): the network paints force on an untouched gel; no threshold recorded", grid[-1], fp[-1])
-        return {"contact_threshold_n": None, "contact_weak_threshold_n": None, "contact_min_total_n": None,
-                "contact_support_radius_px": None, "contact_support_floor_n": None, "contact_merge_n": None, "measured": dict(measured, contact_detected_fraction=None)}
+        return {"threshold_n": None, "weak_threshold_n": None, "min_total_n": None,
+                "support_radius_px": None, "support_floor_n": None, "merge_n": None, "measured": dict(measured, contact_detected_fraction=None)}
     t = float(round(grid[int(clean[0])] * cfg.margin, 5))
     k = min(int(np.searchsorted(grid, t - 1e-12)), len(grid) - 1)      # the first grid value >= t
     measured["contact_detected_fraction"] = float(hit[k] / n_contact) if n_contact else None
     measured["detected_at_n"] = float(grid[k])
-    out = dict({"contact_threshold_n": t, "measured": measured}, **choose_weak(sweeps, k, cfg, measured))
+    out = dict({"threshold_n": t, "measured": measured}, **choose_weak(sweeps, k, cfg, measured))
     return dict(out, **_support(sweeps, out, cfg))
 
 
@@ -195,10 +195,10 @@ def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
     chosen["measured"].update(merge.pop("measured"))
     if cfg.support_px:
         chosen["measured"]["support_rule"] = f"fixed by the build: {cfg.support_px:g} px, floor 0 N"
-        return dict({"contact_support_radius_px": float(cfg.support_px), "contact_support_floor_n": 0.0}, **merge)
+        return dict({"support_radius_px": float(cfg.support_px), "support_floor_n": 0.0}, **merge)
     if not cfg.measure_support:
-        return dict({"contact_support_radius_px": None, "contact_support_floor_n": None}, **merge)
-    cc = replace(cc, merge_n=merge["contact_merge_n"] or 0.0)
+        return dict({"support_radius_px": None, "support_floor_n": None}, **merge)
+    cc = replace(cc, merge_n=merge["merge_n"] or 0.0)
     res = choose_support(samples, cals, cc, cfg.support)
     chosen["measured"].update(res.pop("measured"))
     return dict(res, **merge)
@@ -208,7 +208,7 @@ def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict
     """The light-touch rule for a strong threshold at grid index k (see the module doc); fills
     `measured` in place and returns the manifest keys (both None, i.e. rule off, when a sweep predates
     the rule or no session has light frames)."""
-    off = {"contact_weak_threshold_n": None, "contact_min_total_n": None}
+    off = {"weak_threshold_n": None, "min_total_n": None}
     if not all("light" in s for s in sweeps):
         return off
     wg = np.asarray(cfg.weak_grid)
@@ -225,14 +225,21 @@ def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict
     j = len(wg) - 1 - int(np.argmax(frac[::-1]))      # the best; on ties the larger (stricter) w
     measured.update(light_detected_fraction=float(frac[j]), light_detected_strong_only=float(core.mean()),
                     light_detected_by_weak_n=np.round(frac, 4).tolist())
-    return {"contact_weak_threshold_n": float(wg[j]), "contact_min_total_n": float(round(fmin[j], 5))}
+    return {"weak_threshold_n": float(wg[j]), "min_total_n": float(round(fmin[j], 5))}
 
 
 def record(package_dir: Path, result: dict) -> None:
-    """Write the result into manifest.runtime (atomic)."""
+    """Write the result into the manifest (atomic): the contact settings, by ContactConfig's own field
+    names, under runtime.contacts; how they were measured under runtime.measured."""
     from tools.train.stages import update_manifest
 
-    update_manifest(package_dir, lambda man: man.setdefault("runtime", {}).update(result))
+    contacts = {k: v for k, v in result.items() if k != "measured"}
+
+    def change(man):
+        rt = man.setdefault("runtime", {})
+        rt.setdefault("contacts", {}).update(contacts)
+        rt["measured"] = result.get("measured", {})
+    update_manifest(package_dir, change)
 
 
 def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True,
@@ -249,9 +256,9 @@ def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Threshold
     out = choose(sweeps, cfg)
     if command:
         out["measured"]["command"] = command
-    if out["contact_threshold_n"] is not None:
+    if out["threshold_n"] is not None:
         log.info("contact threshold of %s: %.5f N (contact frames with a core: %.1f %%)", Path(package_dir).name,
-                 out["contact_threshold_n"], 100 * (out["measured"]["contact_detected_fraction"] or 0))
+                 out["threshold_n"], 100 * (out["measured"]["contact_detected_fraction"] or 0))
     if write:
         record(package_dir, out)
     return out
