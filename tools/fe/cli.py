@@ -39,7 +39,8 @@ def _cmd_solve(args) -> int:
 def _cmd_batch(args) -> int:
     from tools.fe.batch import run_batch
 
-    report = run_batch(args.scenarios, out_dir=args.out_dir, workers=args.workers, retry_failed=args.retry_failed)
+    report = run_batch(args.scenarios, out_dir=args.out_dir, workers=args.workers, retry_failed=args.retry_failed,
+                       cluster=args.cluster)
     print(f"batch: {report['solved']} solved, {report['cached']} cached, {report['failed']} failed "
           f"-> {report['out_dir']}")
     return 0 if report["failed"] == 0 else 1
@@ -103,6 +104,20 @@ def _cmd_crosscheck(args) -> int:
     return 0
 
 
+def _cmd_study(args) -> int:
+    import json
+
+    from tools.fe.study import fz_table, run_study
+
+    rows = []
+    for name in args.names:
+        rows += run_study(name, args.work_dir, emit=lambda r: print(json.dumps(r), flush=True))
+    print(fz_table(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
 def register(sub) -> None:
     """Add the `fe` command and its subcommands to an argparse subparsers object."""
     fe = sub.add_parser("fe", help="hyperelastic FE of the gel (solve, batch, fit-material, indenters)")
@@ -120,6 +135,8 @@ def register(sub) -> None:
     p.add_argument("--out-dir", default=None, help="cache folder (default <cache>/fe)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--retry-failed", action="store_true", help="re-run scenarios that failed before")
+    p.add_argument("--cluster", default=None, metavar="tcp://HOST:8786",
+                   help="run on this Dask.distributed scheduler instead of local processes (extra 'cluster')")
     p.set_defaults(func=_cmd_batch)
 
     p = fsub.add_parser("fit-material", help="fit Yeoh/NH/MR/Ogden to uniaxial+biaxial data")
@@ -156,6 +173,12 @@ def register(sub) -> None:
                    help="bulk modulus in the deck: tools.fe's (default) or the material's D1")
     p.add_argument("--threads", type=int, default=1, help="ccx solver threads (default 1)")
     p.set_defaults(func=_cmd_crosscheck)
+
+    p = fsub.add_parser("study", help="convergence / CalculiX study (press, slide, mupress, locking, mesh)")
+    p.add_argument("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"))
+    p.add_argument("--work-dir", required=True, help="folder for the decks and ccx's output")
+    p.add_argument("--json", help="write all rows here")
+    p.set_defaults(func=_cmd_study)
 
 
 def main(argv=None) -> int:
