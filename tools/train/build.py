@@ -90,6 +90,8 @@ class BuildConfig:
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
+    device: str = "auto"                          # training device auto | cpu | cuda (not in any stage key)
+    fe_cluster: str = ""                          # stage 2 FE batch on this Dask scheduler (tcp://host:8786); "" = local
     calibration_samples: int = 128                # int8 calibration inputs (ExportConfig)
     calibration_pick: str = "spread"              # spread over the train split | "first" (ExportConfig)
     threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
@@ -288,7 +290,7 @@ def config_from_args(args) -> BuildConfig:
     cfg = tiny_config() if args.tiny else BuildConfig()
     if args.config:
         cfg = BuildConfig.from_dict({**cfg.to_dict(), **read_recipe(args.config)})
-    for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "models_dir", "arch", "lr",
+    for k in ("name", "build", "size", "epochs", "batch", "tables", "fe", "threads", "device", "fe_cluster", "models_dir", "arch", "lr",
               "contact_stride", "force_weight", "light_weight", "init_from", "init_bounds", "contact_force_n", "detach_force_n",
               "calibration_samples", "calibration_pick", "support_px"):
         v = getattr(args, k, None)
@@ -355,6 +357,10 @@ def register_build(ts) -> None:
                                              "or a model package's manifest.json; default: the bounds.json beside it); "
                                              "the heads are rescaled to this dataset's bounds")
         q.add_argument("--threads", type=int)
+        q.add_argument("--device", choices=("auto", "cpu", "cuda"),
+                       help="training device (default auto: CUDA with mixed precision when present, else CPU)")
+        q.add_argument("--cluster", dest="fe_cluster", metavar="tcp://HOST:8786",
+                       help="stage 2: solve the FE labels on this Dask.distributed scheduler (default: local processes)")
         q.add_argument("--calibration-samples", type=int, help="int8 calibration inputs (default 128)")
         q.add_argument("--calibration-pick", choices=("spread", "first"),
                        help="int8 calibration inputs spread over the train split (default) or its first ones "
