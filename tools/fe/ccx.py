@@ -81,7 +81,8 @@ def read_reactions(dat, n_steps: int) -> dict[str, np.ndarray]:
 def crosscheck(scenario, workdir, bulk: str = "solver", threads: int = 1) -> dict:
     """Solve `scenario` with tools.fe and with ccx from the exported deck on the same mesh.
 
-    Returns {"ours": (F,K,3), "ccx": (F,K,3), "seconds_ours", "seconds_ccx", "deck"}."""
+    Returns {"ours", "ccx": RF (F,K,3) N; "ours_moment", "ccx_moment": (F,K,3) N·mm about the
+    reference point (ccx: the reaction at the rotation node); "seconds_ours", "seconds_ccx", "deck"}."""
     from tools.fe.inp import export_inp_ccx
     from tools.fe.solver import build_mesh, solve
 
@@ -95,5 +96,6 @@ def crosscheck(scenario, workdir, bulk: str = "solver", threads: int = 1) -> dic
     seconds_ccx = run_ccx(deck, threads=threads)
     reac = read_reactions(deck.with_suffix(".dat"), scenario.n_keypoints)
     ccx = np.stack([reac[f"IND{k + 1}_REF"] for k in range(len(scenario.indenters))], axis=1)
-    return {"ours": ours.RF, "ccx": ccx, "seconds_ours": seconds_ours, "seconds_ccx": seconds_ccx,
+    ccx_m = np.stack([reac[f"IND{k + 1}_ROT"] for k in range(len(scenario.indenters))], axis=1)
+    return {"ours": ours.RF, "ccx": ccx, "ours_moment": ours.RM, "ccx_moment": ccx_m, "seconds_ours": seconds_ours, "seconds_ccx": seconds_ccx,
             "deck": str(deck), "nodes": len(gm.nodes)}

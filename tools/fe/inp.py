@@ -238,8 +238,8 @@ def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver") ->
                 out.append(f"{name}_REF, {dof}, {dof}, {val:.10g}")
             for dof, val in enumerate(kp.rotation, 1):
                 out.append(f"{name}_ROT, {dof}, {dof}, {val:.10g}")
-        for name, _ in refs:
-            out += [f"*NODE PRINT, NSET={name}_REF", "RF"]
+        for name, _ in refs:   # reaction force at the reference node, reaction moment at the rotation node
+            out += [f"*NODE PRINT, NSET={name}_REF", "RF", f"*NODE PRINT, NSET={name}_ROT", "RF"]
         out += ["*NODE FILE\nU, RF", "*EL FILE\nS", "*CONTACT FILE\nCDIS, CSTR", "*END STEP"]
     return _write(path, out)
 
