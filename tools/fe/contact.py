@@ -35,8 +35,8 @@ class ContactState:
     by its converged position on the way from the converged pose to the current one (fixed during
     the iterations: consistent tangent). Without poses (or when that position is still outside at
     the current pose) it sticks to the closest surface point of its converged position; that
-    anchor lies too far out along the surface by an amount that grows with the increment, which
-    made friction lower the normal force of a press at coarse increments (docs/fe.md)."""
+    anchor lies too far out along the surface by an amount that grows with the increment, so with
+    it friction lowers the normal force of a press at coarse increments (docs/fe.md)."""
 
     anchors: np.ndarray
     x_prev: np.ndarray
