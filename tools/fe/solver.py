@@ -31,7 +31,7 @@ INITIAL_PENETRATION_TOL = 1e-6  # mm
 SOLVER_REVISION = 2
 # A node that touches an indenter for the first time sticks where the indenter met it (the surface
 # point its converged position crosses between the converged and the current pose), not at the
-# closest point; this removed the increment-size dependence of frictional normal forces (docs/fe.md,
+# closest point, so frictional normal forces do not depend on the increment size (docs/fe.md,
 # docs/decisions/2026-11-25-fe-increments-and-locking.md). Module switch, not a scenario field, so
 # the scenario hashes (the FE cache keys) stay as they are; solver_info records it.
 FIRST_TOUCH_ANCHOR = True
