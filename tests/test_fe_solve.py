@@ -263,3 +263,21 @@ def test_deep_twin_slide_that_plain_newton_could_not_solve():
     assert fz.max() > 1.0                       # a deep, loaded slide
     for f in np.flatnonzero(fz > 0.2):           # in contact: contact total balances the base reaction
         assert _eq_error(r, f) < 0.01
+
+
+def test_frictional_press_force_does_not_depend_on_the_increment(pad_mesh, monkeypatch):
+    """mu 2.2 press of 2 mm: 0.5 mm and 0.1 mm increments give the same normal force now that a
+    newly touching node sticks where the indenter met it; the old closest-point anchor (switched
+    back on here) lowers the force at 0.5 mm increments."""
+    import tools.fe.solver as fs
+
+    def fz(inc):
+        sc = _pad([_sphere(keypoints=[(0.0, 0.0, -2.0)])], 2.2)
+        sc.solver.max_increment_mm = inc
+        return solve(sc, mesh=pad_mesh).RF[-1, 0, 2]
+
+    coarse, fine = fz(0.5), fz(0.1)
+    assert coarse / fine == pytest.approx(1.0, abs=0.004)
+    monkeypatch.setattr(fs, "FIRST_TOUCH_ANCHOR", False)
+    old = fz(0.5)
+    assert old / fine < coarse / fine - 0.005

@@ -137,7 +137,8 @@ def test_cli_solve_list_and_inp(tmp_path, capsys):
     args = parser.parse_args(["fe", "solve", str(tmp_path / "s.json"), "--out", str(tmp_path / "r.npz")])
     assert args.func(args) == 0
     assert load_result(tmp_path / "r.npz").n_frames == 1
-    args = parser.parse_args(["fe", "export-inp", str(tmp_path / "s.json"), "--out", str(tmp_path / "d.inp")])
+    args = parser.parse_args(["fe", "export-inp", str(tmp_path / "s.json"), "--out", str(tmp_path / "d.inp"),
+                              "--dialect", "abaqus"])
     assert args.func(args) == 0
     deck = (tmp_path / "d.inp").read_text()
     for key in ("*ELEMENT, TYPE=C3D4H", "*HYPERELASTIC, YEOH", "*FRICTION\n2.2", "*RIGID BODY",

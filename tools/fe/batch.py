@@ -1,4 +1,12 @@
-"""Batch runner: many scenarios, both cores, progress, on-disk cache keyed by scenario hash, resume.
+"""Batch runner: many scenarios, both cores or a cluster, progress, on-disk cache keyed by scenario
+hash, resume.
+
+Executors: the local process pool (default, `workers` processes) or an existing Dask.distributed
+cluster (`cluster="tcp://host:8786"`, extra `cluster`; docs/decisions/2026-11-25-distributed-fe.md).
+Both run the same job, `solve_payload`: the client packs the scenario as JSON plus the bytes of
+the files it references (mesh indenters, STL gels), the worker solves it in a scratch folder and
+returns the result file's bytes, and the client writes them into the cache. So a remote worker
+needs the package installed but no shared filesystem, and cache, index and resume are the same.
 
 Layout of the cache folder (default runtime.paths.cache_dir()/fe):
     <hash>.npz            the result (written atomically, so an interrupted run leaves no half file)
@@ -10,10 +18,11 @@ from __future__ import annotations
 
 import json
 import logging
+import multiprocessing
 import os
 import sys
+import tempfile
 import time
-import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
@@ -21,6 +30,7 @@ from tools.fe.errors import FEError, ScenarioError
 from tools.fe.scenario import load_scenario
 
 log = logging.getLogger(__name__)
+CONNECT_TIMEOUT = "30s"  # to reach a Dask scheduler
 
 
 def default_dir() -> Path:
@@ -42,22 +52,57 @@ def _expand(items) -> list[Path]:
     return paths
 
 
-def _write_json(path: Path, data) -> None:
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Atomic, fsynced write."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
     tmp.replace(path)
 
 
-def _job(scenario_path: str, out_path: str) -> dict:
-    """Worker: solve one scenario file and store its result (runs in a child process)."""
+def _write_json(path: Path, data) -> None:
+    _write_bytes(path, json.dumps(data, indent=2, sort_keys=True).encode())
+
+
+def make_payload(scenario) -> dict:
+    """Everything a worker without our filesystem needs: the scenario (referenced files renamed
+    ref<i>_<name>) and those files' bytes, plus the original JSON and hash stored in the result."""
+    data = scenario.to_dict()
+    files = {}
+
+    def ship(path_str: str) -> str:
+        src = scenario.resolve(path_str)
+        name = f"ref{len(files)}_{src.name}"
+        files[name] = src.read_bytes()
+        return name
+
+    for ind in data["indenters"]:
+        if ind["shape"] == "mesh":
+            ind["mesh_path"] = ship(ind["mesh_path"])
+    if data["gel"]["kind"] == "stl":
+        data["gel"]["stl_path"] = ship(data["gel"]["stl_path"])
+    return {"scenario": data, "files": files, "scenario_json": scenario.to_json(), "hash": scenario.hash()}
+
+
+def solve_payload(payload: dict) -> dict:
+    """The job (local pool process or cluster worker): solve one packed scenario; returns
+    {"status", "seconds", "npz": result file bytes} or {"status": "failed", "error", "seconds"}."""
     from tools.fe.result import save_result
+    from tools.fe.scenario import scenario_from_dict
     from tools.fe.solver import solve
 
     t0 = time.time()
     try:
-        result = solve(load_scenario(scenario_path))
-        save_result(result, out_path)
-        return {"status": "solved", "seconds": round(time.time() - t0, 2)}
+        with tempfile.TemporaryDirectory(prefix="tt-fe-") as tmp:
+            for name, data in payload["files"].items():
+                (Path(tmp) / name).write_bytes(data)
+            scenario = scenario_from_dict(payload["scenario"], base_dir=tmp, source=f"scenario {payload['hash']}")
+            result = solve(scenario)
+            result.scenario_json, result.scenario_hash = payload["scenario_json"], payload["hash"]
+            out = save_result(result, Path(tmp) / "result.npz")
+            return {"status": "solved", "seconds": round(time.time() - t0, 2), "npz": out.read_bytes()}
     except FEError as exc:
         return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "seconds": round(time.time() - t0, 2)}
 
@@ -70,16 +115,52 @@ def _bar(done: int, total: int, t0: float, label: str) -> None:
           end="", file=sys.stderr, flush=True)
 
 
-def run_batch(scenarios, out_dir=None, workers: int = 2, retry_failed: bool = False) -> dict:
-    """Solve every scenario not yet in the cache; returns counts and the cache folder."""
+def _local_pool(jobs, workers: int):
+    """Yield (key, info) as the local process pool finishes `jobs` [(key, payload), ...]."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # one BLAS thread per worker process
+    workers = max(1, min(workers, len(jobs) or 1))
+    # spawn, not fork: gmsh and BLAS thread pools deadlock in forked children
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(solve_payload, payload): key for key, payload in jobs}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
+
+
+def _dask_cluster(jobs, address: str):
+    """Yield (key, info) as the Dask.distributed cluster at `address` finishes `jobs`."""
+    try:
+        from distributed import Client
+        from distributed import as_completed as dask_completed
+    except ImportError as exc:
+        raise FEError("--cluster needs Dask.distributed: pip install -e '.[cluster]'") from exc
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT)
+    except (OSError, TimeoutError) as exc:
+        raise FEError(f"--cluster {address}: cannot connect to a Dask scheduler ({exc})") from exc
+    with client:
+        futures = {client.submit(solve_payload, payload, key=f"tt-fe-{h}", pure=False): (p, h)
+                   for (p, h), payload in jobs}
+        for fut in dask_completed(list(futures)):
+            key = futures[fut]
+            info = fut.result()
+            fut.release()
+            yield key, info
+
+
+def run_batch(scenarios, out_dir=None, workers: int = 2, retry_failed: bool = False,
+              cluster: str | None = None) -> dict:
+    """Solve every scenario not yet in the cache; returns counts and the cache folder.
+    `cluster`: address of a Dask.distributed scheduler (tcp://host:8786); None = local process pool."""
     out = Path(out_dir) if out_dir else default_dir()
     out.mkdir(parents=True, exist_ok=True)
     paths = _expand(scenarios)
     index_path = out / "index.json"
     index = json.loads(index_path.read_text()) if index_path.is_file() else {}
-    todo, cached = [], 0
+    todo, cached, scenarios_by_path = [], 0, {}
     for p in paths:
-        h = load_scenario(p).hash()
+        sc = load_scenario(p)
+        h = sc.hash()
+        scenarios_by_path[p] = sc
         npz, failed = out / f"{h}.npz", out / f"{h}.failed.json"
         if npz.is_file():
             cached += 1
@@ -89,23 +170,22 @@ def run_batch(scenarios, out_dir=None, workers: int = 2, retry_failed: bool = Fa
         else:
             todo.append((p, h))
     solved = 0
-    log.info("batch: %d scenarios, %d cached, %d to solve with %d workers", len(paths), cached, len(todo), workers)
+    where = f"cluster {cluster}" if cluster else f"{workers} local workers"
+    log.info("batch: %d scenarios, %d cached, %d to solve on %s", len(paths), cached, len(todo), where)
     t0 = time.time()
-    os.environ.setdefault("OMP_NUM_THREADS", "1")  # one BLAS thread per worker process
-    workers = max(1, min(workers, len(todo) or 1))
-    # spawn, not fork: gmsh and BLAS thread pools deadlock in forked children
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(_job, str(p), str(out / f"{h}.npz")): (p, h) for p, h in todo}
-        for n, fut in enumerate(as_completed(futures), 1):
-            p, h = futures[fut]
-            info = fut.result()
-            index[str(p)] = {"hash": h, **info}
-            if info["status"] == "failed":
-                _write_json(out / f"{h}.failed.json", info)
-            else:
-                solved += 1
-            _write_json(index_path, index)
-            _bar(n, len(todo), t0, f"{p.name}: {info['status']}")
+    jobs = [((p, h), make_payload(scenarios_by_path[p])) for p, h in todo]
+    done = _dask_cluster(jobs, cluster) if cluster else _local_pool(jobs, workers)
+    for n, ((p, h), info) in enumerate(done, 1):
+        npz = info.pop("npz", None)
+        if info["status"] == "failed":
+            _write_json(out / f"{h}.failed.json", info)
+        else:
+            _write_bytes(out / f"{h}.npz", npz)
+            (out / f"{h}.failed.json").unlink(missing_ok=True)
+            solved += 1
+        index[str(p)] = {"hash": h, **info}
+        _write_json(index_path, index)
+        _bar(n, len(todo), t0, f"{p.name}: {info['status']}")
     if todo:
         print(file=sys.stderr)
     failed = sum(index[str(p)]["status"] == "failed" for p in paths)

@@ -8,6 +8,8 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import numpy as np
+
 from tools.progress import stage_progress
 
 log = logging.getLogger(__name__)
@@ -36,7 +38,8 @@ def _cmd_solve(args) -> int:
 def _cmd_batch(args) -> int:
     from tools.fe.batch import run_batch
 
-    report = run_batch(args.scenarios, out_dir=args.out_dir, workers=args.workers, retry_failed=args.retry_failed)
+    report = run_batch(args.scenarios, out_dir=args.out_dir, workers=args.workers, retry_failed=args.retry_failed,
+                       cluster=args.cluster)
     print(f"batch: {report['solved']} solved, {report['cached']} cached, {report['failed']} failed "
           f"-> {report['out_dir']}")
     return 0 if report["failed"] == 0 else 1
@@ -77,8 +80,40 @@ def _cmd_inp(args) -> int:
     from tools.fe.scenario import load_scenario, standard_dome
 
     scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
-    path = export_inp(scenario, args.out)
+    path = export_inp(scenario, args.out, dialect=args.dialect, bulk=args.bulk)
     print(f"wrote {path}")
+    return 0
+
+
+def _cmd_crosscheck(args) -> int:
+    from tools.fe.ccx import crosscheck
+    from tools.fe.scenario import load_scenario, standard_dome
+
+    scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
+    out = crosscheck(scenario, args.work_dir, bulk=args.bulk, threads=args.threads)
+    print(f"{out['nodes']} nodes; deck {out['deck']}")
+    print("frame  indenter  RF tools.fe (N)               RF ccx (N)                    |RF| ratio")
+    for j in range(out["ours"].shape[0]):
+        for k in range(out["ours"].shape[1]):
+            a, b = out["ours"][j, k], out["ccx"][j, k]
+            ratio = float(np.linalg.norm(a) / max(np.linalg.norm(b), 1e-12))
+            print(f"{j + 1:5d}  {k:8d}  {np.array2string(a, precision=4):28s}  "
+                  f"{np.array2string(b, precision=4):28s}  {ratio:.4f}")
+    print(f"wall time: tools.fe {out['seconds_ours']:.1f} s, ccx {out['seconds_ccx']:.1f} s")
+    return 0
+
+
+def _cmd_study(args) -> int:
+    import json
+
+    from tools.fe.study import fz_table, run_study
+
+    rows = []
+    for name in args.names:
+        rows += run_study(name, args.work_dir, emit=lambda r: print(json.dumps(r), flush=True))
+    print(fz_table(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
 
 
@@ -99,6 +134,8 @@ def register(sub) -> None:
     p.add_argument("--out-dir", default=None, help="cache folder (default <cache>/fe)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--retry-failed", action="store_true", help="re-run scenarios that failed before")
+    p.add_argument("--cluster", default=None, metavar="tcp://HOST:8786",
+                   help="run on this Dask.distributed scheduler instead of local processes (extra 'cluster')")
     p.set_defaults(func=_cmd_batch)
 
     p = fsub.add_parser("fit-material", help="fit Yeoh/NH/MR/Ogden to uniaxial+biaxial data")
@@ -119,8 +156,26 @@ def register(sub) -> None:
     ls = isub.add_parser("list", help="list the procedural object kinds")
     ls.set_defaults(func=_cmd_ind_list)
 
-    p = fsub.add_parser("export-inp", help="write the scenario as an Abaqus-style .inp deck")
+    p = fsub.add_parser("export-inp", help="write the scenario as a CalculiX (or Abaqus) .inp deck")
     p.add_argument("scenario", help="scenario file, or 'standard'")
     p.add_argument("--out", required=True)
+    p.add_argument("--dialect", choices=("ccx", "abaqus"), default="ccx",
+                   help="ccx: runs in CalculiX 2.20 as written (default); abaqus: parts/instances, C3D4H, R3D3")
+    p.add_argument("--bulk", choices=("solver", "material"), default="solver",
+                   help="ccx: bulk modulus tools.fe uses (P1 cap, default) or the material's D1")
     p.set_defaults(func=_cmd_inp)
+
+    p = fsub.add_parser("crosscheck", help="solve a scenario in tools.fe and in CalculiX (ccx), same mesh")
+    p.add_argument("scenario", help="scenario file, or 'standard'")
+    p.add_argument("--work-dir", required=True, help="folder for the deck and ccx's output")
+    p.add_argument("--bulk", choices=("solver", "material"), default="solver",
+                   help="bulk modulus in the deck: tools.fe's (default) or the material's D1")
+    p.add_argument("--threads", type=int, default=1, help="ccx solver threads (default 1)")
+    p.set_defaults(func=_cmd_crosscheck)
+
+    p = fsub.add_parser("study", help="convergence / CalculiX study (press, slide, mupress, locking, mesh)")
+    p.add_argument("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"))
+    p.add_argument("--work-dir", required=True, help="folder for the decks and ccx's output")
+    p.add_argument("--json", help="write all rows here")
+    p.set_defaults(func=_cmd_study)
 

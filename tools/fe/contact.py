@@ -30,15 +30,38 @@ SLIP_TANGENTS = ("exact", "secant")
 @dataclass
 class ContactState:
     """Converged history: stick anchors in the local frame of each indenter (K, M, 3), NaN = free,
-    and the converged node positions x_prev (M,3): a node touching for the first time sticks to the
-    closest surface point of its converged position (fixed during the iterations: consistent tangent)."""
+    the converged node positions x_prev (M,3) and the converged indenter poses [(p, R), ...].
+    A node touching for the first time sticks where the indenter met it: the surface point crossed
+    by its converged position on the way from the converged pose to the current one (fixed during
+    the iterations: consistent tangent). Without poses (or when that position is still outside at
+    the current pose) it sticks to the closest surface point of its converged position; that
+    anchor lies too far out along the surface by an amount that grows with the increment, so with
+    it friction lowers the normal force of a press at coarse increments (docs/fe.md)."""
 
     anchors: np.ndarray
     x_prev: np.ndarray
+    poses: list | None = None
 
     @classmethod
-    def empty(cls, n_indenters: int, x: np.ndarray) -> "ContactState":
-        return cls(np.full((n_indenters, len(x), 3), np.nan), np.array(x, float))
+    def empty(cls, n_indenters: int, x: np.ndarray, poses: list | None = None) -> ContactState:
+        return cls(np.full((n_indenters, len(x), 3), np.nan), np.array(x, float), poses)
+
+
+CROSSING_BISECTIONS = 30
+
+
+def first_touch(shape, xi_old: np.ndarray, xi_new: np.ndarray) -> np.ndarray:
+    """Local surface point where the segment xi_old (outside, sdf >= 0) -> xi_new (inside) crosses
+    the indenter surface (bisection on the signed distance), projected onto the surface."""
+    lo, hi = np.zeros(len(xi_old)), np.ones(len(xi_old))
+    for _ in range(CROSSING_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        d, _ = shape.sdf(xi_old + mid[:, None] * (xi_new - xi_old))
+        out = d >= 0
+        lo, hi = np.where(out, mid, lo), np.where(out, hi, mid)
+    xc = xi_old + lo[:, None] * (xi_new - xi_old)
+    d, g = shape.sdf(xc)
+    return xc - d[:, None] * g
 
 
 @dataclass
@@ -97,8 +120,17 @@ def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: fl
         a_w = a_loc @ R.T + p
         if np.any(fresh):
             xp = state.x_prev[idx[fresh]]
-            dp, gp = shape.sdf((xp - p) @ R)
+            xi_new = (xp - p) @ R
+            dp, gp = shape.sdf(xi_new)
             a_w[fresh] = xp - dp[:, None] * (gp @ R.T)
+            if state.poses is not None:
+                p_old, R_old = state.poses[k]
+                xi_old = (xp - p_old) @ R_old
+                d_old, _ = shape.sdf(xi_old)
+                cross = (dp < 0) & (d_old >= 0)
+                if np.any(cross):
+                    fi = np.flatnonzero(fresh)[cross]
+                    a_w[fi] = first_touch(shape, xi_old[cross], xi_new[cross]) @ R.T + p
         P = eye - nn
         s = np.einsum("aij,aj->ai", P, x[idx] - a_w)
         epst = tangential_ratio * eps

@@ -29,6 +29,12 @@ INITIAL_PENETRATION_TOL = 1e-6  # mm
 # Bumped when a change lets the solver converge where it did not before (2: struggle mode in newton), so
 # failures recorded by an older solver (tools.twin.fe_physics `*.failed.json`) are tried again.
 SOLVER_REVISION = 2
+# A node that touches an indenter for the first time sticks where the indenter met it (the surface
+# point its converged position crosses between the converged and the current pose), not at the
+# closest point, so frictional normal forces do not depend on the increment size (docs/fe.md,
+# docs/decisions/2026-11-25-fe-increments-and-locking.md). Module switch, not a scenario field, so
+# the scenario hashes (the FE cache keys) stay as they are; solver_info records it.
+FIRST_TOUCH_ANCHOR = True
 
 
 def build_mesh(scenario: Scenario) -> GelMesh:
@@ -230,7 +236,7 @@ def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FER
     N, K, F = len(gm.nodes), len(scenario.indenters), scenario.n_keypoints
     out = _alloc(N, K, F)
     U = np.zeros((N, 3))
-    state = fc.ContactState.empty(K, gm.nodes[model.surf])
+    state = fc.ContactState.empty(K, gm.nodes[model.surf], model.poses(-1.0) if FIRST_TOUCH_ANCHOR else None)
     s_done = -1.0
     stats = {"increments": 0, "iterations": 0, "cutbacks": 0}
     dU_last, m_last = None, None
@@ -266,7 +272,8 @@ def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FER
             dU_last, m_last = U_new - U, m_new
             U, s_done = U_new, s_try
             state = fc.ContactState(np.where(ce.gap[:, :, None] >= 0, np.nan, ce.new_anchors),
-                                    gm.nodes[model.surf] + U[model.surf])
+                                    gm.nodes[model.surf] + U[model.surf],
+                                    model.poses(s_try) if FIRST_TOUCH_ANCHOR else None)
             stats["increments"] += 1
             stats["iterations"] += its
         _record(out, j, model, U, ce, time.time() - t0)
@@ -311,6 +318,7 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
     elem = "P1 tets" if model.order == 1 else "P2/P0 u-p-J tets"
     info = {"solver": f"tools.fe (felupe {felupe.__version__}, {elem}, penalty contact)", "order": model.order,
             "bulk_modulus_used": model.bulk, "penalty_N_per_mm3": model.penalty,
+            "first_touch_anchor": FIRST_TOUCH_ANCHOR,
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
     return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,

@@ -89,6 +89,8 @@ class BuildConfig:
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
+    device: str = "auto"                          # training device auto | cpu | cuda (not in any stage key)
+    fe_cluster: str = ""                          # stage 2 FE batch on this Dask scheduler (tcp://host:8786); "" = local
     quantization_samples: int = 128                # inputs that set the int8 ranges (ExportConfig)
     quantization_pick: str = "spread"              # spread over the train split | "first" (ExportConfig)
     threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
@@ -390,7 +392,8 @@ def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force:
     stages = only or getattr(args, "stages", None)
     if upto:
         stages = list(STAGES[:STAGES.index(upto) + 1])
-    overrides = {k: v for k, v in (("threads", args.threads), ("models_dir", args.models_dir)) if v}
+    overrides = {k: v for k, v in (("threads", args.threads), ("models_dir", args.models_dir),
+                                    ("device", args.device), ("fe_cluster", args.fe_cluster)) if v}
     b = run_recipe(recipe, stages, Path(args.root) if args.root else None, args.command_line,
                    force=list(args.force or []) + list(force or []), replace=args.replace, overrides=overrides)
     ex = b.read_stamp("export")
@@ -415,6 +418,10 @@ def register_build(ts) -> None:
         q.add_argument("--root", help="build folder (default: <cache>/train/<recipe name>/)")
         q.add_argument("--models-dir", help="where the package is exported (default: exported_models/)")
         q.add_argument("--threads", type=int, help="torch threads for training (default: the recipe's)")
+        q.add_argument("--device", choices=("auto", "cpu", "cuda"),
+                       help="training device (default auto: CUDA with mixed precision when present, else CPU)")
+        q.add_argument("--cluster", dest="fe_cluster", metavar="tcp://HOST:8786",
+                       help="stage 2: solve the FE labels on this Dask.distributed scheduler (default: local processes)")
         q.add_argument("--force", nargs="+", choices=STAGES, default=[], metavar="STAGE",
                        help="rerun these stages even if stamped (" + ", ".join(STAGES) + ")")
         q.add_argument("--replace", action="store_true",

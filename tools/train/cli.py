@@ -66,7 +66,8 @@ def cmd_synth(args) -> int:
 def cmd_pretrain(args) -> int:
     from tools.train.model.train import PretrainConfig, pretrain
 
-    cfg = PretrainConfig(epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr)
+    cfg = PretrainConfig(epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr,
+                         device=args.device)
     res = pretrain(args.data, args.out, cfg)
     print(f"pretrained encoder → {Path(args.out) / 'encoder.pt'}  ({res.get('samples_per_s') or 0:.1f} samples/s)")
     return 0
@@ -75,7 +76,8 @@ def cmd_pretrain(args) -> int:
 def cmd_fit(args) -> int:
     from tools.train.model.train import FitConfig, fit
 
-    cfg = FitConfig(arch=args.arch, epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr)
+    cfg = FitConfig(arch=args.arch, epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr,
+                    device=args.device)
     res = fit(args.data, args.out, cfg, encoder_init=args.encoder)
     m = res["metrics"]["mean"]
     print(f"{args.arch}: {res['params']:,} params, val PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.4f}, "
@@ -155,6 +157,8 @@ def register(sub) -> None:
         q.add_argument("--batch", type=int, default=batch)
         q.add_argument("--lr", type=float, default=1e-3)
         q.add_argument("--threads", type=int, default=2)
+        q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                       help="auto (default): CUDA with mixed precision when present, else CPU")
 
     pr = ts.add_parser("pretrain", help="stage 6a: MAE pretraining (75 %% of mask units hidden)")
     common(pr, 10, 16)

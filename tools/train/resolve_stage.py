@@ -125,7 +125,8 @@ def stage_fe_resolve(b, cfg=None) -> dict:
         cache = fe_cache_dir()
         log.info("stage fe: %d period scenarios over %d sessions → tools.fe batch (cache %s, %d worker(s))",
                  len(jobs), len(docs), cache, cfg.workers)
-        run_batch([str(f) for _, _, f, _ in jobs], cache, workers=cfg.workers)
+        cluster = b.cfg.fe_cluster or None
+        run_batch([str(f) for _, _, f, _ in jobs], cache, workers=cfg.workers, cluster=cluster)
         retry = []
         for name, j, f, ps in jobs:
             h = ps.scenario.hash()
@@ -139,7 +140,7 @@ def stage_fe_resolve(b, cfg=None) -> dict:
                 retry.append((name, j, f2, sc2.hash(), h))
         if retry:
             log.warning("stage fe: %d scenario(s) failed; retrying with smaller increments", len(retry))
-            run_batch([str(f2) for _, _, f2, _, _ in retry], cache, workers=cfg.workers)
+            run_batch([str(f2) for _, _, f2, _, _ in retry], cache, workers=cfg.workers, cluster=cluster)
         fixed = {(n, j): (f2, h2, h) for n, j, f2, h2, h in retry}
         for name, j, f, ps in jobs:
             per = docs[name]["periods"][j]

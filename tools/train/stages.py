@@ -277,7 +277,8 @@ def stage_pretrain(b) -> dict:
     from tools.train.model.train import PretrainConfig, pretrain
 
     res = pretrain(b.dataset, pretrain_dir(b),
-                   PretrainConfig(epochs=b.cfg.pretrain_epochs, batch_size=b.cfg.batch, threads=b.cfg.threads))
+                   PretrainConfig(epochs=b.cfg.pretrain_epochs, batch_size=b.cfg.batch, threads=b.cfg.threads,
+                                  device=b.cfg.device))
     return {"samples_per_s": res.get("samples_per_s")}
 
 
@@ -289,7 +290,7 @@ def stage_fit(b) -> dict:
               FitConfig(arch=b.cfg.arch, epochs=b.cfg.epochs, batch_size=b.cfg.batch, lr=b.cfg.lr,
                         threads=b.cfg.threads, fg_weight=b.cfg.fg_weight, force_weight=b.cfg.force_weight,
                         light_weight=b.cfg.light_weight,
-                        init_from=b.cfg.init_from, init_bounds=b.cfg.init_bounds),
+                        init_from=b.cfg.init_from, init_bounds=b.cfg.init_bounds, device=b.cfg.device),
               encoder_init=enc if (b.cfg.pretrain_epochs > 0 and enc.is_file() and b.cfg.arch == "hiera_qup") else None)
     return {"params": res["params"], "metrics": res["metrics"]["mean"], "samples_per_s": res.get("samples_per_s")}
 

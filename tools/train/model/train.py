@@ -24,6 +24,7 @@ import torch
 
 from tools.train.model import build_model
 from tools.train.model.data import DatasetError, load_split, read_index
+from tools.train.model.device import Precision, cpu_state, resolve_device
 from tools.train.model.metrics import evaluate
 
 log = logging.getLogger(__name__)
@@ -65,6 +66,8 @@ class FitConfig:
     # default: the bounds.json a fit writes beside its best.pt. When they differ from this dataset's,
     # the heads are rescaled so the fine-tune starts at the init's physical output (remap_heads).
     init_bounds: str = ""
+    device: str = "auto"                 # auto | cpu | cuda (tools.train.model.device); not part of config.json
+    amp: bool = True                     # mixed precision (float16 autocast + grad scaling) on CUDA only
 
 
 @dataclass
@@ -82,6 +85,11 @@ class PretrainConfig:
     seed: int = 0
     checkpoint_every_s: float = 120.0
     log_every: int = 10
+    device: str = "auto"
+    amp: bool = True
+
+
+RUN_PLACE_KEYS = ("device", "amp")   # where a run executes: left out of config.json, a run resumes anywhere
 
 
 def lr_at(step: int, total: int, base: float, warmup_steps: int, warmup_max_fraction: float) -> float:
@@ -152,11 +160,17 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
     """Shared epoch/step loop with checkpoint + resume. loss_fn(model, xb, yb) -> scalar tensor."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
+    device = resolve_device(cfg.device)
+    precision = Precision(device, cfg.amp)
+    model.to(device)
+    log.info("%s on %s%s", what, device, " with mixed precision (float16 autocast)" if precision.enabled else "")
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     n = x_all.shape[0]
     per_epoch = len(_batches(n, cfg.batch_size, cfg.seed, 0))
     total = per_epoch * cfg.epochs
     config = {"what": what, **asdict(cfg), "n_train": n}
+    for k in RUN_PLACE_KEYS:
+        config.pop(k, None)
     if not config.get("init_bounds", True):
         config.pop("init_bounds")   # runs made before the option existed resume unchanged
     ckpt = _prepare_run(out, config)
@@ -166,6 +180,7 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
         opt.load_state_dict(ckpt["optimizer"])
         step, epoch0, batch0, extra = ckpt["step"], ckpt["epoch"], ckpt["batch"], ckpt.get("extra", extra)
         torch.set_rng_state(ckpt["torch_rng"])
+        precision.load_state_dict(ckpt.get("grad_scaler", {}))
         log.info("%s: resuming %s at step %d (epoch %d, batch %d)", what, out, step, epoch0, batch0)
     prog = _Progress(total, cfg.batch_size, cfg.log_every, what)
     prog.start(step)
@@ -173,8 +188,9 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
     hist = open(out / "history.jsonl", "a")
 
     def save(epoch: int, batch: int):
-        _atomic_save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
-                      "epoch": epoch, "batch": batch, "extra": extra, "torch_rng": torch.get_rng_state()},
+        _atomic_save({"model": cpu_state(model), "optimizer": opt.state_dict(), "step": step,
+                      "epoch": epoch, "batch": batch, "extra": extra, "torch_rng": torch.get_rng_state(),
+                      "grad_scaler": precision.state_dict()},
                      out / "checkpoint.pt")
 
     for epoch in range(epoch0, cfg.epochs):
@@ -187,12 +203,12 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
             lr = lr_at(step, total, cfg.lr, cfg.warmup_steps, cfg.warmup_max_fraction)
             for g in opt.param_groups:
                 g["lr"] = lr
-            xb = torch.from_numpy(x_all[idx].astype(np.float32) / 255.0)
-            yb = None if y_all is None else torch.from_numpy(np.asarray(y_all[idx], dtype=np.float32))
-            loss = loss_fn(model, xb, yb)
+            xb = torch.from_numpy(x_all[idx].astype(np.float32) / 255.0).to(device)
+            yb = None if y_all is None else torch.from_numpy(np.asarray(y_all[idx], dtype=np.float32)).to(device)
             opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+            with precision.autocast():
+                loss = loss_fn(model, xb, yb)
+            precision.step(loss.float(), opt)
             step += 1
             losses.append(loss.item())
             prog.tick(step, epoch, losses[-1], lr)
@@ -269,10 +285,12 @@ def remap_heads(model, cfg: FitConfig, bounds: dict) -> bool:
 def predict(model, x_uint8: np.ndarray, batch: int = 16) -> np.ndarray:
     """Model outputs (N, 15, H, W) float32 for uint8 inputs (N, 6, H, W)."""
     model.eval()
+    device = next(model.parameters()).device
     outs = []
     with torch.no_grad():
         for i in range(0, x_uint8.shape[0], batch):
-            outs.append(model(torch.from_numpy(x_uint8[i:i + batch].astype(np.float32) / 255.0)).numpy())
+            xb = torch.from_numpy(x_uint8[i:i + batch].astype(np.float32) / 255.0).to(device)
+            outs.append(model(xb).float().cpu().numpy())
     return np.concatenate(outs)
 
 
@@ -310,14 +328,16 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     hi = np.array([bounds[c][1] for c in CHANNELS])
     y_zero = torch.tensor(np.clip(-lo / np.where(hi > lo, hi - lo, 1.0), 0.0, 1.0),   # physical 0, normalized
                           dtype=torch.float32).view(1, -1, 1, 1)
+    device = resolve_device(cfg.device)
+    y_zero = y_zero.to(device)
     zero = y_zero if cfg.fg_weight > 0 else None
 
     force_scale = None
     if cfg.force_weight > 0 or cfg.light_weight > 0:
-        force_scale = _force_scale(data, bounds)
+        force_scale = _force_scale(data, bounds).to(device)
 
     def loss_fn(m, xb, yb):
-        pred = m(xb)
+        pred = m(xb).float()        # the loss in float32 also under CUDA autocast
         w = None if zero is None else 1.0 + cfg.fg_weight * (torch.abs(yb - zero) > cfg.fg_eps).float()
         if cfg.light_weight > 0:
             s = light_sample_weight(yb, y_zero, force_scale, cfg).view(-1, 1, 1, 1)
@@ -336,12 +356,12 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         if val < extra.get("best_val", float("inf")):
             extra["best_val"] = val
             extra["best_epoch"] = epoch
-            _atomic_save(model.state_dict(), out / "best.pt")
+            _atomic_save(cpu_state(model), out / "best.pt")
         return {"val_l1": val}
 
     extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch)
     del x_tr, y_tr     # the training split is most of the memory (18k samples: ~18 GB); free it before the final evaluation
-    model.load_state_dict(torch.load(out / "best.pt", weights_only=True))
+    model.load_state_dict(torch.load(out / "best.pt", weights_only=True, map_location="cpu"))
     metrics = evaluate(predict(model, x_va, cfg.eval_batch), y_va, bounds)
     result = {"arch": cfg.arch, "image_size": size, "params": sum(p.numel() for p in model.parameters()),
               "metrics": metrics, "val_samples": int(x_va.shape[0]), **extra}
@@ -395,7 +415,7 @@ def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainCo
         return m(xb)[0]
 
     extra = _loop(out, mae, loss_fn, x_tr, None, cfg, "pretrain")
-    _atomic_save(mae.encoder.state_dict(), out / "encoder.pt")
+    _atomic_save(cpu_state(mae.encoder), out / "encoder.pt")
     return {"image_size": size, **extra}
 
 
