@@ -14,12 +14,12 @@ import logging
 import os
 import queue
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 from runtime.errors import SessionError
+from runtime.files import atomic_write
 from runtime.zenoh_session import add_zenoh_options, config_from_args, describe
 
 log = logging.getLogger(__name__)
@@ -150,7 +150,7 @@ class Saver:
                      "layout": "(C, H, W)"}, indent=1).encode())
                 self._meta_written.add(sensor)
             path = fdir / f"{msg.seq:08d}.npy"
-            _atomic_write(path, lambda fh: np.save(fh, msg.data), suffix=".npy.tmp")
+            _atomic_write(path, lambda fh: np.save(fh, msg.data))
             return path
         if kind == "contacts":
             record = {"seq": msg.seq, "t": msg.t, "contacts": [c.to_dict() for c in msg.contacts]}
@@ -182,21 +182,11 @@ class Saver:
         self._files.clear()
 
 
-def _atomic_write(path: Path, data, suffix: str = ".tmp") -> None:
-    """Write bytes (or call `data(fh)`) to a temp file beside `path`, then rename; on failure the
-    temp file is removed and SessionError names `path`."""
-    tmp = None
+def _atomic_write(path: Path, data) -> None:
+    """runtime.files.atomic_write; a failure is a SessionError naming `path`."""
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=suffix)
-        with os.fdopen(fd, "wb") as fh:
-            data(fh) if callable(data) else fh.write(data)
-        os.replace(tmp, path)
+        atomic_write(path, data, fsync=False, mkdir=False)
     except OSError as exc:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
         raise SessionError(f"{path}: cannot save ({exc}); nothing half-written was kept (disk full?)") from exc
 
 

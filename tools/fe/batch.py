@@ -20,7 +20,6 @@ import json
 import logging
 import multiprocessing
 import os
-import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -28,6 +27,8 @@ from pathlib import Path
 
 from tools.fe.errors import FEError, ScenarioError
 from tools.fe.scenario import load_scenario
+from runtime.files import atomic_write, atomic_write_json
+from tools.progress import stage_progress
 
 log = logging.getLogger(__name__)
 CONNECT_TIMEOUT = "30s"  # to reach a Dask scheduler
@@ -51,19 +52,6 @@ def _expand(items) -> list[Path]:
             raise ScenarioError(f"{p}: scenario file or folder not found")
     return paths
 
-
-def _write_bytes(path: Path, data: bytes) -> None:
-    """Atomic, fsynced write."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    tmp.replace(path)
-
-
-def _write_json(path: Path, data) -> None:
-    _write_bytes(path, json.dumps(data, indent=2, sort_keys=True).encode())
 
 
 def make_payload(scenario) -> dict:
@@ -106,13 +94,6 @@ def solve_payload(payload: dict) -> dict:
     except FEError as exc:
         return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "seconds": round(time.time() - t0, 2)}
 
-
-def _bar(done: int, total: int, t0: float, label: str) -> None:
-    width = 30
-    fill = int(width * done / max(total, 1))
-    eta = (time.time() - t0) / max(done, 1) * (total - done)
-    print(f"\r[{'#' * fill}{'.' * (width - fill)}] {done}/{total} eta {eta:5.0f} s  {label[:40]:40s}",
-          end="", file=sys.stderr, flush=True)
 
 
 def _local_pool(jobs, workers: int):
@@ -172,21 +153,19 @@ def run_batch(scenarios, out_dir=None, workers: int = 2, retry_failed: bool = Fa
     solved = 0
     where = f"cluster {cluster}" if cluster else f"{workers} local workers"
     log.info("batch: %d scenarios, %d cached, %d to solve on %s", len(paths), cached, len(todo), where)
-    t0 = time.time()
     jobs = [((p, h), make_payload(scenarios_by_path[p])) for p, h in todo]
     done = _dask_cluster(jobs, cluster) if cluster else _local_pool(jobs, workers)
+    bar = stage_progress("fe batch", "scenario")
     for n, ((p, h), info) in enumerate(done, 1):
         npz = info.pop("npz", None)
         if info["status"] == "failed":
-            _write_json(out / f"{h}.failed.json", info)
+            atomic_write_json(out / f"{h}.failed.json", info, indent=2, sort_keys=True)
         else:
-            _write_bytes(out / f"{h}.npz", npz)
+            atomic_write(out / f"{h}.npz", npz)
             (out / f"{h}.failed.json").unlink(missing_ok=True)
             solved += 1
         index[str(p)] = {"hash": h, **info}
-        _write_json(index_path, index)
-        _bar(n, len(todo), t0, f"{p.name}: {info['status']}")
-    if todo:
-        print(file=sys.stderr)
+        atomic_write_json(index_path, index, indent=2, sort_keys=True)
+        bar("", n, len(todo))
     failed = sum(index[str(p)]["status"] == "failed" for p in paths)
     return {"solved": solved, "cached": cached, "failed": failed, "out_dir": str(out), "index": str(index_path)}

@@ -69,6 +69,7 @@ def cmd_mount(args) -> int:
         return 2
 
     from runtime.errors import TensorTouchError
+    from runtime.files import atomic_write
     from tools.grasp import figures, graph, hand_model, mount
     from tools.grasp.workspace import WorkspaceConfig
 
@@ -109,7 +110,7 @@ def cmd_mount(args) -> int:
             print(file=sys.stderr)
             graph.save(g, out / "contact_graph.npz")
             summary["graph"] = {"nodes": len(g), "edges": len(g.edges)}
-        hand_model.atomic_write_bytes(out / "mount.json", (json.dumps(summary, indent=1) + "\n").encode())
+        atomic_write(out / "mount.json", (json.dumps(summary, indent=1) + "\n").encode())
     except TensorTouchError as exc:
         print(f"tensortouch mount: {exc}", file=sys.stderr)
         return 2

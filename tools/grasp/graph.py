@@ -22,7 +22,8 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from runtime.errors import TensorTouchError
-from tools.grasp.hand_model import HandSpec, atomic_write_bytes, limits
+from runtime.files import atomic_write
+from tools.grasp.hand_model import HandSpec, limits
 from tools.grasp.sensor_mount import SensorMount
 from tools.grasp.workspace import WorkspaceConfig, evaluate, sample_q
 
@@ -157,7 +158,7 @@ _FIELDS = ("q", "point", "normal", "dir_thumb", "dir_index", "sensor_thumb_mm", 
 def save(graph: ContactGraph, path: str | Path) -> Path:
     buf = io.BytesIO()
     np.savez_compressed(buf, schema=np.array(SCHEMA), **{f: getattr(graph, f) for f in _FIELDS})
-    return atomic_write_bytes(path, buf.getvalue())
+    return atomic_write(path, buf.getvalue())
 
 
 def load(path: str | Path) -> ContactGraph:

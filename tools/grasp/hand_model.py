@@ -7,8 +7,6 @@ as a URDF (the joint's <origin> edited, every other line kept).
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -17,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import TensorTouchError
+from runtime.files import atomic_write
 
 ALLEGRO_RIGHT = "robots/allegro_hand_description/urdf/allegro_right_hand.urdf"
 
@@ -135,7 +134,7 @@ def write_urdf(src: str | Path, dst: str | Path, spec: HandSpec, z_m: float, pit
         resolved = resolve_package_path(src, mesh.get("filename", ""))
         if resolved is not None:
             mesh.set("filename", str(resolved))
-    return atomic_write_bytes(dst, ET.tostring(tree.getroot(), encoding="utf-8", xml_declaration=True))
+    return atomic_write(dst, ET.tostring(tree.getroot(), encoding="utf-8", xml_declaration=True))
 
 
 def resolve_package_path(urdf: Path, filename: str) -> Path | None:
@@ -150,19 +149,3 @@ def resolve_package_path(urdf: Path, filename: str) -> Path | None:
     return None
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Temp file beside `path` → fsync → rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path

@@ -27,7 +27,8 @@ from tools.grasp.controller import (
     ControllerNode,
     SelectiveGraspController,
 )
-from tools.grasp.hand_model import HandSpec, atomic_write_bytes
+from runtime.files import atomic_write
+from tools.grasp.hand_model import HandSpec
 from tools.grasp.scene import PAIRS, Scene, SceneConfig
 from tools.grasp.sensor_mount import SensorMount
 from tools.grasp.touch import GelTouch
@@ -253,5 +254,5 @@ def table(results: dict[str, list[TrialResult]]) -> str:
 
 def save_results(results: dict[str, list[TrialResult]], out: Path) -> None:
     body = {pair: [asdict(r) for r in res] for pair, res in results.items()}
-    atomic_write_bytes(out / "grasp_trials.json", (json.dumps(body, indent=1) + "\n").encode())
-    atomic_write_bytes(out / "grasp_table.md", table(results).encode())
+    atomic_write(out / "grasp_trials.json", (json.dumps(body, indent=1) + "\n").encode())
+    atomic_write(out / "grasp_table.md", table(results).encode())

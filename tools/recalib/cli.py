@@ -7,7 +7,6 @@ tools.recalib.session, prints before/after held-out errors and stores a new cali
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import sys
@@ -264,39 +263,8 @@ def _check_report_path(path: str) -> None:
 
 
 def _write_report(path: str, report: dict) -> None:
-    """The report as JSON, written to a temp file beside `path`, fsynced and renamed into place."""
-    import os
-    import tempfile
-    from pathlib import Path
+    """The report as JSON, written atomically (runtime.files)."""
+    from runtime.files import atomic_write_json
 
-    text = json.dumps(report, indent=2, default=float)
-    p = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=p.parent if str(p.parent) else ".", prefix=f".tmp-{p.name}.")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, p)
-    except OSError:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    atomic_write_json(path, report, indent=2, default=float, mkdir=False)
 
-
-if __name__ == "__main__":
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="python -m tools.recalib.cli")
-    register(parser.add_subparsers(dest="command", required=True))
-    a = parser.parse_args()
-    logging.basicConfig(level=logging.INFO)
-    from runtime.errors import TensorTouchError
-
-    try:
-        sys.exit(a.func(a))
-    except TensorTouchError as e:
-        print(f"tensortouch recalibrate: {e}", file=sys.stderr)
-        sys.exit(2)

@@ -53,7 +53,8 @@ def average_run(tuned_run: Path, base_state: Path, weight: float, out: Path, bas
 
     from tools.train.fields import read_bounds
     from tools.train.model import build_model
-    from tools.train.model.train import FitConfig, _atomic_json, remap_heads
+    from runtime.files import atomic_write_json
+    from tools.train.model.train import FitConfig, remap_heads
 
     tuned_run, base_state, out = Path(tuned_run), Path(base_state), Path(out)
     for need in ("best.pt", "bounds.json", "metrics.json"):
@@ -77,9 +78,9 @@ def average_run(tuned_run: Path, base_state: Path, weight: float, out: Path, bas
            "tuned": {"run": str(tuned_run), "best_sha256": sha256_file(tuned_run / "best.pt")},
            "base": {"state_dict": str(base_state), "sha256": sha256_file(base_state),
                     "bounds": str(base_bounds or base_state.parent / "bounds.json")}}
-    _atomic_json(cfg, out / "config.json")
-    _atomic_json(dict(info, metrics=None, note="weight average: validation metrics are the export's parity report"),
-                 out / "metrics.json")
+    atomic_write_json(out / "config.json", cfg)
+    atomic_write_json(out / "metrics.json",
+                      dict(info, metrics=None, note="weight average: validation metrics are the export's parity report"))
     log.info("averaged %s (%.2f) with %s -> %s", tuned_run, weight, base_state, out)
     return cfg
 

@@ -13,10 +13,11 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+
+from runtime.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -200,9 +201,7 @@ class Build:
     def stamp(self, stage: str, info: dict, seconds: float) -> None:
         doc = {"stage": stage, "key": self.keys[stage], "seconds": round(seconds, 2),
                "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **info}
-        tmp = self.stamp_path(stage).with_suffix(".tmp")
-        tmp.write_text(json.dumps(doc, indent=1))
-        os.replace(tmp, self.stamp_path(stage))
+        atomic_write_json(self.stamp_path(stage), doc)
 
     def read_stamp(self, stage: str) -> dict:
         p = self.stamp_path(stage)

@@ -17,6 +17,7 @@ import logging
 import shlex
 import time
 from pathlib import Path
+from runtime.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -32,12 +33,6 @@ TOOLS = (
 )
 
 
-def _atomic_json(obj, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    tmp.replace(path)
-
 
 def cmd_keypoints(args) -> int:
     from runtime.paths import cache_dir
@@ -50,7 +45,7 @@ def cmd_keypoints(args) -> int:
     kps = extract_keypoints(ses.table("poses"), ses.table("wrench"), frames, cfg)
     doc = keypoints_doc(ses, kps, cfg, str(Path(args.session).resolve()))
     out = Path(args.out) if args.out else cache_dir() / "keypoints" / f"{Path(args.session).name}.json"
-    _atomic_json(doc, out)
+    atomic_write_json(out, doc)
     print(f"{len(kps)} contact period(s), {sum(len(k.t) for k in kps)} keypoints → {out}")
     return 0
 
@@ -124,7 +119,7 @@ def cmd_bench(args) -> int:
                     latency_runs=args.runs)
     text = json.dumps(res, indent=1)
     if args.out:
-        _atomic_json(res, Path(args.out))
+        atomic_write_json(Path(args.out), res)
     print(text)
     return 0
 

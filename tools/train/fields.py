@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +32,7 @@ from scipy.spatial import Delaunay, cKDTree
 
 from runtime.errors import TensorTouchError
 from runtime.fields import CHANNELS, N_CHANNELS
+from runtime.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -275,12 +274,7 @@ def write_bounds(path: str | Path, bounds: dict) -> None:
 
     doc = {"schema": "tensortouch.bounds", "schema_version": 1, "channels": list(CHANNELS),
            "units": list(CHANNEL_UNITS), "bounds": {c: list(map(float, bounds[c])) for c in CHANNELS}}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(doc, fh, indent=1)
-    os.replace(tmp, path)
+    atomic_write_json(path, doc)
 
 
 def read_bounds(path: str | Path) -> dict[str, list[float]]:

@@ -20,6 +20,7 @@ import numpy as np
 
 from runtime.errors import ModelPackageError
 from runtime.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
+from runtime.files import atomic_write
 
 SCHEMA = "tensortouch.model"
 SCHEMA_VERSION = 1
@@ -87,10 +88,8 @@ def build_manifest(name: str, size: int, bounds: dict, files: dict[str, Path], c
 
 
 def atomic_copy(src: Path, dst: Path) -> None:
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.tmp{os.getpid()}")
-    shutil.copyfile(src, tmp)
-    os.replace(tmp, dst)
+    with open(src, "rb") as fh:
+        atomic_write(dst, lambda out: shutil.copyfileobj(fh, out))
 
 
 def write_package(root: str | Path, name: str, models: dict[str, Path], manifest: dict) -> Path:

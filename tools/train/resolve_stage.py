@@ -99,7 +99,8 @@ def stage_fe_resolve(b, cfg=None) -> dict:
     from tools.fe import save_scenario
     from tools.fe.batch import run_batch
     from tools.train.resolve import ResolveConfig
-    from tools.train.stages import _atomic_json, unit_meta
+    from runtime.files import atomic_write_json
+    from tools.train.stages import unit_meta
 
     cfg = cfg or ResolveConfig()
     docs, jobs = {}, []
@@ -158,7 +159,7 @@ def stage_fe_resolve(b, cfg=None) -> dict:
             docs[name]["periods"][j]["status"] = "solved"
     out = {}
     for name, doc in docs.items():
-        _atomic_json(doc, b.root / "fe" / f"{name}.json")
+        atomic_write_json(b.root / "fe" / f"{name}.json", doc)
         st = [p["status"] for p in doc["periods"]]
         out[name] = {"periods": len(st), "solved": st.count("solved"), "failed": st.count("failed"),
                      "skipped": st.count("skipped"),

@@ -6,23 +6,17 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shlex
 import time
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from runtime.files import atomic_write, atomic_write_json
 
 
 log = logging.getLogger(__name__)
 
-
-def _atomic_json(obj, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
 
 
 def recorder(b, spec):
@@ -144,7 +138,7 @@ def stage_keypoints(b) -> dict:
         ses = load_session(b.session(spec), check_frames=False)
         kps = extract_keypoints(ses.table("poses"), ses.table("wrench"), ses.table("frames"), kcfg)
         doc = keypoints_doc(ses, kps, kcfg, str(b.session(spec).resolve()))
-        _atomic_json(doc, path)
+        atomic_write_json(path, doc)
         plan = recorder(b, spec).plan   # reported only (periods vs the twin's plan), never used downstream
         out[spec.name] = {"periods": len(doc["periods"]), "keypoints": sum(len(p["t"]) for p in doc["periods"]),
                           "planned_pokes": len(plan), "planned_keypoints": int(sum(len(p.times) for p in plan))}
@@ -167,7 +161,7 @@ def stage_fe(b) -> dict:
         doc = {"session": spec.name, "mode": "twin", "scenarios": hashes, "frames": [int(r.U.shape[0]) for r in res],
                "recorded_scenarios": truth.get("fe_scenarios", []),
                "resolved": [h for h in hashes if h not in truth.get("fe_scenarios", [])]}
-        _atomic_json(doc, b.root / "fe" / f"{spec.name}.json")
+        atomic_write_json(b.root / "fe" / f"{spec.name}.json", doc)
         out[spec.name] = doc["frames"]
     return {"fe_frames": out}
 
@@ -191,7 +185,7 @@ def stage_simreal(b) -> dict:
                            [x.slots for x in src], [x.result.RF for x in src])
         doc = {"session": spec.name, "fe": fe_mode(b), "ratios": {str(k): v for k, v in r.items()},
                "twin_stiffness_scale": rec.unit.params.stiffness_scale}
-        _atomic_json(doc, b.root / "simreal" / f"{spec.name}.json")
+        atomic_write_json(b.root / "simreal" / f"{spec.name}.json", doc)
         far = {k: round(v["magnitude"], 2) for k, v in r.items() if abs(np.log(v["magnitude"])) > np.log(RATIO_WARN)}
         if far:
             log.warning("sim-to-real %s: force ratios %s far from 1: the FE (tools.fe settings, material) and the "
@@ -231,9 +225,7 @@ def stage_dataset(b) -> dict:
 
                 d = session_samples_measured(b.session(spec), unit_calibration(b, spec.serial),
                                              label_sources(b, spec), rat, dcfg, progress=prog)
-            tmp = part.with_suffix(".tmp.npz")
-            np.savez(tmp, **d)
-            os.replace(tmp, part)
+            atomic_write(part, lambda fh: np.savez(fh, **d))
             log.info("dataset %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
         with np.load(part) as z:
             d = {k: z[k] for k in z.files}
@@ -342,7 +334,7 @@ def update_manifest(folder: Path, change) -> None:
     p = Path(folder) / "manifest.json"
     man = json.loads(p.read_text())
     change(man)
-    _atomic_json(man, p)
+    atomic_write_json(p, man)
 
 
 def _record_init(folder: Path, state: Path) -> None:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from runtime.errors import TensorTouchError
 from tools.twin.geometry import GelSurface
 from tools.twin.physics import PokeSolve
 from tools.twin.trajectory import INDENTER_SET, Poke
+from runtime.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -34,12 +34,6 @@ class PokeSolveFailed(TensorTouchError):
         super().__init__(message)
         self.last_keypoint = int(last_keypoint)
 
-
-def _write_json(path: Path, obj: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
 
 
 @dataclass
@@ -126,7 +120,7 @@ class FEPhysics:
                 reasons.append(str(exc))
                 log.warning("FE solve %s of twin poke %s %s did not converge (%s)%s", key, poke.kind, poke.indenters,
                             exc, "; retrying with smaller increments" if k < len(self.refine) else "")
-                _write_json(failed, {"scenario": key, "solver_revision": SOLVER_REVISION,
+                atomic_write_json(failed, {"scenario": key, "solver_revision": SOLVER_REVISION,
                                      "message": str(exc), "last_keypoint": reached,
                                      "keypoints": sc.n_keypoints, "max_increment_mm": sc.solver.max_increment_mm,
                                      "max_increment_rad": sc.solver.max_increment_rad})

@@ -20,8 +20,6 @@ import hashlib
 import io
 import json
 import logging
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +27,7 @@ from scipy import ndimage
 
 from runtime.errors import TensorTouchError
 from runtime.fields import CHANNELS, INPUT_CHANNELS, N_CHANNELS
+from runtime.files import atomic_write
 
 log = logging.getLogger(__name__)
 SCHEMA = "tensortouch.dataset"
@@ -37,13 +36,6 @@ SCHEMA = "tensortouch.dataset"
 class DatasetError(TensorTouchError):
     """A dataset directory violates the dataset contract."""
 
-
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
 
 
 def write_sample(root: Path, i: int, inp: np.ndarray, target: np.ndarray) -> dict:
@@ -55,7 +47,7 @@ def write_sample(root: Path, i: int, inp: np.ndarray, target: np.ndarray) -> dic
     np.savez_compressed(buf, input=inp, target=target.astype(np.float32))
     rel = f"samples/{i:06d}.npz"
     data = buf.getvalue()
-    _atomic_bytes(Path(root) / rel, data)
+    atomic_write(Path(root) / rel, data)
     return {"file": rel, "sha256": hashlib.sha256(data).hexdigest()}
 
 
@@ -63,7 +55,7 @@ def write_index(root: Path, entries: list[dict], size: tuple[int, int], source: 
     doc = {"schema": SCHEMA, "schema_version": 1, "size": list(size), "input_channels": list(INPUT_CHANNELS),
            "output_channels": list(CHANNELS), "source": source, "samples": entries}
     data = json.dumps(doc, indent=1).encode()
-    _atomic_bytes(Path(root) / "index.json", data)
+    atomic_write(Path(root) / "index.json", data)
     return hashlib.sha256(data).hexdigest()
 
 

@@ -13,8 +13,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -26,6 +24,7 @@ from tools.train.model import build_model
 from tools.train.model.data import DatasetError, load_split, read_index
 from tools.train.model.device import Precision, cpu_state, resolve_device
 from tools.train.model.metrics import evaluate
+from runtime.files import atomic_write, atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -101,18 +100,6 @@ def lr_at(step: int, total: int, base: float, warmup_steps: int, warmup_max_frac
     return base * 0.5 * (1 + math.cos(math.pi * progress))
 
 
-def _atomic_save(obj, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    os.close(fd)
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-def _atomic_json(obj, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(obj, fh, indent=1)
-    os.replace(tmp, path)
 
 
 def _prepare_run(out: Path, config: dict) -> dict | None:
@@ -125,7 +112,7 @@ def _prepare_run(out: Path, config: dict) -> dict | None:
             diff = sorted(k for k in set(old) | set(config) if old.get(k) != config.get(k))
             raise DatasetError(f"{cfg_path}: run exists with a different configuration ({diff}); "
                                "use a new --out or delete the run")
-    _atomic_json(config, cfg_path)
+    atomic_write_json(cfg_path, config)
     if ckpt_path.exists():
         return torch.load(ckpt_path, weights_only=False, map_location="cpu")
     return None
@@ -188,7 +175,7 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
     hist = open(out / "history.jsonl", "a")
 
     def save(epoch: int, batch: int):
-        _atomic_save({"model": cpu_state(model), "optimizer": opt.state_dict(), "step": step,
+        save_state({"model": cpu_state(model), "optimizer": opt.state_dict(), "step": step,
                       "epoch": epoch, "batch": batch, "extra": extra, "torch_rng": torch.get_rng_state(),
                       "grad_scaler": precision.state_dict()},
                      out / "checkpoint.pt")
@@ -356,7 +343,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         if val < extra.get("best_val", float("inf")):
             extra["best_val"] = val
             extra["best_epoch"] = epoch
-            _atomic_save(cpu_state(model), out / "best.pt")
+            save_state(cpu_state(model), out / "best.pt")
         return {"val_l1": val}
 
     extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch)
@@ -365,7 +352,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     metrics = evaluate(predict(model, x_va, cfg.eval_batch), y_va, bounds)
     result = {"arch": cfg.arch, "image_size": size, "params": sum(p.numel() for p in model.parameters()),
               "metrics": metrics, "val_samples": int(x_va.shape[0]), **extra}
-    _atomic_json(result, out / "metrics.json")
+    atomic_write_json(out / "metrics.json", result)
     return result
 
 
@@ -415,7 +402,7 @@ def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainCo
         return m(xb)[0]
 
     extra = _loop(out, mae, loss_fn, x_tr, None, cfg, "pretrain")
-    _atomic_save(cpu_state(mae.encoder), out / "encoder.pt")
+    save_state(cpu_state(mae.encoder), out / "encoder.pt")
     return {"image_size": size, **extra}
 
 
@@ -426,3 +413,8 @@ def load_trained(run: str | Path):
     model = build_model(info["arch"], info["image_size"])
     model.load_state_dict(torch.load(run / "best.pt", weights_only=True, map_location="cpu"))
     return model.eval(), info
+
+
+def save_state(obj, path: Path) -> None:
+    """torch.save, atomically (runtime.files)."""
+    atomic_write(path, lambda fh: torch.save(obj, fh))
