@@ -12,11 +12,10 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+
 from runtime.files import atomic_write, atomic_write_json
 
-
 log = logging.getLogger(__name__)
-
 
 
 def recorder(b, spec):
