@@ -10,7 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from tools.train.build import STAGES, Build, BuildConfig, run_build, stage_keys, tiny_config
+from tools.train.build import STAGES, Build, BuildConfig, stage_keys, tiny_config
+from tools.train.runner import run_build
 
 
 def test_stage_keys_change_only_downstream():
@@ -163,7 +164,7 @@ def test_tiny_recipe_with_a_lineage_ships_a_package_that_names_and_rebuilds_its_
     """fit (step base) → fit from base's weights (step more) → export → evaluate on the tiny dataset; the
     package verifies and runs in the runtime; its manifest names the recipe and the lineage, and rebuilds."""
     from runtime.model import FieldModel, load_package
-    from tools.train.build import run_recipe
+    from tools.train.runner import run_recipe
     from tools.train.export import verify_package
     from tools.train.recipe import RecipeError, apply_set, load_recipe
 

@@ -1,4 +1,4 @@
-"""`tensortouch train all --recipe NAME`: the one-command build of a model package from nothing.
+"""The build folder of `tensortouch train all --recipe NAME`: its configuration, paths and stamps.
 
     (0) sessions → (1) keypoints → (2) FE labels → (3) 2D–3D correspondence → (4) sim-to-real ratios
     → (5) dataset → (6) [MAE pretrain] + fit → (7) export → exported_models/<name>/ → (8) evaluation
@@ -208,56 +208,8 @@ class Build:
         return json.loads(p.read_text()) if p.is_file() else {}
 
 
-# ------------------------------------------------------------------------------------------ stages
-
-def stage_sessions(b: Build) -> dict:
-    """Record the twin sessions (FE physics, cached per poke) and write each unit's TRUE calibration
-    into the build's store (the twin truth the correspondence stage is checked against)."""
-    from tools.progress import stage_progress
-    from tools.twin.record import Recorder
-    from tools.twin.unit import write_true_calibration
-
-    out = {}
-    for i, spec in enumerate(b.all_sessions()):
-        path = b.session(spec)
-        rec = Recorder(spec.record_config(b.cfg.physics, b.cfg.size), path, progress=stage_progress(spec.name))
-        version = write_true_calibration(rec.unit, b.store_root, b.cfg.size)
-        if (path / "session.json").is_file():
-            log.info("[sessions %d/%d] %s already recorded", i + 1, len(b.all_sessions()), spec.name)
-        else:
-            log.info("[sessions %d/%d] recording %s (unit %s, seed %d, %d pokes)", i + 1, len(b.all_sessions()),
-                     spec.name, spec.serial, spec.seed, spec.pokes)
-            rec.run()
-        out[spec.name] = {"path": str(path), "true_calibration": version}
-    return {"sessions": out}
 
 
-def _import_stage(name: str):
-    from tools.train import stages
-
-    return getattr(stages, f"stage_{name}")
-
-
-def run_build(cfg: BuildConfig, stages: list[str] | None = None, root: Path | None = None, command: str = "",
-              force: list[str] | None = None, step: str = "") -> Build:
-    """Run (or resume) the build; stages already stamped with the same configuration are skipped."""
-    b = Build(cfg, root, command, step)
-    wanted = stages or list(STAGES)
-    t_build = time.monotonic()
-    for st in STAGES:
-        if st not in wanted:
-            continue
-        if b.done(st) and st not in (force or []):
-            log.info("stage %-14s done (stamp %s) — skipped", st, b.stamp_path(st).name)
-            continue
-        log.info("stage %-14s start", st)
-        t0 = time.monotonic()
-        fn = stage_sessions if st == "sessions" else _import_stage(st)
-        info = fn(b) or {}
-        b.stamp(st, info, time.monotonic() - t0)
-        log.info("stage %-14s finished in %.0f s", st, time.monotonic() - t0)
-    log.info("build %s: %.0f s this run", b.root, time.monotonic() - t_build)
-    return b
 
 
 def tiny_config(name: str = "tiny-smoke", build: str = "tiny") -> BuildConfig:
@@ -290,80 +242,7 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
     return BuildConfig.from_dict(d)
 
 
-def git_commit() -> str | None:
-    """The commit of the checkout the build runs from (+ "-dirty" with uncommitted changes), if any."""
-    import subprocess
 
-    repo = Path(__file__).resolve().parents[2]
-    try:
-        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True,
-                              timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return head + ("-dirty" if dirty else "")
-
-
-def check_replace(package: Path, recipe_hash: str, data_hash: str | None, replace: bool) -> None:
-    """Export never silently replaces a package made from another recipe or other data."""
-    from tools.train.recipe import RecipeError
-
-    man_path = package / "manifest.json"
-    if replace or not man_path.is_file():
-        return
-    try:
-        training = json.loads(man_path.read_text()).get("training") or {}
-    except (OSError, ValueError, AttributeError):
-        training = {}
-    old_recipe = (training.get("recipe") or {}).get("hash")
-    if old_recipe != recipe_hash or training.get("data_hash") != data_hash:
-        what = (f"recipe {old_recipe or 'none recorded'}" if old_recipe != recipe_hash
-                else f"data {str(training.get('data_hash'))[:12]}")
-        raise RecipeError(f"{package} was built from {what}; this build would replace it: give --replace, "
-                          f"or --set models_dir=DIR to export elsewhere")
-
-
-def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None, command: str = "",
-               force: list[str] | None = None, replace: bool = False, overrides: dict | None = None) -> Build:
-    """Run (or resume) every step of a recipe in order; the last step exports the package.
-
-    All steps share one build folder (`<cache>/train/<recipe name>/`): the stages before the fit are
-    run once when the steps agree on them; each step's pretrain/fit/export/evaluate stamps are its own.
-    A step with `after = "<step>"` starts its fit from that step's best weights."""
-    from runtime.paths import cache_dir
-    from tools.train.stages import fit_dir, update_manifest
-
-    root = Path(root) if root else cache_dir() / "train" / recipe.name
-    steps = recipe.steps()
-    fits: dict[str, Path] = {}
-    lineage: list[dict] = []
-    b = None
-    for i, step in enumerate(steps):
-        last = i == len(steps) - 1
-        cfg = config_from_dict({**recipe.config(step), **(overrides or {})}, f"{recipe.source} (step {step.name})")
-        cfg.build = recipe.name
-        if step.after:
-            cfg.init_from = str(fits[step.after] / "best.pt")
-        wanted = list(stages or STAGES) if last else [s for s in (stages or STAGES) if STAGES.index(s) <= STAGES.index("fit")]
-        before_export = [s for s in wanted if STAGES.index(s) < STAGES.index("export")]
-        b = Build(cfg, root, command, step.name if len(steps) > 1 else "")
-        if before_export:
-            b = run_build(cfg, before_export, root, command, force, step=b.step)
-        fits[step.name] = fit_dir(b)
-        lineage.append({"step": step.name, "after": step.after, "fit_run": str(fits[step.name].relative_to(root)),
-                        "fit_key": b.keys["fit"]})
-        after = [s for s in wanted if s not in before_export] if last else []
-        if "export" in after:
-            package = (Path(cfg.models_dir) if cfg.models_dir else _models_dir()) / cfg.name
-            check_replace(package, recipe.hash, b.read_stamp("dataset").get("data_hash"), replace)
-        if after:
-            exported = "export" in after and not (b.done("export") and "export" not in (force or []))
-            b = run_build(cfg, after, root, command, force, step=b.step)
-            if exported:
-                update_manifest(package, lambda man: man["training"].update(
-                    recipe=recipe.record(), git_commit=git_commit(), lineage=lineage))
-    return b
 
 
 def recipe_build(ref: str, sets: list[str] | tuple = (), root: str | Path | None = None) -> Build:
@@ -378,62 +257,26 @@ def recipe_build(ref: str, sets: list[str] | tuple = (), root: str | Path | None
     return Build(cfg, Path(root) if root else None, step=steps[-1].name if len(steps) > 1 else "")
 
 
-def _models_dir() -> Path:
-    from runtime.paths import models_dir
+def unit_meta(b, serial: str) -> dict:
+    """The unit's current calibration metadata (gel design geometry `gel`, camera) — what a real rig's
+    calibration store holds before any training stage runs."""
+    from runtime.calibration import CalibrationStore
 
-    return models_dir()
-
-
-def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force: list[str] | None = None) -> int:
-    from tools.train.recipe import load_recipe
-
-    recipe = load_recipe(args.recipe, args.set or [])
-    stages = only or getattr(args, "stages", None)
-    if upto:
-        stages = list(STAGES[:STAGES.index(upto) + 1])
-    overrides = {k: v for k, v in (("threads", args.threads), ("models_dir", args.models_dir),
-                                    ("device", args.device), ("fe_cluster", args.fe_cluster)) if v}
-    b = run_recipe(recipe, stages, Path(args.root) if args.root else None, args.command_line,
-                   force=list(args.force or []) + list(force or []), replace=args.replace, overrides=overrides)
-    ex = b.read_stamp("export")
-    if ex and (not stages or "export" in stages):
-        print(f"model package {ex['package']} (recipe {recipe.name} {recipe.hash}): PSNR fp32 {ex['psnr_fp32']:.2f} / "
-              f"int8 {ex['psnr_int8']:.2f} dB, latency int8 {ex['latency_ms']['int8']:.2f} ms, "
-              f"build wall time {ex['wall_time_s']:.0f} s")
-    ev = b.read_stamp("evaluate")
-    if ev and (not stages or "evaluate" in stages):
-        print(json.dumps(ev.get("summary", {}), indent=1))
-    return 0
+    return CalibrationStore(b.store_root).load(serial).meta
 
 
-def register_build(ts) -> None:
-    """`train all`, `train dataset`, `train evaluate` under the `train` subparsers."""
-    def common(q):
-        q.add_argument("--recipe", default="hiera-qup-128",
-                       help="recipe name (tools/train/recipes/NAME.toml), a .toml file, or a package's manifest.json "
-                            "to rebuild it (default: hiera-qup-128)")
-        q.add_argument("--set", action="append", metavar="KEY=VALUE",
-                       help="change one recipe field: a build field (epochs=2) or steps.STEP.FIELD=VALUE (repeat)")
-        q.add_argument("--root", help="build folder (default: <cache>/train/<recipe name>/)")
-        q.add_argument("--models-dir", help="where the package is exported (default: exported_models/)")
-        q.add_argument("--threads", type=int, help="torch threads for training (default: the recipe's)")
-        q.add_argument("--device", choices=("auto", "cpu", "cuda"),
-                       help="training device (default auto: CUDA with mixed precision when present, else CPU)")
-        q.add_argument("--cluster", dest="fe_cluster", metavar="tcp://HOST:8786",
-                       help="stage 2: solve the FE labels on this Dask.distributed scheduler (default: local processes)")
-        q.add_argument("--force", nargs="+", choices=STAGES, default=[], metavar="STAGE",
-                       help="rerun these stages even if stamped (" + ", ".join(STAGES) + ")")
-        q.add_argument("--replace", action="store_true",
-                       help="let export replace a package built from another recipe or other data")
-    a = ts.add_parser("all", help="build a model package from its recipe, from nothing: twin → FE → dataset → "
-                                  "train → export → eval (resumes)")
-    common(a)
-    a.add_argument("--stages", nargs="+", choices=STAGES, metavar="STAGE", help="run only these stages")
-    a.set_defaults(func=cmd_all)
-    d = ts.add_parser("dataset", help="a recipe's stages up to the dataset (twin sessions, keypoints, FE, "
-                                      "correspondence, sim-to-real, field images)")
-    common(d)
-    d.set_defaults(func=lambda args: cmd_all(args, upto="dataset"), stages=None)
-    e = ts.add_parser("evaluate", help="held-out twin sessions of a recipe through the runtime (reruns it)")
-    common(e)
-    e.set_defaults(func=lambda args: cmd_all(args, only=["evaluate"], force=["evaluate"]), stages=None)
+def unit_calibration(b, serial: str):
+    """The calibration the dataset and evaluation use for a unit (stage 3's choice)."""
+    from runtime.calibration import CalibrationStore
+
+    info = json.loads((b.root / "correspondence" / f"{serial}.json").read_text())
+    return CalibrationStore(b.store_root).load(serial, info["version"])
+
+
+def pretrain_dir(b) -> Path:
+    """Run folder of the MAE pretraining (one per configuration, so a changed budget starts anew)."""
+    return b.root / "runs" / f"pretrain-{b.keys['pretrain']}"
+
+
+def fit_dir(b) -> Path:
+    return b.root / "runs" / f"fit-{b.keys['fit']}"

@@ -198,7 +198,7 @@ def register(sub) -> None:
     b.add_argument("--runs", type=int, default=60, help="latency runs per model")
     b.add_argument("--out", help="also write the JSON here")
     b.set_defaults(func=cmd_bench)
-    __import__("tools.train.build", fromlist=["register_build"]).register_build(ts)  # all, dataset, evaluate
+    register_build(ts)  # all, dataset, evaluate
     for name, module, helptext in TOOLS:
         mod = importlib.import_module(module)
         q = ts.add_parser(name, help=helptext, description=helptext)
@@ -209,3 +209,61 @@ def register(sub) -> None:
     evaluate.add_budget_arguments(q)
     q.set_defaults(func=evaluate.run_budget_command)
 
+
+def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force: list[str] | None = None) -> int:
+    from tools.train.build import STAGES
+    from tools.train.recipe import load_recipe
+    from tools.train.runner import run_recipe
+
+    recipe = load_recipe(args.recipe, args.set or [])
+    stages = only or getattr(args, "stages", None)
+    if upto:
+        stages = list(STAGES[:STAGES.index(upto) + 1])
+    overrides = {k: v for k, v in (("threads", args.threads), ("models_dir", args.models_dir),
+                                    ("device", args.device), ("fe_cluster", args.fe_cluster)) if v}
+    b = run_recipe(recipe, stages, Path(args.root) if args.root else None, args.command_line,
+                   force=list(args.force or []) + list(force or []), replace=args.replace, overrides=overrides)
+    ex = b.read_stamp("export")
+    if ex and (not stages or "export" in stages):
+        print(f"model package {ex['package']} (recipe {recipe.name} {recipe.hash}): PSNR fp32 {ex['psnr_fp32']:.2f} / "
+              f"int8 {ex['psnr_int8']:.2f} dB, latency int8 {ex['latency_ms']['int8']:.2f} ms, "
+              f"build wall time {ex['wall_time_s']:.0f} s")
+    ev = b.read_stamp("evaluate")
+    if ev and (not stages or "evaluate" in stages):
+        print(json.dumps(ev.get("summary", {}), indent=1))
+    return 0
+
+
+def register_build(ts) -> None:
+    """`train all`, `train dataset`, `train evaluate` under the `train` subparsers."""
+    from tools.train.build import STAGES
+
+    def common(q):
+        q.add_argument("--recipe", default="hiera-qup-128",
+                       help="recipe name (tools/train/recipes/NAME.toml), a .toml file, or a package's manifest.json "
+                            "to rebuild it (default: hiera-qup-128)")
+        q.add_argument("--set", action="append", metavar="KEY=VALUE",
+                       help="change one recipe field: a build field (epochs=2) or steps.STEP.FIELD=VALUE (repeat)")
+        q.add_argument("--root", help="build folder (default: <cache>/train/<recipe name>/)")
+        q.add_argument("--models-dir", help="where the package is exported (default: exported_models/)")
+        q.add_argument("--threads", type=int, help="torch threads for training (default: the recipe's)")
+        q.add_argument("--device", choices=("auto", "cpu", "cuda"),
+                       help="training device (default auto: CUDA with mixed precision when present, else CPU)")
+        q.add_argument("--cluster", dest="fe_cluster", metavar="tcp://HOST:8786",
+                       help="stage 2: solve the FE labels on this Dask.distributed scheduler (default: local processes)")
+        q.add_argument("--force", nargs="+", choices=STAGES, default=[], metavar="STAGE",
+                       help="rerun these stages even if stamped (" + ", ".join(STAGES) + ")")
+        q.add_argument("--replace", action="store_true",
+                       help="let export replace a package built from another recipe or other data")
+    a = ts.add_parser("all", help="build a model package from its recipe, from nothing: twin → FE → dataset → "
+                                  "train → export → eval (resumes)")
+    common(a)
+    a.add_argument("--stages", nargs="+", choices=STAGES, metavar="STAGE", help="run only these stages")
+    a.set_defaults(func=cmd_all)
+    d = ts.add_parser("dataset", help="a recipe's stages up to the dataset (twin sessions, keypoints, FE, "
+                                      "correspondence, sim-to-real, field images)")
+    common(d)
+    d.set_defaults(func=lambda args: cmd_all(args, upto="dataset"), stages=None)
+    e = ts.add_parser("evaluate", help="held-out twin sessions of a recipe through the runtime (reruns it)")
+    common(e)
+    e.set_defaults(func=lambda args: cmd_all(args, only=["evaluate"], force=["evaluate"]), stages=None)

@@ -198,7 +198,7 @@ def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
     from tools.fe import GelGeometry, save_scenario
     from tools.fe.batch import run_batch
     from tools.train.resolve import ResolveError, period_scenario
-    from tools.train.resolve_stage import _fallback_solve, fe_cache_dir
+    from tools.train.sources import fallback_solve, fe_cache_dir
     from tools.twin.trajectory import INDENTER_SET
 
     from tools.fe import load_result
@@ -229,7 +229,7 @@ def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
             path = fe_cache_dir() / f"{ps.scenario.hash()}.npz"
             out.append({"result": load_result(path), "t_init": ps.t_init} if path.is_file() else None)
         else:
-            out.append({"result": _fallback_solve(ps, gel), "t_init": ps.t_init})
+            out.append({"result": fallback_solve(ps, gel), "t_init": ps.t_init})
     return out
 
 

@@ -35,9 +35,8 @@ def run(args: argparse.Namespace) -> int:
     from runtime.errors import TensorTouchError
     from runtime.model import load_package
     from runtime.session import load_session
-    from tools.train.build import recipe_build
+    from tools.train.build import recipe_build, unit_calibration
     from tools.train.evaluate import EvalConfig, evaluate_session, summarize
-    from tools.train.stages import unit_calibration
 
     if len(args.store) != len(args.session):
         raise TensorTouchError("crosseval: give one --store per --session")

@@ -9,7 +9,7 @@ the cluster nearest to that indenter's mocap tip is compared with it:
   axis and magnitude; a contact frame without any cluster counts as a miss (predicted force 0).
 Rest frames (all measured |F| < `rest_n`) report the predicted total force (should be 0).
 
-Pure core: `frame_errors`, `summarize`. Shells: `evaluate_session`, `evaluate_build`, figures.
+Pure core: `frame_errors`, `summarize`. Shell: `evaluate_session` (stage 8, `stages.stage_evaluate`, runs it on a build's held-out sessions).
 """
 from __future__ import annotations
 
@@ -125,40 +125,6 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
     return {"rows": rows, "rest": rest, "trace": trace, "kept": kept, "sensor": ses.sensor_id, "phantoms": phantoms}
 
 
-def evaluate_build(b) -> dict:
-    """Stage 8 of a build: held-out sessions (+ the shipped demo) → eval/*.json, docs figures."""
-    from runtime.calibration import CalibrationStore
-    from runtime.model import load_package
-    from runtime.paths import demo_dir, models_dir
-    from tools.train.stages import unit_calibration
-
-    root = Path(b.cfg.models_dir) if b.cfg.models_dir else models_dir()
-    package = load_package(root / b.cfg.name)
-    targets = [(s.name, b.session(s), unit_calibration(b, s.serial)) for s in b.cfg.heldout]
-    if b.cfg.eval_demo and (demo_dir() / "session.json").is_file():
-        try:
-            targets.append(("demo", demo_dir(), CalibrationStore().load("TWIN-DEMO")))
-        except Exception as exc:  # noqa: BLE001 — the demo is optional for a build
-            log.warning("demo evaluation skipped: %s", exc)
-    summary = {}
-    for name, path, cal in targets:
-        if tuple(cal.model_size) != tuple(package.size):
-            log.warning("%s: calibration size %s ≠ model %s; skipped", name, cal.model_size, package.size)
-            continue
-        r = evaluate_session(path, package, cal, EvalConfig(contact_n=b.cfg.eval_contact_n))
-        s = summarize(r["rows"], r["rest"], r["phantoms"])
-        summary[name] = s
-        (b.root / "eval").mkdir(exist_ok=True)
-        (b.root / "eval" / f"{name}.json").write_text(json.dumps({"summary": s, "rows": r["rows"],
-                                                                  "trace": r["trace"]}, indent=0))
-        log.info("evaluate %s: %s", name, json.dumps(s))
-    (b.root / "eval" / "summary.json").write_text(json.dumps(summary, indent=1))
-    if b.cfg.figures and b.cfg.heldout:
-        from tools.train.figures import write_figures
-
-        write_figures(b, package)
-    return {"summary": summary}
-
 
 # ------------------------------------------------------------------------------------ error budget
 # Where the force error comes from (docs/BENCHMARKS.md "Shipped model", error budget):
@@ -213,14 +179,15 @@ def budget_table(items: list[dict], key: str = "label") -> dict:
 def session_label_samples(b, spec, stride: int = 1):
     """(samples dict as the dataset builds them + 'nind', calibration) of one session: the build's own
     label path (twin solves or re-solved FE, stage-4 ratios, the unit's tables), every `stride`-th frame."""
-    from tools.train import stages
+    from tools.train import sources
+    from tools.train.build import unit_calibration
     from tools.train.dataset import DatasetConfig, session_samples
 
-    src = stages.label_sources(b, spec)
+    src = sources.label_sources(b, spec)
     ratios = {int(k): v for k, v in json.loads((b.root / "simreal" / f"{spec.name}.json").read_text())["ratios"].items()}
-    cal = stages.unit_calibration(b, spec.serial)
+    cal = unit_calibration(b, spec.serial)
     dcfg = DatasetConfig(size=b.cfg.size, contact_stride=stride, rest_fraction=b.cfg.rest_fraction)
-    if stages.fe_mode(b) == "twin":
+    if sources.fe_mode(b) == "twin":
         d = session_samples(b.session(spec), cal, [s.poke for s in src], [s.result for s in src],
                             [s.slots for s in src], ratios, dcfg)
     else:

@@ -105,7 +105,7 @@ def fig10(fields: np.ndarray, image: np.ndarray, title: str, out: Path) -> Path:
 def write_figures(b, package, docs: Path | None = None) -> list[Path]:
     """Fig. 11 and Fig. 10 for the build's first held-out session."""
     from tools.train.evaluate import evaluate_session
-    from tools.train.stages import unit_calibration
+    from tools.train.build import unit_calibration
 
     docs = docs or _docs()
     spec = b.cfg.heldout[0]

@@ -20,7 +20,7 @@ import numpy as np
 
 from runtime.errors import ModelPackageError
 from runtime.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
-from runtime.files import atomic_write
+from runtime.files import atomic_write, atomic_write_json
 
 SCHEMA = "tensortouch.model"
 SCHEMA_VERSION = 1
@@ -167,3 +167,12 @@ def verify_package(folder: str | Path) -> dict:
             raise ModelPackageError(f"{folder / fname}: graph input {i_dims} / output {o_dims} do not match "
                                     f"[N, 6, {h}, {w}] / [N, 15, {out['size'][0]}, {out['size'][1]}]")
     return man
+
+
+def update_manifest(folder: Path, change) -> None:
+    """Apply `change(manifest)` to a package's manifest.json and write it atomically (the manifest is
+    not itself hashed, so export-time records such as wall time, threshold, init checkpoint go here)."""
+    p = Path(folder) / "manifest.json"
+    man = json.loads(p.read_text())
+    change(man)
+    atomic_write_json(p, man)

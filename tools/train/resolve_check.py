@@ -26,8 +26,7 @@ def compare_session(b, spec, reference: str = "recorded") -> list[dict]:
     import json as _json
 
     from tools.fe import load_result
-    from tools.train.resolve_stage import resolved_sources
-    from tools.train.stages import recorder
+    from tools.train.sources import recorder, resolved_sources
     from tools.twin.fe_physics import from_fe_result
     from tools.twin.geometry import GelSurface
     from tools.twin.physics import interpolate
@@ -76,7 +75,7 @@ def label_coverage(b, spec) -> dict:
     from runtime.session import load_session, read_table
     from tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share
     from tools.train.resolve import PoseTrack
-    from tools.train.resolve_stage import resolved_sources
+    from tools.train.sources import resolved_sources
 
     ses = load_session(b.session(spec), check_frames=False)
     fr = ses.table("frames")

@@ -18,31 +18,17 @@ import json
 import logging
 from dataclasses import replace
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
+
+from tools.train.build import unit_meta
+from tools.train.sources import fe_cache_dir, gel_of
 
 log = logging.getLogger(__name__)
 
 SCHEMA = "tensortouch.train_fe"
 
 
-def fe_cache_dir() -> Path:
-    from tools.fe.batch import default_dir
-
-    return default_dir()
-
-
-def _gel(calibration_meta: dict):
-    """tools.fe GelGeometry + tools.twin GelSurface of the unit's gel design (calibration meta.gel)."""
-    from tools.fe import GelGeometry
-    from tools.twin.geometry import GelSurface
-
-    g = calibration_meta.get("gel", {})
-    shape = g.get("shape", "flattened_dome")
-    base, cap, skirt = float(g.get("base_radius_mm", 12.0)), float(g.get("cap_height_mm", 6.0)), float(g.get("skirt_mm", 2.0))
-    gel = GelGeometry(kind=shape, radius=base, cap_height=cap, skirt=skirt)
-    return gel, GelSurface.from_fe(gel)
 
 
 def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: dict, catalog=None, cfg=None):
@@ -57,7 +43,7 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
     names = {int(k): v for k, v in ses.streams["poses"].get("indenters", {}).items()}
     poses = ses.table("poses")
     doc = json.loads(Path(keypoint_file).read_text())
-    gel, surf = _gel(calibration_meta)
+    gel, surf = gel_of(calibration_meta)
     out = []
     for i, per in enumerate(doc["periods"]):
         slots = [int(k) for k in per["indenters"]]
@@ -75,24 +61,6 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
     return out
 
 
-def _fallback_solve(ps, gel_surface):
-    """Analytic (hertz-fallback) stand-in for tools.fe on a period scenario — smoke tests only."""
-    from tools.train.stages import _fallback_result
-    from tools.twin.physics import HertzFallbackPhysics
-    from tools.twin.trajectory import Poke
-
-    sc = ps.scenario
-    K = len(sc.indenters)
-    poke = Poke("resolved", list(ps.names), list(ps.slots),
-                np.array([i.position for i in sc.indenters], float), np.array([i.rotation for i in sc.indenters], float),
-                np.array([[k.translation for k in i.keypoints] for i in sc.indenters], float).reshape(K, -1, 3),
-                np.array([[k.rotation for k in i.keypoints] for i in sc.indenters], float).reshape(K, -1, 3),
-                np.asarray(ps.times, float), float(ps.t_init), float(ps.times[-1]))
-    res = _fallback_result(HertzFallbackPhysics(gel_surface).solve(poke))
-    res.scenario_hash = sc.hash()
-    res.pose_position = np.transpose(poke.position[:, None, :] + poke.translation, (1, 0, 2))
-    return res
-
 
 def stage_fe_resolve(b, cfg=None) -> dict:
     """Stage 2 (resolve) over every session of the build; returns counts for the stamp."""
@@ -100,7 +68,6 @@ def stage_fe_resolve(b, cfg=None) -> dict:
     from tools.fe.batch import run_batch
     from tools.train.resolve import ResolveConfig
     from runtime.files import atomic_write_json
-    from tools.train.stages import unit_meta
 
     cfg = cfg or ResolveConfig()
     docs, jobs = {}, []
@@ -167,30 +134,3 @@ def stage_fe_resolve(b, cfg=None) -> dict:
     return {"mode": "resolve", "sessions": out}
 
 
-def resolved_sources(b, spec) -> list:
-    """Label sources of a session from fe/<session>.json (resolve mode), solved periods only."""
-    from tools.fe import load_result, load_scenario
-    from tools.train.stages import unit_meta
-
-    doc = json.loads((b.root / "fe" / f"{spec.name}.json").read_text())
-    if doc.get("mode") != "resolve":
-        raise ValueError(f"{b.root / 'fe' / (spec.name + '.json')}: mode {doc.get('mode')!r}, expected 'resolve' "
-                         "(rerun stage fe)")
-    out = []
-    surf = None
-    for per in doc["periods"]:
-        if per["status"] != "solved":
-            continue
-        if b.cfg.physics == "fe":
-            res = load_result(fe_cache_dir() / f"{per['scenario']}.npz")
-        else:
-            if surf is None:
-                surf = _gel(unit_meta(b, spec.serial))[1]
-            sc = load_scenario(per["file"])
-            ps = SimpleNamespace(scenario=sc, names=per["names"], slots=per["indenters"], times=per["times"],
-                                 t_init=per["t_init"])
-            res = _fallback_solve(ps, surf)
-        out.append(SimpleNamespace(times=np.asarray(per["times"], float), slots=list(per["indenters"]), result=res,
-                                   t_init=float(per["t_init"]), is_keypoint=np.asarray(per["is_keypoint"], bool),
-                                   poke=None, period=int(per["period"]), scenario=per["scenario"]))
-    return out

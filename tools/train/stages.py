@@ -9,110 +9,23 @@ import logging
 import shlex
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from runtime.files import atomic_write, atomic_write_json
 
+from tools.train.build import fit_dir, pretrain_dir, unit_calibration
+from tools.train.package import update_manifest
+from tools.train.sources import fe_mode, fe_results, label_sources, recorder
+
 log = logging.getLogger(__name__)
 
 
-def recorder(b, spec):
-    """The twin Recorder of a session spec (not run): plan, unit, modules, physics config."""
-    from tools.twin.record import Recorder
-
-    return Recorder(spec.record_config(b.cfg.physics, b.cfg.size), b.session(spec))
 
 
-def fe_results(b, spec) -> list:
-    """Twin mode (`--fe twin`): the FE results (tools.fe.FEResult) of every poke of a session: the very
-    solves the twin recorded with (truth/truth.json `fe_scenarios`, loaded from the FE cache), so labels,
-    images and F/T come from one physics even if tools/fe changed since; a solve missing from the cache is
-    redone with the current FE (its hash then differs and a warning says so). With hertz-fallback physics
-    (smoke tests only) the twin's PokeSolve stands in."""
-    from tools.fe import load_result
-    from tools.twin.record import make_physics
-
-    rec = recorder(b, spec)
-    physics = make_physics(rec.cfg, rec.unit)
-    if b.cfg.physics != "fe":
-        return [_fallback_result(physics.solve(p)) for p in rec.plan]
-    truth = json.loads((b.session(spec) / "truth" / "truth.json").read_text())
-    out = []
-    for poke, key in zip(rec.plan, truth["fe_scenarios"]):
-        path = physics.cache / f"{key}.npz"
-        if path.is_file():
-            out.append(load_result(path))
-        else:
-            res = physics.result(poke)
-            log.warning("%s: FE result %s of the recording is not in the cache; re-solved as %s with the "
-                        "current FE (labels may differ from the recorded physics)", spec.name, key, res.scenario_hash)
-            out.append(res)
-    return out
 
 
-def fe_mode(b) -> str:
-    return getattr(b.cfg, "fe", "twin")
 
-
-def label_sources(b, spec) -> list:
-    """The FE label sources of a session, one per poke (twin mode) or per resolved stage-1 contact
-    period (resolve mode): SimpleNamespace(times (J,) s of the FE frames, slots (session indenter ids),
-    result (FEResult-like), t_init, is_keypoint (J,), poke (twin Poke or None))."""
-    if fe_mode(b) == "twin":
-        rec = recorder(b, spec)
-        return [SimpleNamespace(times=np.asarray(p.times, float), slots=list(p.slots), result=r, poke=p,
-                                t_init=float(p.times[0]), is_keypoint=np.ones(len(p.times), bool))
-                for p, r in zip(rec.plan, fe_results(b, spec))]
-    from tools.train.resolve_stage import resolved_sources
-
-    return resolved_sources(b, spec)
-
-
-def _fallback_result(ps):
-    """A PokeSolve of the analytic fallback shaped like an FEResult (no stress, contact forces from the
-    reaction spread over the touched nodes) — only so the smoke test can run the chain without FE."""
-    J, N = ps.U.shape[:2]
-    K = ps.RF.shape[1]
-    from tools.twin.geometry import GelSurface
-
-    n0 = GelSurface().normals(ps.nodes)
-    cn = np.zeros((J, N, 3))
-    owner = np.full((J, N), -1)
-    for j in range(J):
-        for k in range(K):
-            depth = -np.sum(ps.U[j] * n0, 1)
-            sel = (depth > 0.3 * ps.depth[j, k]) & (ps.depth[j, k] > 0)
-            if np.isfinite(ps.contact[j, k]).all():
-                sel &= np.linalg.norm(ps.nodes - ps.contact[j, k], axis=1) < 4.0
-            if sel.any():
-                cn[j, sel] += ps.RF[j, k] / sel.sum()
-                owner[j, sel] = k
-    from scipy.spatial import Delaunay
-
-    from tools.train.fields import _disc, surface_angles
-
-    tris = Delaunay(_disc(*surface_angles(ps.nodes))).simplices
-    return SimpleNamespace(nodes=ps.nodes, surface_nodes=np.arange(N), surface_tris=tris, U=ps.U,
-                           S=np.zeros((J, N, 6)), CNORMF=cn, CSHEAR=np.zeros_like(cn), contact_owner=owner,
-                           RF=ps.RF, pose_position=np.zeros((J, K, 3)), scenario_hash=ps.key)
-
-
-def unit_meta(b, serial: str) -> dict:
-    """The unit's current calibration metadata (gel design geometry `gel`, camera) — what a real rig's
-    calibration store holds before any training stage runs."""
-    from runtime.calibration import CalibrationStore
-
-    return CalibrationStore(b.store_root).load(serial).meta
-
-
-def unit_calibration(b, serial: str):
-    """The calibration the dataset and evaluation use for a unit (stage 3's choice)."""
-    from runtime.calibration import CalibrationStore
-
-    info = json.loads((b.root / "correspondence" / f"{serial}.json").read_text())
-    return CalibrationStore(b.store_root).load(serial, info["version"])
 
 
 # ------------------------------------------------------------------------------------------- stages
@@ -121,6 +34,28 @@ RATIO_WARN = 1.3       # stage 4: warn when a sim-to-real force ratio is beyond 
 
 # hertz-fallback twin physics (smoke tests only) gives ~5x smaller forces than FE: scaled contact thresholds
 FALLBACK_CONTACT_N = (0.3, 0.22)
+
+
+def stage_sessions(b) -> dict:
+    """Record the twin sessions (FE physics, cached per poke) and write each unit's TRUE calibration
+    into the build's store (the twin truth the correspondence stage is checked against)."""
+    from tools.progress import stage_progress
+    from tools.twin.record import Recorder
+    from tools.twin.unit import write_true_calibration
+
+    out = {}
+    for i, spec in enumerate(b.all_sessions()):
+        path = b.session(spec)
+        rec = Recorder(spec.record_config(b.cfg.physics, b.cfg.size), path, progress=stage_progress(spec.name))
+        version = write_true_calibration(rec.unit, b.store_root, b.cfg.size)
+        if (path / "session.json").is_file():
+            log.info("[sessions %d/%d] %s already recorded", i + 1, len(b.all_sessions()), spec.name)
+        else:
+            log.info("[sessions %d/%d] recording %s (unit %s, seed %d, %d pokes)", i + 1, len(b.all_sessions()),
+                     spec.name, spec.serial, spec.seed, spec.pokes)
+            rec.run()
+        out[spec.name] = {"path": str(path), "true_calibration": version}
+    return {"sessions": out}
 
 
 def stage_keypoints(b) -> dict:
@@ -253,13 +188,6 @@ def _inputs_hash(b, spec) -> str:
     return h.hexdigest()[:10]
 
 
-def pretrain_dir(b) -> Path:
-    """Run folder of the MAE pretraining (one per configuration, so a changed budget starts anew)."""
-    return b.root / "runs" / f"pretrain-{b.keys['pretrain']}"
-
-
-def fit_dir(b) -> Path:
-    return b.root / "runs" / f"fit-{b.keys['fit']}"
 
 
 def stage_pretrain(b) -> dict:
@@ -327,14 +255,6 @@ def package_threshold(b, package_dir: Path) -> dict:
                    ThresholdConfig(support_px=b.cfg.support_px or None))
 
 
-def update_manifest(folder: Path, change) -> None:
-    """Apply `change(manifest)` to a package's manifest.json and write it atomically (the manifest is
-    not itself hashed, so export-time records such as wall time, threshold, init checkpoint go here)."""
-    p = Path(folder) / "manifest.json"
-    man = json.loads(p.read_text())
-    change(man)
-    atomic_write_json(p, man)
-
 
 def _record_init(folder: Path, state: Path) -> None:
     """A fine-tuned package names the checkpoint it started from (path, SHA-256, that run's fit config)."""
@@ -352,6 +272,35 @@ def _set_wall_time(folder: Path, seconds: float) -> None:
 
 
 def stage_evaluate(b) -> dict:
-    from tools.train.evaluate import evaluate_build
+    """Stage 8 of a build: held-out sessions (+ the shipped demo) → eval/*.json, docs figures."""
+    from runtime.calibration import CalibrationStore
+    from runtime.model import load_package
+    from runtime.paths import demo_dir, models_dir
+    from tools.train.evaluate import EvalConfig, evaluate_session, summarize
 
-    return evaluate_build(b)
+    root = Path(b.cfg.models_dir) if b.cfg.models_dir else models_dir()
+    package = load_package(root / b.cfg.name)
+    targets = [(s.name, b.session(s), unit_calibration(b, s.serial)) for s in b.cfg.heldout]
+    if b.cfg.eval_demo and (demo_dir() / "session.json").is_file():
+        try:
+            targets.append(("demo", demo_dir(), CalibrationStore().load("TWIN-DEMO")))
+        except Exception as exc:  # noqa: BLE001 — the demo is optional for a build
+            log.warning("demo evaluation skipped: %s", exc)
+    summary = {}
+    for name, path, cal in targets:
+        if tuple(cal.model_size) != tuple(package.size):
+            log.warning("%s: calibration size %s ≠ model %s; skipped", name, cal.model_size, package.size)
+            continue
+        r = evaluate_session(path, package, cal, EvalConfig(contact_n=b.cfg.eval_contact_n))
+        s = summarize(r["rows"], r["rest"], r["phantoms"])
+        summary[name] = s
+        (b.root / "eval").mkdir(exist_ok=True)
+        (b.root / "eval" / f"{name}.json").write_text(json.dumps({"summary": s, "rows": r["rows"],
+                                                                  "trace": r["trace"]}, indent=0))
+        log.info("evaluate %s: %s", name, json.dumps(s))
+    (b.root / "eval" / "summary.json").write_text(json.dumps(summary, indent=1))
+    if b.cfg.figures and b.cfg.heldout:
+        from tools.train.figures import write_figures
+
+        write_figures(b, package)
+    return {"summary": summary}

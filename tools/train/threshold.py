@@ -231,7 +231,7 @@ def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict
 def record(package_dir: Path, result: dict) -> None:
     """Write the result into the manifest (atomic): the contact settings, by ContactConfig's own field
     names, under runtime.contacts; how they were measured under runtime.measured."""
-    from tools.train.stages import update_manifest
+    from tools.train.package import update_manifest
 
     contacts = {k: v for k, v in result.items() if k != "measured"}
 
