@@ -8,7 +8,6 @@ Saving: <DIR>/<sensor>/fields/<seq>.npy (float32 (15,H,W), written atomically) p
 """
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import os
@@ -310,10 +309,3 @@ def run_listen(args) -> int:
         return 1
     return 0
 
-
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="tensortouch")
-    add_listen_parser(parser.add_subparsers(dest="command"))
-    ns = parser.parse_args()
-    logging.basicConfig(level=logging.INFO)
-    sys.exit(ns.func(ns))

@@ -94,7 +94,7 @@ def test_listen_prints_and_saves(running_sensor, tmp_path, capsys):
 
 def test_listen_json_in_separate_process(running_sensor):
     """`python -m runtime.listen` in another process: one JSON object per message line."""
-    proc = subprocess.run([sys.executable, "-m", "runtime.listen", "listen", "*", "--connect",
+    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "listen", "*", "--connect",
                            running_sensor, "--count", "8", "--timeout", "30", "--json",
                            "--kinds", "contacts,status"],
                           capture_output=True, text=True, timeout=60)

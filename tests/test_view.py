@@ -158,7 +158,7 @@ def test_view_command_serves_then_stops():
     from tests.hand_util import free_endpoint
 
     ep = free_endpoint()
-    r = subprocess.run([sys.executable, "-m", "tools.view.cli", "--connect", ep, "--port", "0", "--duration", "1"],
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "view", "--connect", ep, "--port", "0", "--duration", "1"],
                        capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[1])
     assert r.returncode == 0, r.stderr
     assert "tensortouch view: http://127.0.0.1:" in r.stderr

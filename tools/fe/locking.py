@@ -65,9 +65,3 @@ def locking_study(size_top=0.6, ratios=(50.0, 5000.0), material: Material | None
                          "seconds": round(time.time() - t, 2), "nodes": len(gm.nodes)})
     return rows
 
-
-if __name__ == "__main__":
-    import json
-
-    for row in locking_study():
-        print(json.dumps(row))

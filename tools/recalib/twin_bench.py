@@ -360,9 +360,3 @@ def run(args) -> int:
         Path(args.json).write_text(json.dumps(res, indent=1, default=float))
     return 0
 
-
-if __name__ == "__main__":
-    logging.basicConfig(level=logging.WARNING)
-    ap = argparse.ArgumentParser(prog="python -m tools.recalib.twin_bench", description=__doc__.splitlines()[0])
-    add_arguments(ap)
-    sys.exit(run(ap.parse_args()))

@@ -53,12 +53,3 @@ def cmd_view(args) -> int:
         session.close()
     return 0
 
-
-if __name__ == "__main__":
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="tensortouch")
-    register(parser.add_subparsers())
-    a = parser.parse_args(["view", *sys.argv[1:]])
-    logging.basicConfig(level=logging.INFO)
-    sys.exit(a.func(a))
