@@ -168,3 +168,14 @@ def test_bench_quick_json_last_line(capsys):
     for key in ("seconds_per_frame", "seconds_per_trajectory", "nodes"):
         assert data[key] > 0
     assert data["equilibrium_error_max"] < 0.01 and data["final_force_N"][2] < 0
+
+
+def test_meshing_leaves_sigpipe_ignored():
+    """gmsh.initialize resets SIGPIPE to its default; after meshing a broken pipe must still be an OSError,
+    not the end of the process."""
+    def ignored():
+        for line in open("/proc/self/status"):
+            if line.startswith("SigIgn"):
+                return bool(int(line.split()[1], 16) & (1 << 12))
+    mesh_gel(GelGeometry(), MeshSettings(size_top=2.0, size_inside=4.0))
+    assert ignored()

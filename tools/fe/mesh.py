@@ -70,11 +70,22 @@ def _stl_gel(gmsh, path: str) -> None:
     gmsh.model.geo.synchronize()
 
 
+def _ignore_sigpipe_again() -> None:
+    """Python ignores SIGPIPE (a closed pipe or socket is an OSError); gmsh.initialize sets it back to the
+    default, after which writing to a closed socket anywhere in the process kills it. Ignore it again."""
+    import signal
+    import threading
+
+    if hasattr(signal, "SIGPIPE") and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+
+
 def mesh_gel(gel: GelGeometry, settings: MeshSettings, stl_path: str = "") -> GelMesh:
     """Mesh the gel; returns nodes, tets and the free surface. Deterministic for fixed inputs."""
     import gmsh
 
     gmsh.initialize(interruptible=False)
+    _ignore_sigpipe_again()    # gmsh's initialize resets SIGPIPE to its default (kill the process)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.NumThreads", 1)
