@@ -94,6 +94,7 @@ class Effect:
     fixed: tuple[str, ...] = ()  # parameters held at their default when fitting (not identifiable)
     linear: bool = False         # hint: output is affine in the free parameters (exact linear fit)
     zero_in_zero_out: bool = False  # a series of zero forces stays exactly zero (lets fits skip it)
+    family: str = ""             # the library effect this is a flexible member of (flexible.py); "" = itself
 
     # ----- to be written by subclasses -------------------------------------------------------
     def forward(self, x: np.ndarray, cov: dict, p: dict) -> np.ndarray:  # pragma: no cover

@@ -68,6 +68,7 @@ class DiagnoseConfig:
     fit: FitConfig = field(default_factory=FitConfig)
     scan: ScanConfig = field(default_factory=ScanConfig)
     mde: MDEConfig = field(default_factory=MDEConfig)
+    flex_margin: float = 0.02     # a flexible member replaces the named form when its held-out error is this much lower
 
 
 def time_blocks(time: np.ndarray, n_blocks: int, contact: np.ndarray | None = None) -> np.ndarray:
@@ -203,6 +204,7 @@ class EffectScore:
     block_ids: list = field(default_factory=list)      # the held-out blocks of block_before/after
     fold_theta: list = field(default_factory=list)     # free parameters fitted without each block
     pair: object = None            # pairs.PairScore when this verdict comes from a pair
+    alternatives: list = field(default_factory=list)   # the family's other member(s), scored on the same blocks
 
     @property
     def reduction(self) -> float:
@@ -233,6 +235,11 @@ class EffectScore:
                "p_value": float(self.p_value), "p_adjusted": float(self.p_adjusted)}
         if self.at_bounds():
             out["at_bounds"] = self.at_bounds()
+        if self.effect.family:
+            out["family"] = self.effect.family
+        if self.alternatives:
+            out["other_members"] = [{"effect": a.effect.name, "heldout_error_after": float(a.after)}
+                                    for a in self.alternatives]
         if self.baseline:
             out["calibration_reduction"] = float(self.baseline)
         if self.channel != "force":
@@ -399,7 +406,9 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
         s.p_adjusted = padj
         s.significant = (padj <= cfg.alpha and s.reduction >= cfg.min_reduction + max(s.baseline, 0.0)
                          and s.before - s.after >= dict(cfg.min_abs).get(s.channel, 0.0))
+    scores = pick_members(scores, cfg)
     scores.sort(key=lambda s: (not s.significant, -s.reduction))   # the evidence first, then the size
+    scores = _inside_bounds_first(scores, cfg)
     pairs = []
     best = max([s.reduction for s in scores if s.significant and s.channel == "force"] + [0.0])
     if cfg.pairs and (not any(s.significant for s in scores) or 0.0 < best < cfg.pairs_below):
@@ -428,6 +437,47 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
     return Diagnosis(scores, unexplained, scanned, chain.names, len(table), n_blocks,
                      time.perf_counter() - t0, cfg.min_unexplained, pairs, _runner_up(scores, cfg), mde,
                      kind, resid)
+
+
+def _inside_bounds_first(scores: list, cfg: DiagnoseConfig) -> list:
+    """When the leading significant effect sits at a parameter bound and a later significant effect
+    of its channel does not, and the per-block held-out errors cannot say the leader is better
+    (sign flip, p > alpha), the one fitted inside its bounds leads: a form pushed to its bound is
+    imitating something else (e.g. a temperature law with T_ref far outside the session acting as a
+    plain gain)."""
+    sig = [s for s in scores if s.significant]
+    if len(sig) < 2 or not sig[0].at_bounds():
+        return scores
+    a = sig[0]
+    for b in sig[1:]:
+        if b.channel == a.channel and not b.at_bounds():
+            p = _p_better(a, b, cfg)
+            if p is not None and p > cfg.alpha:
+                return [b] + [s for s in scores if s is not b]
+            break
+    return scores
+
+
+def family_of(effect: Effect) -> str:
+    return effect.family or effect.name
+
+
+def pick_members(scores: list, cfg: DiagnoseConfig) -> list:
+    """One score per effect family: the named library form, unless its flexible member
+    (runtime/effects/flexible.py) has a held-out error lower by more than `flex_margin` (relative);
+    the other member is kept on the chosen score (`alternatives`) for the shape picture."""
+    groups: dict[str, list] = {}
+    for s in scores:
+        groups.setdefault(family_of(s.effect), []).append(s)
+    out = []
+    for fam, members in groups.items():
+        named = next((m for m in members if m.effect.name == fam), None)
+        best = min(members, key=lambda m: m.after)
+        if named is not None and named.after <= best.after * (1.0 + cfg.flex_margin):
+            best = named
+        best.alternatives = [m for m in members if m is not best]
+        out.append(best)
+    return out
 
 
 def _shape(effect: Effect, ch: Channels, cfg: DiagnoseConfig) -> np.ndarray:
