@@ -60,8 +60,8 @@ def register(sub) -> None:
     d.add_argument("--blocks", type=int, help="use this many equal time blocks (default: blocks of whole presses, at most 40)")
     d.add_argument("--alpha", type=float, help="family-wise significance level (default 0.05)")
     d.add_argument("--out", help="also write the diagnosis JSON here")
-    d.add_argument("--pictures", metavar="DIR", help="write covariates.png (covariate ranking) and "
-                   "residual_top.png (residual vs the top covariate) here")
+    d.add_argument("--pictures", metavar="DIR", help="write covariates.png (covariate ranking), residual_top.png "
+                   "(residual vs the top covariate) and shape.png (the verdict's fitted shape) here")
     d.set_defaults(func=cmd_diagnose)
     register_effects(sub)
     from tools.workbench.generality import register as register_generality
@@ -137,14 +137,17 @@ def cmd_diagnose(args) -> int:
     for line in diag.words():
         print(line)
     if args.pictures:
-        from tools.workbench.report import covariate_ranking, residual_vs_covariate
+        from tools.workbench.report import covariate_ranking, effect_shape, residual_vs_covariate
 
         pic = Path(args.pictures)
         pic.mkdir(parents=True, exist_ok=True)
+        made = []
         if diag.scan:
-            covariate_ranking(diag, pic / "covariates.png")
-            residual_vs_covariate(comp.table, diag, pic / "residual_top.png")
-            print(f"pictures: {pic / 'covariates.png'}, {pic / 'residual_top.png'}")
+            made += [covariate_ranking(diag, pic / "covariates.png"),
+                     residual_vs_covariate(comp.table, diag, pic / "residual_top.png")]
+        if diag.verdict is not None and diag.verdict.channel == "force" and diag.verdict.pair is None:
+            made.append(effect_shape(diag.verdict, comp.table, pic / "shape.png"))
+        print(f"pictures in {pic}: {', '.join(made) or 'none'}")
     for line in ranking_lines(diag):
         print(line)
     if args.json:

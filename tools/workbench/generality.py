@@ -141,6 +141,11 @@ def scaled(name: str, s: dict, size: float) -> np.ndarray:
     """Measurement with `name` hidden at rms size (N) of its own contribution."""
     unit = _rms(hidden(name, s["model"], s["cols"], 1.0) - s["model"])
     amp = size / max(unit, 1e-12)
+    for _ in range(6):             # forms not linear in their amplitude (contact loss): a few fixed-point steps
+        got = _rms(hidden(name, s["model"], s["cols"], amp) - s["model"])
+        if abs(got - size) <= 1e-9 * size:
+            break
+        amp *= size / max(got, 1e-12)
     return s["meas"] + hidden(name, s["model"], s["cols"], amp) - s["model"], amp
 
 

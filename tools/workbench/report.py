@@ -11,6 +11,8 @@ before_after.png   error per axis before/after (when a previous comparison is gi
 From a diagnosis (`tensortouch diagnose --pictures DIR`):
 covariates.png     every covariate ranked by the held-out partial R² of the residual on it
 residual_top.png   the residual against the top covariate (along it, for a vector such as velocity)
+shape.png          the verdict's fitted shape next to its family's other member (gain vs its covariate,
+                   or the relaxation after a step)
 """
 from __future__ import annotations
 
@@ -314,5 +316,63 @@ def residual_vs_covariate(table, diag, path: Path, name: str | None = None) -> s
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _gain_curve(effect, params: dict, table, n: int = 120):
+    """(x, gain, label) of a gain-type effect over the range of the covariate it reads."""
+    cov = table.cov()
+    fam = effect.family or effect.name
+    if fam == "strain_stiffening":
+        x = np.linspace(0.0, float(np.max(cov["depth"])), n)
+        sub = {"depth": x, "gel_height": np.full(n, float(np.median(cov["gel_height"])))}
+        label = "depth (mm)"
+    elif fam == "mullins_softening":
+        x = np.linspace(0.0, float(np.max(cov["max_depth"])), n)
+        sub = {"depth": np.zeros(n), "max_depth": x}
+        label = "max depth − depth (mm)"
+    else:
+        key = next((c for c in effect.covariates if c in cov and np.ndim(cov[c]) == 1), None)
+        if key is None:
+            return None
+        v = np.asarray(cov[key], dtype=np.float64)
+        x = np.linspace(float(np.nanmin(v)), float(np.nanmax(v)), n)
+        sub = {k: np.full(n, float(np.nanmedian(np.asarray(c, dtype=np.float64))))
+               for k, c in cov.items() if np.ndim(c) == 1 and len(c) == len(v) and np.issubdtype(np.asarray(c).dtype, np.number)}
+        sub[key] = x
+        label = key
+    unit = np.tile([0.0, 0.0, 1.0], (n, 1))
+    sub.update({"normal": unit, "series": np.zeros(n), "time": sub.get("time", np.zeros(n))})
+    g = effect.forward(unit, sub, params)[:, 2]
+    return x, g, label
+
+
+def effect_shape(score, table, path: Path) -> str:
+    """The fitted shape of a verdict and of its family's other member(s): the force gain against the
+    covariate the effect reads, or for a relaxation the force after a 1 N step held 20 s."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(4.2, 3.0))
+    members = [(score, "-")] + [(a, "--") for a in getattr(score, "alternatives", [])]
+    for s, style in members:
+        e = s.effect
+        tag = f"{e.name} (held-out {s.after:.3g} {s.unit})"
+        if e.sequential:
+            t = np.linspace(0.0, 20.0, 400)
+            x = np.tile([0.0, 0.0, 1.0], (len(t), 1))
+            y = e.forward(x, {"time": t}, s.params)[:, 2]
+            ax.plot(t, y, style, label=tag)
+            ax.set_xlabel("time after a 1 N step (s)")
+            ax.set_ylabel("force (N)")
+            continue
+        curve = _gain_curve(e, s.params, table)
+        if curve is None:
+            continue
+        x, g, label = curve
+        ax.plot(x, g, style, label=tag)
+        ax.set_xlabel(label)
+        ax.set_ylabel("force gain")
+    ax.legend(fontsize=7)
+    ax.set_title(f"fitted shape: {score.effect.family or score.effect.name}", fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
