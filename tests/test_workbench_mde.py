@@ -138,3 +138,18 @@ def test_mde_check_2x_found_half_not_claimed(registry):
 def test_effect_scaled_to_a_size_has_that_rms():
     t = null(7)
     assert rms(with_effect(t, "temperature_softening", 0.03).meas - t.meas) == pytest.approx(0.03, rel=1e-6)
+
+
+def test_the_drag_plugin_removes_what_the_velocity_picture_showed():
+    from pathlib import Path
+
+    base = null(5)
+    cov = dict(base.cols, normal=base.vec["normal"])
+    unit = rms(alter(base.model, cov, [("velocity_drag", {"c": 1.0})])[0] - base.model)
+    c = rms(base.meas - base.model) / unit
+    f, _ = alter(base.model, cov, [("velocity_drag", {"c": c})])
+    t = SampleTable(base.cols, base.meas + f - base.model, base.model, base.vec, base.meta)
+    reg = Registry.default(plugin_dirs=[Path(__file__).parent / "workbench_plugins_drag"], entry_points=False)
+    d = diagnose(t, reg, candidates=["indenter_drag", "strain_stiffening"])
+    assert d.verdict is not None and d.verdict.effect.name == "indenter_drag"
+    assert d.verdict.params["c"] == pytest.approx(c, rel=0.1) and d.verdict.reduction > 0.2

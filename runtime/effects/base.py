@@ -56,6 +56,10 @@ COVARIATES = {
     "normal": "unit (N,3)",      # outward rest-surface normal at the contact
     "ft_rotation": "(N,3,3)",    # rotation taking the F/T frame into the sensor frame
     "series": "-",               # integer id of the time series a sample belongs to (indenter)
+    # the indenter's own motion from mocap, in and out of contact: the workbench only (the runtime has
+    # no mocap), so for "measurement"-stage effects (what the reference instrument reads)
+    "vel_x": "mm/s", "vel_y": "mm/s", "vel_z": "mm/s",
+    "acc_x": "mm/s^2", "acc_y": "mm/s^2", "acc_z": "mm/s^2",
 }
 
 
