@@ -380,7 +380,9 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
     ch = Channels(table, chain, post)
     blocks, kind = blocks_of(table, cfg)
     n_blocks = int(blocks.max()) + 1
-    names = candidates if candidates is not None else [n for n in registry.names() if n not in chain.names]
+    enabled = {family_of(it.effect) for it in chain.items}   # a family already enabled is not a candidate again
+    names = candidates if candidates is not None else [n for n in registry.names()
+                                                       if family_of(registry.get(n)) not in enabled]
     scores = []
     for name in names:
         eff = registry.get(name)
@@ -531,7 +533,7 @@ def _pair_stage(scores: list, ch: Channels, blocks: np.ndarray, cfg: DiagnoseCon
 
 def _stronger_pair_first(pairs: list, cfg: DiagnoseConfig) -> list:
     """Pairs sorted by reduction: when the per-block held-out errors cannot say (sign flip, p > alpha)
-    the first beats a later significant pair, the lower corrected p goes first (docs/workbench.md,
+    the first beats a later significant pair, the lower corrected p goes first (docs/history/workbench.md,
     session 16: temperature + relaxation 52 %, p 0.018, led rim + relaxation 50 %, p 0.0006)."""
     first = pairs[0]
     for other in pairs[1:]:
