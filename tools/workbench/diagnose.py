@@ -434,7 +434,7 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
     floor = min([s.after for s in force] + [s.before for s in force[:1]]) if force else float("nan")
     mde = (minimum_detectable_effect(table, resid, floor, {s.effect.name: _shape(s.effect, ch, cfg) for s in force},
                                      blocks, cfg.alpha, cfg.min_reduction,
-                                     max([s.baseline for s in force] + [0.0]), cfg.mde)
+                                     max([s.baseline for s in force] + [0.0]), cfg.mde, n_tests=len(tested))
            if force else None)
     return Diagnosis(scores, unexplained, scanned, chain.names, len(table), n_blocks,
                      time.perf_counter() - t0, cfg.min_unexplained, pairs, _runner_up(scores, cfg), mde,

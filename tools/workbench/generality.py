@@ -163,7 +163,7 @@ def run_case(name: str, size_floor: float, seed: int, registry, cfg: DiagnoseCon
     if name == "velocity_drag":
         row["right"] = bool(u.get("covariate") == "velocity" and u.get("p_adjusted", 1.0) <= 0.05)
     else:
-        row["right"] = row["verdict"] == EXPECTED[name]
+        row["right"] = v is not None and (v.effect.family or v.effect.name) == EXPECTED[name]
     if v is not None and v.pair is None and v.channel == "force":   # removed on a second session of the unit
         s2 = session(seed + 7919)
         m2 = s2["meas"] + hidden(name, s2["model"], s2["cols"], amp) - s2["model"]

@@ -63,13 +63,14 @@ def standard_error(resid: np.ndarray, shape: np.ndarray, blocks: np.ndarray) -> 
 
 def minimum_detectable_effect(table, resid: np.ndarray, floor: float, shapes: dict, blocks: np.ndarray,
                               alpha: float, min_reduction: float, r0: float = 0.0,
-                              cfg: MDEConfig | None = None) -> dict:
+                              cfg: MDEConfig | None = None, n_tests: int | None = None) -> dict:
     """The MDE in N and what limits it. `resid` (N, 3): the floor's residual (model + enabled effects
     + the verdict); `floor`: its held-out rms error (N); `shapes`: {effect: (N, 3) contribution at
-    the library defaults}; `blocks`: the diagnosis' held-out blocks."""
+    the library defaults}; `blocks`: the diagnosis' held-out blocks; `n_tests`: the number of
+    candidates the correction counts (default: one per shape)."""
     cfg = cfg or MDEConfig()
     n = len(resid)
-    z = norm.ppf(1.0 - alpha / max(len(shapes), 1)) + norm.ppf(cfg.power)
+    z = norm.ppf(1.0 - alpha / max(n_tests or len(shapes), 1)) + norm.ppf(cfg.power)
     keep = max(1.0 - max(r0, 0.0) - min_reduction, 1e-3)
     practical = float(floor * np.sqrt(1.0 / keep ** 2 - 1.0))
     per = {}
