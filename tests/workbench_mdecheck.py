@@ -63,11 +63,12 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tests.workbench_mdecheck")
     p.add_argument("--draws", type=int, default=10)
     p.add_argument("--effect", default="strain_stiffening", choices=sorted(UNIT))
+    p.add_argument("--first-seed", type=int, default=200)
     a = p.parse_args(argv)
     reg = Registry.default(entry_points=False)
     rows = []
     for s in range(a.draws):
-        rows.append(draw(200 + s, a.effect, reg))
+        rows.append(draw(a.first_seed + s, a.effect, reg))
         print(json.dumps(rows[-1]), flush=True)
     found = np.mean([r["x2"] == a.effect for r in rows])
     claimed = np.mean([r["x0.5"] is not None for r in rows])
