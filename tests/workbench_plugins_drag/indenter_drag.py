@@ -15,7 +15,7 @@ class IndenterDrag(Effect):
     stage = "measurement"
     params = (Param("c", "N s/mm", 0.0005, 0.0, 0.05, "drag per unit of indenter velocity", "c"),)
     covariates = ("vel_x", "vel_y", "vel_z")
-    off = {"c": 0.0}
+    off = {"c": 0.0}  # noqa: RUF012 (the plugin contract writes class attributes)
     linear = True
 
     def forward(self, x, cov, p):
