@@ -124,7 +124,8 @@ def test_enabled_effects_are_not_candidates_again(registry):
 
 def test_json_contract(registry):
     out = diagnose(small(6, [("mullins_softening", HIDDEN["mullins_softening"])]), registry).to_json()
-    assert set(out) == {"verdict", "ranking", "unexplained"}
+    assert set(out) == {"verdict", "ranking", "unexplained", "mde"}
+    assert out["mde"]["mde"] > 0 and out["mde"]["floor"] > 0
     row = out["ranking"][0]
     assert {"effect", "params", "heldout_error_before", "heldout_error_after", "reduction", "significant"} <= set(row)
     assert set(out["unexplained"]) >= {"covariate", "score"}

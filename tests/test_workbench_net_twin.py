@@ -1,7 +1,7 @@
 """Issue 6 acceptance with the deployed network as the model (slow: FE twin sessions with 30 fps
 frames are recorded on first use, ~2-10 min each on this machine, then cached; the network pass per
-session and model is cached too). The harness is tools/accept/workbench.py (`tensortouch accept workbench`) (the same code makes
-the table in docs/workbench.md).
+session and model is cached too). The harness is tools/accept/workbench.py (`tensortouch accept workbench`;
+the same code makes the table in docs/history/workbench.md).
 
 Model = a model package over the session's frames through the runtime's SensorPipeline, plus the
 sensor's enabled effects and correction, replayed as deployed: TENSORTOUCH_WB_MODEL (a package
@@ -44,7 +44,7 @@ def test_null_sessions_no_significant_effect_in_9_of_10(bench):
     assert sum(v is None for v in verdicts.values()) >= 9, {s: v.effect.name for s, v in verdicts.items() if v}
 
 
-MEASURED = "measured 2026-11-23 ~17:30 with the shipped model s16 (docs/workbench.md, session 16): "
+MEASURED = "measured 2026-11-23 ~17:30 with the shipped model s16 (docs/history/workbench.md, session 16): "
 FRICTION_TRUTH = ("the twin's friction also shrinks the rendered in-plane displacement, so the network sees it; "
                   "ranked behind led_drift, not significant (26 %): for an image model nothing is missing")
 NOT_FIRST = {"truth-friction_mismatch": MEASURED + FRICTION_TRUTH}

@@ -77,18 +77,43 @@ def synth_table(seed: int = 0, n_pokes: int = 40, rate: float = 50.0, truth: lis
     fn = k * np.clip(depth, 0, None) ** 1.5
     ft = np.minimum(0.9 * np.sqrt(np.clip(depth, 0, None)) * slip, 2.2 * fn)
     model = -fn[:, None] * normal + ft[:, None] * tdir
+    tip = tip_track(time, depth, normal, slip[:, None] * tdir)
+    vel = np.gradient(tip, time, axis=0)
+    acc = np.gradient(vel, time, axis=0)
     temperature = 24.0 + 7.0 * time / time[-1] + 0.5 * np.sin(time / 7.0)
     max_depth = np.maximum.accumulate(depth)
     rim = GEL_RADIUS * (np.pi / 2 - np.clip(theta, 0, np.pi / 2)) + SKIRT
     cols = {"t": time, "series": np.zeros(n), "time": time, "temperature": temperature,
             "depth": depth, "max_depth": max_depth, "rate": np.gradient(depth, time), "slip": slip,
             "rim_distance": rim, "gel_height": np.full(n, GEL_HEIGHT), "theta": theta, "phi": phi}
+    cols.update({f"vel_{a}": vel[:, j] for j, a in enumerate("xyz")})
+    cols.update({f"acc_{a}": acc[:, j] for j, a in enumerate("xyz")})
     meas, bright = alter(model, dict(cols, normal=normal), truth or [])
     meas = meas + rng.normal(0, noise, size=meas.shape)
     contact = depth > 0
     cols["brightness"] = np.where(contact, np.nan, bright + rng.normal(0, bright_noise, n))
     cols["bright_ok"] = (~contact).astype(float)
     return SampleTable(cols, meas, model, {"normal": normal}, {"synthetic": True})
+
+
+def tip_track(time: np.ndarray, depth: np.ndarray, normal: np.ndarray, slide: np.ndarray,
+              lift: float = 3.0) -> np.ndarray:
+    """Indenter tip positions (N, 3) mm: on the poke's normal at radius R - depth (+ slide) in
+    contact; between pokes it lifts by `lift` mm and travels to the next place (min-jerk)."""
+    n = normal.copy()
+    up = np.zeros(len(time))
+    change = np.flatnonzero(np.any(np.abs(np.diff(normal, axis=0)) > 1e-9, axis=1)) + 1
+    on = depth > 0
+    for i in change:
+        before = np.flatnonzero(on[:i])
+        g0 = before[-1] + 1 if len(before) else 0
+        if i - g0 < 3:
+            continue
+        s = _minjerk((np.arange(g0, i) - g0) / (i - g0))[:, None]
+        v = (1 - s) * normal[g0 - 1 if g0 else 0] + s * normal[i]
+        n[g0:i] = v / np.linalg.norm(v, axis=1, keepdims=True)
+        up[g0:i] = lift * np.sin(np.pi * s[:, 0])
+    return (GEL_RADIUS + up - depth)[:, None] * n + slide
 
 
 def alter(force: np.ndarray, cov: dict, truth: list) -> tuple[np.ndarray, np.ndarray]:
@@ -128,6 +153,8 @@ def alter(force: np.ndarray, cov: dict, truth: list) -> tuple[np.ndarray, np.nda
         elif name == "led_drift":
             g = 1 + p["c"] * t + p["beta"] * (cov["temperature"] - p["t_ref"])
             bright = bright * g / g[0]
+        elif name == "velocity_drag":      # NOT in the library: a drag on the indenter, in and out of contact
+            f -= p["c"] * np.column_stack([cov["vel_x"], cov["vel_y"], cov["vel_z"]])
         elif name == "azimuth_stiffness":  # NOT in the library: the 'unknown effect'
             f *= (1 + p["a"] * np.cos(cov["phi"] - p["phi0"]))[:, None]
         else:

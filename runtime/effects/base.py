@@ -56,6 +56,10 @@ COVARIATES = {
     "normal": "unit (N,3)",      # outward rest-surface normal at the contact
     "ft_rotation": "(N,3,3)",    # rotation taking the F/T frame into the sensor frame
     "series": "-",               # integer id of the time series a sample belongs to (indenter)
+    # the indenter's own motion from mocap, in and out of contact: the workbench only (the runtime has
+    # no mocap), so for "measurement"-stage effects (what the reference instrument reads)
+    "vel_x": "mm/s", "vel_y": "mm/s", "vel_z": "mm/s",
+    "acc_x": "mm/s^2", "acc_y": "mm/s^2", "acc_z": "mm/s^2",
 }
 
 
@@ -94,6 +98,7 @@ class Effect:
     fixed: tuple[str, ...] = ()  # parameters held at their default when fitting (not identifiable)
     linear: bool = False         # hint: output is affine in the free parameters (exact linear fit)
     zero_in_zero_out: bool = False  # a series of zero forces stays exactly zero (lets fits skip it)
+    family: str = ""             # the library effect this is a flexible member of (flexible.py); "" = itself
 
     # ----- to be written by subclasses -------------------------------------------------------
     def forward(self, x: np.ndarray, cov: dict, p: dict) -> np.ndarray:  # pragma: no cover

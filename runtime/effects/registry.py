@@ -18,6 +18,7 @@ from pathlib import Path
 
 from runtime.effects.base import COVARIATES, STAGES, Effect, EffectError
 from runtime.effects.builtin import BUILTIN
+from runtime.effects.flexible import FLEXIBLE
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +81,7 @@ class Registry:
 
     # ----- discovery ---------------------------------------------------------------------------
     def load_builtins(self) -> "Registry":
-        for cls in BUILTIN:
+        for cls in BUILTIN + FLEXIBLE:
             self.add(cls, "library")
         return self
 

@@ -1,5 +1,5 @@
 """Issue 6's acceptance on the deployed-network path, as a reusable harness (the slow tests in
-tests/test_workbench_net_twin.py and the table in docs/workbench.md both come from here).
+tests/test_workbench_net_twin.py and the table in docs/history/workbench.md both come from here).
 
     tensortouch accept workbench --model exported_models/hiera-qup-128 [--nulls 10]
 

@@ -1,5 +1,5 @@
 """Generality check of the workbench: twin-truth effects at parameters no test uses,
-fixed before the first run; every row is reported (docs/workbench.md, "Generality check").
+fixed before the first run; every row is reported (docs/history/workbench.md, "Generality check").
 
     tensortouch accept workbench-generality [--model exported_models/hiera-qup-128] [--out FILE]
 

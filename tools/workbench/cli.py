@@ -5,6 +5,7 @@
     tensortouch effects list [--json]
     tensortouch effects add NAME --sensor ID [--from-diagnosis [FILE]] [--param p=v ...]
     tensortouch effects remove NAME --sensor ID
+    tensortouch workbench-generality [--draws 3] [--sizes 0.3 1 3] [--nulls 10]   (generality.py)
 
 The model side: the deployed network (`--model PATH|NAME`, default: the installed model package when
 the sensor's calibration is made for its input size and the session has frames) run over the
@@ -55,11 +56,16 @@ def register(sub) -> None:
     session_args(d)
     _model_args(d)
     d.add_argument("--json", action="store_true", help="print one JSON object on the last line")
-    d.add_argument("--blocks", type=int, help="number of time blocks (default 16)")
+    d.add_argument("--blocks", type=int, help="use this many equal time blocks (default: blocks of whole presses, at most 40)")
     d.add_argument("--alpha", type=float, help="family-wise significance level (default 0.05)")
     d.add_argument("--out", help="also write the diagnosis JSON here")
+    d.add_argument("--pictures", metavar="DIR", help="write covariates.png (covariate ranking), residual_top.png "
+                   "(residual vs the top covariate) and shape.png (the verdict's fitted shape) here")
     d.set_defaults(func=cmd_diagnose)
     register_effects(sub)
+    from tools.workbench.generality import register as register_generality
+
+    register_generality(sub)
 
 
 # ----- commands --------------------------------------------------------------------------------
@@ -111,7 +117,7 @@ def cmd_diagnose(args) -> int:
     comp = compare_session(args)
     cfg = DiagnoseConfig()
     if args.blocks:
-        cfg = replace(cfg, n_blocks=args.blocks)
+        cfg = replace(cfg, n_blocks=args.blocks, blocks="time")
     if args.alpha:
         cfg = replace(cfg, alpha=args.alpha)
     registry = registry_of(args)
@@ -129,14 +135,35 @@ def cmd_diagnose(args) -> int:
         tmp.replace(path)
     for line in diag.words():
         print(line)
-    print("ranking (held-out error, N):")
-    for s in diag.ranking:
-        base = f"  (calibration session: {-100 * s.baseline:+.1f} %)" if s.baseline else ""
-        print(f"  {s.effect.name:24s} {s.before:.4g} -> {s.after:.4g}  {-100 * s.reduction:+6.1f} %  "
-              f"p={s.p_adjusted:.3g}{'  *' if s.significant else ''}{base}")
+    if args.pictures:
+        from tools.workbench.report import covariate_ranking, effect_shape, residual_vs_covariate
+
+        pic = Path(args.pictures)
+        pic.mkdir(parents=True, exist_ok=True)
+        made = []
+        if diag.scan:
+            made += [covariate_ranking(diag, pic / "covariates.png"),
+                     residual_vs_covariate(comp.table, diag, pic / "residual_top.png")]
+        if diag.verdict is not None and diag.verdict.channel == "force" and diag.verdict.pair is None:
+            made.append(effect_shape(diag.verdict, comp.table, pic / "shape.png"))
+        print(f"pictures in {pic}: {', '.join(made) or 'none'}")
+    for line in ranking_lines(diag):
+        print(line)
     if args.json:
         print(text)
     return 0
+
+
+def ranking_lines(diag) -> list[str]:
+    """The ranking as printed: held-out error change in % (negative = the error falls, as in the
+    headline), each row in its channel's unit, parameters fitted at a bound flagged."""
+    lines = [f"ranking (held-out error before -> after, change; {diag.n_blocks} {diag.block_kind} blocks):"]
+    for s in diag.ranking:
+        base = f"  (calibration session: {-100 * s.baseline:+.1f} %)" if s.baseline else ""
+        bound = f"  at bound: {', '.join(s.at_bounds())}" if s.at_bounds() else ""
+        lines.append(f"  {s.effect.name:24s} {s.before:.4g} -> {s.after:.4g} {s.unit:14s} {-100 * s.reduction:+6.1f} %  "
+                     f"p={s.p_adjusted:.3g}{'  *' if s.significant else ''}{base}{bound}")
+    return lines
 
 
 def store_cal_correction(comp) -> dict | None:

@@ -38,9 +38,11 @@ import numpy as np
 
 from runtime.effects import Effect, EffectChain, EnabledEffect, Registry
 from tools.workbench.fit import Candidate, Channels, FitConfig, channel_of
+from tools.workbench.mde import MDEConfig, minimum_detectable_effect
+from tools.workbench.mde import words as mde_words
 from tools.workbench.pairs import PairConfig, score_pairs
 from tools.workbench.scan import ScanConfig, scan
-from tools.workbench.table import SCAN_COVARIATES, SampleTable
+from tools.workbench.table import SCAN_COVARIATES, SCAN_VECTORS, SampleTable
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +50,8 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class DiagnoseConfig:
     n_blocks: int = 16
+    blocks: str = "press"         # "press": blocks of whole presses (max_press_blocks); "time": n_blocks equal spans
+    max_press_blocks: int = 40
     alpha: float = 0.05
     min_reduction: float = 0.05
     min_unexplained: float = 0.02   # partial R² below which "nothing systematic remains"
@@ -63,6 +67,8 @@ class DiagnoseConfig:
     pair: PairConfig = field(default_factory=PairConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     scan: ScanConfig = field(default_factory=ScanConfig)
+    mde: MDEConfig = field(default_factory=MDEConfig)
+    flex_margin: float = 0.02     # a flexible member replaces the named form when its held-out error is this much lower
 
 
 def time_blocks(time: np.ndarray, n_blocks: int, contact: np.ndarray | None = None) -> np.ndarray:
@@ -84,6 +90,34 @@ def time_blocks(time: np.ndarray, n_blocks: int, contact: np.ndarray | None = No
                 if abs(q - edges[i]) <= 0.25 * width:
                     edges[i] = q
     return np.clip(np.searchsorted(edges, t, side="right") - 1, 0, n_blocks - 1)
+
+
+def press_blocks(time: np.ndarray, contact: np.ndarray, max_blocks: int) -> np.ndarray:
+    """Block id per sample, aligned to presses: every press (a run of moments when an indenter
+    touches) with the second half of the quiet gap before it and the first half of the one after it
+    is one unit; consecutive units are grouped into at most `max_blocks` blocks of nearly equal
+    press counts. An effect that lives in a few presses then sits in a few of many blocks, not in
+    a few of 16 long ones."""
+    t = np.asarray(time, dtype=np.float64)
+    ts = np.unique(t)
+    busy = np.zeros(len(ts), bool)
+    busy[np.searchsorted(ts, t[np.asarray(contact, bool)])] = True
+    b = busy.astype(int)
+    starts = np.flatnonzero(np.diff(b) == 1) + 1
+    ends = np.flatnonzero(np.diff(b) == -1)           # last busy index of a press
+    if busy[0]:
+        starts = np.r_[0, starts]
+    if len(starts) < 2:
+        return np.zeros(len(t), dtype=int)
+    edges = []
+    for s in starts[1:]:
+        prev_end = ends[ends < s]
+        e = ts[prev_end[-1]] if len(prev_end) else ts[0]
+        edges.append(0.5 * (e + ts[s]))
+    unit = np.searchsorted(np.asarray(edges), t, side="right")     # 0 .. n_presses-1
+    n_units = len(starts)
+    k = min(max_blocks, n_units)
+    return (unit * k) // n_units
 
 
 def contact_of(table: SampleTable) -> np.ndarray:
@@ -170,16 +204,42 @@ class EffectScore:
     block_ids: list = field(default_factory=list)      # the held-out blocks of block_before/after
     fold_theta: list = field(default_factory=list)     # free parameters fitted without each block
     pair: object = None            # pairs.PairScore when this verdict comes from a pair
+    alternatives: list = field(default_factory=list)   # the family's other member(s), scored on the same blocks
 
     @property
     def reduction(self) -> float:
         return 1.0 - self.after / self.before if self.before > 0 else 0.0
+
+    @property
+    def unit(self) -> str:
+        return "N" if self.channel == "force" else "rel. intensity"
+
+    def at_bounds(self, tol: float = 1e-3) -> list[str]:
+        """Free parameters fitted at (within tol × range of) a bound, as 'name=value (lo|hi)'."""
+        out = []
+        for q in self.effect.free_params:
+            v = self.params.get(q.name)
+            if v is None:
+                continue
+            span = max(q.hi - q.lo, 1e-12)
+            off = self.effect.identity_params().get(q.name)
+            for side, b in (("lo", q.lo), ("hi", q.hi)):
+                if abs(v - b) <= tol * span and not (off is not None and abs(b - off) <= tol * span):
+                    out.append(f"{q.name}={v:.3g} ({side})")
+        return out
 
     def to_json(self) -> dict:
         out = {"effect": self.effect.name, "params": {k: float(v) for k, v in self.params.items()},
                "heldout_error_before": float(self.before), "heldout_error_after": float(self.after),
                "reduction": float(self.reduction), "significant": bool(self.significant),
                "p_value": float(self.p_value), "p_adjusted": float(self.p_adjusted)}
+        if self.at_bounds():
+            out["at_bounds"] = self.at_bounds()
+        if self.effect.family:
+            out["family"] = self.effect.family
+        if self.alternatives:
+            out["other_members"] = [{"effect": a.effect.name, "heldout_error_after": float(a.after)}
+                                    for a in self.alternatives]
         if self.baseline:
             out["calibration_reduction"] = float(self.baseline)
         if self.channel != "force":
@@ -200,6 +260,9 @@ class Diagnosis:
     min_unexplained: float = 0.02
     pairs: list = field(default_factory=list)      # pairs.PairScore (scored when no single effect was)
     runner_up: dict | None = None  # the next significant effect when the blocks cannot tell it from the verdict
+    mde: dict | None = None        # minimum detectable effect (mde.py)
+    block_kind: str = "press"      # how the held-out blocks were cut ("press" or "time")
+    residual: object = None        # (N, 3) what remains once the verdict is in (for pictures; not in JSON)
 
     @property
     def verdict(self) -> EffectScore | None:
@@ -215,6 +278,8 @@ class Diagnosis:
             out["pairs"] = [p.to_json() for p in self.pairs]
         if self.runner_up:
             out["runner_up"] = self.runner_up
+        if self.mde:
+            out["mde"] = self.mde
         return out
 
     def words(self) -> list[str]:
@@ -236,10 +301,17 @@ class Diagnosis:
                          f"({-100 * v.reduction:+.0f} %), p = {v.p_adjusted:.3g} (corrected over the candidates)")
         else:
             best = self.ranking[0] if self.ranking else None
-            base = f"; {100 * best.baseline:+.1f} % on the calibration session" if best and best.baseline else ""
+            base = f"; {-100 * best.baseline:+.1f} % on the calibration session" if best and best.baseline else ""
             lines.append("No significant missing effect"
-                         + (f" (best candidate {best.effect.name}: {100 * best.reduction:+.1f} % "
-                            f"held-out error reduction, p = {best.p_adjusted:.2g}{base})" if best else ""))
+                         + (f" (best candidate {best.effect.name}: held-out error {-100 * best.reduction:+.1f} %, "
+                            f"p = {best.p_adjusted:.2g}{base})" if best else ""))
+            if self.mde:
+                lines.append("  " + mde_words(self.mde))
+        if v is not None and self.mde:
+            lines.append("  this session: " + mde_words(self.mde))
+        if v is not None and v.at_bounds():
+            lines.append(f"  fitted at a bound: {', '.join(v.at_bounds())} (the library's form may not reach "
+                         "the measured one)")
         if self.runner_up:
             r = self.runner_up
             lines.append(f"  {r['effect']} explains almost as much ({-100 * r['reduction']:+.0f} %): per held-out block "
@@ -248,7 +320,8 @@ class Diagnosis:
         u = self.unexplained
         if u.get("covariate") and u["score"] >= self.min_unexplained:
             lines.append(f"What remains is best explained by {u['covariate']} "
-                         f"(held-out partial R² = {u['score']:.3f}, {u.get('form', '')} error)")
+                         f"(held-out partial R² = {u['score']:.3f}, {u.get('form', '')} error, "
+                         f"p = {u.get('p_adjusted', 1.0):.2g} corrected over {u.get('n_covariates', 1)} covariates)")
         elif u.get("covariate"):
             lines.append(f"Nothing systematic remains (best covariate {u['covariate']}: "
                          f"held-out partial R² = {u['score']:.3f})")
@@ -282,6 +355,17 @@ def _score_candidate(effect: Effect, ch: Channels, blocks: np.ndarray, cfg: Diag
                        block_after=after.tolist(), fold_theta=thetas, block_ids=ids.tolist())
 
 
+def blocks_of(table: SampleTable, cfg: DiagnoseConfig) -> tuple[np.ndarray, str]:
+    """The held-out blocks of a diagnosis and how they were cut (`cfg.blocks`); time blocks when
+    the session has fewer than 8 presses."""
+    contact = contact_of(table)
+    if cfg.blocks == "press":
+        b = press_blocks(table.cols["time"], contact, cfg.max_press_blocks)
+        if b.max() + 1 >= 8:
+            return b, "press"
+    return time_blocks(table.cols["time"], cfg.n_blocks, contact if cfg.quiet_edges else None), "time"
+
+
 def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None = None,
              cfg: DiagnoseConfig | None = None, candidates: list[str] | None = None, post=None,
              baseline: dict | None = None) -> Diagnosis:
@@ -294,12 +378,15 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
     cfg = cfg or DiagnoseConfig()
     chain = enabled or EffectChain()
     ch = Channels(table, chain, post)
-    blocks = time_blocks(table.cols["time"], cfg.n_blocks, contact_of(table) if cfg.quiet_edges else None)
-    names = candidates if candidates is not None else [n for n in registry.names() if n not in chain.names]
+    blocks, kind = blocks_of(table, cfg)
+    n_blocks = int(blocks.max()) + 1
+    enabled = {family_of(it.effect) for it in chain.items}   # a family already enabled is not a candidate again
+    names = candidates if candidates is not None else [n for n in registry.names()
+                                                       if family_of(registry.get(n)) not in enabled]
     scores = []
     for name in names:
         eff = registry.get(name)
-        if channel_of(eff) == "brightness" and len(ch.bright_rows) < 2 * cfg.n_blocks:
+        if channel_of(eff) == "brightness" and len(ch.bright_rows) < 2 * n_blocks:
             log.info("%s skipped: the table has no brightness measurements", name)
             continue
         missing = [c for c in eff.covariates if c not in ch.cov]
@@ -315,13 +402,15 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
         tested.append(np.asarray(s.block_before) * kept - np.asarray(s.block_after))
         if s.baseline > 0 and len(s.block_before) > 1:
             s.p_value = sign_flip_pvalue(tested[-1], cfg)
-    padjs = minp_adjusted(tested, [s.block_ids for s in scores], cfg.n_blocks, cfg)
+    padjs = minp_adjusted(tested, [s.block_ids for s in scores], n_blocks, cfg)
     for s, padj in zip(scores, padjs):
         padj = padj if len(s.block_before) > 1 else 1.0
         s.p_adjusted = padj
         s.significant = (padj <= cfg.alpha and s.reduction >= cfg.min_reduction + max(s.baseline, 0.0)
                          and s.before - s.after >= dict(cfg.min_abs).get(s.channel, 0.0))
+    scores = pick_members(scores, cfg)
     scores.sort(key=lambda s: (not s.significant, -s.reduction))   # the evidence first, then the size
+    scores = _inside_bounds_first(scores, cfg)
     pairs = []
     best = max([s.reduction for s in scores if s.significant and s.channel == "force"] + [0.0])
     if cfg.pairs and (not any(s.significant for s in scores) or 0.0 < best < cfg.pairs_below):
@@ -332,12 +421,72 @@ def diagnose(table: SampleTable, registry: Registry, enabled: EffectChain | None
         resid = Candidate(sig[0].effect, ch, cfg.fit).residual(
             np.array([sig[0].params[q.name] for q in sig[0].effect.free_params]))
         pred = table.meas - resid
-    scanned = scan(ch.cov, SCAN_COVARIATES, resid, pred, blocks, cfg.scan)
+    scanned = scan(ch.cov, SCAN_COVARIATES, resid, pred, blocks, cfg.scan, SCAN_VECTORS)
+    if scanned:   # the top covariate's significance, corrected over every covariate scanned
+        padj = minp_adjusted([d["block_gain"] for d in scanned], [d["block_ids"] for d in scanned], n_blocks, cfg)
+        for d, p in zip(scanned, padj):
+            d["p_adjusted"] = float(p)
     unexplained = ({"covariate": scanned[0]["covariate"], "score": float(scanned[0]["score"]),
-                    "form": scanned[0]["form"], "unit": scanned[0]["unit"]}
+                    "form": scanned[0]["form"], "unit": scanned[0]["unit"],
+                    "p_adjusted": scanned[0]["p_adjusted"], "n_covariates": len(scanned)}
                    if scanned else {"covariate": None, "score": 0.0})
-    return Diagnosis(scores, unexplained, scanned, chain.names, len(table), cfg.n_blocks,
-                     time.perf_counter() - t0, cfg.min_unexplained, pairs, _runner_up(scores, cfg))
+    force = [s for s in scores if s.channel == "force"]
+    floor = min([s.after for s in force] + [s.before for s in force[:1]]) if force else float("nan")
+    mde = (minimum_detectable_effect(table, resid, floor, {s.effect.name: _shape(s.effect, ch, cfg) for s in force},
+                                     blocks, cfg.alpha, cfg.min_reduction,
+                                     max([s.baseline for s in force] + [0.0]), cfg.mde, n_tests=len(tested))
+           if force else None)
+    return Diagnosis(scores, unexplained, scanned, chain.names, len(table), n_blocks,
+                     time.perf_counter() - t0, cfg.min_unexplained, pairs, _runner_up(scores, cfg), mde,
+                     kind, resid)
+
+
+def _inside_bounds_first(scores: list, cfg: DiagnoseConfig) -> list:
+    """When the leading significant effect sits at a parameter bound and a later significant effect
+    of its channel does not, and the per-block held-out errors cannot say the leader is better
+    (sign flip, p > alpha), the one fitted inside its bounds leads: a form pushed to its bound is
+    imitating something else (e.g. a temperature law with T_ref far outside the session acting as a
+    plain gain)."""
+    sig = [s for s in scores if s.significant]
+    if len(sig) < 2 or not sig[0].at_bounds():
+        return scores
+    a = sig[0]
+    for b in sig[1:]:
+        if b.channel == a.channel and not b.at_bounds():
+            p = _p_better(a, b, cfg)
+            if p is not None and p > cfg.alpha:
+                return [b] + [s for s in scores if s is not b]
+            break
+    return scores
+
+
+def family_of(effect: Effect) -> str:
+    return effect.family or effect.name
+
+
+def pick_members(scores: list, cfg: DiagnoseConfig) -> list:
+    """One score per effect family: the named library form, unless its flexible member
+    (runtime/effects/flexible.py) has a held-out error lower by more than `flex_margin` (relative);
+    the other member is kept on the chosen score (`alternatives`) for the shape picture."""
+    groups: dict[str, list] = {}
+    for s in scores:
+        groups.setdefault(family_of(s.effect), []).append(s)
+    out = []
+    for fam, members in groups.items():
+        named = next((m for m in members if m.effect.name == fam), None)
+        best = min(members, key=lambda m: m.after)
+        if named is not None and named.after <= best.after * (1.0 + cfg.flex_margin):
+            best = named
+        best.alternatives = [m for m in members if m is not best]
+        out.append(best)
+    return out
+
+
+def _shape(effect: Effect, ch: Channels, cfg: DiagnoseConfig) -> np.ndarray:
+    """(N, 3) contribution of a force-channel effect at the library defaults (its shape for the MDE)."""
+    cand = Candidate(effect, ch, cfg.fit)
+    theta = np.array([cand.defaults[q.name] for q in cand.free])
+    return ch.base_residual("force") - cand.residual(theta)
 
 
 def _runner_up(scores: list, cfg: DiagnoseConfig) -> dict | None:
@@ -384,7 +533,7 @@ def _pair_stage(scores: list, ch: Channels, blocks: np.ndarray, cfg: DiagnoseCon
 
 def _stronger_pair_first(pairs: list, cfg: DiagnoseConfig) -> list:
     """Pairs sorted by reduction: when the per-block held-out errors cannot say (sign flip, p > alpha)
-    the first beats a later significant pair, the lower corrected p goes first (docs/workbench.md,
+    the first beats a later significant pair, the lower corrected p goes first (docs/history/workbench.md,
     session 16: temperature + relaxation 52 %, p 0.018, led rim + relaxation 50 %, p 0.0006)."""
     first = pairs[0]
     for other in pairs[1:]:

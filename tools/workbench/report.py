@@ -7,6 +7,12 @@ timeline.png       measured vs predicted |F| and residual over the session
 worst.jpg          the worst samples with their camera frames
 position.png       contact position error (network path: cluster centroid − mocap tip, mm)
 before_after.png   error per axis before/after (when a previous comparison is given)
+
+From a diagnosis (`tensortouch diagnose --pictures DIR`):
+covariates.png     every covariate ranked by the held-out partial R² of the residual on it
+residual_top.png   the residual against the top covariate (along it, for a vector such as velocity)
+shape.png          the verdict's fitted shape next to its family's other member (gain vs its covariate,
+                   or the relaxation after a step)
 """
 from __future__ import annotations
 
@@ -263,3 +269,110 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
     tmp.write_text(json.dumps(comp.summary, indent=2, default=float))
     tmp.replace(out / "summary.json")
     return out / "report.html"
+
+
+def covariate_ranking(diag, path: Path, top: int = 12) -> str:
+    """Horizontal bars: held-out partial R² per covariate (what remains after the verdict)."""
+    plt = _plt()
+    rows = diag.scan[:top][::-1]
+    fig, ax = plt.subplots(figsize=(4.6, 0.25 * len(rows) + 1.0))
+    ax.barh([r["covariate"] for r in rows], [max(r["score"], 0.0) for r in rows],
+            color=["C3" if r.get("p_adjusted", 1.0) <= 0.05 else "C0" for r in rows])
+    ax.set_xlabel("held-out partial R² of the residual")
+    u = diag.unexplained
+    ax.set_title(f"top: {u.get('covariate')} (p = {u.get('p_adjusted', 1.0):.2g}); red: p ≤ 0.05", fontsize=9)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def residual_vs_covariate(table, diag, path: Path, name: str | None = None) -> str:
+    """The residual that remains against one covariate (default: the top one); for a vector
+    covariate the residual component along it against its magnitude. Red: binned median."""
+    from tools.workbench.table import SCAN_VECTORS
+
+    plt = _plt()
+    name = name or diag.unexplained.get("covariate")
+    cov = table.cov()
+    r = np.asarray(diag.residual)
+    if name in SCAN_VECTORS:
+        v = np.column_stack([np.asarray(cov[k], dtype=np.float64) for k in SCAN_VECTORS[name][0]])
+        x = np.linalg.norm(v, axis=1)
+        y = np.sum(r * v, axis=1) / np.maximum(x, 1e-12)
+        xl, yl = f"|{name}| ({SCAN_VECTORS[name][1]})", f"residual along {name} (N)"
+    else:
+        x = np.asarray(cov[name], dtype=np.float64)
+        n = table.vec.get("normal")
+        y = np.sum(r * n, axis=1) if n is not None else np.linalg.norm(r, axis=1)
+        xl, yl = name, "normal-force residual (N)"
+    ok = np.flatnonzero(np.isfinite(x))
+    show = ok if len(ok) <= MAX_POINTS else ok[np.linspace(0, len(ok) - 1, MAX_POINTS).astype(int)]
+    fig, ax = plt.subplots(figsize=(4.2, 3.0))
+    ax.plot(x[show], y[show], ".", ms=1.5, alpha=0.4)
+    edges = np.unique(np.quantile(x[ok], np.linspace(0, 1, 13)))
+    if len(edges) > 2:
+        idx = np.clip(np.searchsorted(edges, x[ok], side="right") - 1, 0, len(edges) - 2)
+        med = [np.median(y[ok][idx == i]) if np.any(idx == i) else np.nan for i in range(len(edges) - 1)]
+        ax.plot(0.5 * (edges[1:] + edges[:-1]), med, "-", color="C3", lw=2)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel(xl)
+    ax.set_ylabel(yl)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _gain_curve(effect, params: dict, table, n: int = 120):
+    """(x, gain, label) of a gain-type effect over the range of the covariate it reads."""
+    cov = table.cov()
+    fam = effect.family or effect.name
+    if fam == "strain_stiffening":
+        x = np.linspace(0.0, float(np.max(cov["depth"])), n)
+        sub = {"depth": x, "gel_height": np.full(n, float(np.median(cov["gel_height"])))}
+        label = "depth (mm)"
+    elif fam == "mullins_softening":
+        x = np.linspace(0.0, float(np.max(cov["max_depth"])), n)
+        sub = {"depth": np.zeros(n), "max_depth": x}
+        label = "max depth − depth (mm)"
+    else:
+        key = next((c for c in effect.covariates if c in cov and np.ndim(cov[c]) == 1), None)
+        if key is None:
+            return None
+        v = np.asarray(cov[key], dtype=np.float64)
+        x = np.linspace(float(np.nanmin(v)), float(np.nanmax(v)), n)
+        sub = {k: np.full(n, float(np.nanmedian(np.asarray(c, dtype=np.float64))))
+               for k, c in cov.items() if np.ndim(c) == 1 and len(c) == len(v) and np.issubdtype(np.asarray(c).dtype, np.number)}
+        sub[key] = x
+        label = key
+    unit = np.tile([0.0, 0.0, 1.0], (n, 1))
+    sub.update({"normal": unit, "series": np.zeros(n), "time": sub.get("time", np.zeros(n))})
+    g = effect.forward(unit, sub, params)[:, 2]
+    return x, g, label
+
+
+def effect_shape(score, table, path: Path) -> str:
+    """The fitted shape of a verdict and of its family's other member(s): the force gain against the
+    covariate the effect reads, or for a relaxation the force after a 1 N step held 20 s."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(4.2, 3.0))
+    members = [(score, "-")] + [(a, "--") for a in getattr(score, "alternatives", [])]
+    for s, style in members:
+        e = s.effect
+        tag = f"{e.name} (held-out {s.after:.3g} {s.unit})"
+        if e.sequential:
+            t = np.linspace(0.0, 20.0, 400)
+            x = np.tile([0.0, 0.0, 1.0], (len(t), 1))
+            y = e.forward(x, {"time": t}, s.params)[:, 2]
+            ax.plot(t, y, style, label=tag)
+            ax.set_xlabel("time after a 1 N step (s)")
+            ax.set_ylabel("force (N)")
+            continue
+        curve = _gain_curve(e, s.params, table)
+        if curve is None:
+            continue
+        x, g, label = curve
+        ax.plot(x, g, style, label=tag)
+        ax.set_xlabel(label)
+        ax.set_ylabel("force gain")
+    ax.legend(fontsize=7)
+    ax.set_title(f"fitted shape: {score.effect.family or score.effect.name}", fontsize=9)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -11,7 +11,8 @@ Per indenter (one F/T per indentation module, docs/session.md):
            the force samples; orientation by spherical interpolation.
   geometry contact point = tip projected on the rest cap sphere; depth, normal, θ/φ (about the
            cap sphere centre, as the calibration tables), rim distance, slip since touch-down,
-           depth rate, largest earlier depth.
+           depth rate, largest earlier depth; the tip's velocity and acceleration per axis
+           (sensor frame, from the filtered mocap track, in and out of contact).
 Brightness: mean frame intensity inside the gel circle / median of the first frames, usable
 only on frames with no contact in the preceding `quiet_s` seconds.
 """
@@ -201,6 +202,10 @@ def build_table(session: Session, cal, cfg: SampleConfig | None = None, brightne
             "depth": depth, "max_depth": max_depth, "rate": rate,
             "slip": np.linalg.norm(cat["slip_vec"], axis=1), "rim_distance": cat["rim_distance"],
             "theta": cat["theta"], "phi": cat["phi"], "gel_height": np.full(len(depth), geom.height)}
+    vel = np.concatenate([np.gradient(p["tip"], p["t"], axis=0) for p in parts])   # mocap, in and out of contact
+    acc = np.concatenate([np.gradient(np.gradient(p["tip"], p["t"], axis=0), p["t"], axis=0) for p in parts])
+    for j, a in enumerate("xyz"):
+        cols[f"vel_{a}"], cols[f"acc_{a}"] = vel[:, j], acc[:, j]
     if session.has("temperature"):
         tt = session.table("temperature")
         cols["temperature"] = np.interp(cat["t"], tt[:, 0], tt[:, 1])

@@ -20,7 +20,12 @@ SCAN_COVARIATES = {
     "depth": "mm", "rate": "mm/s", "slip": "mm", "temperature": "degC", "time": "s",
     "load_history": "mm", "max_depth": "mm", "theta": "rad", "phi": "rad", "rim_distance": "mm",
     "brightness": "-", "force_n": "N", "force_t": "N",
+    "vel_x": "mm/s", "vel_y": "mm/s", "vel_z": "mm/s", "acc_x": "mm/s²", "acc_y": "mm/s²", "acc_z": "mm/s²",
 }
+# Vector covariates scanned as a force along the vector that depends on its magnitude (a drag):
+# name -> (per-axis columns, unit of the magnitude)
+SCAN_VECTORS = {"velocity": (("vel_x", "vel_y", "vel_z"), "mm/s"),
+                "acceleration": (("acc_x", "acc_y", "acc_z"), "mm/s²")}
 REQUIRED = ("t", "series", "time")
 
 
