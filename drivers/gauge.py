@@ -27,6 +27,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
+from drivers.serial_port import open_serial
 from runtime.errors import CaptureError, DeviceNotFoundError
 
 log = logging.getLogger(__name__)
@@ -114,13 +115,8 @@ class ForceGauge:
 
     def open(self) -> "ForceGauge":
         if self._port is None:
-            import serial
-
-            try:
-                self._port = serial.serial_for_url(self.cfg.url, baudrate=self.cfg.baudrate, timeout=0.05)
-            except (serial.SerialException, OSError, ValueError) as exc:
-                raise DeviceNotFoundError(f"force gauge {self.cfg.url}: cannot open ({exc}); check the cable "
-                                          "and the --gauge argument (e.g. serial:/dev/ttyUSB0)") from None
+            self._port = open_serial(self.cfg.url, self.cfg.baudrate, "force gauge",
+                                     "check the cable and the --gauge argument (e.g. serial:/dev/ttyUSB0)")
         return self
 
     def close(self) -> None:

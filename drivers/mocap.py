@@ -17,6 +17,7 @@ import threading
 import time
 from dataclasses import dataclass
 
+from drivers.serial_port import open_serial
 from runtime.errors import CaptureError, DeviceNotFoundError
 
 log = logging.getLogger(__name__)
@@ -74,13 +75,8 @@ class PoseStream:
 
     def open(self) -> PoseStream:
         if self._port is None:
-            import serial
-
-            try:
-                self._port = serial.serial_for_url(self.cfg.url, baudrate=self.cfg.baudrate, timeout=0.05)
-            except (serial.SerialException, OSError, ValueError) as exc:
-                raise DeviceNotFoundError(f"mocap stream {self.cfg.url}: cannot open ({exc}); check the "
-                                          "--mocap argument (e.g. socket://127.0.0.1:9000)") from None
+            self._port = open_serial(self.cfg.url, self.cfg.baudrate, "mocap stream",
+                                     "check the --mocap argument (e.g. socket://127.0.0.1:9000)")
         return self
 
     def start(self) -> PoseStream:
