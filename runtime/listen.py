@@ -230,23 +230,13 @@ def nothing_yet_hint(sensor: str, where: str, decode_errors: int = 0) -> str:
 
 def run_listen(args) -> int:
     from runtime.errors import CommandError
-    from runtime.subscriber import Subscriber, alive_sensors, query_info
+    from runtime.subscriber import Subscriber, alive_sensors, query_info, queued_callbacks
 
     kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     unknown = [k for k in kinds if k not in KINDS]
     if unknown:
         raise CommandError(f"--kinds {args.kinds!r}: unknown {unknown}; expected some of {KINDS}")
-    inbox: queue.Queue = queue.Queue(maxsize=1000)
-
-    def enqueue(kind):
-        def put(msg):
-            try:
-                inbox.put_nowait((kind, msg))
-            except queue.Full:  # the printer is behind: drop rather than stall zenoh
-                pass
-        return put
-
-    callbacks = {f"on_{k}": enqueue(k) for k in kinds}
+    inbox, callbacks = queued_callbacks(kinds)     # the printer may fall behind: drop, never stall zenoh
     cfg = config_from_args(args, "subscriber")
     where = describe(args, "subscriber")
     saver = open_saver(args.save) if args.save else None

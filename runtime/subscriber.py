@@ -197,3 +197,21 @@ def watch_alive(session: Any, callback: Callable[[str, bool], None], history: bo
 
     return _session_of(session).liveliness().declare_subscriber(
         wire.alive_key("*"), on_sample, history=history)
+
+
+def queued_callbacks(kinds, maxsize: int = 1000):
+    """(inbox, {"on_<kind>": callback}) for a Subscriber whose messages a consumer thread takes from
+    `inbox` as (kind, message); when the consumer falls behind, messages are dropped rather than
+    stalling Zenoh's callback thread."""
+    import queue
+
+    inbox: queue.Queue = queue.Queue(maxsize=maxsize)
+
+    def put(kind):
+        def cb(msg):
+            try:
+                inbox.put_nowait((kind, msg))
+            except queue.Full:
+                pass
+        return cb
+    return inbox, {f"on_{k}": put(k) for k in kinds}

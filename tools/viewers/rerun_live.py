@@ -74,7 +74,7 @@ def stop_server(proc) -> None:
 
 
 def run_rerun_view(args) -> int:
-    from runtime.subscriber import Subscriber, query_info
+    from runtime.subscriber import Subscriber, query_info, queued_callbacks
     from runtime.zenoh_session import config_from_args, describe
     from tools.viewers.rerun_saver import RerunSaver
 
@@ -83,16 +83,7 @@ def run_rerun_view(args) -> int:
 
     previous = signal.signal(signal.SIGTERM, stop_on_sigterm)
     proc, grpc_url, page = start_server(args.host, args.rerun_grpc_port, args.port)
-    inbox: queue.Queue = queue.Queue(maxsize=1000)
-
-    def put(kind):
-        def cb(msg):
-            try:
-                inbox.put_nowait((kind, msg))
-            except queue.Full:          # the logger is behind: drop rather than stall zenoh
-                pass
-        return cb
-
+    inbox, callbacks = queued_callbacks(KINDS)     # the logger may fall behind: drop, never stall zenoh
     saver = RerunSaver(grpc_url=grpc_url, fields_min_interval_s=FIELDS_MIN_INTERVAL_S)
     described: set[str] = set()
     print(f"tensortouch view: Rerun at {page}  (Zenoh {describe(args, 'subscriber')}, "
@@ -100,7 +91,7 @@ def run_rerun_view(args) -> int:
     t0 = time.monotonic()
     try:
         with Subscriber(args.sensor, zenoh_config=config_from_args(args, "subscriber"),
-                        **{f"on_{k}": put(k) for k in KINDS}) as sub:
+                        **callbacks) as sub:
             while args.duration is None or time.monotonic() - t0 < args.duration:
                 try:
                     kind, msg = inbox.get(timeout=0.2)
