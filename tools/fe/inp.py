@@ -257,12 +257,7 @@ def _export_abaqus(scenario: Scenario, path, mesh=None) -> Path:
     out += [f"{e + 1}, " + ", ".join(str(n + 1) for n in t) for e, t in enumerate(gm.corner_tets)]
     out += ["*NSET, NSET=BASE", _lines(gm.fixed_nodes + 1)]
     # free-surface faces as element-face sets S1..S4
-    surf = {tuple(sorted(t)) for t in gm.surface_tris.tolist()}
-    faces = {k: [] for k in range(4)}
-    for e, t in enumerate(gm.corner_tets):
-        for k, ids in enumerate(_FACE_IDS):
-            if tuple(sorted(t[list(ids)])) in surf:
-                faces[k].append(e + 1)
+    faces = _gel_faces(gm)
     for k, els in faces.items():
         if els:
             out += [f"*ELSET, ELSET=TOP_S{k + 1}", _lines(els)]
