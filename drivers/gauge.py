@@ -27,7 +27,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-from drivers.serial_port import open_serial
+from drivers.serial_port import close_serial, open_serial
 from runtime.errors import CaptureError, DeviceNotFoundError
 
 log = logging.getLogger(__name__)
@@ -120,15 +120,8 @@ class ForceGauge:
         return self
 
     def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-        if self._port is not None:
-            try:
-                self._port.close()
-            except Exception:  # closing an unplugged port may fail; nothing left to do
-                pass
+        close_serial(self._port, self._thread, self._stop, f"force gauge {self.cfg.url}", log)
+        self._thread = None
 
     def __enter__(self):
         return self.open()

@@ -17,7 +17,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from drivers.serial_port import open_serial
+from drivers.serial_port import close_serial, open_serial
 from runtime.errors import CaptureError, DeviceNotFoundError
 
 log = logging.getLogger(__name__)
@@ -123,15 +123,8 @@ class PoseStream:
             return list(self._poses)
 
     def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-        if self._port is not None:
-            try:
-                self._port.close()
-            except Exception as exc:  # noqa: BLE001 - closing an unplugged port may fail
-                log.debug("mocap stream %s: close: %s", self.cfg.url, exc)
+        close_serial(self._port, self._thread, self._stop, f"mocap stream {self.cfg.url}", log)
+        self._thread = None
 
     def __enter__(self):
         return self.open()
