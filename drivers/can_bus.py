@@ -2,7 +2,7 @@
 
 The frame loops only call `update(slot, summary)` (a dict assignment under a lock), so a slow,
 erroring or bus-off CAN interface can never stall them. A sender thread encodes the newest summary
-of every slot (runtime/can_summary.py, layout in docs/hand.md) `rate_hz` times per second and sends
+of every slot (contracts/can_frame.py, layout in docs/hand.md) `rate_hz` times per second and sends
 it with a non-blocking `send`. Send errors are counted and reported through `flags()`; after
 `reopen_after_errors` consecutive failures (bus-off, interface gone) the bus is shut down and
 reopened every `reopen_wait_s` until it works again.
@@ -14,8 +14,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from runtime.can_summary import FingerSummary, check_id_range, encode_finger
-from runtime.errors import DeviceNotFoundError
+from ..contracts.can_frame import FingerSummary, check_id_range, encode_finger
+from ..contracts.errors import DeviceNotFoundError
 
 log = logging.getLogger(__name__)
 
@@ -202,7 +202,7 @@ class CanSummarySender:
 def receive_summaries(bus, id_base: int, n_slots: int, timeout_s: float = 1.0):
     """Controller side: yield (slot, FingerSummary) as complete summaries arrive on `bus`; stops
     when nothing arrives for `timeout_s`."""
-    from runtime.can_summary import SummaryDecoder
+    from ..contracts.can_frame import SummaryDecoder
 
     dec = SummaryDecoder(id_base, n_slots)
     while True:

@@ -17,8 +17,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from drivers.serial_port import close_serial, open_serial
-from runtime.errors import CaptureError, DeviceNotFoundError
+from .serial_port import close_serial, open_serial
+from ..contracts.errors import CaptureError, DeviceNotFoundError
 
 log = logging.getLogger(__name__)
 

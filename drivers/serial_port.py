@@ -1,7 +1,7 @@
 """Opening a serial-line device (a real port, or a pyserial URL such as socket:// or loop://)."""
 from __future__ import annotations
 
-from runtime.errors import DeviceNotFoundError
+from ..contracts.errors import DeviceNotFoundError
 
 
 def open_serial(url: str, baudrate: int, what: str, hint: str, timeout: float = 0.05):

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Iterator
 
-from runtime.errors import DeviceNotFoundError
+from ..contracts.errors import DeviceNotFoundError
 
 log = logging.getLogger(__name__)
 
@@ -216,7 +216,7 @@ def video_nodes_for(bus: int, address: int, sysfs_root: Path = SYSFS_ROOT, dev_r
     """Every V4L2 node of the USB device at bus/address, in node-number order, each with its kind
     (`query(path)` → drivers.v4l2.V4l2Caps or None; default: the VIDIOC_QUERYCAP ioctl)."""
     if query is None:
-        from drivers.v4l2 import query_caps as query
+        from .v4l2 import query_caps as query
     v4l = sysfs_root / "class" / "video4linux"
     if not v4l.is_dir():
         return []

@@ -24,34 +24,33 @@ import logging
 import os
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.camera import camera_from_uri
-from drivers.camera.camera import EndOfStream
-from runtime.calibration import Calibration, sha256_file
-from runtime.contacts import Cluster
-from runtime.correction import ForceCorrection
-from runtime.pipeline import (
+from ..drivers.camera import camera_from_uri
+from ..drivers.camera.camera import EndOfStream
+from ..contracts.store import Calibration, sha256_file
+from .stages.contacts import Cluster
+from .stages.correction import ForceCorrection
+from .pipeline import (
     FrameResult,
     NetworkPass,
     PipelineConfig,
     force_band,
     open_pipeline,
 )
-from runtime.session import load_session
-from runtime.temperature import TemperatureTrack
+from ..contracts.session import load_session
+from .stages.temperature import TemperatureTrack
 
 log = logging.getLogger(__name__)
 
-CLUSTER_FIELDS = ("id", "centroid_px", "centroid_mm", "normal", "area_mm2", "force_n", "force_mag_n",
-                  "pixels", "perimeter_px", "circularity", "priority", "age", "indentation_mm")
-WIDTH = {"centroid_px": 2, "centroid_mm": 3, "normal": 3, "force_n": 3}
-INT_FIELDS = ("id", "pixels", "age")
-CACHE_FORMAT = 1
+CLUSTER_FIELDS = tuple(f.name for f in fields(Cluster))
+WIDTH = {"uv_px": 2, "position_mm": 3, "normal": 3, "force_n": 3}
+INT_FIELDS = ("id", "pixels", "age_frames")
+CACHE_FORMAT = 2
 
 
 # ----- the cache key ------------------------------------------------------------------------------
@@ -76,14 +75,16 @@ def geometry_key(cal: Calibration) -> dict:
 
 
 def runtime_version() -> str:
-    """The runtime's version and a hash of its sources: a change to any stage re-runs the network."""
-    import runtime
+    """The runtime's version and a hash of its sources and of the contracts it reads (field channels,
+    session format): a change to any stage re-runs the network."""
+    from .. import contracts, runtime
 
-    root = Path(runtime.__file__).parent
     h = hashlib.sha256(runtime.__version__.encode())
-    for f in sorted(root.rglob("*.py")):
-        h.update(str(f.relative_to(root)).encode())
-        h.update(f.read_bytes())
+    for pkg in (runtime, contracts):
+        root = Path(pkg.__file__).parent
+        for f in sorted(root.rglob("*.py")):
+            h.update(f"{pkg.__name__}/{f.relative_to(root)}".encode())
+            h.update(f.read_bytes())
     return f"{runtime.__version__}+{h.hexdigest()[:12]}"
 
 

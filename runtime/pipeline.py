@@ -4,7 +4,7 @@
 (preprocess, baseline, inference, clusters, contact ids) and the finish (effects, correction,
 wrench), so an offline replay (runtime/offline.py) can keep passes and re-finish them. It is pure
 apart from its own state (baseline tracker, contact ids); it never touches devices or the network,
-so the frame loop (runtime/loop.py), the benchmark and every offline replay run exactly this code. Every stage is timed (ms) into `FrameResult.timings`.
+so the frame loop (runtime/apps/loop.py), the benchmark and every offline replay run exactly this code. Every stage is timed (ms) into `FrameResult.timings`.
 """
 from __future__ import annotations
 
@@ -14,15 +14,15 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from runtime.baseline import BaselineConfig, BaselineTracker
-from runtime.calibration import Calibration
-from runtime.contacts import Cluster, ContactConfig, ContactTracker, find_clusters, pixel_forces
-from runtime.correction import ForceCorrection
-from runtime.effect_stage import EffectStage
-from runtime.effects import EffectChain
-from runtime.geometry import sample_bilinear
-from runtime.model import FieldModel
-from runtime.preprocess import Preprocessor
+from .stages.baseline import BaselineConfig, BaselineTracker
+from ..contracts.store import Calibration
+from .stages.contacts import Cluster, ContactConfig, ContactTracker, find_clusters, pixel_forces
+from .stages.correction import ForceCorrection
+from .stages.effects.stage import EffectStage
+from .stages.effects import EffectChain
+from .stages.geometry import sample_bilinear
+from .stages.model import FieldModel
+from .stages.preprocess import Preprocessor
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ def correction_inputs(clusters: list[Cluster], cal: Calibration) -> tuple[np.nda
     """The correction's position inputs of cluster centroids: uv (N, 2) in [0, 1] of the model image
     and θ/φ (N, 2) rad sampled from the calibration's tables."""
     h, w = cal.model_size
-    px = np.array([c.centroid_px for c in clusters], dtype=np.float64).reshape(-1, 2)
+    px = np.array([c.uv_px for c in clusters], dtype=np.float64).reshape(-1, 2)
     uv = px * np.array([1.0 / w, 1.0 / h])
     tp = np.array([[sample_bilinear(cal.theta, u - 0.5, v - 0.5), sample_bilinear(cal.phi, u - 0.5, v - 0.5)]
                    for u, v in px], dtype=np.float64).reshape(-1, 2)
@@ -118,7 +118,7 @@ def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, cor
     torque = np.zeros(3)
     for c in clusters:
         force += c.force_n
-        torque += np.cross(c.centroid_mm, c.force_n)
+        torque += np.cross(c.position_mm, c.force_n)
     if timings is not None:
         timings["effects"] = (t1 - t0) * 1e3
         timings["correction"] = (time.perf_counter() - t1) * 1e3
@@ -161,7 +161,7 @@ class SensorPipeline:
     def set_calibration(self, calibration: Calibration, correction: ForceCorrection | None = None) -> None:
         """Swap calibration (e.g. a new version after recalibration) without a restart."""
         if tuple(calibration.model_size) != tuple(self.model.package.size):
-            from runtime.errors import CalibrationError
+            from ..contracts.errors import CalibrationError
 
             raise CalibrationError(
                 f"calibration {calibration.sensor_id}/{calibration.version}: model_size "

@@ -1,6 +1,6 @@
 """In-process Python API: a camera frame in, fields, contacts and the wrench out. No Zenoh, no threads.
 
-    from runtime.sensor import Sensor
+    from .sensor import Sensor
 
     sensor = Sensor.open(sensor_id="TWIN-DEMO")            # newest installed model, active calibration
     out = sensor.process(frame_rgb, t)                     # (H, W, 3) uint8 RGB, time in s
@@ -25,8 +25,8 @@ from typing import Self
 
 import numpy as np
 
-from runtime.loop import to_wire_contacts
-from runtime.pipeline import FrameResult, SensorPipeline
+from .apps.loop import to_wire_contacts
+from .pipeline import FrameResult, SensorPipeline
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +57,8 @@ class Sensor:
              precision: str = "int8", threads: int = 1, version: str | None = None) -> Sensor:
         """Load the model package (name or path; default the newest installed) and the sensor's
         calibration (active version, or `version`) from `store` (default calibration_store/)."""
-        from runtime.calibration import CalibrationStore
-        from runtime.model import FieldModel, find_package
+        from ..contracts.store import CalibrationStore
+        from .stages.model import FieldModel, find_package
 
         package = find_package(None if model is None else str(model))
         cal = CalibrationStore(store).load(sensor_id, version)
@@ -86,7 +86,7 @@ class Sensor:
         """One (H, W, 3) uint8 RGB frame at time t (s); `temperature_c` feeds temperature effects."""
         frame = np.asarray(frame)
         if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
-            from runtime.errors import CaptureError
+            from ..contracts.errors import CaptureError
 
             raise CaptureError(f"frame: shape {frame.shape} dtype {frame.dtype}, expected (H, W, 3) uint8 RGB")
         if temperature_c is not None:
@@ -98,8 +98,8 @@ class Sensor:
     def stream(self, source: str, max_frames: int | None = None) -> Iterator[SensorOutput]:
         """Process frames from a camera source string (usb:SERIAL, v4l2:..., replay:DIR?realtime=0)
         until it ends or `max_frames` were processed."""
-        from drivers.camera import camera_from_uri
-        from drivers.camera.camera import EndOfStream
+        from ..drivers.camera import camera_from_uri
+        from ..drivers.camera.camera import EndOfStream
 
         n = 0
         with camera_from_uri(source) as cam:

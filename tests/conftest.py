@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.geometry import DomeProfile, equidistant_theta_phi, surface_tables
 
 
 def dome_calibration(store_root, sensor_id="TT-TEST", size=32, image=(160, 120), radius_px=50.0,

@@ -10,8 +10,8 @@ import socket
 import time
 from pathlib import Path
 
-from runtime.errors import CaptureError, DeviceNotFoundError
-from runtime.hand_config import parse_hand_config
+from tensortouch.contracts.errors import CaptureError, DeviceNotFoundError
+from tensortouch.runtime.apps.hand_config import parse_hand_config
 
 SIZE = 32
 IMAGE = (160, 120)
@@ -34,7 +34,7 @@ def wait_until(pred, timeout=10.0, step=0.02):
 
 def make_package(folder: Path) -> Path:
     """A deterministic difference network (fields follow the image change): real contacts, fast."""
-    from tools.bench.models import write_difference_package
+    from tensortouch.tools.bench.models import write_difference_package
 
     return write_difference_package(folder, SIZE)
 
@@ -100,7 +100,7 @@ def make_session(folder: Path, sensor_id: str, frames, fps: float = 30.0) -> Pat
     """A session directory (session.json + frames.csv + frames.avi) holding `frames`."""
     import numpy as np
 
-    from runtime.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
+    from tensortouch.contracts.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
 
     folder.mkdir(parents=True)
     write_frames(frames, folder / "frames.avi", fps)

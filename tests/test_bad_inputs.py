@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.calibration import CalibrationStore, sha256_file
-from runtime.errors import TensorTouchError
-from runtime.model import FieldModel, load_package
-from runtime.session import STREAM_COLUMNS, load_session, new_manifest, write_table
+from tensortouch.contracts.store import CalibrationStore, sha256_file
+from tensortouch.contracts.errors import TensorTouchError
+from tensortouch.runtime.stages.model import FieldModel, load_package
+from tensortouch.contracts.session import STREAM_COLUMNS, load_session, new_manifest, write_table
 from tests.conftest import dome_calibration
 from tests.hand_util import make_package
 
@@ -187,7 +187,7 @@ def raises_one_line(fn, *args, match=None, **kw) -> str:
 def cli_many(cases):
     """`tensortouch ARGV` for each ARGV as real subprocesses, run side by side → [(exit code, stderr lines)]."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    procs = [subprocess.Popen([sys.executable, "-m", "runtime.cli", *map(str, argv)], stdout=subprocess.DEVNULL,
+    procs = [subprocess.Popen([sys.executable, "-m", "tensortouch.runtime.shells.cli", *map(str, argv)], stdout=subprocess.DEVNULL,
                               stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env) for argv in cases]
     out = []
     for p in procs:
@@ -251,7 +251,7 @@ def test_session_bad_inputs(tmp_path):
 
 
 def test_hand_config_not_utf8(tmp_path):
-    from runtime.hand_config import load_hand_config
+    from tensortouch.runtime.apps.hand_config import load_hand_config
 
     cfg = tmp_path / "hand.toml"
     cfg.write_bytes(b'[hand]\nname = "h\xff"\n')
@@ -283,7 +283,7 @@ def test_calibration_manifest_bad_inputs(tmp_path):
 
 
 def test_fit_material_model_and_mode_spellings(tmp_path):
-    from tools.fe.fitting import (
+    from tensortouch.tools.fe.fitting import (
         fit_report,
         load_test_data,
         model_name,
@@ -323,7 +323,7 @@ MAP = {"sensor_id": "IMP-1", "clock": "log", "frames": {"topic": "/cam"}}
     ("truncated.bag", lambda tmp: ros1_bag_bytes(tmp)[:700], "cannot read as a ROS bag"),
 ])
 def test_session_import_of_broken_recordings(tmp_path, name, make, want):
-    from tools.sessions.bags import TopicMap, convert
+    from tensortouch.tools.sessions.bags import TopicMap, convert
 
     bag = tmp_path / name
     bag.write_bytes(make(tmp_path))
@@ -335,7 +335,7 @@ def test_session_import_mis_typed_messages_and_maps(tmp_path):
 
     from mcap.writer import Writer
 
-    from tools.sessions.bags import TopicMap, convert
+    from tensortouch.tools.sessions.bags import TopicMap, convert
 
     buf = io.BytesIO()                       # JSON messages whose fields have the wrong types
     w = Writer(buf)
@@ -368,7 +368,7 @@ def test_session_import_mis_typed_messages_and_maps(tmp_path):
     ("wrench", {"wrench_nan": True}, "non-finite value in stream 'wrench'"),
 ])
 def test_session_import_refuses_what_session_check_rejects(tmp_path, kind, kw, want):
-    from tools.sessions.bags import TopicMap, convert
+    from tensortouch.tools.sessions.bags import TopicMap, convert
 
     bag = tmp_path / "rec.mcap"
     bag.write_bytes(mcap_bytes(kind, n=4, **kw))
@@ -522,7 +522,7 @@ def test_fuzz_sessions(tmp_path):
 
 @pytest.mark.parametrize("fmt", ["mcap", "bag"])
 def test_fuzz_bags(tmp_path, fmt):
-    from tools.sessions.bags import TopicMap, convert
+    from tensortouch.tools.sessions.bags import TopicMap, convert
 
     seed = mcap_bytes() if fmt == "mcap" else ros1_bag_bytes(tmp_path)
     m = TopicMap.load(MAP)

@@ -5,10 +5,10 @@ import cv2
 import numpy as np
 import pytest
 
-from runtime.errors import SessionError
-from runtime.session import load_session
-from tools.sessions.bags import TopicMap, convert
-from tools.sessions.writer import read_frames
+from tensortouch.contracts.errors import SessionError
+from tensortouch.contracts.session import load_session
+from tensortouch.tools.sessions.bags import TopicMap, convert
+from tensortouch.tools.sessions.writer import read_frames
 
 pytest.importorskip("rosbags")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402

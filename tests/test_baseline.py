@@ -4,9 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from runtime.baseline import (BaselineConfig, BaselineState, BaselineTracker, SEED_FORCE_CONTACT_N,
+from tensortouch.runtime.stages.baseline import (BaselineConfig, BaselineState, BaselineTracker, SEED_FORCE_CONTACT_N,
                               SEED_MSE_THRESHOLD)
-from runtime.errors import TensorTouchError
+from tensortouch.contracts.errors import TensorTouchError
 
 S = 32
 FPS = 120.0
@@ -93,7 +93,7 @@ def test_startup_picks_most_stable_frame_as_master():
 def test_startup_warns_when_gel_moves(caplog):
     tracker = BaselineTracker(BaselineConfig(startup_frames=4))
     rest = rest_image()
-    with caplog.at_level("WARNING", logger="runtime.baseline"):
+    with caplog.at_level("WARNING", logger="tensortouch.runtime.stages.baseline"):
         for k, a in enumerate([0, 40, 80, 120]):
             u = tracker.update(np.clip(rest + blob(a), 0, 1), None, k / FPS)
     assert u.state is BaselineState.STABLE

@@ -3,7 +3,7 @@ import argparse
 
 import pytest
 
-from tools.bench import cli
+from tensortouch.tools.bench import cli
 
 
 def test_every_bench_area_registers():

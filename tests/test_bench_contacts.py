@@ -2,7 +2,7 @@
 import argparse
 import json
 
-from tools.bench.contacts_bench import add_arguments, run
+from tensortouch.tools.bench.contacts_bench import add_arguments, run
 
 
 def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):

@@ -18,12 +18,12 @@ import time
 import numpy as np
 import pytest
 
-from drivers.gauge import format_tt
-from drivers.mocap import format_pose
-from runtime import commands
-from runtime.calibration import CalibrationStore
-from runtime.session import load_session, read_table
-from runtime.subscriber import Subscriber
+from tensortouch.drivers.gauge import format_tt
+from tensortouch.drivers.mocap import format_pose
+from tensortouch.runtime.shells import commands
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.contracts.session import load_session, read_table
+from tensortouch.runtime.apps.subscriber import Subscriber
 from tests.test_e2e_runtime import free_port, stop
 from tests.test_record import LineServer
 
@@ -32,8 +32,8 @@ UNIT = "TWIN-BRINGUP-7"
 
 
 def parse(argv):
-    from tools.recalib import cli as recal_cli
-    from tools.sessions import cli as sess_cli
+    from tensortouch.tools.recalib import cli as recal_cli
+    from tensortouch.tools.sessions import cli as sess_cli
 
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest="command")
@@ -85,14 +85,14 @@ def feeds(twin_dir):
 def record_twin(out):
     """The unit poked where a recalibration session guides (7 single-probe presses at the spots the
     shipped nominal geometry suggests), rendered with hertz-fallback physics (no FE)."""
-    from tools.recalib.twin_bench import (
+    from tensortouch.tools.recalib.twin_bench import (
         TwinBenchConfig,
         guided_points,
         nominal_calibration,
         record_once,
     )
-    from tools.twin.record import RecordConfig
-    from tools.twin.trajectory import GuidedConfig
+    from tensortouch.tools.twin.record import RecordConfig
+    from tensortouch.tools.twin.trajectory import GuidedConfig
 
     bench = TwinBenchConfig()
     tables, _ = nominal_calibration(128)
@@ -112,7 +112,7 @@ def test_new_twin_unit_first_hour(tmp_path):
     assert args.func(args) == 0
     v1 = store.load(UNIT)
     assert v1.version == "v0001" and v1.meta["provenance"]["method"] == "nominal-lens"
-    from tools.twin.unit import TwinUnit, true_tables
+    from tensortouch.tools.twin.unit import TwinUnit, true_tables
 
     unit = TwinUnit(UNIT)
     assert np.hypot(*np.subtract(v1.gel_center_px, unit.gel_center_px)) < 0.5
@@ -169,7 +169,7 @@ def test_new_twin_unit_first_hour(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     got, status = [], []
     with Subscriber(UNIT, listen=[endpoint], on_contacts=got.append, on_status=status.append):
-        proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--source", f"replay:{rec}", "--sensor", UNIT,
+        proc = subprocess.Popen([sys.executable, "-m", "tensortouch.runtime.shells.cli", "run", "--source", f"replay:{rec}", "--sensor", UNIT,
                                  "--fast", "--no-fields", "--connect", endpoint],
                                 env=dict(os.environ, TENSORTOUCH_CALIBRATION=str(store.root)),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

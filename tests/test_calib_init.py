@@ -9,10 +9,11 @@ import argparse
 import numpy as np
 import pytest
 
-from runtime import commands, paths
-from runtime.bringup import GelShape, LensModel, find_gel, nominal_tables
-from runtime.calibration import CalibrationStore
-from runtime.errors import CalibrationError, TensorTouchError
+from tensortouch.runtime.shells import commands
+from tensortouch.contracts import paths
+from tensortouch.runtime.calib.bringup import GelShape, LensModel, find_gel, nominal_tables
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.contracts.errors import CalibrationError, TensorTouchError
 
 pytestmark = pytest.mark.skipif(not (paths.demo_dir() / "session.json").is_file(), reason="no demo recording")
 

@@ -3,8 +3,8 @@ import os
 
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.errors import CalibrationError
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.contracts.errors import CalibrationError
 from tests.conftest import dome_calibration
 
 
@@ -48,7 +48,7 @@ def test_failed_write_leaves_previous_version_active(calib_store, monkeypatch):
     def disk_full(*a, **k):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("runtime.calibration.json.dump", disk_full)
+    monkeypatch.setattr("tensortouch.contracts.store.json.dump", disk_full)
     with pytest.raises(CalibrationError, match="No space left on device.*nothing was stored"):
         calib_store.derive("TT-TEST", {"effects": []})
     monkeypatch.undo()

@@ -11,12 +11,12 @@ import threading
 import numpy as np
 import pytest
 
-from drivers.camera import camera_from_uri
-from runtime.calibration import CalibrationStore, sha256_file
-from runtime.loop import LoopConfig, SensorLoop
-from runtime.model import FieldModel, load_package
-from runtime.pipeline import SensorPipeline
-from runtime.publisher import Publisher
+from tensortouch.drivers.camera import camera_from_uri
+from tensortouch.contracts.store import CalibrationStore, sha256_file
+from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
+from tensortouch.runtime.stages.model import FieldModel, load_package
+from tensortouch.runtime.pipeline import SensorPipeline
+from tensortouch.runtime.apps.publisher import Publisher
 from tests.hand_util import (
     free_endpoint,
     hand_cfg,

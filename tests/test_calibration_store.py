@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import runtime.calibration as rc
-from runtime.calibration import CalibrationStore
-from runtime.errors import CalibrationError
+import tensortouch.contracts.store as rc
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.contracts.errors import CalibrationError
 from tests.conftest import dome_calibration
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -23,7 +23,7 @@ SENSOR = "TT-STORE"
 
 WRITER = textwrap.dedent("""
     import sys
-    from runtime.calibration import CalibrationStore
+    from tensortouch.contracts.store import CalibrationStore
     store = CalibrationStore(sys.argv[1])
     cal = store.load("TT-STORE")
     tables = {k: getattr(cal, k) for k in ("theta", "phi", "surface_xyz", "normals", "pixel_area", "mask")}

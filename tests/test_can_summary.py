@@ -7,8 +7,8 @@ import pytest
 
 can = pytest.importorskip("can")
 
-from drivers.can_bus import CanConfig, CanSummarySender, receive_summaries  # noqa: E402
-from runtime.can_summary import (FORCE_SCALE_N, POSITION_SCALE_MM, STATUS_BITS, FingerSummary,  # noqa: E402
+from tensortouch.drivers.can_bus import CanConfig, CanSummarySender, receive_summaries    # noqa: E402
+from tensortouch.contracts.can_frame import (FORCE_SCALE_N, POSITION_SCALE_MM, STATUS_BITS, FingerSummary,  # noqa: E402
                                  SummaryDecoder, check_id_range, decode_frames, encode_finger,
                                  frame_ids, summary_from_result)
 
@@ -66,11 +66,11 @@ def test_decoder_ignores_foreign_ids_and_needs_pairs():
 
 
 def test_summary_from_pipeline_result_picks_strongest():
-    from runtime.contacts import Cluster
-    from runtime.pipeline import FrameResult
+    from tensortouch.runtime.stages.contacts import Cluster
+    from tensortouch.runtime.pipeline import FrameResult
 
     def cl(i, f, pos):
-        return Cluster(id=i, centroid_px=(0.0, 0.0), centroid_mm=pos, normal=(0, 0, 1), area_mm2=1.0,
+        return Cluster(id=i, uv_px=(0.0, 0.0), position_mm=pos, normal=(0, 0, 1), area_mm2=1.0,
                        force_n=tuple(f), force_mag_n=float(np.linalg.norm(f)), pixels=4, perimeter_px=4.0,
                        circularity=1.0)
 

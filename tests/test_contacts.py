@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from runtime.contacts import ContactConfig, ContactTracker, find_clusters, pixel_forces
-from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
+from tensortouch.runtime.stages.contacts import ContactConfig, ContactTracker, find_clusters, pixel_forces
+from tensortouch.runtime.stages.geometry import DomeProfile, equidistant_theta_phi, surface_tables
 
 SIZE = 64
 
@@ -29,13 +29,13 @@ def test_two_blobs_two_clusters_with_forces():
     fp = pixel_forces(f, t["pixel_area"])
     cl = find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"], disp=f[0:3])
     assert len(cl) == 2
-    cl.sort(key=lambda c: c.centroid_px[0])
+    cl.sort(key=lambda c: c.uv_px[0])
     # nearly all force lies above the 0.005 N/pixel threshold
     assert 0.9 < cl[0].force_mag_n <= 1.0 + 1e-6 and 0.4 < cl[1].force_mag_n <= 0.5 + 1e-6
-    assert abs(cl[0].centroid_px[0] - 20.5) < 0.6 and abs(cl[0].centroid_px[1] - 32.5) < 0.6
+    assert abs(cl[0].uv_px[0] - 20.5) < 0.6 and abs(cl[0].uv_px[1] - 32.5) < 0.6
     assert 0.7 < cl[0].circularity <= 1.0 and cl[0].perimeter_px > 0 and cl[0].area_mm2 > 0
     # the 3D centroid lies on the dome, force points into the gel
-    assert abs(np.linalg.norm(cl[0].centroid_mm) - 16.0) < 0.5
+    assert abs(np.linalg.norm(cl[0].position_mm) - 16.0) < 0.5
     assert np.dot(cl[0].force_n, cl[0].normal) < 0
 
 
@@ -66,16 +66,16 @@ def test_tracker_keeps_ids_and_ranks():
         f = blob_fields(t, [(20 + step * 0.5, 32), (46, 30)], [0.4, 1.0])
         fp = pixel_forces(f, t["pixel_area"])
         cl = tr.update(find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"]))
-        now = {round(c.centroid_px[1]): c.id for c in cl}
+        now = {round(c.uv_px[1]): c.id for c in cl}
         if ids is not None:
             assert now == ids  # same ids frame to frame
         ids = now
         assert cl[0].force_mag_n > cl[1].force_mag_n  # strongest first
-    assert all(c.age == 5 for c in cl)
+    assert all(c.age_frames == 5 for c in cl)
     # a new contact far away gets a fresh id
     f = blob_fields(t, [(32, 10)], [1.0])
     cl = tr.update(find_clusters(pixel_forces(f, t["pixel_area"]), t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"]))
-    assert cl[0].id not in ids.values() and cl[0].age == 0
+    assert cl[0].id not in ids.values() and cl[0].age_frames == 0
 
 
 def test_indentation_is_the_deepest_inward_displacement_of_the_cluster():
@@ -87,10 +87,10 @@ def test_indentation_is_the_deepest_inward_displacement_of_the_cluster():
         f[0:3] -= dent[None] * np.moveaxis(t["normals"], -1, 0)  # inward = against the outward normal
     fp = pixel_forces(f, t["pixel_area"])
     cl = sorted(find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"], disp=f[0:3]),
-                key=lambda c: c.centroid_px[0])
+                key=lambda c: c.uv_px[0])
     assert [round(c.indentation_mm, 3) for c in cl] == [1.2, 0.4]
     # the force-weighted centroid sits on the flank of the dent, shallower than its deepest point
-    assert 16.0 - np.linalg.norm(cl[0].centroid_mm) < 1.2
+    assert 16.0 - np.linalg.norm(cl[0].position_mm) < 1.2
     no_disp = find_clusters(fp, t["surface_xyz"], t["normals"], t["pixel_area"], t["mask"])
     assert all(c.indentation_mm == 0.0 for c in no_disp)
 
@@ -106,12 +106,12 @@ def test_light_touch_rule_finds_a_broad_weak_contact_and_leaves_strong_ones_as_t
     base = find_clusters(fp, *args, cfg=cfg0)
     assert len(base) == 1                                           # the light touch is missed ...
     rule = ContactConfig(threshold_n=cfg0.threshold_n, weak_threshold_n=0.25 * peak_light, min_total_n=0.2)
-    cl = sorted(find_clusters(fp, *args, cfg=rule), key=lambda c: c.centroid_px[0])
+    cl = sorted(find_clusters(fp, *args, cfg=rule), key=lambda c: c.uv_px[0])
     assert len(cl) == 2                                             # ... and found by its total force
-    assert 0.25 < cl[1].force_mag_n <= 0.3 + 1e-6 and abs(cl[1].centroid_px[0] - 46.5) < 1.0
+    assert 0.25 < cl[1].force_mag_n <= 0.3 + 1e-6 and abs(cl[1].uv_px[0] - 46.5) < 1.0
     # the strong contact keeps its core; only the light touch's tail no longer joins its support
     assert cl[0].pixels == base[0].pixels and abs(cl[0].force_mag_n - base[0].force_mag_n) < 0.01
-    assert abs(cl[0].centroid_px[0] - 20.5) < 0.6
+    assert abs(cl[0].uv_px[0] - 20.5) < 0.6
     # a weak component whose total stays below min_total_n is not a contact; the rule off = the old result
     assert len(find_clusters(fp, *args, cfg=ContactConfig(threshold_n=cfg0.threshold_n,
                                                           weak_threshold_n=0.25 * peak_light, min_total_n=0.4))) == 1
@@ -122,7 +122,7 @@ def test_light_touch_rule_finds_a_broad_weak_contact_and_leaves_strong_ones_as_t
 def test_cores_bridged_above_merge_n_are_one_cluster_with_the_summed_force():
     from dataclasses import replace
 
-    from runtime.contacts import ContactConfig, find_clusters
+    from tensortouch.runtime.stages.contacts import ContactConfig, find_clusters
 
     s = 64
     v, u = np.mgrid[0:s, 0:s].astype(float)

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from runtime.correction import ForceCorrection, apply_output
-from runtime.errors import CalibrationError
+from tensortouch.runtime.stages.correction import ForceCorrection, apply_output
+from tensortouch.contracts.errors import CalibrationError
 
 
 def gain_model(path, n_in, gain):

@@ -5,10 +5,10 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.camera import (EndOfStream, OpenCVCamera, OpenCVCameraConfig, ReplayCamera,
+from tensortouch.drivers.camera import (EndOfStream, OpenCVCamera, OpenCVCameraConfig, ReplayCamera,
                             ReplayCameraConfig, camera_from_uri, config_from_uri)
-from runtime.errors import CaptureError, DeviceNotFoundError, SessionError, TensorTouchError
-from runtime.session import new_manifest, write_manifest, write_table
+from tensortouch.contracts.errors import CaptureError, DeviceNotFoundError, SessionError, TensorTouchError
+from tensortouch.contracts.session import new_manifest, write_manifest, write_table
 
 H, W = 48, 64
 

@@ -3,9 +3,9 @@ import os
 
 import pytest
 
-import drivers.usb as dusb
-from drivers.camera import camera_from_uri
-from runtime.errors import DeviceNotFoundError
+import tensortouch.drivers.usb as dusb
+from tensortouch.drivers.camera import camera_from_uri
+from tensortouch.contracts.errors import DeviceNotFoundError
 
 
 def libusb_available():

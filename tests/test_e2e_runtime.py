@@ -15,9 +15,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from runtime.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
+from tensortouch.contracts.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
 from tests.conftest import dome_calibration
-from tools.bench.models import write_difference_package
+from tensortouch.tools.bench.models import write_difference_package
 
 W, H, SIZE, SENSOR = 160, 120, 32, "TT-E2E"
 
@@ -58,7 +58,7 @@ def run_and_listen(tmp_path, session, run_extra: list, listen_extra: list):
     env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(tmp_path / "calib"),
                TENSORTOUCH_MODELS=str(tmp_path / "models"), PYTHONUNBUFFERED="1")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cli = [sys.executable, "-m", "runtime.cli"]
+    cli = [sys.executable, "-m", "tensortouch.runtime.shells.cli"]
     runtime = subprocess.Popen(cli + ["run", "--source", f"replay:{session}", "--listen", endpoint, "--loop"] + run_extra,
                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -109,7 +109,7 @@ def test_run_to_separate_listener_process(tmp_path):
 
 def test_run_without_model_says_how_to_build_one(tmp_path):
     env = dict(os.environ, TENSORTOUCH_MODELS=str(tmp_path / "none"))
-    r = subprocess.run([sys.executable, "-m", "runtime.cli", "run"], env=env, capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "run"], env=env, capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2
     assert "no trained model is installed" in r.stderr and "tensortouch train all" in r.stderr

@@ -2,13 +2,13 @@
 before the force correction; a covariate the runtime lacks gives a status flag, not a crash."""
 import numpy as np
 
-from runtime.calibration import CalibrationStore
-from runtime.effects import EffectChain
-from runtime.model import FieldModel, load_package
-from runtime.pipeline import SensorPipeline
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.effects import EffectChain
+from tensortouch.runtime.stages.model import FieldModel, load_package
+from tensortouch.runtime.pipeline import SensorPipeline
 from tests.conftest import dome_calibration
 from tests.test_e2e_runtime import H, SENSOR, SIZE, W
-from tools.bench.models import write_difference_package
+from tensortouch.tools.bench.models import write_difference_package
 
 
 def frames(n=60, poke_from=35):
@@ -57,8 +57,8 @@ def test_missing_covariate_flags_and_keeps_forces(tmp_path):
 
 
 def test_depth_covariate_is_the_clusters_indentation():
-    from runtime.contacts import Cluster
-    from runtime.effect_stage import EffectStage
+    from tensortouch.runtime.stages.contacts import Cluster
+    from tensortouch.runtime.stages.effects.stage import EffectStage
 
     class Cal:
         meta = {"gel": {"radius_mm": 16.0, "center_z_mm": 0.0, "skirt_mm": 2.0}}

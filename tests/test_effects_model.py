@@ -6,8 +6,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from runtime.effects import CANONICAL, EffectChain, Registry
-from runtime.effects.builtin import prony_history
+from tensortouch.runtime.stages.effects import CANONICAL, EffectChain, Registry
+from tensortouch.runtime.stages.effects.builtin import prony_history
 
 
 def _cov(n=200, seed=0):
@@ -41,8 +41,8 @@ def test_library_has_the_canonical_eight_with_identity_values():
 def test_twin_specs_are_the_runtime_definitions():
     """One vocabulary: the twin's specs are read from the runtime's effect classes (no second copy),
     and the twin has a truth form for every library effect."""
-    specs = pytest.importorskip("tools.twin.effect_specs")
-    twin = pytest.importorskip("tools.twin.effects")
+    specs = pytest.importorskip("tensortouch.tools.twin.effect_specs")
+    twin = pytest.importorskip("tensortouch.tools.twin.effects")
     reg = Registry.default(entry_points=False)
     assert tuple(specs.CANONICAL) == tuple(CANONICAL)
     for name in CANONICAL:
@@ -61,7 +61,7 @@ def test_twin_specs_are_the_runtime_definitions():
     ("ft_bias_drift", {"bx": 0.01, "by": -0.005, "bz": 0.002})])
 def test_model_forward_agrees_with_the_twin_truth_forward(name, params):
     """Same physics written twice (model side here, truth side in the twin): must agree."""
-    twin = pytest.importorskip("tools.twin.effects")
+    twin = pytest.importorskip("tensortouch.tools.twin.effects")
     cov = _cov()
     x = np.random.default_rng(2).normal(size=(200, 6))
     truth = twin.build_effects([(name, params)])[0].forward(x, cov)
@@ -122,7 +122,7 @@ def test_describe_states_the_physics_with_units():
 
 PLUGIN = '''
 import numpy as np
-from runtime.effects import Effect, Param, need, scale_rows
+from tensortouch.runtime.stages.effects import Effect, Param, need, scale_rows
 
 class AzimuthStiffness(Effect):
     name = "azimuth_stiffness"
@@ -163,7 +163,7 @@ def test_entry_point_plugin_is_discovered(tmp_path, monkeypatch):
 
 def test_bad_plugins_are_rejected_with_a_reason(tmp_path):
     (tmp_path / "bad.py").write_text(textwrap.dedent('''
-        from runtime.effects import Effect, Param
+        from tensortouch.runtime.stages.effects import Effect, Param
         class Bad(Effect):
             name = "temperature_softening"
             params = (Param("a", "-", 0.1, 0.0, 1.0),)
@@ -173,7 +173,7 @@ def test_bad_plugins_are_rejected_with_a_reason(tmp_path):
     with pytest.raises(ValueError, match="already taken"):
         Registry.default(plugin_dirs=[tmp_path], entry_points=False)
     (tmp_path / "bad.py").write_text(textwrap.dedent('''
-        from runtime.effects import Effect, Param
+        from tensortouch.runtime.stages.effects import Effect, Param
         class Bad(Effect):
             name = "bad"
             params = (Param("a", "-", 0.1, 0.0, 1.0),)

@@ -19,9 +19,9 @@ from collections import Counter, defaultdict
 import numpy as np
 import pytest
 
-from runtime.errors import ModelPackageError
-from runtime.hand import Hand
-from runtime.subscriber import Subscriber, alive_sensors, query_info
+from tensortouch.contracts.errors import ModelPackageError
+from tensortouch.runtime.apps.hand import Hand
+from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info
 from tests.hand_util import (FlakyCamera, Plug, free_endpoint, hand_cfg, make_package, make_session,
                              make_store, make_video, poke_frames, wait_until, write_frames)
 
@@ -92,7 +92,7 @@ def cfg_serials(cfg):
 
 
 def _factory(hand_cfg_obj, overrides):
-    from drivers.camera import camera_from_uri
+    from tensortouch.drivers.camera import camera_from_uri
 
     def make(f):
         if f.serial in overrides:
@@ -104,7 +104,7 @@ def _factory(hand_cfg_obj, overrides):
 # ------------------------------------------------------------------------------------- camera faults
 
 def test_camera_unplugged_and_replugged_injected_around_real_replay(rig):
-    from drivers.camera import camera_from_uri
+    from tensortouch.drivers.camera import camera_from_uri
 
     tmp, pkg, videos = rig
     cfg = hand_cfg(tmp, pkg, {s: f"file:{videos[s]}" for s in SERIALS}, max_camera_failures=5,
@@ -134,7 +134,7 @@ def test_camera_unplugged_and_replugged_injected_around_real_replay(rig):
 
 
 def test_sensor_absent_at_start_joins_later(rig):
-    from drivers.camera import camera_from_uri
+    from tensortouch.drivers.camera import camera_from_uri
 
     tmp, pkg, videos = rig
     cfg = hand_cfg(tmp, pkg, {s: f"file:{videos[s]}" for s in SERIALS}, reconnect_s=0.1, offline_after_s=30.0)
@@ -217,7 +217,7 @@ def test_garbled_jpeg_flags_the_sensor(rig, tmp_path):
 SUB_SCRIPT = textwrap.dedent("""
     import json, os, sys, time
     from collections import Counter
-    from runtime.publisher import open_session
+    from tensortouch.runtime.apps.publisher import open_session
     mode, ep, seconds = sys.argv[1], sys.argv[2], float(sys.argv[3])
     s = open_session(listen=[ep]) if mode == "listen" else open_session(connect=[ep])
     n = Counter()
@@ -330,7 +330,7 @@ def test_model_file_replaced_by_corrupt_one_while_running(rig, tmp_path):
         before = snapshot(col, SERIALS)
         assert_kept_publishing(col, before, sids=SERIALS)                     # old session keeps running
         assert query_info(sub, "TT-A")["model_hash"] == old_hash
-        from tools.bench.models import write_difference_package
+        from tensortouch.tools.bench.models import write_difference_package
 
         write_difference_package(tmp_path / "new", 32, gain=3.0)             # a valid new model arrives
         for name in ("model.int8.onnx", "model.fp32.onnx", "manifest.json"):
@@ -354,7 +354,7 @@ def test_model_file_replaced_by_corrupt_one_while_running(rig, tmp_path):
 
 
 def test_calibration_replaced_by_corrupt_one_while_running(rig, tmp_path):
-    from runtime.calibration import CalibrationStore
+    from tensortouch.contracts.store import CalibrationStore
     from tests.conftest import dome_calibration
 
     tmp, pkg, videos = rig
@@ -389,7 +389,7 @@ DISK_FULL_WRITE = textwrap.dedent("""
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)          # get EFBIG instead of being killed
     resource.setrlimit(resource.RLIMIT_FSIZE, (2048, 2048))
     from tests.conftest import dome_calibration
-    from runtime.errors import CalibrationError
+    from tensortouch.contracts.errors import CalibrationError
     try:
         dome_calibration(sys.argv[1], "TT-B", size=32, image=(160, 120), radius_px=47.0)
     except CalibrationError as exc:
@@ -409,7 +409,7 @@ def _mount_tmpfs(path, size="1m"):
 def test_disk_full_during_calibration_write(rig, tmp_path):
     """A full disk (tmpfs at its size limit where mounting is allowed, else a file-size limit in a
     separate process) fails the write; the running hand and the stored versions are untouched."""
-    from runtime.calibration import CalibrationStore
+    from tensortouch.contracts.store import CalibrationStore
     from tests.conftest import dome_calibration
 
     tmp, pkg, videos = rig
@@ -434,7 +434,7 @@ def test_disk_full_during_calibration_write(rig, tmp_path):
                 assert exc.errno == 28
             finally:
                 os.close(fd)
-            from runtime.errors import CalibrationError
+            from tensortouch.contracts.errors import CalibrationError
 
             with pytest.raises(CalibrationError, match="nothing was stored") as info:
                 dome_calibration(store_root, SICK, size=32, image=(160, 120), radius_px=47.0)
@@ -499,7 +499,7 @@ def test_disk_full_while_recording(rig, tmp_path, kinds, free_kb):
     hand, sub = running_hand(cfg, col)
     rec = disk / "rec"
     try:
-        r = subprocess.run([sys.executable, "-m", "runtime.cli", "listen", "--connect", cfg.listen[0],
+        r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "--connect", cfg.listen[0],
                             "--save", str(rec), "--kinds", kinds, "--timeout", "60", "--json"],
                            capture_output=True, text=True, timeout=90, preexec_fn=preexec,
                            cwd=os.path.dirname(os.path.dirname(__file__)))

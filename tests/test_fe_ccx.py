@@ -7,9 +7,9 @@ pytest.importorskip("felupe")
 pytest.importorskip("gmsh")
 pytest.importorskip("trimesh")
 
-from tools.fe.ccx import crosscheck, find_ccx, read_reactions
-from tools.fe.inp import export_inp_ccx, rigid_tets, step_increments
-from tools.fe.scenario import standard_dome
+from tensortouch.tools.fe.ccx import crosscheck, find_ccx, read_reactions
+from tensortouch.tools.fe.inp import export_inp_ccx, rigid_tets, step_increments
+from tensortouch.tools.fe.scenario import standard_dome
 
 needs_ccx = pytest.mark.skipif(find_ccx() is None, reason="CalculiX (ccx) is not installed: "
                                "apt-get install -y calculix-ccx (.ci/system-deps installs it)")

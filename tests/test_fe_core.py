@@ -6,14 +6,14 @@ import pytest
 
 pytest.importorskip("felupe")
 
-from tools.fe import (FEResultError, ScenarioError, load_result, load_scenario, save_result,  # noqa: E402
+from tensortouch.tools.fe import (FEResultError, ScenarioError, load_result, load_scenario, save_result,  # noqa: E402
                       save_scenario, standard_dome)
-from tools.fe import contact as fc  # noqa: E402
-from tools.fe.indenters import (BoxEdge, Cylinder, Flat, MeshShape, Sphere, Torus,  # noqa: E402
+from tensortouch.tools.fe import contact as fc    # noqa: E402
+from tensortouch.tools.fe.indenters import (BoxEdge, Cylinder, Flat, MeshShape, Sphere, Torus,  # noqa: E402
                                 pose_at, rotmat)
-from tools.fe.materials import YeohUmat, felupe_reference_umat  # noqa: E402
-from tools.fe.mesh import box_mesh  # noqa: E402
-from tools.fe.scenario import Material, scenario_from_dict  # noqa: E402
+from tensortouch.tools.fe.materials import YeohUmat, felupe_reference_umat    # noqa: E402
+from tensortouch.tools.fe.mesh import box_mesh    # noqa: E402
+from tensortouch.tools.fe.scenario import Material, scenario_from_dict    # noqa: E402
 
 
 # ---------------------------------------------------------------- scenario contract
@@ -97,7 +97,7 @@ def test_pose_interpolation_about_reference_point():
 
 # ---------------------------------------------------------------- result contract
 def _fake_result(F=2, N=5, K=1, converged=True):
-    from tools.fe.result import FEResult
+    from tensortouch.tools.fe.result import FEResult
 
     z = np.zeros
     return FEResult(nodes=np.random.default_rng(0).normal(size=(N, 3)), tets=np.array([[0, 1, 2, 3]]),
@@ -314,7 +314,7 @@ def test_docs_toml_example_is_a_valid_scenario():
 def test_mesh_shape_sign_at_edges_and_corners_of_a_box(tmp_path):
     import trimesh
 
-    from tools.fe.indenters import _box_sdf, load_mesh_shape
+    from tensortouch.tools.fe.indenters import _box_sdf, load_mesh_shape
 
     box = trimesh.creation.box([6.0, 4.0, 2.0])  # 12 large triangles: edges and corners dominate
     box.apply_translation([0, 0, 1.0])

@@ -8,9 +8,9 @@ import pytest
 
 pytest.importorskip("felupe")
 
-from tools.fe import FEConvergenceError, ScenarioError, load_result, save_result, solve  # noqa: E402
-from tools.fe.mesh import mesh_gel  # noqa: E402
-from tools.fe.scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings,  # noqa: E402
+from tensortouch.tools.fe import FEConvergenceError, ScenarioError, load_result, save_result, solve    # noqa: E402
+from tensortouch.tools.fe.mesh import mesh_gel    # noqa: E402
+from tensortouch.tools.fe.scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings,  # noqa: E402
                                Scenario)
 
 PAD = GelGeometry(kind="flat_pad", size_x=16.0, size_y=16.0, thickness=6.0)
@@ -65,7 +65,7 @@ def test_struggle_mode_from_the_first_iteration_gives_the_same_slide(pad_mesh, m
     """Struggle mode (slip hold + secant slip tangent + best-iterate acceptance, normally entered after
     HOLD_AFTER iterations) switched on from the first Newton iteration: the stick-then-slip slide is
     solved to the same forces as plain Newton, in equilibrium."""
-    from tools.fe import solver as fs
+    from tensortouch.tools.fe import solver as fs
 
     kps = [(0, 0, -0.8), (0.15, 0, -0.8), (1.0, 0, -0.8), (2.0, 0, -0.8)]
     plain = solve(_pad([_sphere(keypoints=kps)], 0.4), mesh=pad_mesh)
@@ -205,7 +205,7 @@ def test_linear_tet_locking_compensation_against_upj(capsys):
 
 @pytest.mark.slow
 def test_fit_material_to_indentation_forces():
-    from tools.fe.fitting import fit_to_indentation
+    from tensortouch.tools.fe.fitting import fit_to_indentation
 
     truth = _pad([_sphere(keypoints=[(0, 0, -0.6)])], 0.0)
     truth.mesh = MeshSettings(size_top=1.2, size_inside=1.5, refine_depth=0.8)
@@ -254,7 +254,7 @@ def test_deep_twin_slide_that_plain_newton_could_not_solve():
     (docs/fe.md "Struggle mode for deep slides"). ~15-50 s."""
     from pathlib import Path
 
-    from tools.fe import load_scenario
+    from tensortouch.tools.fe import load_scenario
 
     sc = load_scenario(Path(__file__).parent / "data" / "fe" / "deep_slide_flat4.json")
     r = solve(sc)
@@ -269,7 +269,7 @@ def test_frictional_press_force_does_not_depend_on_the_increment(pad_mesh, monke
     """mu 2.2 press of 2 mm: 0.5 mm and 0.1 mm increments give the same normal force now that a
     newly touching node sticks where the indenter met it; the old closest-point anchor (switched
     back on here) lowers the force at 0.5 mm increments."""
-    import tools.fe.solver as fs
+    import tensortouch.tools.fe.solver as fs
 
     def fz(inc):
         sc = _pad([_sphere(keypoints=[(0.0, 0.0, -2.0)])], 2.2)

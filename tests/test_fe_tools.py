@@ -10,9 +10,9 @@ pytest.importorskip("felupe")
 pytest.importorskip("gmsh")
 trimesh = pytest.importorskip("trimesh")
 
-from tools.fe import load_result, save_scenario, solve  # noqa: E402
-from tools.fe.mesh import mesh_gel  # noqa: E402
-from tools.fe.scenario import (GelGeometry, Indenter, Keypoint, MeshSettings, Scenario,  # noqa: E402
+from tensortouch.tools.fe import load_result, save_scenario, solve    # noqa: E402
+from tensortouch.tools.fe.mesh import mesh_gel    # noqa: E402
+from tensortouch.tools.fe.scenario import (GelGeometry, Indenter, Keypoint, MeshSettings, Scenario,  # noqa: E402
                                standard_dome)
 
 SMALL_PAD = GelGeometry(kind="flat_pad", size_x=10.0, size_y=10.0, thickness=4.0)
@@ -61,7 +61,7 @@ def test_stl_gel(tmp_path):
 
 
 def test_procedural_set_is_deterministic_and_standardized(tmp_path):
-    from tools.fe.procedural import OBJECT_KINDS, TOP_HEIGHT, generate_set
+    from tensortouch.tools.fe.procedural import OBJECT_KINDS, TOP_HEIGHT, generate_set
 
     assert len(OBJECT_KINDS) >= 12
     a = generate_set(tmp_path / "a", seed=3, count=len(OBJECT_KINDS))
@@ -83,7 +83,7 @@ def test_mesh_indenter_solve_matches_analytic_sphere(tmp_path):
     sph.export(tmp_path / "ball.stl")
     sc_mesh = small_scenario(shape="mesh", params={}, mesh_path="ball.stl")
     path = save_scenario(sc_mesh, tmp_path / "s.json")
-    from tools.fe import load_scenario
+    from tensortouch.tools.fe import load_scenario
 
     sc_mesh = load_scenario(path)  # relative mesh path resolves against the scenario folder
     mesh = mesh_gel(SMALL_PAD, SMALL_MESH)
@@ -93,7 +93,7 @@ def test_mesh_indenter_solve_matches_analytic_sphere(tmp_path):
 
 
 def test_material_fit_ranks_yeoh_over_neo_hookean(tmp_path):
-    from tools.fe.fitting import fit_report, load_test_data, synthetic_test_data
+    from tensortouch.tools.fe.fitting import fit_report, load_test_data, synthetic_test_data
 
     data = synthetic_test_data(C=(0.03, 0.002, 0.0002), noise=1e-4)
     rep = fit_report(data, plot=tmp_path / "fit.png")
@@ -110,7 +110,7 @@ def test_material_fit_ranks_yeoh_over_neo_hookean(tmp_path):
 
 
 def test_batch_cache_resume_and_failures(tmp_path):
-    from tools.fe.batch import run_batch
+    from tensortouch.tools.fe.batch import run_batch
 
     scen = tmp_path / "scen"
     save_scenario(small_scenario(0.4), scen / "a.json")
@@ -127,7 +127,7 @@ def test_batch_cache_resume_and_failures(tmp_path):
 
 
 def test_cli_solve_list_and_inp(tmp_path, capsys):
-    from tools.fe.cli import register
+    from tensortouch.tools.fe.cli import register
 
     parser = argparse.ArgumentParser()
     register(parser.add_subparsers(dest="command"))
@@ -144,7 +144,7 @@ def test_cli_solve_list_and_inp(tmp_path, capsys):
     for key in ("*ELEMENT, TYPE=C3D4H", "*HYPERELASTIC, YEOH", "*FRICTION\n2.2", "*RIGID BODY",
                 "KEYPOINT_1", "GEL-1.BASE, ENCASTRE", "CNORMF"):
         assert key in deck
-    from runtime.cli import main
+    from tensortouch.runtime.shells.cli import main
 
     assert main(["fe", "solve", str(tmp_path / "missing.json"), "--out", str(tmp_path / "x.npz")]) == 2
     assert "scenario file not found" in capsys.readouterr().err
@@ -157,7 +157,7 @@ def test_standard_dome_contract():
 
 
 def test_bench_quick_json_last_line(capsys):
-    from tools.fe import bench
+    from tensortouch.tools.fe import bench
 
     parser = argparse.ArgumentParser()
     bench.add_arguments(parser)

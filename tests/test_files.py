@@ -1,10 +1,10 @@
-"""runtime/files.py: the one atomic-write helper."""
+"""contracts/files.py: the one atomic-write helper."""
 import json
 import os
 
 import pytest
 
-from runtime.files import atomic_write, atomic_write_json
+from tensortouch.contracts.files import atomic_write, atomic_write_json
 
 
 def test_writes_bytes_callables_and_json(tmp_path):

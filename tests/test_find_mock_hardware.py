@@ -11,9 +11,9 @@ from types import SimpleNamespace
 import pytest
 import usb.backend
 
-import drivers.usb as dusb
-from drivers import v4l2
-from runtime import commands
+import tensortouch.drivers.usb as dusb
+from tensortouch.drivers import v4l2
+from tensortouch.runtime.shells import commands
 from tests.test_drivers_usb import fake_sysfs
 
 

@@ -6,8 +6,8 @@ import time
 
 import pytest
 
-from drivers.gauge import ForceGauge, GaugeConfig, checksum, format_tt, parse_mark10, parse_tt
-from runtime.errors import CaptureError, DeviceNotFoundError
+from tensortouch.drivers.gauge import ForceGauge, GaugeConfig, checksum, format_tt, parse_mark10, parse_tt
+from tensortouch.contracts.errors import CaptureError, DeviceNotFoundError
 
 
 def test_tt_line_roundtrip_and_checksum():
@@ -123,7 +123,7 @@ def test_twin_gauge_lines_through_a_pty_are_read_back():
     """tools.recalib.twin_gauge plays a force stream as tt lines; the driver reads the same |F|."""
     import numpy as np
 
-    from tools.recalib.twin_gauge import gauge_lines, play
+    from tensortouch.tools.recalib.twin_gauge import gauge_lines, play
 
     t = np.arange(0, 1.0, 0.01)
     fz = np.where((t > 0.2) & (t < 0.8), -2.0, 0.0)

@@ -1,6 +1,6 @@
 import numpy as np
 
-from runtime.geometry import DomeProfile, equidistant_theta_phi, sample_bilinear, surface_tables
+from tensortouch.runtime.stages.geometry import DomeProfile, equidistant_theta_phi, sample_bilinear, surface_tables
 
 
 def test_hemisphere_area_and_normals():

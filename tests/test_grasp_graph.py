@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from tools.grasp import graph
+from tensortouch.tools.grasp import graph
 
 
 def _line_graph(n=6):
@@ -61,7 +61,7 @@ def test_load_rejects_a_foreign_npz(tmp_path):
 def test_allegro_graph_contact_nodes_paths_and_sensor_positions():
     pytest.importorskip("pinocchio")
     pytest.importorskip("coal")
-    from tools.grasp import hand_model
+    from tensortouch.tools.grasp import hand_model
 
     spec = hand_model.HandSpec()
     model = hand_model.load(None, spec)
@@ -73,7 +73,7 @@ def test_allegro_graph_contact_nodes_paths_and_sensor_positions():
     assert np.all(d <= 0.0204 + 0.001) and np.all(d >= 0.0204 - 0.003)
     np.testing.assert_allclose(np.linalg.norm(g.dir_thumb, axis=1), 1.0)
     # every contact lands on both gels: pad angle inside the mount's cone, gel point on the dome
-    from tools.grasp.sensor_mount import SensorMount
+    from tensortouch.tools.grasp.sensor_mount import SensorMount
 
     m = SensorMount()
     assert np.all(g.dir_thumb @ np.array(m.axis_tip) >= m.cone_cos() - 1e-9)

@@ -8,7 +8,7 @@ import pytest
 pin = pytest.importorskip("pinocchio")
 coal = pytest.importorskip("coal")
 
-from tools.grasp import axis, hand_model, manipulability, mount, workspace
+from tensortouch.tools.grasp import axis, hand_model, manipulability, mount, workspace
 
 PLANAR_2LINK = """<?xml version="1.0"?>
 <robot name="planar2">
@@ -109,7 +109,7 @@ def test_variant_edits_the_distal_joint_placement_and_urdf(tmp_path):
 
 
 def test_mount_cli_writes_figures_variant_and_urdf(tmp_path):
-    from tools.grasp.cli import register
+    from tensortouch.tools.grasp.cli import register
 
     parser = argparse.ArgumentParser(prog="tensortouch")
     register(parser.add_subparsers())
@@ -125,7 +125,7 @@ def test_mount_cli_writes_figures_variant_and_urdf(tmp_path):
 
 
 def test_mount_cli_bad_urdf_exits_2(tmp_path, capsys):
-    from tools.grasp.cli import register
+    from tensortouch.tools.grasp.cli import register
 
     bad = tmp_path / "bad.urdf"
     bad.write_text("<robot name='x'><link name='a'/></robot>")

@@ -5,11 +5,11 @@ import uuid
 import numpy as np
 import pytest
 
-from runtime.errors import TensorTouchError
-from runtime.hand import Hand
-from runtime.hand_cli import register_hand
-from runtime.hand_config import HandConfigError, load_hand_config, parse_hand_config
-from runtime.subscriber import Subscriber, alive_sensors, query_info
+from tensortouch.contracts.errors import TensorTouchError
+from tensortouch.runtime.apps.hand import Hand
+from tensortouch.runtime.shells.hand_cli import register_hand
+from tensortouch.runtime.apps.hand_config import HandConfigError, load_hand_config, parse_hand_config
+from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info
 from tests.hand_util import hand_cfg, make_package, make_store, make_video, wait_until
 
 SERIALS = ("TT-A", "TT-B", "TT-C")
@@ -105,12 +105,12 @@ def test_three_fingers_publish_independently_with_can_summary(rig):
         assert wait_until(lambda: all(statuses[s] for s in SERIALS), 5)
         for i, s in enumerate(SERIALS):
             assert {(m["finger"], m["hand"]) for m in statuses[s]} == {(f"f{i}", "test-hand")}, s
-        from runtime.listen import format_line
+        from tensortouch.runtime.shells.listen import format_line
 
         assert " finger=f1 state=" in format_line("status", statuses["TT-B"][-1])   # `tensortouch listen`
         fields = sub.wait_for("fields", 5.0)
         assert fields.data.shape == (15, 32, 32)
-        from runtime.can_summary import SummaryDecoder
+        from tensortouch.contracts.can_frame import SummaryDecoder
 
         dec = SummaryDecoder(0x320, 3)
         seen_contact = set()

@@ -10,7 +10,7 @@ from tests.hand_util import make_package
 
 
 def _args(argv):
-    from tools.bench import hand_bench
+    from tensortouch.tools.bench import hand_bench
 
     p = argparse.ArgumentParser()
     hand_bench.add_arguments(p)
@@ -18,8 +18,8 @@ def _args(argv):
 
 
 def test_model_default_is_newest_installed_package(tmp_path, monkeypatch):
-    from runtime import paths
-    from tools.bench.hand_bench import resolve_model
+    from tensortouch.contracts import paths
+    from tensortouch.tools.bench.hand_bench import resolve_model
 
     models = tmp_path / "models"
     make_package(models / "older-32")
@@ -33,7 +33,7 @@ def test_model_default_is_newest_installed_package(tmp_path, monkeypatch):
     assert pkg.folder == models / "older-32"
     pkg, _ = resolve_model(str(newest), 32, tmp_path / "work")           # by path, matching size
     assert pkg.folder == newest
-    from runtime.errors import ModelPackageError
+    from tensortouch.contracts.errors import ModelPackageError
     with pytest.raises(ModelPackageError, match="input size 32x32, but --size 64"):
         resolve_model("newer-32", 64, tmp_path / "work")
     with pytest.raises(ModelPackageError):
@@ -41,8 +41,8 @@ def test_model_default_is_newest_installed_package(tmp_path, monkeypatch):
 
 
 def test_model_synthetic_explicit_and_when_nothing_installed(tmp_path, monkeypatch):
-    from runtime import paths
-    from tools.bench.hand_bench import resolve_model
+    from tensortouch.contracts import paths
+    from tensortouch.tools.bench.hand_bench import resolve_model
 
     make_package(tmp_path / "models" / "shipped-32")
     monkeypatch.setattr(paths, "models_dir", lambda: tmp_path / "models")
@@ -62,7 +62,7 @@ def test_cli_arguments():
 
 @pytest.mark.slow
 def test_hand_bench_small(capsys):
-    from tools.bench import hand_bench
+    from tensortouch.tools.bench import hand_bench
 
     args = _args(["--model", "synthetic", "--sensors", "2", "--size", "32", "--seconds", "1.5", "--warmup", "2",
                   "--soak", "3", "--log-every", "1", "--soak-fps", "10", "--json"])
@@ -92,7 +92,7 @@ def _rows(n=40, leak_mb_per_h=0.0, p99_ms=20.0):
 
 
 def test_soak_summary_measures_drift_rate_and_backlog():
-    from tools.bench.hand_bench import summarize_soak
+    from tensortouch.tools.bench.hand_bench import summarize_soak
 
     flat = summarize_soak(_rows(), 30.0)
     assert flat["rss_slope_mb_per_h"] == pytest.approx(0.0, abs=1e-6)
@@ -110,7 +110,7 @@ def test_soak_plot_and_from_log(tmp_path, capsys):
     log = tmp_path / "soak.jsonl"
     log.write_text("".join(json.dumps(r) + "\n" for r in _rows(12, leak_mb_per_h=6.0)))
     png = tmp_path / "soak.png"
-    from tools.bench import hand_bench
+    from tensortouch.tools.bench import hand_bench
 
     assert hand_bench.run(_args(["--from-log", str(log), "--soak-fps", "30", "--plot", str(png), "--json"])) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["soak"]

@@ -14,8 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from runtime import paths
-from runtime.subscriber import Subscriber
+from tensortouch.contracts import paths
+from tensortouch.runtime.apps.subscriber import Subscriber
 from tests.test_e2e_runtime import free_port, stop
 
 
@@ -36,7 +36,7 @@ pytestmark = pytest.mark.skipif(_missing() is not None, reason=str(_missing()))
 @pytest.fixture(scope="module")
 def runtime_endpoint():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--loop", "--listen", endpoint],
+    proc = subprocess.Popen([sys.executable, "-m", "tensortouch.runtime.shells.cli", "run", "--loop", "--listen", endpoint],
                             env=dict(os.environ, PYTHONUNBUFFERED="1"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     yield endpoint, proc

@@ -10,10 +10,10 @@ import time
 import numpy as np
 import pytest
 
-from runtime import wire
-from runtime.fields import CHANNELS
-from runtime.listen import add_listen_parser, format_line
-from runtime.publisher import Publisher
+from tensortouch.contracts import wire
+from tensortouch.contracts.fields import CHANNELS
+from tensortouch.runtime.shells.listen import add_listen_parser, format_line
+from tensortouch.runtime.apps.publisher import Publisher
 
 
 def free_endpoint() -> str:
@@ -93,8 +93,8 @@ def test_listen_prints_and_saves(running_sensor, tmp_path, capsys):
 
 
 def test_listen_json_in_separate_process(running_sensor):
-    """`python -m runtime.listen` in another process: one JSON object per message line."""
-    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "listen", "*", "--connect",
+    """`python -m runtime.shells.listen` in another process: one JSON object per message line."""
+    proc = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "*", "--connect",
                            running_sensor, "--count", "8", "--timeout", "30", "--json",
                            "--kinds", "contacts,status"],
                           capture_output=True, text=True, timeout=60)
@@ -114,7 +114,7 @@ def test_listen_nothing_running_exits_1_with_hint(capsys):
 
 
 def test_listen_rejects_unknown_kind():
-    from runtime.errors import CommandError
+    from tensortouch.contracts.errors import CommandError
 
     args = parse(["listen", "--kinds", "fields,pressure", "--timeout", "1"])
     with pytest.raises(CommandError, match="pressure"):

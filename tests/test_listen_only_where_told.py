@@ -22,9 +22,9 @@ from tests.test_e2e_runtime import (
     stop,
     write_poke_session,
 )
-from tools.bench.models import write_difference_package
+from tensortouch.tools.bench.models import write_difference_package
 
-CLI = [sys.executable, "-m", "runtime.cli"]
+CLI = [sys.executable, "-m", "tensortouch.runtime.shells.cli"]
 pytestmark = pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net")
 
 
@@ -129,10 +129,10 @@ def test_view_listens_on_its_http_port_only(tmp_path):
 
 
 @pytest.mark.parametrize("code, expected", [
-    ("from runtime.subscriber import Subscriber; s = Subscriber('*')", set()),
-    ("from runtime.subscriber import Subscriber; s = Subscriber('dome01', connect=['tcp/127.0.0.1:1'])", set()),
-    ("from runtime.publisher import Publisher; p = Publisher('dome01')", {"ENDPOINT"}),
-    ("from runtime.publisher import Publisher; p = Publisher('dome01', connect=['tcp/127.0.0.1:1'])", set()),
+    ("from tensortouch.runtime.apps.subscriber import Subscriber; s = Subscriber('*')", set()),
+    ("from tensortouch.runtime.apps.subscriber import Subscriber; s = Subscriber('dome01', connect=['tcp/127.0.0.1:1'])", set()),
+    ("from tensortouch.runtime.apps.publisher import Publisher; p = Publisher('dome01')", {"ENDPOINT"}),
+    ("from tensortouch.runtime.apps.publisher import Publisher; p = Publisher('dome01', connect=['tcp/127.0.0.1:1'])", set()),
 ], ids=["subscriber-default", "subscriber-connect", "publisher-default", "publisher-connect"])
 def test_library_sessions_listen_only_where_told(code, expected):
     port = free_port()

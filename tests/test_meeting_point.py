@@ -13,13 +13,13 @@ import time
 
 import pytest
 
-from runtime.paths import ROOT
-from runtime.subscriber import Subscriber, query_info
+from tensortouch.contracts.paths import ROOT
+from tensortouch.runtime.apps.subscriber import Subscriber, query_info
 from tests.test_e2e_runtime import free_port, stop
 
 MODEL = ROOT / "exported_models" / "hiera-qup-128"
 DEMO = ROOT / "runtime" / "demo"
-CLI = [sys.executable, "-m", "runtime.cli"]
+CLI = [sys.executable, "-m", "tensortouch.runtime.shells.cli"]
 
 needs_demo = pytest.mark.skipif(not (MODEL / "manifest.json").is_file() or not (DEMO / "session.json").is_file(),
                                 reason="no shipped model or demo in this checkout")
@@ -79,7 +79,7 @@ def test_default_run_loops_the_built_in_demo(tmp_path):
     through TENSORTOUCH_DEMO, with a test network, as fast as it can): 25 frames come out."""
     from tests.conftest import dome_calibration
     from tests.test_e2e_runtime import SENSOR, SIZE, H, W, write_poke_session
-    from tools.bench.models import write_difference_package
+    from tensortouch.tools.bench.models import write_difference_package
 
     demo = write_poke_session(tmp_path / "demo", n=10)
     write_difference_package(tmp_path / "models" / "difference-32", SIZE)

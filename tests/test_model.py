@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from runtime.errors import ModelPackageError
-from runtime.fields import CHANNELS
-from runtime.model import FieldModel, find_package, load_package
-from tools.bench.models import write_package
+from tensortouch.contracts.errors import ModelPackageError
+from tensortouch.contracts.fields import CHANNELS
+from tensortouch.runtime.stages.model import FieldModel, find_package, load_package
+from tensortouch.tools.bench.models import write_package
 
 
 @pytest.fixture(scope="module")

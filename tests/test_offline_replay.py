@@ -17,17 +17,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime import paths
-from runtime.calibration import CalibrationStore
-from runtime.correction import ForceCorrection
-from runtime.model import load_package
-from runtime.offline import cache_key, match_contacts, network_passes, replay_session
-from runtime.session import load_session
+from tensortouch.contracts import paths
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.correction import ForceCorrection
+from tensortouch.runtime.stages.model import load_package
+from tensortouch.runtime.offline import cache_key, match_contacts, network_passes, replay_session
+from tensortouch.contracts.session import load_session
 from tests.conftest import dome_calibration
 from tests.test_correction import gain_model
 from tests.test_e2e_runtime import SENSOR, SIZE, H, W, free_port, write_poke_session
-from tools.bench.models import write_difference_package
-from tools.recalib.replay import collect_frames, corrected_frames
+from tensortouch.tools.bench.models import write_difference_package
+from tensortouch.tools.recalib.replay import collect_frames, corrected_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = "TWIN-DEMO"
@@ -76,7 +76,7 @@ def demo_store(root: Path, effects=EFFECTS, gain=1.1) -> CalibrationStore:
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    from runtime.model import find_package
+    from tensortouch.runtime.stages.model import find_package
 
     if not (paths.demo_dir() / "session.json").is_file():
         pytest.skip("no demo recording")
@@ -88,7 +88,7 @@ def demo(tmp_path_factory):
 def run_and_replay(session: Path, package, store: CalibrationStore, sensor: str, min_touched: int):
     """`tensortouch run` on `session` (own process, Zenoh to a subscriber here) vs `replay_session`:
     the same contacts and wrench on every frame; returns the replayed results."""
-    from runtime.subscriber import Subscriber
+    from tensortouch.runtime.apps.subscriber import Subscriber
 
     cal = store.load(sensor)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -104,7 +104,7 @@ def run_and_replay(session: Path, package, store: CalibrationStore, sensor: str,
 
     env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(store.root), PYTHONUNBUFFERED="1", PYTHONPATH=str(ROOT))
     with Subscriber(sensor, listen=[endpoint], on_contacts=on_contacts, on_wrench=on_wrench):
-        run = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--source", f"replay:{session}",
+        run = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "run", "--source", f"replay:{session}",
                               "--model", str(package.folder), "--no-fields", "--connect", endpoint], check=False,
                              env=env, capture_output=True, text=True, timeout=300, cwd=ROOT)
         time.sleep(1.0)
@@ -124,9 +124,9 @@ def run_and_replay(session: Path, package, store: CalibrationStore, sensor: str,
         assert pub.t == pytest.approx(r.t, abs=1e-9)
         assert [c.id for c in pub.contacts] == [c.id for c in r.clusters]
         for c, k in zip(pub.contacts, r.clusters):
-            np.testing.assert_allclose(c.position_mm, k.centroid_mm, atol=1e-6)
+            np.testing.assert_allclose(c.position_mm, k.position_mm, atol=1e-6)
             np.testing.assert_allclose(c.force_n, k.force_n, rtol=1e-6, atol=1e-9)
-            assert c.age_frames == k.age
+            assert c.age_frames == k.age_frames
         np.testing.assert_allclose(w.force_n, r.force_n, rtol=1e-6, atol=1e-9)
         np.testing.assert_allclose(w.torque_nmm, r.torque_nmm, rtol=1e-6, atol=1e-6)
         compared += 1

@@ -3,8 +3,8 @@ import cv2
 import numpy as np
 import pytest
 
-from runtime.errors import CalibrationError, CaptureError
-from runtime.preprocess import Preprocessor, model_input, to_chw_float
+from tensortouch.contracts.errors import CalibrationError, CaptureError
+from tensortouch.runtime.stages.preprocess import Preprocessor, model_input, to_chw_float
 
 GEOMETRIES = [  # (frame h, w), center, radius, model size
     ((480, 640), (323.3, 237.9), 220.0, 128),   # one 2x2 halving then INTER_AREA

@@ -1,7 +1,7 @@
 """tools/progress.py: the tools' one progress helper."""
 import logging
 
-from tools.progress import count_progress, stage_progress
+from tensortouch.tools.progress import count_progress, stage_progress
 
 
 def test_stage_progress_opens_a_bar_per_stage_and_restores_logging(caplog):

@@ -7,16 +7,16 @@ import time
 
 import numpy as np
 
-from runtime.fields import CHANNEL_UNITS, CHANNELS
-from runtime.subscriber import Subscriber, alive_sensors, query_info, watch_alive
+from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS
+from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info, watch_alive
 
 # The child publishes frames whose content is a known function of (channel, seq, pixel), so the
 # parent checks the values, not just the shapes. It stops when its stdin closes.
 CHILD = textwrap.dedent("""
     import sys, threading, time
     import numpy as np
-    from runtime import wire
-    from runtime.publisher import Publisher
+    from tensortouch.contracts import wire
+    from tensortouch.runtime.apps.publisher import Publisher
 
     ep, sid = sys.argv[1], sys.argv[2]
     stop = threading.Event()

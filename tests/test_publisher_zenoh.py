@@ -8,11 +8,11 @@ import time
 import numpy as np
 import pytest
 
-from runtime import wire
-from runtime.errors import TensorTouchError
-from runtime.fields import CHANNEL_UNITS, CHANNELS
-from runtime.publisher import Publisher, open_session, zenoh_config
-from runtime.subscriber import Subscriber, alive_sensors, query_info, watch_alive
+from tensortouch.contracts import wire
+from tensortouch.contracts.errors import TensorTouchError
+from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS
+from tensortouch.runtime.apps.publisher import Publisher, open_session, zenoh_config
+from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info, watch_alive
 
 
 from tests.hand_util import free_endpoint
@@ -207,7 +207,7 @@ def test_killed_subscriber_process_does_not_break_publisher():
     ep = free_endpoint()
     code = textwrap.dedent(f"""
         import sys, time
-        from runtime.subscriber import Subscriber
+        from tensortouch.runtime.apps.subscriber import Subscriber
         sub = Subscriber("*", connect=["{ep}"])
         sub.wait_for("fields", timeout=20)
         print("got", flush=True)

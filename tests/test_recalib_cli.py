@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from runtime import commands
+from tensortouch.runtime.shells import commands
 from tests.recalib_util import SENSOR, setup_env, true_gain, write_recording
-from tools.recalib import cli
+from tensortouch.tools.recalib import cli
 
 
 def parse(argv):

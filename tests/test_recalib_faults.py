@@ -16,15 +16,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.gauge import ForceGauge, GaugeConfig, format_tt
-from runtime.calibration import CalibrationStore
-from runtime.correction import ForceCorrection
-from runtime.errors import CalibrationError, DeviceNotFoundError, TensorTouchError
-from runtime.contacts import Cluster
+from tensortouch.drivers.gauge import ForceGauge, GaugeConfig, format_tt
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.correction import ForceCorrection
+from tensortouch.contracts.errors import CalibrationError, DeviceNotFoundError, TensorTouchError
+from tensortouch.runtime.stages.contacts import Cluster
 from tests.conftest import dome_calibration
-from tools.recalib.fit import PokeSet, fit_correction
-from tools.recalib.session import GaugeReference, SessionConfig, run_guided
-from tools.recalib.store_ops import store_recalibration
+from tensortouch.tools.recalib.fit import PokeSet, fit_correction
+from tensortouch.tools.recalib.session import GaugeReference, SessionConfig, run_guided
+from tensortouch.tools.recalib.store_ops import store_recalibration
 
 SENSOR = "TT-FAULT"
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,11 +64,11 @@ def test_disk_full_injected_enospc_keeps_previous_calibration(store, monkeypatch
         raise OSError(errno.ENOSPC, "No space left on device")
 
     if where == "table":
-        monkeypatch.setattr("runtime.calibration.np.save", full)
+        monkeypatch.setattr("tensortouch.contracts.store.np.save", full)
     elif where == "correction_file":
         monkeypatch.setattr(Path, "write_bytes", full)
     else:
-        monkeypatch.setattr("runtime.calibration.os.fsync", full)
+        monkeypatch.setattr("tensortouch.contracts.store.os.fsync", full)
     with pytest.raises(CalibrationError, match=r"the disk is full .*nothing was changed, the active calibration "
                                                r"is still v0001"):
         store_recalibration(store, store.load(SENSOR), {"pokes": 6}, correction=(fit.spec, fit.onnx_bytes))
@@ -80,9 +80,9 @@ def test_disk_full_injected_enospc_keeps_previous_calibration(store, monkeypatch
 # ----- power loss --------------------------------------------------------------------------------
 KILLER = textwrap.dedent("""
     import os, signal, sys
-    import runtime.calibration as rc
-    from runtime.calibration import CalibrationStore
-    from tools.recalib.store_ops import store_recalibration
+    import tensortouch.contracts.store as rc
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.tools.recalib.store_ops import store_recalibration
     sys.path.insert(0, {root!r})
     from tests.test_recalib_faults import a_fit
     step = sys.argv[2]
@@ -133,7 +133,7 @@ def test_unloadable_correction_is_rolled_back(store):
 
 # ----- gauge faults in a session --------------------------------------------------------------------
 def cl(f, uv, xyz):
-    return Cluster(id=-1, centroid_px=uv, centroid_mm=xyz, normal=(0, 0, 1), area_mm2=1.0, force_n=(0.0, 0.0, -f),
+    return Cluster(id=-1, uv_px=uv, position_mm=xyz, normal=(0, 0, 1), area_mm2=1.0, force_n=(0.0, 0.0, -f),
                    force_mag_n=f, pixels=5, perimeter_px=8.0, circularity=0.9)
 
 
@@ -192,7 +192,7 @@ def test_cli_gauge_unplugged_message_names_active_version(tmp_path):
     """Through `tensortouch recalibrate --gauge serial:<pty>`: the error says nothing was stored."""
     from tests.recalib_util import SENSOR as S, setup_env, write_recording
     from tests.test_recalib_cli import parse
-    from tools.recalib import cli
+    from tensortouch.tools.recalib import cli
 
     package, store = setup_env(tmp_path)
     session, _, _ = write_recording(tmp_path / "session", package, store, n_pokes=5)
@@ -253,7 +253,7 @@ def test_cli_silent_gauge_on_loop_url_times_out_clearly(tmp_path):
     """`--gauge loop://` with nothing talking: 'not responding' after the gauge timeout, nothing stored."""
     from tests.recalib_util import SENSOR as S, setup_env, write_recording
     from tests.test_recalib_cli import parse
-    from tools.recalib import cli
+    from tensortouch.tools.recalib import cli
 
     package, store = setup_env(tmp_path)
     session, _, _ = write_recording(tmp_path / "session", package, store, n_pokes=5)

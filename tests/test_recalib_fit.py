@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from runtime.correction import ForceCorrection
-from runtime.errors import CalibrationError
-from tools.recalib.fit import (FitConfig, PokeSet, corrected_magnitude, decide, error_stats, fit_correction,
+from tensortouch.runtime.stages.correction import ForceCorrection
+from tensortouch.contracts.errors import CalibrationError
+from tensortouch.tools.recalib.fit import (FitConfig, PokeSet, corrected_magnitude, decide, error_stats, fit_correction,
                                fit_forest, gain_targets, to_onnx)
-from tools.recalib.synthetic import SyntheticUnit
+from tensortouch.tools.recalib.synthetic import SyntheticUnit
 
 STIFF_SHIFTED = SyntheticUnit(stiffness_ratio=1.2, center_shift=(0.06, -0.04), radial_bias=0.25)
 
@@ -101,7 +101,7 @@ def test_gain_clipped_like_the_runtime():
 
 
 def test_input_selection_takes_position_only_when_leave_one_out_supports_it():
-    from tools.recalib.fit import select_inputs
+    from tensortouch.tools.recalib.fit import select_inputs
 
     rng = np.random.default_rng(11)
     n = 7
@@ -126,7 +126,7 @@ def test_input_selection_takes_position_only_when_leave_one_out_supports_it():
 def test_a_constant_gain_beats_a_forest_over_force_with_few_noisy_pokes():
     """A gel 20 % stiffer with 10 % per-poke scatter (the model's own error): one gain from 6 pokes
     predicts new pokes better than piecewise gains over |F|, and the selection takes it."""
-    from tools.recalib.fit import select_inputs
+    from tensortouch.tools.recalib.fit import select_inputs
 
     rng = np.random.default_rng(3)
     errs = {"constant": [], "fmag": []}
@@ -146,7 +146,7 @@ def test_a_constant_gain_beats_a_forest_over_force_with_few_noisy_pokes():
 
 
 def test_a_richer_set_carried_by_one_lucky_poke_is_not_chosen():
-    from tools.recalib.fit import paired_t, simplest_adequate
+    from tensortouch.tools.recalib.fit import paired_t, simplest_adequate
 
     simple = np.array([0.10, 0.12, 0.09, 0.11, 0.60, 0.10])
     lucky = np.array([0.11, 0.13, 0.10, 0.12, 0.05, 0.11])      # 62 % lower mean, all from poke 4

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from runtime.errors import CalibrationError
-from runtime.preprocess import Preprocessor
-from tools.recalib.gpr_geometry import camera_to_model, model_to_camera, refresh_geometry, theta_phi_from_xyz
+from tensortouch.contracts.errors import CalibrationError
+from tensortouch.runtime.stages.preprocess import Preprocessor
+from tensortouch.tools.recalib.gpr_geometry import camera_to_model, model_to_camera, refresh_geometry, theta_phi_from_xyz
 
 R = 220.0                       # crop radius, camera px (640x480 camera)
 SIZE = (64, 64)
@@ -100,7 +100,7 @@ def test_grid_camera_mapping_roundtrip_and_dome_angles():
 def test_twin_unit_fisheye_theta_within_half_a_degree(serial):
     """The twin's camera (cv2.fisheye model, unit-specific centre offset and focal scale): 7 pokes
     on the true gel, seen through the true camera, refresh the NOMINAL calibration's geometry."""
-    twin_unit = pytest.importorskip("tools.twin.unit")
+    twin_unit = pytest.importorskip("tensortouch.tools.twin.unit")
     unit = twin_unit.TwinUnit(serial)
     nominal = twin_unit.TwinUnit(serial, variation=twin_unit.VariationConfig(0, 0, 0, 0))
     gel, size, radius, c0 = unit.gel, (64, 64), nominal.gel_radius_px, nominal.gel_center_px

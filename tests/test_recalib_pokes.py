@@ -2,14 +2,14 @@
 import numpy as np
 import pytest
 
-from runtime.contacts import Cluster
-from tools.recalib.pokes import (Poke, PokeDetector, PokeRules, ascii_map, check_poke, describe,
+from tensortouch.runtime.stages.contacts import Cluster
+from tensortouch.tools.recalib.pokes import (Poke, PokeDetector, PokeRules, ascii_map, check_poke, describe,
                                  reference_from_readings, suggest_next)
-from tools.recalib.synthetic import SyntheticUnit
+from tensortouch.tools.recalib.synthetic import SyntheticUnit
 
 
 def cl(f, uv=(16.0, 16.0), xyz=(0.0, 0.0, 16.0)):
-    return Cluster(id=-1, centroid_px=uv, centroid_mm=xyz, normal=(0, 0, 1), area_mm2=1.0, force_n=(0.0, 0.0, -f),
+    return Cluster(id=-1, uv_px=uv, position_mm=xyz, normal=(0, 0, 1), area_mm2=1.0, force_n=(0.0, 0.0, -f),
                    force_mag_n=f, pixels=5, perimeter_px=8.0, circularity=0.9)
 
 

@@ -1,18 +1,18 @@
-"""A running SensorLoop picks up a recalibration without a restart (runtime/loop.py polls CURRENT).
+"""A running SensorLoop picks up a recalibration without a restart (runtime/apps/loop.py polls CURRENT).
 
 Real parts: replay camera on a synthetic recording, onnxruntime pipeline, calibration store; the new
 version is written by tools.recalib.store_ops while the loop runs (from its on_result callback)."""
 import numpy as np
 import pytest
 
-from drivers.camera import camera_from_uri
-from runtime.contacts import find_clusters, pixel_forces
-from runtime.loop import LoopConfig, SensorLoop
-from runtime.model import FieldModel
-from runtime.pipeline import SensorPipeline
+from tensortouch.drivers.camera import camera_from_uri
+from tensortouch.runtime.stages.contacts import find_clusters, pixel_forces
+from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
+from tensortouch.runtime.stages.model import FieldModel
+from tensortouch.runtime.pipeline import SensorPipeline
 from tests.recalib_util import SENSOR, setup_env, write_recording
-from tools.recalib.fit import PokeSet, fit_correction
-from tools.recalib.store_ops import store_recalibration
+from tensortouch.tools.recalib.fit import PokeSet, fit_correction
+from tensortouch.tools.recalib.store_ops import store_recalibration
 
 GAIN = 2.0
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from runtime.errors import TensorTouchError
+from tensortouch.contracts.errors import TensorTouchError
 from tests.recalib_util import SENSOR, setup_env, write_recording
 from tests.test_recalib_cli import parse
-from tools.recalib import cli
+from tensortouch.tools.recalib import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,7 +31,7 @@ def _argv(package, store, session, report):
 def test_missing_report_folder_fails_before_storing(env):
     tmp, package, store, session = env
     before = store.versions(SENSOR), store.current(SENSOR)
-    proc = subprocess.run([sys.executable, "-m", "runtime.cli",
+    proc = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli",
                            *_argv(package, store, session, str(tmp / "missing" / "dir" / "r.json"))],
                           check=False, capture_output=True, text=True, timeout=120, cwd=ROOT,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})

@@ -5,12 +5,12 @@ scale, LED brightness and sensor noise) and synthetic images for the refusals.""
 import numpy as np
 import pytest
 
-from runtime.errors import CalibrationError
-from tools.recalib.rim import RimConfig, crop_changes, fit_rim, recrop, rest_image
+from tensortouch.contracts.errors import CalibrationError
+from tensortouch.tools.recalib.rim import RimConfig, crop_changes, fit_rim, recrop, rest_image
 
 
 def _twin(serial, offset=(0.0, 0.0), focal=1.0):
-    from tools.twin.unit import TwinUnit
+    from tensortouch.tools.twin.unit import TwinUnit
 
     return TwinUnit(serial, override={"center_offset_px": list(offset), "focal_scale": focal, "stiffness_scale": 1.0})
 

@@ -2,15 +2,15 @@
 import numpy as np
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.contacts import Cluster
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.contacts import Cluster
 from tests.conftest import dome_calibration
 from tests.recalib_util import poke_positions
-from tools.recalib.session import SessionConfig, StreamReference, TypedReference, analyse, run_guided
+from tensortouch.tools.recalib.session import SessionConfig, StreamReference, TypedReference, analyse, run_guided
 
 
 def cl(f, uv, xyz):
-    return Cluster(id=-1, centroid_px=tuple(uv), centroid_mm=tuple(xyz), normal=(0, 0, 1), area_mm2=1.0,
+    return Cluster(id=-1, uv_px=tuple(uv), position_mm=tuple(xyz), normal=(0, 0, 1), area_mm2=1.0,
                    force_n=(0.0, 0.0, -f), force_mag_n=f, pixels=5, perimeter_px=8.0, circularity=0.9)
 
 
@@ -58,7 +58,7 @@ def test_typed_reference_retries_and_skip():
     said = []
     answers = iter(["abc", "-1", "1,75"])
     ref = TypedReference(ask=lambda p: next(answers), say=said.append)
-    from tools.recalib.pokes import Poke
+    from tensortouch.tools.recalib.pokes import Poke
 
     p = Poke(0, 1, 10, np.array([0, 0, -1.0]), np.zeros(2), np.zeros(3), 0.0)
     assert ref.for_poke(p) == pytest.approx(1.75)
@@ -74,7 +74,7 @@ def test_stream_reference_takes_strongest_indenter():
     force = np.zeros((len(tt), 3))
     force[:, 2] = np.r_[f1, f2]
     ref = StreamReference(tt, force, np.r_[np.zeros(len(t)), np.ones(len(t))])
-    from tools.recalib.pokes import Poke
+    from tensortouch.tools.recalib.pokes import Poke
 
     p = Poke(0.6, 1.4, 20, np.array([0, 0, -1.0]), np.zeros(2), np.zeros(3), 0.0)
     assert ref.for_poke(p) == pytest.approx(2.0)

@@ -35,8 +35,8 @@ PHYSICS = os.environ.get("TENSORTOUCH_RECALIB_TWIN_PHYSICS", "fe")
 
 
 def trained_package():
-    from runtime.errors import ModelPackageError
-    from runtime.model import find_package
+    from tensortouch.contracts.errors import ModelPackageError
+    from tensortouch.runtime.stages.model import find_package
 
     try:
         pkg = find_package(os.environ.get("TENSORTOUCH_RECALIB_MODEL"))
@@ -48,7 +48,7 @@ def trained_package():
 
 
 def _run(calibration, nominal):
-    from tools.recalib.twin_bench import NOMINAL, UNITS, TwinBenchConfig, run_bench, summary
+    from tensortouch.tools.recalib.twin_bench import NOMINAL, UNITS, TwinBenchConfig, run_bench, summary
 
     pkg = trained_package()
     res = run_bench(TwinBenchConfig(units=UNITS, nominal=NOMINAL if nominal else None, physics=PHYSICS,

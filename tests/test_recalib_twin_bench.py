@@ -4,14 +4,14 @@ clusters (= the runtime's gain, zero stays zero), held-out poke pairing, the rec
 import numpy as np
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.contacts import Cluster
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.contacts import Cluster
 from tests.conftest import dome_calibration
-from tools.recalib.fit import fit_correction
-from tools.recalib.pokes import PokeRules
-from tools.recalib.session import StreamReference
-from tools.recalib.synthetic import SyntheticUnit
-from tools.recalib.twin_bench import (UNITS, TwinBenchConfig, corrected_frames, guided_points, held_out_pokes,
+from tensortouch.tools.recalib.fit import fit_correction
+from tensortouch.tools.recalib.pokes import PokeRules
+from tensortouch.tools.recalib.session import StreamReference
+from tensortouch.tools.recalib.synthetic import SyntheticUnit
+from tensortouch.tools.recalib.twin_bench import (UNITS, TwinBenchConfig, corrected_frames, guided_points, held_out_pokes,
                                       nominal_calibration, record_configs)
 
 
@@ -44,15 +44,15 @@ def test_record_configs_units_and_held_out_sets():
 
 def _cluster(u, v, f, mm=(0.0, 0.0, 8.0)):
     f = np.asarray(f, float)
-    return Cluster(id=0, centroid_px=(u, v), centroid_mm=tuple(mm), normal=(0, 0, 1), area_mm2=1.0,
+    return Cluster(id=0, uv_px=(u, v), position_mm=tuple(mm), normal=(0, 0, 1), area_mm2=1.0,
                    force_n=tuple(f), force_mag_n=float(np.linalg.norm(f)), pixels=1, perimeter_px=0.0,
                    circularity=1.0)
 
 
 def test_replayed_correction_is_the_runtime_gain_and_keeps_zero(tmp_path):
-    from runtime.correction import ForceCorrection
-    from runtime.geometry import sample_bilinear
-    from tools.recalib.store_ops import store_recalibration
+    from tensortouch.runtime.stages.correction import ForceCorrection
+    from tensortouch.runtime.stages.geometry import sample_bilinear
+    from tensortouch.tools.recalib.store_ops import store_recalibration
 
     dome_calibration(tmp_path, "TT-B", size=32)
     store = CalibrationStore(tmp_path)
@@ -65,9 +65,9 @@ def test_replayed_correction_is_the_runtime_gain_and_keeps_zero(tmp_path):
     out = corrected_frames(frames, cal2)
     corr = ForceCorrection.from_calibration(cal2)
     c = frames[0][1][0]
-    tp = [[sample_bilinear(cal2.theta, c.centroid_px[0] - 0.5, c.centroid_px[1] - 0.5),
-           sample_bilinear(cal2.phi, c.centroid_px[0] - 0.5, c.centroid_px[1] - 0.5)]]
-    expect = corr(np.array([c.force_n]), np.array([c.centroid_px]) / 32.0, np.array(tp))[0]
+    tp = [[sample_bilinear(cal2.theta, c.uv_px[0] - 0.5, c.uv_px[1] - 0.5),
+           sample_bilinear(cal2.phi, c.uv_px[0] - 0.5, c.uv_px[1] - 0.5)]]
+    expect = corr(np.array([c.force_n]), np.array([c.uv_px]) / 32.0, np.array(tp))[0]
     np.testing.assert_allclose(out[0][1][0].force_n, expect)
     assert not np.allclose(expect, c.force_n)                  # the gain really changed the force
     assert out[0][1][1].force_n == (0.0, 0.0, 0.0) and out[0][1][1].force_mag_n == 0.0

@@ -11,13 +11,13 @@ import time
 import numpy as np
 import pytest
 
-from drivers.camera import camera_from_uri
-from drivers.gauge import format_tt
-from drivers.mocap import format_pose, parse_pose
-from runtime import paths
-from runtime.errors import SessionError
-from runtime.session import load_session
-from tools.sessions import cli
+from tensortouch.drivers.camera import camera_from_uri
+from tensortouch.drivers.gauge import format_tt
+from tensortouch.drivers.mocap import format_pose, parse_pose
+from tensortouch.contracts import paths
+from tensortouch.contracts.errors import SessionError
+from tensortouch.contracts.session import load_session
+from tensortouch.tools.sessions import cli
 
 pytestmark = pytest.mark.skipif(not (paths.demo_dir() / "session.json").is_file(), reason="no demo recording")
 
@@ -99,7 +99,7 @@ def test_record_frames_gauge_and_mocap_into_a_valid_session(tmp_path):
 
 def test_record_refuses_an_existing_session_and_needs_a_sensor_id(tmp_path):
     args = parse(["record", "--source", f"replay:{paths.demo_dir()}", "--out", str(paths.demo_dir())])
-    from runtime.errors import TensorTouchError
+    from tensortouch.contracts.errors import TensorTouchError
 
     with pytest.raises(TensorTouchError, match="--sensor is required"):
         args.func(args)

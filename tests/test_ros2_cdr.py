@@ -1,5 +1,5 @@
-"""Golden bytes: runtime/ros2_cdr.py against rosbags' CDR serializer (byte-identical to rclpy's),
-and the RIHS01 type hashes in runtime/ros2_wire.py against rosbags' hash computation."""
+"""Golden bytes: contracts/ros2_cdr.py against rosbags' CDR serializer (byte-identical to rclpy's),
+and the RIHS01 type hashes in contracts/ros2_wire.py against rosbags' hash computation."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +7,8 @@ import pytest
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
 
-from runtime import ros2_cdr as cdr
-from runtime import ros2_wire as rw
+from tensortouch.contracts import ros2_cdr as cdr
+from tensortouch.contracts import ros2_wire as rw
 
 STORES = {"humble": "ROS2_HUMBLE", "jazzy": "ROS2_JAZZY", "kilted": "ROS2_KILTED",
           "rolling": "ROS2_LYRICAL"}   # rosbags' newest store stands for rolling

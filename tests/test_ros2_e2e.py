@@ -28,7 +28,7 @@ from tests.test_e2e_runtime import (
     stop,
     write_poke_session,
 )
-from tools.bench.models import write_difference_package
+from tensortouch.tools.bench.models import write_difference_package
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = "7"
@@ -45,7 +45,7 @@ def test_run_ros2_to_a_separate_rmw_zenoh_style_subscriber(tmp_path):
                             "60", "7", "2", "95"],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert sub.stdout.readline().strip() == "ready"
-    run = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--source", f"replay:{session}", "--loop", "--fast",
+    run = subprocess.Popen([sys.executable, "-m", "tensortouch.runtime.shells.cli", "run", "--source", f"replay:{session}", "--loop", "--fast",
                             "--ros2", "--ros2-router", router, "--ros2-domain", DOMAIN, "--ros2-distro", "jazzy",
                             "--ros2-images", "disp_z,fn_z", "--ros2-stamp", "frame"],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -2,14 +2,14 @@
 import numpy as np
 import pytest
 
-from runtime import cli
-from runtime.errors import CaptureError
-from runtime.loop import LoopConfig, SensorLoop
-from runtime.model import FieldModel, load_package
-from runtime.pipeline import SensorPipeline
+from tensortouch.runtime.shells import cli
+from tensortouch.contracts.errors import CaptureError
+from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
+from tensortouch.runtime.stages.model import FieldModel, load_package
+from tensortouch.runtime.pipeline import SensorPipeline
 from tests.conftest import dome_calibration
 from tests.test_e2e_runtime import SENSOR, SIZE, H, W, write_poke_session
-from tools.bench.models import write_difference_package
+from tensortouch.tools.bench.models import write_difference_package
 
 
 @pytest.fixture
@@ -63,7 +63,7 @@ class StallingCamera:
         self.stalls = 0
 
     def read(self, timeout_s=None):
-        from drivers.camera.camera import EndOfStream, Frame
+        from tensortouch.drivers.camera.camera import EndOfStream, Frame
 
         if self.i == self.stall_from and self.stalls < self.stall_n:
             self.stalls += 1
@@ -94,7 +94,7 @@ class RecordingPublisher:
 
 def _pipeline(env):
     dome_calibration(env / "calib", SENSOR, size=SIZE, image=(W, H))
-    from runtime.calibration import CalibrationStore
+    from tensortouch.contracts.store import CalibrationStore
 
     pkg = load_package(env / "models" / "difference-32")
     return SensorPipeline(SENSOR, FieldModel(pkg, "fp32"), CalibrationStore(env / "calib").load(SENSOR))
@@ -116,7 +116,7 @@ def test_camera_dead_stops_with_message(env):
     frames = [np.full((H, W, 3), 120, np.uint8)] * 5
     loop = SensorLoop(StallingCamera(frames, 2, 10**6), _pipeline(env), RecordingPublisher(),
                       LoopConfig(max_camera_failures=5, retry_wait_s=0.0))
-    from runtime.errors import TensorTouchError
+    from tensortouch.contracts.errors import TensorTouchError
 
     with pytest.raises(TensorTouchError, match="camera failed 5 times in a row"):
         loop.run()

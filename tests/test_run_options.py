@@ -6,7 +6,7 @@ import pytest
 
 from tests.conftest import dome_calibration
 from tests.test_e2e_runtime import H, SENSOR, SIZE, W, run_and_listen, write_poke_session
-from tools.bench.models import write_difference_package
+from tensortouch.tools.bench.models import write_difference_package
 
 
 @pytest.mark.parametrize("extra,ratio", [(["--fields-every", "3"], (2.0, 4.5)), (["--no-fields"], None)])

@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from runtime import wire
-from runtime.model import PRECISION_FILES, load_package
-from tools.bench.models import write_package
+from tensortouch.contracts import wire
+from tensortouch.runtime.stages.model import PRECISION_FILES, load_package
+from tensortouch.tools.bench.models import write_package
 
 
 def test_to_float16_is_bit_identical_to_numpy_including_subnormals_overflow_nan():
@@ -43,7 +43,7 @@ def test_to_float16_is_fast_on_stress_sized_values():
 
 
 def test_fields_every_n_keeps_wrench_and_contacts_at_frame_rate():
-    from runtime.loop import LoopConfig, SensorLoop
+    from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
 
     class Pub:
         def __init__(self):
@@ -89,7 +89,7 @@ def _int8_only(pkg_folder, dest, run=None, cache=None):
 
 
 def test_bench_takes_fp32_from_the_build_cache_and_checks_its_hash(tmp_path):
-    from tools.bench.runtime_bench import fp32_package
+    from tensortouch.tools.bench.runtime_bench import fp32_package
 
     src = write_package(tmp_path / "src", size=16, width=2, depth=1)
     pkg = _int8_only(src, tmp_path / "pkg", cache=tmp_path / "cached.onnx")
@@ -110,9 +110,9 @@ def test_bench_regenerates_fp32_from_the_checkpoint(tmp_path):
     pytest.importorskip("torch")
     import argparse
 
-    from tools.bench.runtime_bench import fp32_package
-    from tools.train.cli import register
-    from tools.train.export import FP32
+    from tensortouch.tools.bench.runtime_bench import fp32_package
+    from tensortouch.tools.train.cli import register
+    from tensortouch.tools.train.export import FP32
 
     parser = argparse.ArgumentParser()
     register(parser.add_subparsers(dest="command"))
@@ -138,7 +138,7 @@ def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
     """`tensortouch bench runtime` end to end on a small synthetic size (real capture, Zenoh loopback)."""
     import argparse
 
-    from tools.bench.runtime_bench import add_arguments, run
+    from tensortouch.tools.bench.runtime_bench import add_arguments, run
 
     p = argparse.ArgumentParser()
     add_arguments(p)

@@ -11,10 +11,10 @@ import threading
 import numpy as np
 import pytest
 
-from runtime import paths
-from runtime.errors import CaptureError
-from runtime.sensor import Sensor
-from runtime.subscriber import Subscriber
+from tensortouch.contracts import paths
+from tensortouch.contracts.errors import CaptureError
+from tensortouch.runtime.sensor import Sensor
+from tensortouch.runtime.apps.subscriber import Subscriber
 from tests.test_e2e_runtime import free_port, stop
 
 FRAMES = 50   # the demo's first contact is at frame 35
@@ -42,7 +42,7 @@ def test_api_matches_tensortouch_run_over_zenoh():
 
     with Subscriber("TWIN-DEMO", listen=[endpoint], on_contacts=on_contacts, on_wrench=on_wrench):
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--fast", "--no-fields",
+        proc = subprocess.Popen([sys.executable, "-m", "tensortouch.runtime.shells.cli", "run", "--fast", "--no-fields",
                                  "--frames", str(FRAMES), "--connect", endpoint],
                                 env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:

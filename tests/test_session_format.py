@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from runtime.errors import SessionError
-from runtime.session import STREAM_COLUMNS, avi_frame_count, load_session, rewrite_in_units
-from runtime.units import convert, to_house
-from tools.sessions.writer import SessionWriter, read_frames
-from tools.twin.record import RecordConfig, record
+from tensortouch.contracts.errors import SessionError
+from tensortouch.contracts.session import STREAM_COLUMNS, avi_frame_count, load_session, rewrite_in_units
+from tensortouch.contracts.units import convert, to_house
+from tensortouch.tools.sessions.writer import SessionWriter, read_frames
+from tensortouch.tools.twin.record import RecordConfig, record
 
 FT = {"rotation_wxyz": [1.0, 0.0, 0.0, 0.0], "translation_mm": [0.0, 0.0, 44.0]}
 
@@ -61,7 +61,7 @@ def test_round_trip_writer(tmp_path, fmt):
 
 
 def test_mjpg_quality_is_honoured(tmp_path):
-    from tools.sessions.avi import write_mjpg_avi
+    from tensortouch.tools.sessions.avi import write_mjpg_avi
 
     frames = _frames(np.random.default_rng(2), 8)
     err, size = {}, {}

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from runtime.paths import ROOT
+from tensortouch.contracts.paths import ROOT
 
 MODEL = ROOT / "exported_models" / "hiera-qup-128"
 DEMO = ROOT / "runtime" / "demo"
@@ -27,15 +27,15 @@ pytestmark = pytest.mark.skipif(not (MODEL / "manifest.json").is_file() or not (
 
 
 def _demo_calibration():
-    from runtime.calibration import CalibrationStore
-    from runtime.session import load_session
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.contracts.session import load_session
 
     return CalibrationStore(STORE).load(load_session(DEMO, check_frames=False).sensor_id)
 
 
 def test_shipped_model_reads_the_demo_forces():
-    from runtime.model import load_package
-    from tools.train.evaluate import EvalConfig, evaluate_session, summarize
+    from tensortouch.runtime.stages.model import load_package
+    from tensortouch.tools.train.evaluate import EvalConfig, evaluate_session, summarize
 
     r = evaluate_session(DEMO, load_package(MODEL), _demo_calibration(), EvalConfig())
     s = summarize(r["rows"], r["rest"])
@@ -51,7 +51,7 @@ def test_shipped_model_reads_the_demo_forces():
 def test_run_on_the_demo_publishes_plausible_forces_to_a_subscriber(tmp_path):
     """README's first command, with a separate listener process: fields of the right shape and contact
     forces in N on the recording's scale (peak within ×0.6–1.6 of the F/T peak)."""
-    from runtime.session import load_session
+    from tensortouch.contracts.session import load_session
     from tests.test_e2e_runtime import free_port, stop
 
     ses = load_session(DEMO, check_frames=False)
@@ -60,7 +60,7 @@ def test_run_on_the_demo_publishes_plausible_forces_to_a_subscriber(tmp_path):
     env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(STORE), TENSORTOUCH_MODELS=str(MODEL.parent),
                PYTHONUNBUFFERED="1")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cli = [sys.executable, "-m", "runtime.cli"]
+    cli = [sys.executable, "-m", "tensortouch.runtime.shells.cli"]
     n_frames = len(ses.table("frames"))
     run = subprocess.Popen(cli + ["run", "--source", f"replay:{DEMO}", "--listen", endpoint],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

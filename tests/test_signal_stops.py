@@ -26,7 +26,7 @@ SERIALS = ("TT-A", "TT-B")
 
 def gap_session(folder: Path, sensor_id: str, gap_s: float = 300.0) -> Path:
     """60 frames at 30 fps, then one frame `gap_s` later: a recording paused for minutes."""
-    from runtime.session import (
+    from tensortouch.contracts.session import (
         STREAM_COLUMNS,
         new_manifest,
         write_manifest,
@@ -64,7 +64,7 @@ class Proc:
     """A `tensortouch` subprocess whose stderr is read line by line (time-stamped) in a thread."""
 
     def __init__(self, argv, env):
-        self.p = subprocess.Popen([sys.executable, "-m", "runtime.cli", *argv], stderr=subprocess.PIPE,
+        self.p = subprocess.Popen([sys.executable, "-m", "tensortouch.runtime.shells.cli", *argv], stderr=subprocess.PIPE,
                                   stdout=subprocess.DEVNULL, text=True, env=env, cwd=ROOT)
         self.lines: list[tuple[float, str]] = []
         self.reader = threading.Thread(target=self._read, daemon=True)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from runtime.contacts import ContactConfig, find_clusters, pixel_forces
-from tools.train.dataset import FieldProjector
-from tools.train.fields import FieldConfig, contact_force_from_image, fe_to_fields, tributary_area
+from tensortouch.runtime.stages.contacts import ContactConfig, find_clusters, pixel_forces
+from tensortouch.tools.train.dataset import FieldProjector
+from tensortouch.tools.train.fields import FieldConfig, contact_force_from_image, fe_to_fields, tributary_area
 
 R = 16.0
 
@@ -87,8 +87,8 @@ def test_runtime_clusters_keep_the_smoothed_tails():
 def test_total_force_error_is_the_integrated_contact_force_difference():
     import torch
 
-    from runtime.fields import CHANNELS
-    from tools.train.model.train import total_force_error
+    from tensortouch.contracts.fields import CHANNELS
+    from tensortouch.tools.train.model.train import total_force_error
 
     bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit
     area = np.full((8, 8), 0.25, np.float32)                   # mm² per pixel
@@ -106,8 +106,8 @@ def test_total_force_error_is_the_integrated_contact_force_difference():
 def test_light_sample_weight_emphasises_light_contacts_only():
     import torch
 
-    from runtime.fields import CHANNELS
-    from tools.train.model.train import FitConfig, light_sample_weight
+    from tensortouch.contracts.fields import CHANNELS
+    from tensortouch.tools.train.model.train import FitConfig, light_sample_weight
 
     bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit, zero at 0.5
     area = np.full((8, 8), 0.25, np.float32)
@@ -127,8 +127,8 @@ def test_light_sample_weight_emphasises_light_contacts_only():
 def test_fit_fine_tunes_from_a_state_dict_with_the_force_term(tmp_path):
     import torch
 
-    from tools.train.model.data import write_synthetic_dataset
-    from tools.train.model.train import FitConfig, fit
+    from tensortouch.tools.train.model.data import write_synthetic_dataset
+    from tensortouch.tools.train.model.train import FitConfig, fit
 
     data = tmp_path / "ds"
     write_synthetic_dataset(data, 12, size=64, seed=3)
@@ -149,7 +149,7 @@ def test_fit_fine_tunes_from_a_state_dict_with_the_force_term(tmp_path):
 def test_budget_table_bins_label_errors_by_force_and_indenter_count():
     from types import SimpleNamespace
 
-    from tools.train.evaluate import budget_table, sample_forces
+    from tensortouch.tools.train.evaluate import budget_table, sample_forces
 
     S = 64
     pa = np.full((S, S), 0.1)

@@ -8,9 +8,9 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from tests.test_train_export import package  # noqa: E402,F401  (the tiny run and its dataset)
-from runtime.cli import main  # noqa: E402
-from tools.train.average import average_run, average_states  # noqa: E402
-from tools.train.model.data import DatasetError  # noqa: E402
+from tensortouch.runtime.shells.cli import main    # noqa: E402
+from tensortouch.tools.train.average import average_run, average_states    # noqa: E402
+from tensortouch.tools.train.model.data import DatasetError    # noqa: E402
 
 
 def _load(p):

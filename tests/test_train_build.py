@@ -10,8 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from tools.train.build import STAGES, Build, BuildConfig, stage_keys, tiny_config
-from tools.train.runner import run_build
+from tensortouch.tools.train.build import STAGES, Build, BuildConfig, stage_keys, tiny_config
+from tensortouch.tools.train.runner import run_build
 
 
 def test_stage_keys_change_only_downstream():
@@ -28,8 +28,8 @@ def test_stage_keys_change_only_downstream():
 
 
 def test_set_reaches_the_build_config():
-    from tools.train.build import config_from_dict
-    from tools.train.recipe import load_recipe
+    from tensortouch.tools.train.build import config_from_dict
+    from tensortouch.tools.train.recipe import load_recipe
 
     r = load_recipe("hiera-qup-128", ["contact_force_n=1.5", "build.detach_force_n=1.1", "quantization_pick=first"])
     cfg = config_from_dict(r.config(r.steps()[0]), r.source)
@@ -41,8 +41,8 @@ def test_set_reaches_the_build_config():
 
 
 def test_the_shipped_recipe_uses_only_what_a_rig_has():
-    from tools.train.build import config_from_dict
-    from tools.train.recipe import load_recipe
+    from tensortouch.tools.train.build import config_from_dict
+    from tensortouch.tools.train.recipe import load_recipe
 
     r = load_recipe("hiera-qup-128")
     for step in r.steps():
@@ -63,7 +63,7 @@ def test_the_shipped_recipe_uses_only_what_a_rig_has():
     ('name = "x"\n[build\n', [], "not a readable recipe"),
 ])
 def test_a_bad_recipe_is_one_line_naming_the_place(tmp_path, text, sets, match):
-    from tools.train.recipe import RecipeError, load_recipe
+    from tensortouch.tools.train.recipe import RecipeError, load_recipe
 
     f = tmp_path / "r.toml"
     f.write_text(text)
@@ -72,8 +72,8 @@ def test_a_bad_recipe_is_one_line_naming_the_place(tmp_path, text, sets, match):
 
 
 def test_unknown_build_fields_and_session_entries_are_refused(tmp_path):
-    from tools.train.build import config_from_dict
-    from tools.train.recipe import RecipeError, load_recipe
+    from tensortouch.tools.train.build import config_from_dict
+    from tensortouch.tools.train.recipe import RecipeError, load_recipe
 
     f = tmp_path / "r.toml"
     f.write_text('name = "x"\n[build]\nepochz = 3\n')
@@ -87,14 +87,14 @@ def test_unknown_build_fields_and_session_entries_are_refused(tmp_path):
 
 
 def test_set_values_are_read_as_toml():
-    from tools.train.recipe import parse_value
+    from tensortouch.tools.train.recipe import parse_value
 
     assert parse_value("1e-4") == 1e-4 and parse_value("true") is True and parse_value("[1, 2]") == [1, 2]
     assert parse_value('"a b"') == "a b" and parse_value("gpr") == "gpr"
 
 
 def test_a_manifest_not_built_from_a_recipe_says_so(tmp_path):
-    from tools.train.recipe import RecipeError, load_recipe
+    from tensortouch.tools.train.recipe import RecipeError, load_recipe
 
     (tmp_path / "manifest.json").write_text('{"training": {"command": "old"}}')
     with pytest.raises(RecipeError, match="without training.recipe"):
@@ -110,7 +110,7 @@ def test_stamps_mark_done_only_for_the_same_config(tmp_path):
 
 
 def test_cli_registers_all_dataset_evaluate_with_a_short_help():
-    from tools.train.cli import register
+    from tensortouch.tools.train.cli import register
 
     p = argparse.ArgumentParser()
     sub = p.add_subparsers(dest="command")
@@ -135,8 +135,8 @@ def tiny_build(tmp_path_factory):
 
 
 def test_tiny_build_dataset_and_resume(tiny_build):
-    from runtime.session import load_session
-    from tools.train.model.data import load_split, read_index
+    from tensortouch.contracts.session import load_session
+    from tensortouch.tools.train.model.data import load_split, read_index
 
     b, first = tiny_build
     for st in STAGES[:STAGES.index("dataset") + 1]:
@@ -163,10 +163,10 @@ def test_tiny_build_dataset_and_resume(tiny_build):
 def test_tiny_recipe_with_a_lineage_ships_a_package_that_names_and_rebuilds_its_recipe(tiny_build, tmp_path):
     """fit (step base) → fit from base's weights (step more) → export → evaluate on the tiny dataset; the
     package verifies and runs in the runtime; its manifest names the recipe and the lineage, and rebuilds."""
-    from runtime.model import FieldModel, load_package
-    from tools.train.runner import run_recipe
-    from tools.train.export import verify_package
-    from tools.train.recipe import RecipeError, apply_set, load_recipe
+    from tensortouch.runtime.stages.model import FieldModel, load_package
+    from tensortouch.tools.train.runner import run_recipe
+    from tensortouch.tools.train.export import verify_package
+    from tensortouch.tools.train.recipe import RecipeError, apply_set, load_recipe
 
     b, _ = tiny_build
     tiny = load_recipe("tiny")

@@ -3,13 +3,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from runtime.fields import CHANNELS
-from tools.train.correspondence import image_change_centroid, project_to_cap, tables_from_theta_phi
-from tools.train.dataset import DatasetConfig, FieldProjector, select_frames, write_dataset
-from tools.train.evaluate import frame_errors, has_phantom, summarize
-from tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
-from tools.train.model.data import load_split, read_index
-from tools.train.simreal import SimRealError, apply_ratios, fit_ratios, ft_to_sensor
+from tensortouch.contracts.fields import CHANNELS
+from tensortouch.tools.train.correspondence import image_change_centroid, project_to_cap, tables_from_theta_phi
+from tensortouch.tools.train.dataset import DatasetConfig, FieldProjector, select_frames, write_dataset
+from tensortouch.tools.train.evaluate import frame_errors, has_phantom, summarize
+from tensortouch.tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
+from tensortouch.tools.train.model.data import load_split, read_index
+from tensortouch.tools.train.simreal import SimRealError, apply_ratios, fit_ratios, ft_to_sensor
 
 
 # ---------------------------------------------------------------- stage 4 shell: sample selection
@@ -114,7 +114,7 @@ def test_image_change_centroid_finds_a_blob():
 
 
 def test_project_to_cap_and_tables_match_the_twin_truth():
-    from tools.twin.unit import TwinUnit, true_tables
+    from tensortouch.tools.twin.unit import TwinUnit, true_tables
 
     p = project_to_cap(np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 5.0]]), -7.0, 15.0)
     np.testing.assert_allclose(np.linalg.norm(p - [0, 0, -7.0], axis=1), 15.0)
@@ -135,7 +135,7 @@ class _C:
     force_mag_n = property(lambda self: float(np.linalg.norm(self.force_n)))
 
     def __init__(self, pos, force):
-        self.centroid_mm, self.force_n = pos, force
+        self.position_mm, self.force_n = pos, force
 
 
 def test_frame_errors_match_nearest_cluster_and_count_misses():
@@ -170,8 +170,8 @@ def test_a_second_cluster_beside_a_single_contact_is_a_phantom():
 def test_gpr_tables_recover_the_twin_lens_from_exact_pokes():
     """Stage 3 without the image detector: 12 pokes whose 2D positions are the twin lens's exact
     projections → GPR θ within 0.5° of the unit's truth on the poked region (θ ≤ 0.6 rad)."""
-    from tools.train.correspondence import gpr_tables, truth_errors
-    from tools.twin.unit import TwinUnit, VariationConfig
+    from tensortouch.tools.train.correspondence import gpr_tables, truth_errors
+    from tensortouch.tools.twin.unit import TwinUnit, VariationConfig
 
     unit = TwinUnit("TWIN-TEST-GPR")
     nominal = TwinUnit("TWIN-TEST-GPR", variation=VariationConfig(0.0, 0.0, 0.0, 0.0))

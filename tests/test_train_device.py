@@ -6,9 +6,9 @@ import json
 import pytest
 import torch
 
-from tools.train.model import device as dev
-from tools.train.model.data import DatasetError, data_hash, write_synthetic_dataset
-from tools.train.model.train import FitConfig, fit
+from tensortouch.tools.train.model import device as dev
+from tensortouch.tools.train.model.data import DatasetError, data_hash, write_synthetic_dataset
+from tensortouch.tools.train.model.train import FitConfig, fit
 
 
 def test_cpu_and_auto_without_cuda_select_the_cpu(monkeypatch):
@@ -37,7 +37,7 @@ def test_auto_and_cuda_pick_cuda_when_present_mocked_cuda_query(monkeypatch):
 def test_device_is_not_part_of_the_run_or_the_data(tmp_path, monkeypatch):
     """Same data hash and same weights whether the CPU was asked for or chosen by auto; the device is
     not written into config.json, so a run started on one device resumes on another."""
-    from tools.train.build import BuildConfig, stage_keys
+    from tensortouch.tools.train.build import BuildConfig, stage_keys
 
     write_synthetic_dataset(tmp_path / "a", 12, size=32, seed=3)
     write_synthetic_dataset(tmp_path / "b", 12, size=32, seed=3)

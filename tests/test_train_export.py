@@ -13,11 +13,11 @@ torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-from runtime.errors import ModelPackageError  # noqa: E402
-from runtime.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS  # noqa: E402
-from runtime.paths import ROOT  # noqa: E402
-from tools.train.cli import register  # noqa: E402
-from tools.train.export import FP32, INT8, count_quantize_nodes, fp32_cache_path, verify_package  # noqa: E402
+from tensortouch.contracts.errors import ModelPackageError    # noqa: E402
+from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS    # noqa: E402
+from tensortouch.contracts.paths import ROOT    # noqa: E402
+from tensortouch.tools.train.cli import register    # noqa: E402
+from tensortouch.tools.train.export import FP32, INT8, count_quantize_nodes, fp32_cache_path, verify_package    # noqa: E402
 
 SIZE = 64
 
@@ -82,7 +82,7 @@ def test_manifest_follows_the_contract(package):
 
 def test_int8_calibration_inputs_are_spread_over_the_whole_train_split(package):
     """The dataset is written session by session: the first samples are one unit's first pokes."""
-    from tools.train.model.data import load_sample, load_split, read_index, spread_indices
+    from tensortouch.tools.train.model.data import load_sample, load_split, read_index, spread_indices
 
     assert spread_indices(10, 4) == [0, 3, 6, 9]
     assert spread_indices(3, 8) == [0, 1, 2] and spread_indices(5, None) == list(range(5))
@@ -98,8 +98,8 @@ def test_int8_calibration_inputs_are_spread_over_the_whole_train_split(package):
 
 def test_total_force_parity_in_newtons(package):
     """The parity report's int8 - fp32 total force: the runtime's integral of the traction channels."""
-    from tools.train.export import parity_report, total_force_n
-    from tools.train.model.data import load_split
+    from tensortouch.tools.train.export import parity_report, total_force_n
+    from tensortouch.tools.train.model.data import load_split
 
     bounds = {c: [-1.0, 1.0] for c in CHANNELS}
     y = np.full((2, 15, 4, 4), 0.5, np.float32)                         # 0 MPa everywhere
@@ -136,7 +136,7 @@ def test_both_models_load_in_onnxruntime_and_agree(package):
 
 
 def test_runtime_fp32_on_an_int8_only_package_names_file_and_command(package):
-    from runtime.model import FieldModel, load_package
+    from tensortouch.runtime.stages.model import FieldModel, load_package
 
     folder, _, _ = package
     pkg = load_package(folder)                       # the optional fp32 is absent: still a valid package
@@ -149,7 +149,7 @@ def test_runtime_fp32_on_an_int8_only_package_names_file_and_command(package):
 def test_with_fp32_ships_both_and_the_fp32_graph_is_reproducible(package, tmp_path):
     """--with-fp32 re-exports the same run into a package holding both models; the fp32 graph is
     byte-identical to the one the int8-only export left in the build cache (same SHA-256)."""
-    from runtime.model import FieldModel, load_package
+    from tensortouch.runtime.stages.model import FieldModel, load_package
 
     folder, data, run = package
     models = tmp_path / "models"
@@ -208,7 +208,7 @@ def test_tampered_package_is_rejected(package, tmp_path):
 
 
 def test_keypoints_cli_on_a_session(tmp_path):
-    from runtime.session import new_manifest, write_manifest, write_table, STREAM_COLUMNS
+    from tensortouch.contracts.session import new_manifest, write_manifest, write_table, STREAM_COLUMNS
 
     t = np.arange(0, 4, 1 / 120)
     z = 10 - 2.0 * np.clip(np.minimum(t - 0.5, 3.5 - t), 0, 1)
@@ -235,7 +235,7 @@ def test_keypoints_cli_on_a_session(tmp_path):
 
 @pytest.mark.parametrize("k,groups,s", [(1, 5, 2), (3, 1, 2), (3, 2, 3)])
 def test_conv_shuffle_as_one_conv_transpose_is_exact(k, groups, s):
-    from tools.train.export_graph import ConvShuffle
+    from tensortouch.tools.train.export_graph import ConvShuffle
 
     torch.manual_seed(k + groups + s)
     conv = torch.nn.Conv2d(4 * groups, 3 * groups * s * s, k, padding=k // 2, groups=groups)
@@ -249,9 +249,9 @@ def test_conv_shuffle_as_one_conv_transpose_is_exact(k, groups, s):
 
 def test_rewritten_network_equals_the_trained_one():
     """The exported graph's rewrites (fused heads, shuffle as deconvolution) keep the function."""
-    from tools.train.export_graph import FusedHeads, reparametrize
-    from tools.train.model.hiera import HieraConfig
-    from tools.train.model.qupsample import HieraQUpsample
+    from tensortouch.tools.train.export_graph import FusedHeads, reparametrize
+    from tensortouch.tools.train.model.hiera import HieraConfig
+    from tensortouch.tools.train.model.qupsample import HieraQUpsample
 
     torch.manual_seed(0)
     net = HieraQUpsample(HieraConfig(image_size=64)).eval()

@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from runtime.fields import CHANNELS
-from tools.train.fields import (FieldConfig, FieldDataError, attribute_contacts, compute_bounds,
+from tensortouch.contracts.fields import CHANNELS
+from tensortouch.tools.train.fields import (FieldConfig, FieldDataError, attribute_contacts, compute_bounds,
                                 contact_force_from_image, denormalize, fe_to_fields, interpolate_to_grid,
                                 normalize_global, normalize_per_image, read_bounds, surface_angles,
                                 transfer_nearest, tributary_area, write_bounds)

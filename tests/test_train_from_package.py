@@ -9,10 +9,10 @@ import pytest
 torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 
-from runtime.errors import ModelPackageError  # noqa: E402
+from tensortouch.contracts.errors import ModelPackageError    # noqa: E402
 from tests.test_train_export import SIZE, _cli, package  # noqa: E402,F401  (package: the tiny int8 package)
-from tools.train.export import FP32, INT8  # noqa: E402
-from tools.train.from_package import assemble, dequantized, id_positions, state_dict_from_package  # noqa: E402
+from tensortouch.tools.train.export import FP32, INT8    # noqa: E402
+from tensortouch.tools.train.from_package import assemble, dequantized, id_positions, state_dict_from_package    # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_int8_graph_gives_the_weights_within_their_quantization_step(built):
 def test_the_network_from_the_package_computes_what_the_package_computes(built):
     import onnxruntime as ort
 
-    from tools.train.model import build_model
+    from tensortouch.tools.train.model import build_model
 
     folder, _, run = built
     info = json.loads((run / "metrics.json").read_text())
@@ -70,7 +70,7 @@ def test_the_network_from_the_package_computes_what_the_package_computes(built):
 
 
 def test_cli_writes_state_dict_bounds_and_provenance_and_a_fit_starts_from_it(built, tmp_path):
-    from tools.train.model.train import FitConfig, fit
+    from tensortouch.tools.train.model.train import FitConfig, fit
 
     folder, data, run = built
     out = tmp_path / "init"
@@ -107,7 +107,7 @@ def test_core_dequantizes_per_channel_and_maps_ids():
              "b_quantized": np.array([30], np.int32), "b_quantized_scale": np.array(0.01, np.float32)}
     v = dequantized(inits)
     assert np.allclose(v["w"], [[1.0, -2.0], [1.0, 0.0]]) and np.allclose(v["b"], [0.3])
-    from tools.train.from_package import ID0
+    from tensortouch.tools.train.from_package import ID0
     tpl = {"w": np.array([[ID0 + 1, 0.0], [ID0 + 0, ID0 + 2]], np.float32), "const": np.array([1.0, ID0 + 1])}
     pos = id_positions(tpl, 3)
     assert list(pos) == ["w"]                                 # a folded constant is not a weight

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from tools.train.keypoints import (KeypointConfig, detect_contacts, extract_keypoints, find_keypoints,
+from tensortouch.tools.train.keypoints import (KeypointConfig, detect_contacts, extract_keypoints, find_keypoints,
                                    merge_intervals, relative_pose, smooth)
 
 CFG = KeypointConfig()

@@ -6,13 +6,13 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tools.train.model import build_model  # noqa: E402
-from tools.train.model.hiera import Hiera, HieraConfig, HieraMAE  # noqa: E402
-from tools.train.model.layers import count_params  # noqa: E402
-from tools.train.model.metrics import evaluate, psnr_per_modality  # noqa: E402
-from tools.train.model.train import FitConfig, _Progress, fit, lr_at, load_trained  # noqa: E402
-from tools.train.model.data import data_hash, load_split, read_index, write_synthetic_dataset  # noqa: E402
-from runtime.fields import CHANNELS  # noqa: E402
+from tensortouch.tools.train.model import build_model    # noqa: E402
+from tensortouch.tools.train.model.hiera import Hiera, HieraConfig, HieraMAE    # noqa: E402
+from tensortouch.tools.train.model.layers import count_params    # noqa: E402
+from tensortouch.tools.train.model.metrics import evaluate, psnr_per_modality    # noqa: E402
+from tensortouch.tools.train.model.train import FitConfig, _Progress, fit, lr_at, load_trained    # noqa: E402
+from tensortouch.tools.train.model.data import data_hash, load_split, read_index, write_synthetic_dataset    # noqa: E402
+from tensortouch.contracts.fields import CHANNELS    # noqa: E402
 
 
 @pytest.mark.parametrize("size", [128, 96])
@@ -154,7 +154,7 @@ def test_fit_resumes_to_the_same_weights(tiny_dataset, tmp_path, monkeypatch):
 
 
 def test_fit_refuses_to_resume_a_different_config(tiny_dataset, tmp_path):
-    from tools.train.model.data import DatasetError
+    from tensortouch.tools.train.model.data import DatasetError
 
     fit(tiny_dataset, tmp_path / "r", FitConfig(arch="unet", epochs=1, batch_size=8, threads=1))
     with pytest.raises(DatasetError, match="config.json"):

@@ -8,9 +8,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from runtime.fields import CHANNELS  # noqa: E402
-from tools.train.fields import denormalize, read_bounds, write_bounds  # noqa: E402
-from tools.train.model.train import DatasetError, head_remap, load_any_bounds  # noqa: E402
+from tensortouch.contracts.fields import CHANNELS    # noqa: E402
+from tensortouch.tools.train.fields import denormalize, read_bounds, write_bounds    # noqa: E402
+from tensortouch.tools.train.model.train import DatasetError, head_remap, load_any_bounds    # noqa: E402
 
 
 def _bounds(seed: int) -> dict:
@@ -33,7 +33,7 @@ def test_head_remap_keeps_the_physical_value():
 
 @pytest.mark.parametrize("arch", ["unet", "hiera_qup"])
 def test_remapped_heads_give_the_same_fields(arch):
-    from tools.train.model import build_model
+    from tensortouch.tools.train.model import build_model
 
     torch.manual_seed(0)
     model = build_model(arch, 64).eval()
@@ -48,9 +48,9 @@ def test_remapped_heads_give_the_same_fields(arch):
 
 
 def test_fine_tune_on_wider_bounds_starts_at_the_init_output(tmp_path):
-    from tools.train.model import build_model
-    from tools.train.model.data import write_synthetic_dataset
-    from tools.train.model.train import FitConfig, fit
+    from tensortouch.tools.train.model import build_model
+    from tensortouch.tools.train.model.data import write_synthetic_dataset
+    from tensortouch.tools.train.model.train import FitConfig, fit
 
     data = tmp_path / "ds"
     write_synthetic_dataset(data, 12, size=64, seed=3)

@@ -1,8 +1,8 @@
 """Training sessions with their own plan ranges (SessionSpec.trajectory) and the twin's with_ranges."""
 import pytest
 
-from tools.train.build import BuildConfig, SessionSpec, stage_keys
-from tools.twin.trajectory import TrajectoryConfig, with_ranges
+from tensortouch.tools.train.build import BuildConfig, SessionSpec, stage_keys
+from tensortouch.tools.twin.trajectory import TrajectoryConfig, with_ranges
 
 
 def test_with_ranges_replaces_fields_and_names_bad_input():

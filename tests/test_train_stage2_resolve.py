@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tools.fe import GelGeometry
-from tools.fe.indenters import make_shape
-from tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share
-from tools.train.resolve import (PoseTrack, ResolveConfig, ResolveError, clearance, densify, fit_pose,
+from tensortouch.tools.fe import GelGeometry
+from tensortouch.tools.fe.indenters import make_shape
+from tensortouch.tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share
+from tensortouch.tools.train.resolve import (PoseTrack, ResolveConfig, ResolveError, clearance, densify, fit_pose,
                                  frame_sigma, interp_frames, period_scenario, surface_samples)
-from tools.twin.geometry import GelSurface
+from tensortouch.tools.twin.geometry import GelSurface
 
 GEL = GelGeometry(kind="flattened_dome", radius=12.0, cap_height=6.0, skirt=2.0)
 SURF = GelSurface(12.0, 6.0, 2.0)
@@ -114,7 +114,7 @@ def test_frame_labels_contact_busy_rest_and_keypoint_share():
     assert np.all(lab[(frame_t < 0.95) | (frame_t > 2.55)] == -1)
     share = keypoint_frame_share(frame_t, lab, [src])
     assert share["labelled_frames"] == inside.sum() and share["at_keypoint"] == 4 and share["at_fe_frame"] == 5
-    from tools.train.labels import LabelConfig
+    from tensortouch.tools.train.labels import LabelConfig
 
     lab2, _ = frame_labels(frame_t, [src], {0: tr}, wrench, lcfg=LabelConfig(keypoint_frames_only=True))
     assert (lab2 == 0).sum() == 4

@@ -3,9 +3,9 @@ whole GPR calibration of twin units against their true lens (slow: records twin 
 import numpy as np
 import pytest
 
-from tools.train.pokes2d import FlowPredictor, dot_centers, fit_offset, track_dots
-from tools.twin.camera import CameraConfig, FisheyeModel
-from tools.twin.geometry import GelSurface
+from tensortouch.tools.train.pokes2d import FlowPredictor, dot_centers, fit_offset, track_dots
+from tensortouch.tools.twin.camera import CameraConfig, FisheyeModel
+from tensortouch.tools.twin.geometry import GelSurface
 
 GEL = GelSurface(12.0, 6.0, 2.0)
 
@@ -91,8 +91,8 @@ def test_gpr_from_detected_pokes_recovers_the_twin_lens_within_half_a_degree(tmp
     """Stage 3 for real on twin data: FE-physics calibration session of the unit (9 light pokes; twin FE
     solves shared through the cache), stage-1 contacts, FE re-solved from the measured poses, the 2D
     detector, GPR → θ within 0.5° of the unit's true lens (p95 over the poked region θ ≤ 0.6 rad)."""
-    from tools.train.build import Build, BuildConfig, SessionSpec
-    from tools.train.correspondence import fit_unit
+    from tensortouch.tools.train.build import Build, BuildConfig, SessionSpec
+    from tensortouch.tools.train.correspondence import fit_unit
 
     b = Build(BuildConfig(train=[SessionSpec(serial, 1, 1)], heldout=[], tables="gpr"), tmp_path)
     g = fit_unit(b, serial)

@@ -4,10 +4,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from runtime.contacts import ContactConfig
-from runtime.pipeline import PipelineConfig
-from tools.train.support import SupportConfig, choose_support, score, support_sample
-from tools.train.threshold import choose
+from tensortouch.runtime.stages.contacts import ContactConfig
+from tensortouch.runtime.pipeline import PipelineConfig
+from tensortouch.tools.train.support import SupportConfig, choose_support, score, support_sample
+from tensortouch.tools.train.threshold import choose
 
 S = 96
 
@@ -70,7 +70,7 @@ def test_support_frames_have_exactly_one_indenter_in_contact():
 def test_threshold_sweeps_without_support_frames_leave_the_support_off():
     s = {"session": "A", "rest_frames": 10, "contact_frames": 10, "rest_with_core": [1, 0],
          "contact_with_core": [10, 10]}
-    from tools.train.threshold import ThresholdConfig
+    from tensortouch.tools.train.threshold import ThresholdConfig
     out = choose([s], ThresholdConfig(grid=(0.001, 0.002)))
     assert out["support_radius_px"] is None and out["support_floor_n"] is None
 
@@ -94,7 +94,7 @@ def two_peaks(gap_level: float, a=(40, 48), b=(56, 48), peak=0.004):
 
 
 def test_merging_joins_a_split_contact_and_keeps_two_real_contacts_apart():
-    from tools.train.support import choose_merge, merge_counts
+    from tensortouch.tools.train.support import choose_merge, merge_counts
 
     cal, cc = flat_calibration(), ContactConfig(weak_threshold_n=0.0012, min_total_n=0.04)
     split = two_peaks(0.0015)                           # one contact whose field dips between two peaks
@@ -118,7 +118,7 @@ def test_the_runtime_takes_merging_from_the_manifest():
 
 
 def test_the_threshold_pass_measures_merging_always_and_the_support_only_on_request():
-    from tools.train.threshold import ThresholdConfig
+    from tensortouch.tools.train.threshold import ThresholdConfig
 
     cal = flat_calibration()
     fp, total = contact()
@@ -138,7 +138,7 @@ def test_the_threshold_pass_measures_merging_always_and_the_support_only_on_requ
 
 
 def test_a_build_fixes_the_support_in_the_export_key_only_when_set():
-    from tools.train.build import BuildConfig, stage_keys
+    from tensortouch.tools.train.build import BuildConfig, stage_keys
 
     base, fixed = BuildConfig(), BuildConfig(support_px=20.0)
     assert stage_keys(base)["fit"] == stage_keys(fixed)["fit"]          # the weights are the same ...

@@ -5,9 +5,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from runtime.contacts import ContactConfig
-from runtime.pipeline import PipelineConfig
-from tools.train.threshold import ThresholdConfig, _has_core, choose, record, rest_frames
+from tensortouch.runtime.stages.contacts import ContactConfig
+from tensortouch.runtime.pipeline import PipelineConfig
+from tensortouch.tools.train.threshold import ThresholdConfig, _has_core, choose, record, rest_frames
 
 
 def sweep(rest_fp, hit, n_rest=100, n_contact=50, name="S"):
@@ -67,7 +67,7 @@ def test_the_runtime_takes_the_threshold_from_the_manifest(tmp_path):
 def test_a_fine_tuned_package_names_its_init_checkpoint(tmp_path):
     import hashlib
 
-    from tools.train.stages import _record_init
+    from tensortouch.tools.train.stages import _record_init
 
     run = tmp_path / "runs" / "fit-x"
     run.mkdir(parents=True)

@@ -3,12 +3,12 @@ import cv2
 import numpy as np
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.geometry import DomeProfile
-from runtime.preprocess import Preprocessor
-from tools.twin.camera import CameraConfig, FisheyeModel
-from tools.twin.geometry import GelSurface
-from tools.twin.unit import TwinUnit, true_tables, unit_params, write_true_calibration
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.geometry import DomeProfile
+from tensortouch.runtime.stages.preprocess import Preprocessor
+from tensortouch.tools.twin.camera import CameraConfig, FisheyeModel
+from tensortouch.tools.twin.geometry import GelSurface
+from tensortouch.tools.twin.unit import TwinUnit, true_tables, unit_params, write_true_calibration
 
 
 def test_projection_matches_cv2_fisheye():
@@ -93,7 +93,7 @@ def test_true_calibration_consistent(tmp_path):
     t = true_tables(unit, 64)
     m = t["mask"]
     assert 0.6 < m.mean() < 0.8
-    # θ/φ follow runtime.geometry.DomeProfile on the cap
+    # θ/φ follow runtime.stages.geometry.DomeProfile on the cap
     prof = DomeProfile(radius_mm=unit.gel.sphere_radius, center_z_mm=unit.gel.sphere_z)
     cap = m & (t["surface_xyz"][..., 2] > unit.gel.skirt + 1e-6)
     np.testing.assert_allclose(prof.point(t["theta"], t["phi"])[cap], t["surface_xyz"][cap], atol=1e-6)

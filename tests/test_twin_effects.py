@@ -4,8 +4,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools.twin.effect_specs import CANONICAL, COVARIATES, SPECS, parse_effect_arg
-from tools.twin.effects import EFFECTS, build_effects
+from tensortouch.tools.twin.effect_specs import CANONICAL, COVARIATES, SPECS, parse_effect_arg
+from tensortouch.tools.twin.effects import EFFECTS, build_effects
 
 T = np.linspace(0, 10, 201)
 

@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from tools.twin.bench import _densify
-from tools.twin.geometry import GelSurface
-from tools.twin.physics import HertzFallbackPhysics, PokeSolve, interpolate, keypoint_poses, motion_runs
-from tools.twin.trajectory import TrajectoryConfig, plan_session, poke_pose
+from tensortouch.tools.twin.bench import _densify
+from tensortouch.tools.twin.geometry import GelSurface
+from tensortouch.tools.twin.physics import HertzFallbackPhysics, PokeSolve, interpolate, keypoint_poses, motion_runs
+from tensortouch.tools.twin.trajectory import TrajectoryConfig, plan_session, poke_pose
 
 GEL = GelSurface()
 
@@ -64,7 +64,7 @@ def test_trajectory_keypoints_match_poses_and_start_outside_gel():
 
 def test_fe_scenario_mapping_and_cache_key(tmp_path):
     pytest.importorskip("felupe")
-    from tools.twin.fe_physics import FEPhysics
+    from tensortouch.tools.twin.fe_physics import FEPhysics
 
     p = plan_session(2, 5, GEL, TrajectoryConfig(p_two=1.0))[0]
     fe = FEPhysics(cache=tmp_path)
@@ -78,7 +78,7 @@ def test_fe_scenario_mapping_and_cache_key(tmp_path):
 
 
 def test_fe_result_conversion_uses_surface_nodes():
-    from tools.twin.fe_physics import from_fe_result
+    from tensortouch.tools.twin.fe_physics import from_fe_result
 
     class R:  # a minimal FEResult-shaped object (3 nodes, 2 on the surface, 2 frames, 1 indenter)
         nodes = np.array([[0, 0, 8.0], [1, 0, 7.9], [0, 0, 1.0]])
@@ -104,8 +104,8 @@ def test_fe_nonconvergence_retries_with_half_increments_then_names_the_poke(tmp_
     """tools.fe.solve is replaced by a stub that never converges (the failure path only): one retry
     at half increments, then PokeSolveFailed naming the poke, and failure markers so a resumed
     recording does not solve the same scenarios again."""
-    fe_mod = pytest.importorskip("tools.fe")
-    from tools.twin.fe_physics import FEPhysics, PokeSolveFailed
+    fe_mod = pytest.importorskip("tensortouch.tools.fe")
+    from tensortouch.tools.twin.fe_physics import FEPhysics, PokeSolveFailed
 
     calls = []
 

@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from runtime.session import load_session, read_table
-from tools.sessions.writer import read_frames
-from tools.twin.record import RecordConfig, Recorder, record
-from tools.twin.signals import Hysteresis
+from tensortouch.contracts.session import load_session, read_table
+from tensortouch.tools.sessions.writer import read_frames
+from tensortouch.tools.twin.record import RecordConfig, Recorder, record
+from tensortouch.tools.twin.signals import Hysteresis
 
 POSE_COLS = ["t", "indenter", "x", "y", "z", "qw", "qx", "qy", "qz"]
 RF_COLS = ["t", "indenter", "fx", "fy", "fz", "mx", "my", "mz"]
@@ -25,8 +25,8 @@ def _quat_matrix(q):
 @pytest.fixture(scope="module")
 def fe_session(tmp_path_factory):
     pytest.importorskip("felupe")
-    from tools.fe import MeshSettings
-    from tools.twin.fe_physics import FEPhysics
+    from tensortouch.tools.fe import MeshSettings
+    from tensortouch.tools.twin.fe_physics import FEPhysics
 
     root = tmp_path_factory.mktemp("fe")
     cfg = RecordConfig(serial="TWIN-FE", pokes=1, seed=11, physics="fe", frame_format="png")
@@ -47,7 +47,7 @@ def test_ft_equals_minus_fe_reaction_in_ft_frame_plus_noise(fe_session):
     pose = read_table(out / "truth" / "poses.csv", POSE_COLS)
     rf = read_table(out / "truth" / "reaction_fe.csv", RF_COLS)
     # the nominal reaction stored in truth IS the FE result at the keypoints
-    from tools.twin.physics import interpolate
+    from tensortouch.tools.twin.physics import interpolate
 
     poke = rec.plan[0]
     res = physics.result(poke)
@@ -178,7 +178,7 @@ def test_effects_change_measurements_not_truth_reaction(tmp_path):
 
 
 def test_cli_record_show_calibration(tmp_path, capsys):
-    from tools.twin.cli import register
+    from tensortouch.tools.twin.cli import register
 
     parser = argparse.ArgumentParser(prog="tensortouch")
     register(parser.add_subparsers(dest="command"))

@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from runtime.session import load_session
-from tools.twin.record import RecordConfig, Recorder
-from tools.twin.trajectory import GuidedConfig, TrajectoryConfig, apply_replans, plan_guided, shorten
-from tools.twin.unit import TwinUnit
+from tensortouch.contracts.session import load_session
+from tensortouch.tools.twin.record import RecordConfig, Recorder
+from tensortouch.tools.twin.trajectory import GuidedConfig, TrajectoryConfig, apply_replans, plan_guided, shorten
+from tensortouch.tools.twin.unit import TwinUnit
 
 APEX = [0.0, 0.0, 8.0]
 SIDE = [5.84127513, 0.0, 6.81591491]          # GelSurface().point_at(0.4, 0)
@@ -36,7 +36,7 @@ def _air_then_deep(poke):
 
 
 def test_guided_plan_presses_at_points_along_the_normal():
-    from tools.twin.geometry import GelSurface
+    from tensortouch.tools.twin.geometry import GelSurface
 
     gel = GelSurface()
     g = GuidedConfig([APEX, SIDE], [1.2, 0.9], "sphere5", hold_s=1.0)
@@ -52,7 +52,7 @@ def test_guided_plan_presses_at_points_along_the_normal():
 
 
 def test_shorten_keeps_times_and_releases_above_surface():
-    from tools.twin.geometry import GelSurface
+    from tensortouch.tools.twin.geometry import GelSurface
 
     p = plan_guided(GuidedConfig([APEX], [2.0], "sphere5"), GelSurface())[0]
     s = shorten(p, 2, TrajectoryConfig())
@@ -82,8 +82,8 @@ def test_fe_non_convergence_shortens_or_skips_and_session_finishes(tmp_path):
     """FE physics with a 1-iteration Newton cap (names the forced failure): poke 0 reaches keypoint 2
     in the air then fails at the deep step -> shortened; poke 1 fails at its first contact step -> skipped."""
     pytest.importorskip("felupe")
-    from tools.fe import MeshSettings, SolverSettings
-    from tools.twin.fe_physics import FEPhysics
+    from tensortouch.tools.fe import MeshSettings, SolverSettings
+    from tensortouch.tools.twin.fe_physics import FEPhysics
 
     cache = tmp_path / "fe"
 

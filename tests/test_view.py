@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from runtime.wire import FieldsFrame
-from tools.view.render import DIVERGING, SEQUENTIAL, channel_data, colorize, downsample, frame_view, value_range
+from tensortouch.contracts.wire import FieldsFrame
+from tensortouch.tools.view.render import DIVERGING, SEQUENTIAL, channel_data, colorize, downsample, frame_view, value_range
 from tests.hand_util import free_endpoint, hand_cfg, make_package, make_store, make_video, wait_until
 
 
@@ -28,7 +28,7 @@ def test_colour_maps_and_ranges():
 def test_derived_channels_and_downsample():
     rng = np.random.default_rng(0)
     data = rng.normal(size=(15, 8, 8)).astype(np.float32)
-    from runtime.fields import CHANNEL_UNITS, CHANNELS
+    from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS
 
     mag, unit, signed = channel_data(data, CHANNELS, CHANNEL_UNITS, "traction_mag")
     np.testing.assert_allclose(mag, np.linalg.norm(data[9:12] + data[12:15], axis=0), rtol=1e-6)
@@ -56,9 +56,9 @@ def _get(url):
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):
-    from runtime.hand import Hand
-    from runtime.publisher import open_session
-    from tools.view.server import ViewState, serve
+    from tensortouch.runtime.apps.hand import Hand
+    from tensortouch.runtime.apps.publisher import open_session
+    from tensortouch.tools.view.server import ViewState, serve
 
     tmp = tmp_path_factory.mktemp("view")
     pkg = make_package(tmp / "models" / "difference-32")
@@ -123,8 +123,8 @@ def test_frame_api_errors(live):
 
 
 def test_sensor_without_geometry_gets_nominal_dome():
-    from runtime.publisher import Publisher, open_session
-    from tools.view.server import ViewState
+    from tensortouch.runtime.apps.publisher import Publisher, open_session
+    from tensortouch.tools.view.server import ViewState
 
     ep = free_endpoint()
     with Publisher("plain-1", listen=[ep]) as pub:
@@ -142,7 +142,7 @@ def test_sensor_without_geometry_gets_nominal_dome():
 def test_cli_registers_view():
     import argparse
 
-    from tools.view.cli import register
+    from tensortouch.tools.view.cli import register
 
     p = argparse.ArgumentParser()
     register(p.add_subparsers())
@@ -158,7 +158,7 @@ def test_view_command_serves_then_stops():
     from tests.hand_util import free_endpoint
 
     ep = free_endpoint()
-    r = subprocess.run([sys.executable, "-m", "runtime.cli", "view", "--connect", ep, "--port", "0", "--duration", "1"],
+    r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "view", "--connect", ep, "--port", "0", "--duration", "1"],
                        capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[1])
     assert r.returncode == 0, r.stderr
     assert "tensortouch view: http://127.0.0.1:" in r.stderr

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from runtime import wire
-from runtime.publisher import Publisher
-from runtime.zenoh_session import open_session, zenoh_config
+from tensortouch.contracts import wire
+from tensortouch.runtime.apps.publisher import Publisher
+from tensortouch.runtime.apps.zenoh_session import open_session, zenoh_config
 from tests.test_listen import CONTACT, free_endpoint
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -108,7 +108,7 @@ def _hostile(session: zenoh.Session, evil: str, stop: threading.Event) -> None:
 
 
 def test_view_escapes_everything_a_hostile_publisher_sends(tmp_path):
-    from tools.view.server import ViewState, serve
+    from tensortouch.tools.view.server import ViewState, serve
 
     canary = Canary()
     evil = canary.payload
@@ -166,7 +166,7 @@ def test_3d_view_is_right_handed_and_arrows_point_along_the_force(tmp_path):
     """The page's own `project` in Chromium: sensor x, y, z map to a right-handed screen frame
     (right, up, toward the viewer), so the gel is not drawn mirrored, and a force arrow (tail at
     p - s·F, head at p) points along F on screen."""
-    from tools.view.server import PAGE
+    from tensortouch.tools.view.server import PAGE
 
     probe = """<script>
     const J = [[1,0,0],[0,1,0],[0,0,1]].map(e => { const a = project(e, 460), o = project([0,0,0], 460);

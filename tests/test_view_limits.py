@@ -6,8 +6,8 @@ import time
 
 import zenoh
 
-from runtime import wire
-from runtime.zenoh_session import open_session, zenoh_config
+from tensortouch.contracts import wire
+from tensortouch.runtime.apps.zenoh_session import open_session, zenoh_config
 from tests.test_listen import free_endpoint
 
 
@@ -17,7 +17,7 @@ def _status(sid: str) -> str:
 
 
 def test_view_keeps_a_bounded_set_of_sensors_and_forgets_silent_ones():
-    from tools.view.server import ViewState
+    from tensortouch.tools.view.server import ViewState
 
     ep = free_endpoint()
     session = open_session(listen=[ep])
@@ -46,7 +46,7 @@ def test_view_keeps_a_bounded_set_of_sensors_and_forgets_silent_ones():
 
 
 def test_idle_http_connections_are_closed(monkeypatch):
-    import tools.view.server as server
+    import tensortouch.tools.view.server as server
 
     monkeypatch.setattr(server, "HTTP_IDLE_S", 1.0)
     session = open_session(listen=[free_endpoint()])

@@ -14,11 +14,11 @@ mcap_reader = pytest.importorskip("mcap.reader")
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from runtime import wire
+from tensortouch.contracts import wire
 from tests import test_listen
 from tests.test_listen import CONTACT
 from tests.viewers_util import site_with_savers
-from tools.viewers.mcap_saver import McapSaver
+from tensortouch.tools.viewers.mcap_saver import McapSaver
 
 ROOT = Path(__file__).resolve().parents[1]
 sensor_fixture = test_listen.running_sensor          # a publisher on loopback (its endpoint)
@@ -94,7 +94,7 @@ def test_mcap_schemas_and_values(tmp_path):
 def test_listen_save_mcap_from_a_running_sensor(sensor_fixture, tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site_with_savers(tmp_path / "site")), str(ROOT)]))
     out = tmp_path / "out.mcap"
-    r = subprocess.run([sys.executable, "-m", "runtime.cli", "listen", "dome01", "--connect", sensor_fixture,
+    r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "dome01", "--connect", sensor_fixture,
                         "--count", "40", "--save", str(out)], env=env, capture_output=True, text=True, timeout=60, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     got = read_mcap(out)
@@ -106,8 +106,8 @@ def test_listen_save_mcap_from_a_running_sensor(sensor_fixture, tmp_path):
 def test_listen_save_mcap_without_the_extra_says_how_to_get_it(tmp_path):
     from importlib import metadata
 
-    from runtime.errors import CommandError
-    from runtime.listen import SAVER_GROUP, open_saver
+    from tensortouch.contracts.errors import CommandError
+    from tensortouch.runtime.shells.listen import SAVER_GROUP, open_saver
 
     if any(ep.name == "rrd" for ep in metadata.entry_points(group=SAVER_GROUP)):
         pytest.skip("the viewers extra is installed here")

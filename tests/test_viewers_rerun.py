@@ -32,7 +32,7 @@ def entities(path):
 def test_listen_save_rrd_opens_with_rerun(sensor_fixture, tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site_with_savers(tmp_path / "site")), str(ROOT)]))
     out = tmp_path / "out.rrd"
-    r = subprocess.run([sys.executable, "-m", "runtime.cli", "listen", "dome01", "--connect", sensor_fixture,
+    r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "dome01", "--connect", sensor_fixture,
                         "--count", "40", "--save", str(out)], env=env, capture_output=True, text=True, timeout=60, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     assert out.is_file() and not (tmp_path / "out.rrd.partial").exists()

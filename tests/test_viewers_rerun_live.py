@@ -44,7 +44,7 @@ def listening_addresses(port: int) -> set[str]:
 def test_view_rerun_serves_on_loopback_only(sensor_fixture):
     web, grpc = free_port(), free_port()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "view", "--rerun", "--connect", sensor_fixture,
+    proc = subprocess.Popen([sys.executable, "-m", "tensortouch.runtime.shells.cli", "view", "--rerun", "--connect", sensor_fixture,
                              "--port", str(web), "--rerun-grpc-port", str(grpc), "--duration", "4"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -1,12 +1,12 @@
-"""Pure wire-format encode/decode (runtime/wire.py): no network."""
+"""Pure wire-format encode/decode (contracts/wire.py): no network."""
 import json
 
 import numpy as np
 import pytest
 
-from runtime import wire
-from runtime.errors import TensorTouchError
-from runtime.fields import CHANNEL_UNITS, CHANNELS
+from tensortouch.contracts import wire
+from tensortouch.contracts.errors import TensorTouchError
+from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS
 
 
 def make_contact(i=1, f=(0.1, -0.2, -1.5), p=(1.0, 2.0, 14.0)):

@@ -16,9 +16,9 @@ import timeit
 import numpy as np
 import pytest
 
-from runtime import wire
-from runtime.publisher import Publisher
-from runtime.subscriber import Subscriber
+from tensortouch.contracts import wire
+from tensortouch.runtime.apps.publisher import Publisher
+from tensortouch.runtime.apps.subscriber import Subscriber
 
 SHAPE = (15, 128, 128)
 
@@ -27,7 +27,7 @@ SHAPE = (15, 128, 128)
 CHILD = textwrap.dedent("""
     import sys, time
     import numpy as np
-    from runtime.publisher import Publisher
+    from tensortouch.runtime.apps.publisher import Publisher
     ep, rate, duration = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
     rng = np.random.default_rng(0)
     fields = rng.normal(size=(15, 128, 128)).astype(np.float32)
@@ -114,7 +114,7 @@ def latency_cross_process(rate: float, duration: float) -> dict:
 
 
 def _alive(sub) -> bool:
-    from runtime.subscriber import alive_sensors
+    from tensortouch.runtime.apps.subscriber import alive_sensors
 
     return "bench01" in alive_sensors(sub, timeout=0.5)
 

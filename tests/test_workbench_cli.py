@@ -8,13 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.session import rewrite_in_units
-from tools.accept.alter import copy_without_truth
-from tools.workbench import cli
-from tools.workbench.scenarios import Scenario, fresh_store, record
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.contracts.session import rewrite_in_units
+from tensortouch.tools.accept.alter import copy_without_truth
+from tensortouch.tools.workbench import cli
+from tensortouch.tools.workbench.scenarios import Scenario, fresh_store, record
 
-pytest.importorskip("tools.twin.record")
+pytest.importorskip("tensortouch.tools.twin.record")
 SENSOR = "TWIN-WB01"
 
 
@@ -126,7 +126,7 @@ def test_effects_list_json_names_parameters_with_units(capsys):
 
 def test_clear_errors(env, capsys):
     (calib, hidden), store, tmp = env
-    from runtime.errors import TensorTouchError
+    from tensortouch.contracts.errors import TensorTouchError
 
     with pytest.raises(TensorTouchError, match="no model for sensor"):
         run(["diagnose", str(hidden), "--sensor", SENSOR, "--store", str(store)], capsys)
@@ -140,7 +140,7 @@ def test_clear_errors(env, capsys):
 def test_effect_parameters_given_with_a_unit(env, capsys):
     """--param tau=1500ms and t_ref=295.15K are stored in the parameters' own units (s, degC)."""
     (calib, hidden), store, tmp = env
-    from runtime.errors import TensorTouchError
+    from tensortouch.contracts.errors import TensorTouchError
 
     common = ["--sensor", SENSOR, "--store", str(store)]
     code, _ = run(["effects", "add", "viscoelastic_relaxation", "--param", "tau=1500ms", "--param", "g1=0.2",

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.effects import EffectChain, Registry
+from tensortouch.runtime.stages.effects import EffectChain, Registry
 from tests.workbench_synth import synth_table
-from tools.workbench.diagnose import DiagnoseConfig, add_to_chain, diagnose, holm, sign_flip_pvalue, time_blocks
-from tools.workbench.fit import refit_chain
-from tools.workbench.scan import covariate_score
+from tensortouch.tools.workbench.diagnose import DiagnoseConfig, add_to_chain, diagnose, holm, sign_flip_pvalue, time_blocks
+from tensortouch.tools.workbench.fit import refit_chain
+from tensortouch.tools.workbench.scan import covariate_score
 
 PLUGINS = Path(__file__).parent / "workbench_plugins"
 HIDDEN = {
@@ -208,7 +208,7 @@ def test_a_runner_up_the_blocks_cannot_separate_is_named(tmp_path):
     """Two candidates that act identically on a session (here a user plugin cloning temperature
     softening): diagnosis names the verdict and says the other explains as much."""
     (tmp_path / "clone.py").write_text(
-        "from runtime.effects.builtin import TemperatureSoftening\n\n\n"
+        "from tensortouch.runtime.stages.effects.builtin import TemperatureSoftening\n\n\n"
         "class TemperatureClone(TemperatureSoftening):\n    name = 'temperature_clone'\n")
     reg = Registry.default(plugin_dirs=[tmp_path], entry_points=False)
     table = small(1, [("temperature_softening", HIDDEN["temperature_softening"])])
@@ -225,7 +225,7 @@ def test_minp_correction_knows_correlated_candidates_and_keeps_the_family_error(
     """Westfall-Young minP over candidates scored on the same blocks: one candidate -> its own
     sign-flip p; two identical candidates -> no multiplicity penalty (Holm would double it); never
     above Holm; under H0 (symmetric block statistics) the family-wise error stays near alpha."""
-    from tools.workbench.diagnose import minp_adjusted
+    from tensortouch.tools.workbench.diagnose import minp_adjusted
 
     cfg = DiagnoseConfig(n_blocks=10)
     rng = np.random.default_rng(3)
@@ -250,8 +250,8 @@ def test_minp_correction_knows_correlated_candidates_and_keeps_the_family_error(
 def test_pairs_the_blocks_cannot_tell_apart_go_by_evidence():
     """A pair ahead by reduction but not block by block yields to a pair with a lower corrected p;
     a pair ahead in every block keeps its place."""
-    from tools.workbench.diagnose import _stronger_pair_first
-    from tools.workbench.pairs import PairScore
+    from tensortouch.tools.workbench.diagnose import _stronger_pair_first
+    from tensortouch.tools.workbench.pairs import PairScore
 
     def pair(name, after, p, blocks):
         return PairScore((name, "viscoelastic_relaxation"), ({}, {}), 0.47, after, p, (0.6, 0.6), p_adjusted=p,

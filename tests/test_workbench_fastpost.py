@@ -4,17 +4,17 @@ calibration-baseline sign-flip test. Real scikit-learn forest -> real ONNX -> re
 import numpy as np
 import pytest
 
-from runtime.correction import ForceCorrection
-from runtime.effects import EffectChain, Registry
+from tensortouch.runtime.stages.correction import ForceCorrection
+from tensortouch.runtime.stages.effects import EffectChain, Registry
 from tests.workbench_synth import synth_table
-from tools.workbench.diagnose import DiagnoseConfig, diagnose, sign_flip_pvalue, time_blocks
-from tools.workbench.fastpost import memo_gain
-from tools.workbench.fit import Channels
+from tensortouch.tools.workbench.diagnose import DiagnoseConfig, diagnose, sign_flip_pvalue, time_blocks
+from tensortouch.tools.workbench.fastpost import memo_gain
+from tensortouch.tools.workbench.fit import Channels
 
 
 @pytest.fixture(scope="module")
 def correction(tmp_path_factory):
-    from tools.recalib.fit import FitConfig, PokeSet, fit_forest, to_onnx
+    from tensortouch.tools.recalib.fit import FitConfig, PokeSet, fit_forest, to_onnx
 
     rng = np.random.default_rng(3)
     n = 600

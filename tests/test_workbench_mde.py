@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from runtime.effects import EffectChain, Registry
+from tensortouch.runtime.stages.effects import EffectChain, Registry
 from tests.workbench_mdecheck import draw, press_floor, rms, with_effect
 from tests.workbench_synth import alter, synth_table
-from tools.workbench.cli import ranking_lines
-from tools.workbench.diagnose import contact_of, diagnose, press_blocks
-from tools.workbench.mde import minimum_detectable_effect, presses, words
-from tools.workbench.table import SampleTable
+from tensortouch.tools.workbench.cli import ranking_lines
+from tensortouch.tools.workbench.diagnose import contact_of, diagnose, press_blocks
+from tensortouch.tools.workbench.mde import minimum_detectable_effect, presses, words
+from tensortouch.tools.workbench.table import SampleTable
 
 
 @pytest.fixture(scope="module")
@@ -111,8 +111,8 @@ def test_a_saturating_stiffening_is_fitted_by_the_flexible_member(registry):
 
 @pytest.mark.slow
 def test_generality_forms_differ_from_the_library_and_scale_to_the_asked_size():
-    from tools.workbench.fit import Candidate, Channels
-    from tools.workbench.generality import EXPECTED, _rms, hidden, scaled, session
+    from tensortouch.tools.workbench.fit import Candidate, Channels
+    from tensortouch.tools.workbench.generality import EXPECTED, _rms, hidden, scaled, session
 
     s = session(1)
     reg = Registry.default(entry_points=False)

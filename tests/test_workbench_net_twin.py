@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.errors import ModelPackageError
-from tools.accept import workbench as acc
+from tensortouch.contracts.errors import ModelPackageError
+from tensortouch.tools.accept import workbench as acc
 
 pytestmark = pytest.mark.slow
 

@@ -14,25 +14,25 @@ import cv2
 import numpy as np
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.effects import Registry
-from runtime.errors import TensorTouchError
-from runtime.model import FieldModel, load_package
-from runtime.pipeline import SensorPipeline
-from runtime.session import load_session
-from tools.workbench import cli
-from tools.workbench.compare import run_compare
-from tools.workbench.network import NetworkModel, match, replay, temperature_of
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.effects import Registry
+from tensortouch.contracts.errors import TensorTouchError
+from tensortouch.runtime.stages.model import FieldModel, load_package
+from tensortouch.runtime.pipeline import SensorPipeline
+from tensortouch.contracts.session import load_session
+from tensortouch.tools.workbench import cli
+from tensortouch.tools.workbench.compare import run_compare
+from tensortouch.tools.workbench.network import NetworkModel, match, replay, temperature_of
 
-pytest.importorskip("tools.twin.record")
+pytest.importorskip("tensortouch.tools.twin.record")
 SENSOR = "TWIN-WBT"
 
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    from tools.bench.models import write_difference_package
-    from tools.twin.record import RecordConfig, Recorder
-    from tools.twin.unit import TwinUnit, write_true_calibration
+    from tensortouch.tools.bench.models import write_difference_package
+    from tensortouch.tools.twin.record import RecordConfig, Recorder
+    from tensortouch.tools.twin.unit import TwinUnit, write_true_calibration
 
     root = tmp_path_factory.mktemp("wbnet")
     cfg = RecordConfig(serial=SENSOR, pokes=4, seed=3, physics="hertz-fallback", frame_format="mjpg", model_size=32)
@@ -55,8 +55,8 @@ def env(tiny, tmp_path, monkeypatch):
 def _correction(store: CalibrationStore) -> str:
     """Store a real zero-constrained gain forest (ONNX) as the sensor's correction."""
     pytest.importorskip("sklearn")
-    from tools.recalib.fit import FitConfig, PokeSet, fit_forest, to_onnx
-    from tools.recalib.store_ops import store_recalibration
+    from tensortouch.tools.recalib.fit import FitConfig, PokeSet, fit_forest, to_onnx
+    from tensortouch.tools.recalib.store_ops import store_recalibration
 
     rng = np.random.default_rng(0)
     f = rng.normal(size=(40, 3))
@@ -89,7 +89,7 @@ def test_replay_gives_the_numbers_the_runtime_pipeline_publishes(env):
     temp = temperature_of(session)
     pipe = SensorPipeline(SENSOR, FieldModel(package, "int8", 1), cal)
     assert pipe.effects.enabled and pipe.correction.enabled
-    from tools.sessions.writer import read_frames
+    from tensortouch.tools.sessions.writer import read_frames
 
     times = session.table("frames")[:, 0]
     published = []
@@ -152,7 +152,7 @@ def test_cli_model_choice(env, capsys):
     assert "network pass" in capsys.readouterr().out
     # ... and the contact law (said so) when it is not
     env["monkeypatch"].setenv("TENSORTOUCH_MODELS", str(Path(__file__).resolve().parents[1] / "exported_models"))
-    from runtime.model import installed_packages
+    from tensortouch.runtime.stages.model import installed_packages
 
     if installed_packages():
         assert args.func(args) == 0
@@ -161,7 +161,7 @@ def test_cli_model_choice(env, capsys):
 
 def test_nominal_correction_is_fitted_on_a_calibration_session_and_used(env, capsys):
     pytest.importorskip("sklearn")
-    from tools.workbench.nominal import NominalConfig, fit_and_store_correction
+    from tensortouch.tools.workbench.nominal import NominalConfig, fit_and_store_correction
 
     store = CalibrationStore(env["store"])
     reg = Registry.default(entry_points=False)

@@ -2,8 +2,8 @@
 cross-fitting folds, input selection, and 'no correction' when no forest beats the raw network."""
 import numpy as np
 
-from tools.recalib.fit import PokeSet
-from tools.workbench.nominal import NominalConfig, choose_inputs, folds_of
+from tensortouch.tools.recalib.fit import PokeSet
+from tensortouch.tools.workbench.nominal import NominalConfig, choose_inputs, folds_of
 
 CFG = NominalConfig(n_estimators=20)
 

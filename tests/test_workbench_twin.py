@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from runtime.calibration import CalibrationStore
-from runtime.effects import EffectChain, Registry
-from tools.accept.alter import alter_session
-from tools.workbench.compare import load_table
-from tools.workbench.diagnose import add_to_chain, diagnose
-from tools.workbench.models import ContactLaw
-from tools.workbench.scenarios import Scenario, record, store_root
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.stages.effects import EffectChain, Registry
+from tensortouch.tools.accept.alter import alter_session
+from tensortouch.tools.workbench.compare import load_table
+from tensortouch.tools.workbench.diagnose import add_to_chain, diagnose
+from tensortouch.tools.workbench.models import ContactLaw
+from tensortouch.tools.workbench.scenarios import Scenario, record, store_root
 
 pytestmark = pytest.mark.slow
 PLUGINS = Path(__file__).parent / "workbench_plugins"

@@ -19,15 +19,15 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from runtime import wire
-from runtime.paths import ROOT
-from runtime.subscriber import Subscriber
+from tensortouch.contracts import wire
+from tensortouch.contracts.paths import ROOT
+from tensortouch.runtime.apps.subscriber import Subscriber
 from tests.test_e2e_runtime import free_port, stop
 
 DOCS = ROOT / "docs" / "zenoh"
 MODEL = ROOT / "exported_models" / "hiera-qup-128"
 DEMO = ROOT / "runtime" / "demo"
-CLI = [sys.executable, "-m", "runtime.cli"]
+CLI = [sys.executable, "-m", "tensortouch.runtime.shells.cli"]
 SENSOR = "TWIN-DEMO"
 N_FAKE = 50
 

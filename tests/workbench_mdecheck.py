@@ -14,10 +14,10 @@ import json
 
 import numpy as np
 
-from runtime.effects import Registry
+from tensortouch.runtime.stages.effects import Registry
 from tests.workbench_synth import alter, synth_table
-from tools.workbench.diagnose import diagnose
-from tools.workbench.table import SampleTable
+from tensortouch.tools.workbench.diagnose import diagnose
+from tensortouch.tools.workbench.table import SampleTable
 
 UNIT = {"strain_stiffening": ("k", {}), "temperature_softening": ("alpha", {"t_ref": 22.0}),
         "rim_stiffening": ("a", {"w": 3.0})}

@@ -12,7 +12,7 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
-from tools.workbench.table import SampleTable
+from tensortouch.tools.workbench.table import SampleTable
 
 GEL_RADIUS = 12.0     # mm (dome radius of the synthetic gel)
 SKIRT = 2.0

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.errors import CaptureError
+from ...contracts.errors import CaptureError
 
 log = logging.getLogger(__name__)
 

@@ -4,7 +4,7 @@ Drop this file in a folder and pass the folder with --plugins (or TENSORTOUCH_EF
 """
 import numpy as np
 
-from runtime.effects import Effect, Param, need
+from tensortouch.runtime.stages.effects import Effect, Param, need
 
 
 class IndenterDrag(Effect):

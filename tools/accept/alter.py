@@ -33,7 +33,7 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
-from runtime.session import STREAM_COLUMNS, load_session, rewrite_in_units, write_table
+from ...contracts.session import STREAM_COLUMNS, load_session, rewrite_in_units, write_table
 
 
 def copy_without_truth(src: Path, dst: Path) -> Path:

@@ -7,11 +7,11 @@ from __future__ import annotations
 import importlib
 
 HARNESSES = {
-    "workbench": ("tools.accept.workbench",
+    "workbench": ("tensortouch.tools.accept.workbench",
                   "the workbench loop on twin sessions with hidden effects, nulls, two effects and a plugin"),
-    "workbench-generality": ("tools.accept.workbench_generality",
+    "workbench-generality": ("tensortouch.tools.accept.workbench_generality",
                              "twin-truth effects at parameters no acceptance case uses"),
-    "recalib-generality": ("tools.accept.recalib_generality",
+    "recalib-generality": ("tensortouch.tools.accept.recalib_generality",
                            "field recalibration on randomly drawn twin units"),
 }
 

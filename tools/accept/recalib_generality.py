@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.recalib.twin_bench import BenchUnit, TwinBenchConfig, markdown, run_bench, summary
+from ..recalib.twin_bench import BenchUnit, TwinBenchConfig, markdown, run_bench, summary
 
 
 def random_units(n: int, seed: int) -> tuple:

@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.calibration import CalibrationStore
-from runtime.effects import EffectChain, Registry
-from tools.accept.alter import alter_session
-from tools.workbench.compare import run_compare
-from tools.workbench.diagnose import add_to_chain, diagnose
-from tools.workbench.fit import refit_chain
-from tools.workbench.scenarios import NET_TEST_SEED, net_scenario, record, store_root
+from ...contracts.store import CalibrationStore
+from ...runtime.stages.effects import EffectChain, Registry
+from .alter import alter_session
+from ..workbench.compare import run_compare
+from ..workbench.diagnose import add_to_chain, diagnose
+from ..workbench.fit import refit_chain
+from ..workbench.scenarios import NET_TEST_SEED, net_scenario, record, store_root
 
 log = logging.getLogger(__name__)
 SENSOR = "TWIN-WB01"
@@ -87,9 +87,9 @@ class Bench:
 
     def __init__(self, model_dir: str | Path | None, work: Path, calib_seeds=CALIB_SEEDS,
                  precision: str = "int8"):
-        from runtime.model import find_package
-        from tools.workbench.network import NetworkConfig, NetworkModel
-        from tools.workbench.nominal import fit_and_store_correction
+        from ...runtime.stages.model import find_package
+        from ..workbench.network import NetworkConfig, NetworkModel
+        from ..workbench.nominal import fit_and_store_correction
 
         self.package = find_package(str(model_dir) if model_dir else None)
         self.model = NetworkModel(self.package, NetworkConfig(precision=precision))

@@ -12,7 +12,7 @@ import json
 import logging
 from pathlib import Path
 
-from tools.accept import workbench as acc
+from . import workbench as acc
 
 CASES = (("viscoelastic_relaxation", {"g1": 0.4, "tau": 3.0}),
          ("temperature_softening", {"alpha": 0.03, "t_ref": 22.0}),

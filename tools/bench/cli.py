@@ -11,14 +11,14 @@ import logging
 log = logging.getLogger(__name__)
 
 AREAS = {
-    "runtime": ("tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32"),
-    "contacts": ("tools.bench.contacts_bench", "contact clustering with vs without the light-touch rule"),
-    "hand": ("tools.bench.hand_bench", "N sensors in one process: frames/s per sensor, p99, soak drift"),
-    "fe": ("tools.fe.bench", "FE solver: seconds per keypoint frame / 5-keypoint trajectory"),
-    "twin": ("tools.twin.bench", "digital twin: seconds of recording per minute of compute"),
-    "workbench": ("tools.workbench.bench", "compare → diagnose → add → compare"),
-    "recalib": ("tools.recalib.twin_bench", "field recalibration on twin units: held-out |F| error before/after"),
-    "recalib-synthetic": ("tools.recalib.bench", "field recalibration on synthetic force fields (no network)"),
+    "runtime": ("tensortouch.tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32"),
+    "contacts": ("tensortouch.tools.bench.contacts_bench", "contact clustering with vs without the light-touch rule"),
+    "hand": ("tensortouch.tools.bench.hand_bench", "N sensors in one process: frames/s per sensor, p99, soak drift"),
+    "fe": ("tensortouch.tools.fe.bench", "FE solver: seconds per keypoint frame / 5-keypoint trajectory"),
+    "twin": ("tensortouch.tools.twin.bench", "digital twin: seconds of recording per minute of compute"),
+    "workbench": ("tensortouch.tools.workbench.bench", "compare → diagnose → add → compare"),
+    "recalib": ("tensortouch.tools.recalib.twin_bench", "field recalibration on twin units: held-out |F| error before/after"),
+    "recalib-synthetic": ("tensortouch.tools.recalib.bench", "field recalibration on synthetic force fields (no network)"),
 }
 
 

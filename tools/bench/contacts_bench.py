@@ -37,7 +37,7 @@ def touch_field(cal, touches, noise_n: float = 2e-4, seed: int = 0) -> np.ndarra
 
 
 def _time(fp, args_, cfg, n: int) -> tuple[float, list]:
-    from runtime.contacts import find_clusters
+    from ...runtime.stages.contacts import find_clusters
 
     for _ in range(20):
         cl = find_clusters(fp, *args_, cfg=cfg)
@@ -48,8 +48,8 @@ def _time(fp, args_, cfg, n: int) -> tuple[float, list]:
 
 
 def run(args) -> int:
-    from runtime.calibration import CalibrationStore
-    from runtime.contacts import ContactConfig
+    from ...contracts.store import CalibrationStore
+    from ...runtime.stages.contacts import ContactConfig
 
     cal = CalibrationStore(args.store).load(args.sensor)
     args_ = (cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask)

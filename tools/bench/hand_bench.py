@@ -1,4 +1,4 @@
-"""`tensortouch bench hand`: N replayed sensors in one process (runtime/hand.py), side by side.
+"""`tensortouch bench hand`: N replayed sensors in one process (runtime/apps/hand.py), side by side.
 
 Throughput: every finger replays an MJPG recording as fast as it decodes (looping) through the
 exact deploy code (camera → SensorPipeline → Zenoh Publisher on one shared session), for each
@@ -53,9 +53,9 @@ def resolve_model(model: str | None, size: int | None, work: Path):
 
     A named package whose size differs from an explicit `--size` is an error (the calibration is
     built at the package's size)."""
-    from runtime.errors import ModelPackageError
-    from runtime.model import find_package, installed_packages, load_package
-    from tools.bench.models import write_package
+    from ...contracts.errors import ModelPackageError
+    from ...runtime.stages.model import find_package, installed_packages, load_package
+    from .models import write_package
 
     if model != SYNTHETIC and (model or installed_packages()):
         pkg = find_package(model)
@@ -71,7 +71,7 @@ def resolve_model(model: str | None, size: int | None, work: Path):
 
 
 def _setup(work: Path, n: int, model: str | None, size: int | None, width: int = 320, height: int = 240):
-    from tools.bench.runtime_bench import _calibration, synthetic_frames, write_video
+    from .runtime_bench import _calibration, synthetic_frames, write_video
 
     pkg, synthetic = resolve_model(model, size, work)
     size = pkg.size[0]
@@ -85,7 +85,7 @@ def _setup(work: Path, n: int, model: str | None, size: int | None, width: int =
 
 
 def _config(pkg, work, videos, serials, share, workers, precision, camera, endpoint):
-    from runtime.hand_config import FingerConfig, HandConfig
+    from ...runtime.apps.hand_config import FingerConfig, HandConfig
 
     fingers = tuple(FingerConfig(name=f"f{i}", serial=s, source=f"file:{v}")
                     for i, (s, v) in enumerate(zip(serials, videos)))
@@ -114,8 +114,8 @@ def _free_endpoint() -> str:
 
 
 def run_mode(cfg, seconds: float, warmup: float) -> dict:
-    from runtime.hand import Hand
-    from runtime.publisher import open_session
+    from ...runtime.apps.hand import Hand
+    from ...runtime.apps.publisher import open_session
 
     hand = Hand(cfg).start()
     listener = open_session(connect=list(cfg.listen))
@@ -183,7 +183,7 @@ class _ProcLatency:
 
 
 def soak(cfg, seconds: float, log_every: float, log_path: Path, fps: float) -> dict:
-    from runtime.hand import Hand
+    from ...runtime.apps.hand import Hand
 
     lat = _ProcLatency()
     hand = Hand(cfg, on_result=lat).start()
@@ -312,7 +312,7 @@ def from_log(args) -> int:
 def run(args) -> int:
     import tempfile
 
-    from runtime import paths
+    from ...contracts import paths
 
     if args.from_log:
         return from_log(args)

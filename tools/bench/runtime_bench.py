@@ -63,8 +63,8 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float = 60.0) -> Path
 
 
 def _calibration(root: Path, sensor: str, size: int, width: int, height: int):
-    from runtime.calibration import CalibrationStore
-    from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
+    from ...contracts.store import CalibrationStore
+    from ...runtime.stages.geometry import DomeProfile, equidistant_theta_phi, surface_tables
 
     theta, phi = equidistant_theta_phi((size, size), np.deg2rad(100))
     tables = surface_tables(theta, phi, DomeProfile())
@@ -78,8 +78,8 @@ def _calibration(root: Path, sensor: str, size: int, width: int, height: int):
 
 def _package_for(size: int, work: Path):
     """(package, synthetic?) — the shipped model at this size if installed, else a synthetic one."""
-    from runtime.model import installed_packages, load_package
-    from tools.bench.models import write_package
+    from ...runtime.stages.model import installed_packages, load_package
+    from .models import write_package
 
     for folder in installed_packages():
         try:
@@ -100,9 +100,9 @@ def fp32_package(pkg, work: Path):
     deterministic, so the hash is checked again); the package is then assembled in `work`."""
     import shutil
 
-    from runtime.calibration import sha256_file
-    from runtime.model import PRECISION_FILES, load_package
-    from runtime.paths import ROOT
+    from ...contracts.store import sha256_file
+    from ...runtime.stages.model import PRECISION_FILES, load_package
+    from ...contracts.paths import ROOT
 
     if pkg.has("fp32"):
         return pkg, "shipped in the package"
@@ -124,8 +124,8 @@ def fp32_package(pkg, work: Path):
             return None, (f"fp32 graph neither in the build cache ({cached}) nor regenerable (fit run "
                           f"{run} has no best.pt); regenerate with: {info.get('regenerate', 'tensortouch train export')}")
         try:
-            from tools.train.export import export_onnx
-            from tools.train.model.train import load_trained
+            from ..train.export import export_onnx
+            from ..train.model.train import load_trained
         except ImportError as exc:
             return None, f"fp32 graph not in the build cache and the train extra is missing ({exc})"
         model, _ = load_trained(run)
@@ -151,9 +151,9 @@ class _Config:
     """One (model, precision) frame loop of the benchmark, run in chunks alternating with the others."""
 
     def __init__(self, pkg, precision: str, video: Path, cal, threads: int, publisher, fields_every: int):
-        from drivers.camera import camera_from_uri
-        from runtime.loop import LatencyWindow, LoopConfig, SensorLoop
-        from runtime.pipeline import open_pipeline
+        from ...drivers.camera import camera_from_uri
+        from ...runtime.apps.loop import LatencyWindow, LoopConfig, SensorLoop
+        from ...runtime.pipeline import open_pipeline
 
         self.pipe = open_pipeline(pkg, cal, precision=precision, threads=threads)
         self.cam = camera_from_uri(f"file:{video}", realtime=False, loop=True)
@@ -186,7 +186,7 @@ class _Config:
 def run(args) -> int:
     import cv2
 
-    from runtime.publisher import Publisher
+    from ...runtime.apps.publisher import Publisher
 
     cv2.setNumThreads(1)           # as `tensortouch run` does: one core for the whole sensor loop
 

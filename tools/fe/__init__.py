@@ -6,15 +6,15 @@ Public API (stable; see docs/fe.md):
     solve(scenario, progress=None) -> FEResult              -- tools.fe.solver
 Heavy libraries (felupe, gmsh, trimesh) are imported lazily inside functions.
 """
-from tools.fe.errors import FEConvergenceError, FEError, FEResultError, ScenarioError
-from tools.fe.result import FEResult, load_result, save_result
-from tools.fe.scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings, Scenario,
+from .errors import FEConvergenceError, FEError, FEResultError, ScenarioError
+from .result import FEResult, load_result, save_result
+from .scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings, Scenario,
                                SolverSettings, load_scenario, save_scenario, standard_dome)
 
 
 def solve(scenario, progress=None, mesh=None):
     """Solve an FE scenario; see tools.fe.solver.solve (mesh: optional prebuilt GelMesh)."""
-    from tools.fe.solver import solve as _solve
+    from .solver import solve as _solve
 
     return _solve(scenario, progress=progress, mesh=mesh)
 

@@ -8,7 +8,7 @@ the files it references (mesh indenters, STL gels), the worker solves it in a sc
 returns the result file's bytes, and the client writes them into the cache. So a remote worker
 needs the package installed but no shared filesystem, and cache, index and resume are the same.
 
-Layout of the cache folder (default runtime.paths.cache_dir()/fe):
+Layout of the cache folder (default contracts.paths.cache_dir()/fe):
     <hash>.npz            the result (written atomically, so an interrupted run leaves no half file)
     <hash>.failed.json    the error of a scenario that failed (skipped on resume unless retry_failed)
     index.json            scenario file -> hash, status, seconds (rewritten atomically after each job)
@@ -25,17 +25,17 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from tools.fe.errors import FEError, ScenarioError
-from tools.fe.scenario import load_scenario
-from runtime.files import atomic_write, atomic_write_json
-from tools.progress import stage_progress
+from .errors import FEError, ScenarioError
+from .scenario import load_scenario
+from ...contracts.files import atomic_write, atomic_write_json
+from ..progress import stage_progress
 
 log = logging.getLogger(__name__)
 CONNECT_TIMEOUT = "30s"  # to reach a Dask scheduler
 
 
 def default_dir() -> Path:
-    from runtime.paths import cache_dir
+    from ...contracts.paths import cache_dir
 
     return cache_dir() / "fe"
 
@@ -77,9 +77,9 @@ def make_payload(scenario) -> dict:
 def solve_payload(payload: dict) -> dict:
     """The job (local pool process or cluster worker): solve one packed scenario; returns
     {"status", "seconds", "npz": result file bytes} or {"status": "failed", "error", "seconds"}."""
-    from tools.fe.result import save_result
-    from tools.fe.scenario import scenario_from_dict
-    from tools.fe.solver import solve
+    from .result import save_result
+    from .scenario import scenario_from_dict
+    from .solver import solve
 
     t0 = time.time()
     try:

@@ -36,8 +36,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from tools.fe.scenario import standard_dome
-    from tools.fe.solver import build_mesh, solve
+    from .scenario import standard_dome
+    from .solver import build_mesh, solve
 
     mesh_kw = {"size_top": QUICK_SIZE_TOP} if args.quick else {}
     if args.order == 2:

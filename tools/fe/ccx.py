@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.fe.errors import FEError
+from .errors import FEError
 
 _BLOCK = re.compile(r"forces \(fx,fy,fz\) for set (\S+) and time\s+(\S+)")
 
@@ -83,8 +83,8 @@ def crosscheck(scenario, workdir, bulk: str = "solver", threads: int = 1) -> dic
 
     Returns {"ours", "ccx": RF (F,K,3) N; "ours_moment", "ccx_moment": (F,K,3) N·mm about the
     reference point (ccx: the reaction at the rotation node); "seconds_ours", "seconds_ccx", "deck"}."""
-    from tools.fe.inp import export_inp_ccx
-    from tools.fe.solver import build_mesh, solve
+    from .inp import export_inp_ccx
+    from .solver import build_mesh, solve
 
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,6 @@
 """`tensortouch fe ...`: solve one scenario, run a batch, fit materials, make indenters, export .inp.
 
-Registered through the entry point `fe = "tools.fe.cli:register"`; also `python -m tools.fe.cli`.
+Registered through the entry point `fe = "tensortouch.tools.fe.cli:register"`; also `python -m tools.fe.cli`.
 Heavy libraries are imported inside the handlers.
 """
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.progress import stage_progress
+from ..progress import stage_progress
 
 log = logging.getLogger(__name__)
 
@@ -21,9 +21,9 @@ def _progress(desc="fe solve"):
 
 
 def _cmd_solve(args) -> int:
-    from tools.fe.result import save_result
-    from tools.fe.scenario import load_scenario, save_scenario, standard_dome
-    from tools.fe.solver import solve
+    from .result import save_result
+    from .scenario import load_scenario, save_scenario, standard_dome
+    from .solver import solve
 
     scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
     if args.write_scenario:
@@ -36,7 +36,7 @@ def _cmd_solve(args) -> int:
 
 
 def _cmd_batch(args) -> int:
-    from tools.fe.batch import run_batch
+    from .batch import run_batch
 
     report = run_batch(args.scenarios, out_dir=args.out_dir, workers=args.workers, retry_failed=args.retry_failed,
                        cluster=args.cluster)
@@ -46,7 +46,7 @@ def _cmd_batch(args) -> int:
 
 
 def _cmd_fit(args) -> int:
-    from tools.fe.fitting import fit_report, load_test_data, synthetic_test_data
+    from .fitting import fit_report, load_test_data, synthetic_test_data
 
     data = synthetic_test_data() if args.data == "synthetic" else load_test_data(args.data)
     report = fit_report(data, models=args.models.split(","), plot=args.plot)
@@ -59,7 +59,7 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_ind_generate(args) -> int:
-    from tools.fe.procedural import generate_set
+    from .procedural import generate_set
 
     paths = generate_set(args.out_dir, seed=args.seed, count=args.count)
     for p in paths:
@@ -68,7 +68,7 @@ def _cmd_ind_generate(args) -> int:
 
 
 def _cmd_ind_list(args) -> int:
-    from tools.fe.procedural import OBJECT_KINDS
+    from .procedural import OBJECT_KINDS
 
     for name, doc in OBJECT_KINDS.items():
         print(f"{name:16s} {doc}")
@@ -76,8 +76,8 @@ def _cmd_ind_list(args) -> int:
 
 
 def _cmd_inp(args) -> int:
-    from tools.fe.inp import export_inp
-    from tools.fe.scenario import load_scenario, standard_dome
+    from .inp import export_inp
+    from .scenario import load_scenario, standard_dome
 
     scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
     path = export_inp(scenario, args.out, dialect=args.dialect, bulk=args.bulk)
@@ -86,8 +86,8 @@ def _cmd_inp(args) -> int:
 
 
 def _cmd_crosscheck(args) -> int:
-    from tools.fe.ccx import crosscheck
-    from tools.fe.scenario import load_scenario, standard_dome
+    from .ccx import crosscheck
+    from .scenario import load_scenario, standard_dome
 
     scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
     out = crosscheck(scenario, args.work_dir, bulk=args.bulk, threads=args.threads)
@@ -106,7 +106,7 @@ def _cmd_crosscheck(args) -> int:
 def _cmd_study(args) -> int:
     import json
 
-    from tools.fe.study import fz_table, run_study
+    from .study import fz_table, run_study
 
     rows = []
     for name in args.names:

@@ -1,7 +1,7 @@
-"""FE-specific errors, all subclasses of runtime.errors.TensorTouchError (printed as one line by the CLI)."""
+"""FE-specific errors, all subclasses of contracts.errors.TensorTouchError (printed as one line by the CLI)."""
 from __future__ import annotations
 
-from runtime.errors import TensorTouchError
+from ...contracts.errors import TensorTouchError
 
 
 class FEError(TensorTouchError):

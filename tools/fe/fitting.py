@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from tools.fe.errors import FEError
+from .errors import FEError
 
 log = logging.getLogger(__name__)
 
@@ -236,7 +236,7 @@ def fit_to_indentation(scenario, measured_rf, names=("C10",), rel_step=0.02, max
     function evaluation (cost ~ (len(names)+1) solves per iteration)."""
     import copy
 
-    from tools.fe.solver import build_mesh, solve
+    from .solver import build_mesh, solve
 
     mesh = build_mesh(scenario)
     target = np.asarray(measured_rf, float).ravel()

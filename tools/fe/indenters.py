@@ -14,8 +14,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from tools.fe.errors import ScenarioError
-from tools.fe.scenario import Indenter
+from .errors import ScenarioError
+from .scenario import Indenter
 
 log = logging.getLogger(__name__)
 

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.fe.indenters import rotmat
-from tools.fe.scenario import Indenter, Scenario
+from .indenters import rotmat
+from .scenario import Indenter, Scenario
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +136,7 @@ def rigid_tets(tri) -> tuple[np.ndarray, np.ndarray]:
 def _near_gel(ind, nodes, tets, lo, hi) -> np.ndarray:
     """The rigid tets with a node inside the gel's bounding box (grown by RIGID_MARGIN) at the
     initial pose or any keypoint: the rest of the indenter can never touch the gel."""
-    from tools.fe.indenters import pose_at
+    from .indenters import pose_at
 
     keep = np.zeros(len(tets), bool)
     for s in np.linspace(-1.0, len(ind.keypoints) - 1.0, 4 * len(ind.keypoints) + 1):
@@ -151,7 +151,7 @@ def _near_gel(ind, nodes, tets, lo, hi) -> np.ndarray:
 
 def step_increments(scenario: Scenario) -> list[int]:
     """Increments per keypoint step as tools.fe's solver takes them (max_increment_mm/_rad)."""
-    from tools.fe.indenters import pose_at
+    from .indenters import pose_at
 
     sv = scenario.solver
     out = []
@@ -167,8 +167,8 @@ def step_increments(scenario: Scenario) -> list[int]:
 
 def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver") -> Path:
     """CalculiX 2.20 deck (see the module docstring); returns its path."""
-    from tools.fe.materials import effective_bulk
-    from tools.fe.solver import build_mesh
+    from .materials import effective_bulk
+    from .solver import build_mesh
 
     if bulk not in BULK_CHOICES:
         raise ValueError(f"bulk {bulk!r}: expected one of {BULK_CHOICES}")
@@ -246,7 +246,7 @@ def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver") ->
 
 def _export_abaqus(scenario: Scenario, path, mesh=None) -> Path:
     """The Abaqus-keyword deck (parts, instance GEL-1, C3D4H, R3D3 rigid surfaces)."""
-    from tools.fe.solver import build_mesh
+    from .solver import build_mesh
 
     scenario.validate()
     gm = mesh if mesh is not None else build_mesh(scenario)

@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from tools.fe.materials import YeohUmat
-from tools.fe.mesh import mesh_gel
-from tools.fe.scenario import GelGeometry, Material, MeshSettings
+from .materials import YeohUmat
+from .mesh import mesh_gel
+from .scenario import GelGeometry, Material, MeshSettings
 
 log = logging.getLogger(__name__)
 

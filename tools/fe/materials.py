@@ -13,7 +13,7 @@ import logging
 
 import numpy as np
 
-from tools.fe.scenario import Material
+from .scenario import Material
 
 log = logging.getLogger(__name__)
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.fe.errors import ScenarioError
-from tools.fe.scenario import GelGeometry, MeshSettings
+from .errors import ScenarioError
+from .scenario import GelGeometry, MeshSettings
 
 log = logging.getLogger(__name__)
 

@@ -203,7 +203,7 @@ def make_indenter(kind: str, rng: np.random.Generator):
 def generate_set(out_dir=None, seed: int = 0, count: int = 12) -> list[Path]:
     """Write `count` standardized indenters (cycling through the kinds) + manifest.json; deterministic."""
     if out_dir is None:
-        from runtime.paths import cache_dir
+        from ...contracts.paths import cache_dir
 
         out_dir = cache_dir() / "fe" / "indenters"
     out = Path(out_dir)

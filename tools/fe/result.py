@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.fe.errors import FEResultError
+from .errors import FEResultError
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +89,7 @@ class FEResult:
 
     def scenario(self):
         """The Scenario that produced this result."""
-        from tools.fe.scenario import scenario_from_dict
+        from .scenario import scenario_from_dict
 
         return scenario_from_dict(json.loads(self.scenario_json), source="result.scenario_json")
 

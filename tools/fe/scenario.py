@@ -24,7 +24,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from tools.fe.errors import ScenarioError
+from .errors import ScenarioError
 
 log = logging.getLogger(__name__)
 

@@ -15,13 +15,13 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from tools.fe import contact as fc
-from tools.fe.errors import FEConvergenceError, ScenarioError
-from tools.fe.indenters import make_shape, pose_at, rotmat
-from tools.fe.materials import effective_bulk, make_umat
-from tools.fe.mesh import GelMesh, mesh_gel
-from tools.fe.result import FEResult
-from tools.fe.scenario import Scenario
+from . import contact as fc
+from .errors import FEConvergenceError, ScenarioError
+from .indenters import make_shape, pose_at, rotmat
+from .materials import effective_bulk, make_umat
+from .mesh import GelMesh, mesh_gel
+from .result import FEResult
+from .scenario import Scenario
 
 log = logging.getLogger(__name__)
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.fe.scenario import Keypoint, standard_dome
+from .scenario import Keypoint, standard_dome
 
 STUDIES = ("press", "slide", "mupress", "locking", "mesh")
 GAP = 0.05  # mm: the standard dome's indenter starts this far above the apex
@@ -32,17 +32,17 @@ def _press(depths, mu=0.0, **mesh):
 
 
 def _ours(sc, label, **extra):
-    from tools.fe.solver import solve
+    from .solver import solve
 
     t0 = time.time()
     res = solve(sc)
-    return {"solver": "tools.fe", "settings": label, "RF": res.RF[:, 0].round(5).tolist(),
+    return {"solver": "tensortouch.tools.fe", "settings": label, "RF": res.RF[:, 0].round(5).tolist(),
             "seconds": round(time.time() - t0, 1), **extra}
 
 
 def _ccx(sc, work: Path, label, bulk="solver", **extra):
-    from tools.fe.ccx import read_reactions, run_ccx
-    from tools.fe.inp import export_inp_ccx
+    from .ccx import read_reactions, run_ccx
+    from .inp import export_inp_ccx
 
     deck = export_inp_ccx(sc, work / f"{label}.inp", bulk=bulk)
     seconds = run_ccx(deck)
@@ -51,7 +51,7 @@ def _ccx(sc, work: Path, label, bulk="solver", **extra):
 
 
 def run_study(name: str, work_dir, emit=print) -> list[dict]:
-    import tools.fe.solver as fs
+    from . import solver as fs
 
     if name not in STUDIES:
         raise ValueError(f"study {name!r}: expected one of {STUDIES}")

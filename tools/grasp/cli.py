@@ -68,10 +68,10 @@ def cmd_mount(args) -> int:
         print(f"tensortouch mount: {why}", file=sys.stderr)
         return 2
 
-    from runtime.errors import TensorTouchError
-    from runtime.files import atomic_write
-    from tools.grasp import figures, graph, hand_model, mount
-    from tools.grasp.workspace import WorkspaceConfig
+    from ...contracts.errors import TensorTouchError
+    from ...contracts.files import atomic_write
+    from . import figures, graph, hand_model, mount
+    from .workspace import WorkspaceConfig
 
     if args.samples < 10:
         print(f"--samples: expected at least 10, got {args.samples}", file=sys.stderr)
@@ -124,8 +124,8 @@ def cmd_mount(args) -> int:
 def cmd_grasp(args) -> int:
     import time
 
-    from runtime.errors import TensorTouchError
-    from tools.grasp import trial
+    from ...contracts.errors import TensorTouchError
+    from . import trial
 
     if args.trials < 1:
         print(f"--trials: expected at least 1, got {args.trials}", file=sys.stderr)
@@ -165,7 +165,7 @@ def cmd_grasp(args) -> int:
                       f"({r.seconds:.1f} s; {n_ok} successes so far; {time.monotonic() - t0:.0f} s total)",
                       file=sys.stderr, flush=True)
                 if frames:
-                    from tools.grasp.pictures import trial_sequence
+                    from .pictures import trial_sequence
 
                     trial_sequence(frames, r, out / f"grasp_trial_{pair.replace('+', '_')}.png")
                 trial.save_results(results, out)

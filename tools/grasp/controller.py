@@ -2,7 +2,7 @@
 the contact-graph path to a pinch on that object alone.
 
 Inputs, and the only ones: the contact messages the two fingertip sensors publish (decoded
-`runtime.wire.ContactsFrame`s, delivered by a `runtime.subscriber.Subscriber`) and the contact
+`contracts.wire.ContactsFrame`s, delivered by a `runtime.apps.subscriber.Subscriber`) and the contact
 graph (joint angles, fingertip poses and contact points of known pinches). It never sees the
 simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
 
@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.grasp.graph import ContactGraph
-from tools.grasp.sensor_mount import SensorMount
+from .graph import ContactGraph
+from .sensor_mount import SensorMount
 
 
 @dataclass(frozen=True)
@@ -193,7 +193,7 @@ class ControllerNode:
     """Wires a controller to Zenoh: one Subscriber per fingertip sensor id."""
 
     def __init__(self, controller: SelectiveGraspController, session, sensor_ids: dict[str, str]):
-        from runtime.subscriber import Subscriber
+        from ...runtime.apps.subscriber import Subscriber
 
         self.controller = controller
         self.subs = [Subscriber(sid, session=session, on_contacts=lambda fr, s=name: controller.on_contacts(s, fr))

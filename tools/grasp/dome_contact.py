@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.twin.geometry import GelSurface
+from ..twin.geometry import GelSurface
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.grasp.mount import MountResult
+from .mount import MountResult
 
 
 def _plt():

@@ -21,11 +21,11 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from runtime.errors import TensorTouchError
-from runtime.files import atomic_write
-from tools.grasp.hand_model import HandSpec, limits
-from tools.grasp.sensor_mount import SensorMount
-from tools.grasp.workspace import WorkspaceConfig, evaluate, sample_q
+from ...contracts.errors import TensorTouchError
+from ...contracts.files import atomic_write
+from .hand_model import HandSpec, limits
+from .sensor_mount import SensorMount
+from .workspace import WorkspaceConfig, evaluate, sample_q
 
 SCHEMA = "tensortouch.contact_graph/1"
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import TensorTouchError
-from runtime.files import atomic_write
+from ...contracts.errors import TensorTouchError
+from ...contracts.files import atomic_write
 
 ALLEGRO_RIGHT = "robots/allegro_hand_description/urdf/allegro_right_hand.urdf"
 

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.grasp import hand_model
-from tools.grasp.axis import Axis, best_inlier_axis, pca_axis
-from tools.grasp.hand_model import HandSpec
-from tools.grasp.workspace import Workspace, WorkspaceConfig, evaluate, sample_q
+from . import hand_model
+from .axis import Axis, best_inlier_axis, pca_axis
+from .hand_model import HandSpec
+from .workspace import Workspace, WorkspaceConfig, evaluate, sample_q
 
 
 @dataclass(frozen=True)

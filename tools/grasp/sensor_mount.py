@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.twin.geometry import GelSurface
+from ..twin.geometry import GelSurface
 
 
 @dataclass(frozen=True)

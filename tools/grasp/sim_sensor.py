@@ -9,10 +9,10 @@ import threading
 import cv2
 import numpy as np
 
-from runtime.loop import LoopConfig, SensorLoop
-from runtime.publisher import Publisher
-from tools.grasp.dome_contact import DomeContactConfig, ObjectContact, displacement
-from tools.grasp.sim_camera import SimCamera
+from ...runtime.apps.loop import LoopConfig, SensorLoop
+from ...runtime.apps.publisher import Publisher
+from .dome_contact import DomeContactConfig, ObjectContact, displacement
+from .sim_camera import SimCamera
 
 
 class SimFingertip:

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.grasp.dome_contact import ObjectContact
-from tools.grasp.scene import Scene
-from tools.grasp.sensor_mount import SensorMount
+from .dome_contact import ObjectContact
+from .scene import Scene
+from .sensor_mount import SensorMount
 
 
 @dataclass(frozen=True)

@@ -21,17 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.grasp import graph as graph_mod
-from tools.grasp.controller import (
+from . import graph as graph_mod
+from .controller import (
     ControllerConfig,
     ControllerNode,
     SelectiveGraspController,
 )
-from runtime.files import atomic_write
-from tools.grasp.hand_model import HandSpec
-from tools.grasp.scene import PAIRS, Scene, SceneConfig
-from tools.grasp.sensor_mount import SensorMount
-from tools.grasp.touch import GelTouch
+from ...contracts.files import atomic_write
+from .hand_model import HandSpec
+from .scene import PAIRS, Scene, SceneConfig
+from .sensor_mount import SensorMount
+from .touch import GelTouch
 
 log = logging.getLogger(__name__)
 
@@ -92,10 +92,10 @@ class Bench:
 
     def __init__(self, graph_path, urdf, cfg: TrialConfig | None = None, model=None, store=None,
                  ctrl_cfg: ControllerConfig | None = None, scene_cfg: SceneConfig | None = None):
-        from runtime.calibration import CalibrationStore
-        from runtime.model import find_package
-        from runtime.publisher import open_session
-        from tools.twin.unit import TwinUnit
+        from ...contracts.store import CalibrationStore
+        from ...runtime.stages.model import find_package
+        from ...runtime.apps.publisher import open_session
+        from ..twin.unit import TwinUnit
 
         self.cfg = cfg or TrialConfig()
         self.graph = graph_mod.load(graph_path)
@@ -123,8 +123,8 @@ class Bench:
         self.pub_session.close()
 
     def trial(self, pair: str, seed: int, frames_out: list | None = None) -> TrialResult:
-        from runtime.pipeline import open_pipeline
-        from tools.grasp.sim_sensor import SimFingertip
+        from ...runtime.pipeline import open_pipeline
+        from .sim_sensor import SimFingertip
 
         t0 = time.perf_counter()
         cfg, g, s = self.cfg, self.graph, self.start

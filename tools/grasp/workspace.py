@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.grasp.hand_model import HandSpec, limits, q_indices
-from tools.grasp.manipulability import manipulability
+from .hand_model import HandSpec, limits, q_indices
+from .manipulability import manipulability
 
 
 @dataclass(frozen=True)

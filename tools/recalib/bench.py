@@ -21,8 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from tools.recalib.fit import FitConfig, chosen_inputs, columns, corrected_magnitude, decide, error_stats, fit_correction, fit_forest
-from tools.recalib.synthetic import SyntheticUnit, random_units
+from .fit import FitConfig, chosen_inputs, columns, corrected_magnitude, decide, error_stats, fit_correction, fit_forest
+from .synthetic import SyntheticUnit, random_units
 
 log = logging.getLogger(__name__)
 

@@ -55,7 +55,7 @@ def _frames(camera, pipeline, restamp: bool = False):
     """(t, clusters) per frame; `restamp` puts a replay on the serial gauge's monotonic clock."""
     import time
 
-    from drivers.camera.camera import EndOfStream
+    from ...drivers.camera.camera import EndOfStream
 
     while True:
         try:
@@ -69,9 +69,9 @@ def _frames(camera, pipeline, restamp: bool = False):
 def _recentre(camera, pipeline, cal, n: int, say):
     """Geometry first: the gel rim in `n` rest frames → (calibration with the re-crop, crop changes,
     rim report, the rest frames). The frames also start the pipeline's baseline (fed by the caller)."""
-    from drivers.camera.camera import EndOfStream
-    from runtime.errors import CalibrationError
-    from tools.recalib.rim import crop_changes, fit_rim, recrop, rest_image
+    from ...drivers.camera.camera import EndOfStream
+    from ...contracts.errors import CalibrationError
+    from .rim import crop_changes, fit_rim, recrop, rest_image
 
     say(f"keep the gel untouched: reading {n} frames to find the gel rim")
     frames = []
@@ -104,8 +104,8 @@ def _chain(first, pipeline, rest, restamp: bool = False):
 
 
 def _reference(args, session, say):
-    from runtime.errors import TensorTouchError
-    from tools.recalib.session import GaugeReference, StreamReference, TypedReference
+    from ...contracts.errors import TensorTouchError
+    from .session import GaugeReference, StreamReference, TypedReference
 
     kind = args.gauge or ("session" if session is not None and session.has("wrench") else "typed")
     if kind == "session":
@@ -114,7 +114,7 @@ def _reference(args, session, say):
         return StreamReference.from_session(session), None
     if kind == "typed":
         return TypedReference(say=say), None
-    from drivers.gauge import ForceGauge, GaugeConfig
+    from ...drivers.gauge import ForceGauge, GaugeConfig
 
     url = kind.split(":", 1)[1] if kind.startswith("serial:") else kind
     baud = args.baud or (9600 if args.gauge_protocol == "mark10" else 115200)
@@ -137,21 +137,21 @@ def _print_errors(an, say) -> None:
 
 
 def cmd_recalibrate(args, say=None) -> int:
-    from drivers.camera import camera_from_uri
-    from runtime.calibration import CalibrationStore
-    from runtime.correction import ForceCorrection
-    from runtime.errors import TensorTouchError
-    from runtime.model import find_package
-    from runtime.pipeline import open_pipeline
-    from runtime.session import load_session
-    from tools.recalib.pokes import PokeRules
-    from tools.recalib.session import (
+    from ...drivers.camera import camera_from_uri
+    from ...contracts.store import CalibrationStore
+    from ...runtime.stages.correction import ForceCorrection
+    from ...contracts.errors import TensorTouchError
+    from ...runtime.stages.model import find_package
+    from ...runtime.pipeline import open_pipeline
+    from ...contracts.session import load_session
+    from .pokes import PokeRules
+    from .session import (
         SessionConfig,
         analyse,
         run_guided,
         session_truth_xyz,
     )
-    from tools.recalib.store_ops import store_recalibration
+    from .store_ops import store_recalibration
 
     say = say or (lambda msg: print(msg, file=sys.stderr))
     if args.report:
@@ -250,7 +250,7 @@ def _check_report_path(path: str) -> None:
     import os
     from pathlib import Path
 
-    from runtime.errors import TensorTouchError
+    from ...contracts.errors import TensorTouchError
 
     p = Path(path)
     folder = p.parent if str(p.parent) else Path(".")
@@ -263,8 +263,8 @@ def _check_report_path(path: str) -> None:
 
 
 def _write_report(path: str, report: dict) -> None:
-    """The report as JSON, written atomically (runtime.files)."""
-    from runtime.files import atomic_write_json
+    """The report as JSON, written atomically (contracts.files)."""
+    from ...contracts.files import atomic_write_json
 
     atomic_write_json(path, report, indent=2, default=float, mkdir=False)
 

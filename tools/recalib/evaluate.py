@@ -15,13 +15,13 @@ import logging
 
 import numpy as np
 
-from runtime.calibration import Calibration
-from runtime.correction import ForceCorrection
-from runtime.model import ModelPackage
-from runtime.offline import replay_session
-from runtime.session import load_session
-from tools.recalib.pokes import PokeDetector, PokeRules
-from tools.recalib.session import StreamReference
+from ...contracts.store import Calibration
+from ...runtime.stages.correction import ForceCorrection
+from ...runtime.stages.model import ModelPackage
+from ...runtime.offline import replay_session
+from ...contracts.session import load_session
+from .pokes import PokeDetector, PokeRules
+from .session import StreamReference
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +79,7 @@ def gauge_pokes(frames: list, reference, rules: PokeRules = PokeRules()) -> dict
     contact force (strongest cluster plus its parts within rules.merge_radius_mm, as the guided session
     merges them; 0 on frames without a cluster) over the frames inside the poke's plateau (the nearest
     frame when none is). frames: [(t, clusters)] in time order."""
-    from tools.recalib.pokes import merge_main
+    from .pokes import merge_main
 
     ts = np.array([t for t, _ in frames], float)
     pred, refs = [], []

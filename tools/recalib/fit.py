@@ -3,7 +3,7 @@
 Each poke pairs the model's cluster force F_pred (N, vector) with the reference force magnitude F_ref
 (N, from a force gauge or typed in) at a 2D contact position (u, v normalized to [0, 1] on the model
 grid). The forest learns the *gain* g = |F_ref| / |F_pred| as a function of force magnitude and
-position; the runtime applies F' = g · F_pred (runtime/correction.py, output kind "gain"), so a zero
+position; the runtime applies F' = g · F_pred (runtime/stages/correction.py, output kind "gain"), so a zero
 predicted force stays exactly zero whatever the forest says (the zero constraint), and the direction
 of the predicted force is kept.
 
@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from runtime.correction import FEATURES, feature_matrix
-from runtime.errors import CalibrationError
+from ...runtime.stages.correction import FEATURES, feature_matrix
+from ...contracts.errors import CalibrationError
 
 log = logging.getLogger(__name__)
 

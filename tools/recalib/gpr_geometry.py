@@ -11,7 +11,7 @@ fitted jointly by least squares (φ residuals in px, θ residuals scaled to px);
 (scikit-learn GaussianProcessRegressor) then models the remaining θ(d) residual, so far from the
 pokes the mapping falls back to the trend. Dense tables are evaluated on the model grid, which the
 preprocessor centres on the (new) gel centre with the crop radius R mapped to the grid's inscribed
-circle; grid ↔ camera px goes through runtime.preprocess.Preprocessor (to_raw / to_model) so the
+circle; grid ↔ camera px goes through runtime.stages.preprocess.Preprocessor (to_raw / to_model) so the
 tables match the runtime's crop exactly.
 
 Pure: arrays in, arrays out. No pickle: the GP lives only for the evaluation of the tables.
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from runtime.errors import CalibrationError
-from runtime.preprocess import Preprocessor
+from ...contracts.errors import CalibrationError
+from ...runtime.stages.preprocess import Preprocessor
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """Pokes: detection from per-frame clusters, acceptance rules, and where to poke next.
 
-Pure: clusters in (anything with `centroid_px`, `centroid_mm`, `force_n`, `force_mag_n`, like
-runtime.contacts.Cluster), poke summaries and verdicts out. A poke is a contact episode: it starts
+Pure: clusters in (anything with `uv_px`, `position_mm`, `force_n`, `force_mag_n`, like
+runtime.stages.contacts.Cluster), poke summaries and verdicts out. A poke is a contact episode: it starts
 when a cluster exceeds `contact_floor_n` and ends after `release_frames` frames without one. The
 poke's predicted force and position are averaged over its plateau (frames within
 `plateau_fraction` of the peak), and the reference force is averaged the same way over the gauge
@@ -95,17 +95,17 @@ class PokeDetector:
 
 
 def merge_main(clusters, radius_mm: float):
-    """(force (3,), centroid_px, centroid_mm, magnitude, strongest other contact's magnitude) of the
+    """(force (3,), uv_px, position_mm, magnitude, strongest other contact's magnitude) of the
     strongest cluster together with the clusters within `radius_mm` of it (one contact split in parts;
     force vectors summed, positions force-weighted)."""
     main = clusters[0]
-    c0 = np.asarray(main.centroid_mm, float)
-    part = [c for c in clusters if np.linalg.norm(np.asarray(c.centroid_mm, float) - c0) <= radius_mm]
-    other = [c.force_mag_n for c in clusters if np.linalg.norm(np.asarray(c.centroid_mm, float) - c0) > radius_mm]
+    c0 = np.asarray(main.position_mm, float)
+    part = [c for c in clusters if np.linalg.norm(np.asarray(c.position_mm, float) - c0) <= radius_mm]
+    other = [c.force_mag_n for c in clusters if np.linalg.norm(np.asarray(c.position_mm, float) - c0) > radius_mm]
     w = np.array([c.force_mag_n for c in part]) + 1e-12
     force = np.sum([np.asarray(c.force_n, float) for c in part], axis=0)
-    uv = np.average([np.asarray(c.centroid_px, float) for c in part], axis=0, weights=w)
-    xyz = np.average([np.asarray(c.centroid_mm, float) for c in part], axis=0, weights=w)
+    uv = np.average([np.asarray(c.uv_px, float) for c in part], axis=0, weights=w)
+    xyz = np.average([np.asarray(c.position_mm, float) for c in part], axis=0, weights=w)
     return force, uv, xyz, float(np.linalg.norm(force)), max(other, default=0.0)
 
 

@@ -20,8 +20,8 @@ def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path 
     """(t, clusters) of every frame of a replayed recording as `tensortouch run` publishes them with the
     correction off: the raw model force after the calibration's enabled effects
     (runtime.offline.replay_session; `cache`: its network-pass cache folder)."""
-    from runtime.correction import ForceCorrection
-    from runtime.offline import replay_session
+    from ...runtime.stages.correction import ForceCorrection
+    from ...runtime.offline import replay_session
 
     return [(r.t, r.clusters) for r in replay_session(session_dir, package, cal, cache=cache, precision=precision,
                                                       correction=ForceCorrection(None, None))]
@@ -32,12 +32,12 @@ def mae(m: dict) -> float:
 
 
 def corrected_frames(frames: list, cal, corr=None) -> list:
-    """The runtime's correction stage (runtime.correction.ForceCorrection of `cal`, features exactly as
+    """The runtime's correction stage (runtime.stages.correction.ForceCorrection of `cal`, features exactly as
     SensorPipeline computes them) applied to recorded raw-model clusters; frames are copied."""
     from dataclasses import replace as dc_replace
 
-    from runtime.correction import ForceCorrection
-    from runtime.pipeline import correction_inputs
+    from ...runtime.stages.correction import ForceCorrection
+    from ...runtime.pipeline import correction_inputs
 
     corr = corr if corr is not None else ForceCorrection.from_calibration(cal)
     out = []
@@ -54,6 +54,6 @@ def corrected_frames(frames: list, cal, corr=None) -> list:
 def held_out_pokes(frames: list, reference, rules, by: str = "gauge") -> dict:
     """The reference's pokes with the sensor's force in them (tools.recalib.evaluate.gauge_pokes), or
     with by="detected" the single-contact pokes the sensor detected (pair_pokes)."""
-    from tools.recalib.evaluate import gauge_pokes, pair_pokes
+    from .evaluate import gauge_pokes, pair_pokes
 
     return gauge_pokes(frames, reference, rules) if by == "gauge" else pair_pokes(frames, reference, rules)

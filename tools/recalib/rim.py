@@ -1,6 +1,6 @@
-"""The rim re-centring core lives in runtime/rim.py (`tensortouch calib init` needs it in a deploy
+"""The rim re-centring core lives in runtime/calib/rim.py (`tensortouch calib init` needs it in a deploy
 install); this module keeps the recalibration's import path."""
-from runtime.rim import (
+from ...runtime.calib.rim import (
                          RimConfig,
                          RimFit,
                          circle_lsq,

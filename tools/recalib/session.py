@@ -17,15 +17,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.calibration import Calibration
-from runtime.errors import CalibrationError
-from runtime.geometry import sample_bilinear
-from tools.recalib.fit import CorrectionFit, Decision, FitConfig, PokeSet, decide, error_stats, fit_correction
-from tools.recalib.gpr_geometry import (GeometryFit, GeometryFitConfig, camera_to_model, model_to_camera,
+from ...contracts.store import Calibration
+from ...contracts.errors import CalibrationError
+from ...runtime.stages.geometry import sample_bilinear
+from .fit import CorrectionFit, Decision, FitConfig, PokeSet, decide, error_stats, fit_correction
+from .gpr_geometry import (GeometryFit, GeometryFitConfig, camera_to_model, model_to_camera,
                                         refresh_geometry, theta_phi_from_xyz)
-from tools.recalib.pokes import (Poke, PokeDetector, PokeRules, ascii_map, check_poke, describe,
+from .pokes import (Poke, PokeDetector, PokeRules, ascii_map, check_poke, describe,
                                  reference_from_readings, suggest_next)
-from tools.recalib.store_ops import active_magnitudes
+from .store_ops import active_magnitudes
 
 log = logging.getLogger(__name__)
 
@@ -215,7 +215,7 @@ def analyse(pokes: list[Poke], cal: Calibration, cfg: SessionConfig = SessionCon
 def session_truth_xyz(session, pokes: list[Poke]) -> np.ndarray:
     """True 3D contact point (sensor frame, mm) of each poke from a recording: the twin's
     truth/contact.csv, else the mocap `poses` stream (indenter pose = its tip, docs/session.md)."""
-    from runtime.session import read_table
+    from ...contracts.session import read_table
 
     contact = session.path / "truth" / "contact.csv"
     if contact.is_file():

@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from runtime.calibration import TABLES, Calibration, CalibrationStore
-from runtime.correction import ForceCorrection
-from runtime.errors import CalibrationError, TensorTouchError
-from runtime.geometry import DomeProfile, surface_tables
+from ...contracts.store import TABLES, Calibration, CalibrationStore
+from ...runtime.stages.correction import ForceCorrection
+from ...contracts.errors import CalibrationError, TensorTouchError
+from ...runtime.stages.geometry import DomeProfile, surface_tables
 
 log = logging.getLogger(__name__)
 

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
-from tools.recalib.fit import PokeSet
-from tools.recalib.pokes import PokeRules, candidate_pixels, suggest_next
+from ...runtime.stages.geometry import DomeProfile, equidistant_theta_phi, surface_tables
+from .fit import PokeSet
+from .pokes import PokeRules, candidate_pixels, suggest_next
 
 log = logging.getLogger(__name__)
 

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.recalib.fit import chosen_inputs
-from tools.recalib.replay import collect_frames, corrected_frames, held_out_pokes, mae  # noqa: F401 (re-exported)
-from tools.recalib.twin_report import markdown, summary  # noqa: F401 (re-exported)
-from tools.recalib.twin_variants import geometry_stage, input_variants
+from .fit import chosen_inputs
+from .replay import collect_frames, corrected_frames, held_out_pokes, mae    # noqa: F401 (re-exported)
+from .twin_report import markdown, summary    # noqa: F401 (re-exported)
+from .twin_variants import geometry_stage, input_variants
 
 log = logging.getLogger(__name__)
 
@@ -102,14 +102,14 @@ class TwinBenchConfig:
     extra: dict = field(default_factory=dict)
 
     def folder(self) -> Path:
-        from runtime import paths
+        from ...contracts import paths
 
         return Path(self.root) if self.root else paths.cache_dir() / "recalib" / "twin"
 
 
 def nominal_calibration(size: int):
     """(tables, meta) of a unit without variation: what every unit ships with."""
-    from tools.twin.unit import TwinUnit, VariationConfig, calibration_meta, true_tables
+    from ..twin.unit import TwinUnit, VariationConfig, calibration_meta, true_tables
 
     unit = TwinUnit("TWIN-NOMINAL", variation=VariationConfig(stiffness=0.0, center_px=0.0, focal=0.0, led=0.0))
     meta = calibration_meta(unit, size)
@@ -120,7 +120,7 @@ def nominal_calibration(size: int):
 def unit_calibration(unit: "BenchUnit", size: int):
     """(tables, meta) of the unit's TRUE calibration (its own centre and lens): a unit shipped with a
     per-unit factory calibration whose gel (stiffness) changed since."""
-    from tools.twin.unit import TwinUnit, calibration_meta, true_tables
+    from ..twin.unit import TwinUnit, calibration_meta, true_tables
 
     u = TwinUnit(unit.serial, override=unit.override())
     meta = calibration_meta(u, size)
@@ -130,7 +130,7 @@ def unit_calibration(unit: "BenchUnit", size: int):
 
 def guided_points(tables: dict, n: int, reach_rad: float) -> list:
     """The spots the session suggests on the nominal calibration, assuming each is poked as shown."""
-    from tools.recalib.pokes import PokeRules, suggest_next
+    from .pokes import PokeRules, suggest_next
 
     rules, acc = PokeRules(reach_theta_rad=reach_rad), []
     for _ in range(n):
@@ -140,8 +140,8 @@ def guided_points(tables: dict, n: int, reach_rad: float) -> list:
 
 def record_configs(unit: BenchUnit, cfg: TwinBenchConfig, points: list, size: int):
     """(fit RecordConfig, {held-out name: RecordConfig}) of a unit."""
-    from tools.twin.record import RecordConfig
-    from tools.twin.trajectory import GuidedConfig, TrajectoryConfig
+    from ..twin.record import RecordConfig
+    from ..twin.trajectory import GuidedConfig, TrajectoryConfig
 
     guided = GuidedConfig(points, list(cfg.fit_depths_mm[:len(points)]), cfg.probe, seed=1)
     fit = RecordConfig(serial=unit.serial, pokes=len(points), seed=1, physics=cfg.physics, model_size=size,
@@ -158,14 +158,14 @@ def record_configs(unit: BenchUnit, cfg: TwinBenchConfig, points: list, size: in
 
 def session_frames(session_dir: Path, n: int) -> list:
     """The first `n` camera images of a recording (the gel at rest before the first poke)."""
-    from drivers.camera import camera_from_uri
+    from ...drivers.camera import camera_from_uri
 
     with camera_from_uri(f"replay:{session_dir}", realtime=False) as cam:
         return [cam.read().image for _ in range(n)]
 
 
 def record_once(rcfg, out: Path, say) -> Path:
-    from tools.twin.record import Recorder
+    from ..twin.record import Recorder
 
     if (out / "session.json").is_file():
         return out
@@ -189,15 +189,15 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     {name: session dir}. Each session goes through the runtime pipeline once (raw model force);
     each calibration version's correction is then applied by `corrected_frames`. With
     `runtime_check`, the 7-poke version is also measured through the full pipeline (measure_pokes)."""
-    from runtime.calibration import CalibrationStore
-    from runtime.errors import TensorTouchError
-    from runtime.session import load_session
-    from tools.recalib.evaluate import measure_pokes
-    from tools.recalib.pokes import PokeRules
-    from tools.recalib.rim import crop_changes, fit_rim, recrop, rest_image
-    from tools.recalib.session import SessionConfig, StreamReference, analyse, run_guided
-    from tools.recalib.store_ops import store_recalibration
-    from tools.recalib.twin_variants import true_center
+    from ...contracts.store import CalibrationStore
+    from ...contracts.errors import TensorTouchError
+    from ...contracts.session import load_session
+    from .evaluate import measure_pokes
+    from .pokes import PokeRules
+    from .rim import crop_changes, fit_rim, recrop, rest_image
+    from .session import SessionConfig, StreamReference, analyse, run_guided
+    from .store_ops import store_recalibration
+    from .twin_variants import true_center
 
     size = int(package.size[0])
     tables, meta = nominal_calibration(size) if cfg.calibration == "nominal" else unit_calibration(unit, size)
@@ -289,7 +289,7 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
 
 
 def run_bench(cfg: TwinBenchConfig, say=print) -> dict:
-    from runtime.model import find_package
+    from ...runtime.stages.model import find_package
 
     package = find_package(cfg.model)
     size = int(package.size[0])

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from drivers.gauge import format_tt
+from ...drivers.gauge import format_tt
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 def run(a: argparse.Namespace) -> int:
     import serial
 
-    from runtime.session import load_session
+    from ...contracts.session import load_session
 
     w = load_session(a.session).table("wrench")
     lines = gauge_lines(w[:, 0], w[:, 1], w[:, 2:5], a.rate)

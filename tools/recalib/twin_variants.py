@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.recalib.fit import set_name
-from tools.recalib.replay import collect_frames, corrected_frames, held_out_pokes, mae
+from .fit import set_name
+from .replay import collect_frames, corrected_frames, held_out_pokes, mae
 
 log = logging.getLogger(__name__)
 
@@ -19,10 +19,10 @@ def geometry_stage(unit, cfg, package, fit_dir, held, pokes, base, row, rules, e
     points (recalibrate --geometry; twin truth/contact.csv, or mocap/jig positions in the field),
     stored first; then the fit session replayed through the re-centred crop and the force
     correction fitted on those forces (5/6/7 pokes). Held-out errors vs the nominal 'before'."""
-    from runtime.calibration import CalibrationStore
-    from runtime.session import load_session
-    from tools.recalib.session import SessionConfig, StreamReference, analyse, run_guided, session_truth_xyz
-    from tools.recalib.store_ops import store_recalibration
+    from ...contracts.store import CalibrationStore
+    from ...contracts.session import load_session
+    from .session import SessionConfig, StreamReference, analyse, run_guided, session_truth_xyz
+    from .store_ops import store_recalibration
 
     session = load_session(fit_dir)
     truth = session_truth_xyz(session, pokes)
@@ -84,7 +84,7 @@ def geometry_stage(unit, cfg, package, fit_dir, held, pokes, base, row, rules, e
 
 def true_center(unit) -> tuple:
     """The unit's true gel centre in camera px (image of the apex)."""
-    from tools.twin.unit import TwinUnit
+    from ..twin.unit import TwinUnit
 
     return TwinUnit(unit.serial, override=unit.override()).gel_center_px
 
@@ -93,8 +93,8 @@ def input_variants(pokes, cal, scfg, raw, refs, row, rules, variants, work: Path
     """Held-out MAE after a correction on other inputs (stored regardless of the LOO decision)."""
     from dataclasses import replace as dc_replace
 
-    from runtime.correction import ForceCorrection
-    from tools.recalib.session import analyse
+    from ...runtime.stages.correction import ForceCorrection
+    from .session import analyse
 
     out = {}
     for inputs in variants:

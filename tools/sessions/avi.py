@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from runtime.errors import SessionError
+from ...contracts.errors import SessionError
 
 
 def _chunk(cid: bytes, data: bytes) -> bytes:

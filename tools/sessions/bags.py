@@ -41,10 +41,10 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from runtime.errors import SessionError
-from runtime.session import load_session
-from runtime.units import accepted, to_house
-from tools.sessions.writer import SessionWriter
+from ...contracts.errors import SessionError
+from ...contracts.session import load_session
+from ...contracts.units import accepted, to_house
+from .writer import SessionWriter
 
 log = logging.getLogger(__name__)
 BAG_UNITS = {"length": "m", "torque": "N*m", "temperature": "degC"}   # ROS conventions (REP 103)

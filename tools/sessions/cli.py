@@ -1,4 +1,4 @@
-"""`tensortouch session import|check` (entry point `session = "tools.sessions.cli:register"`).
+"""`tensortouch session import|check` (entry point `session = "tensortouch.tools.sessions.cli:register"`).
 
     tensortouch session import BAG --map topics.toml --out DIR   # ROS1 .bag, ROS2 bag folder, .mcap
     tensortouch session check DIR                                # validate against the contract
@@ -13,14 +13,14 @@ log = logging.getLogger(__name__)
 
 
 def _import(args) -> int:
-    from tools.sessions.bags import TopicMap, convert
+    from .bags import TopicMap, convert
 
     print(convert(args.bag, TopicMap.load(args.map), args.out))
     return 0
 
 
 def _check(args) -> int:
-    from runtime.session import load_session
+    from ...contracts.session import load_session
 
     s = load_session(args.session)
     rows = {name: len(s.table(name)) for name in s.streams}
@@ -32,11 +32,11 @@ def _record(args) -> int:
     import signal
     import threading
 
-    from drivers.camera import camera_from_uri
-    from drivers.gauge import ForceGauge, GaugeConfig
-    from drivers.mocap import MocapConfig, PoseStream
-    from runtime.errors import TensorTouchError
-    from tools.sessions.record import RecordLimits, record
+    from ...drivers.camera import camera_from_uri
+    from ...drivers.gauge import ForceGauge, GaugeConfig
+    from ...drivers.mocap import MocapConfig, PoseStream
+    from ...contracts.errors import TensorTouchError
+    from .record import RecordLimits, record
 
     if args.frames is not None and args.frames < 1 or args.duration is not None and args.duration <= 0:
         raise TensorTouchError("--frames / --duration: expected a positive number")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import SessionError
+from ...contracts.errors import SessionError
 
 log = logging.getLogger(__name__)
 
@@ -61,8 +61,8 @@ def record(camera, out: str | Path, sensor_id: str, gauge=None, mocap=None, limi
     drivers.mocap.PoseStream. Returns the session folder."""
     import cv2
 
-    from drivers.camera.camera import EndOfStream
-    from tools.sessions.writer import SessionWriter
+    from ...drivers.camera.camera import EndOfStream
+    from .writer import SessionWriter
 
     out = Path(out)
     if (out / "session.json").exists():

@@ -1,6 +1,6 @@
 """Session writer: the one way tools/ (twin recorder, bag readers) produce a session directory.
 
-Streams go through runtime.session.write_table (atomic CSV); frames go to a PNG folder (lossless)
+Streams go through contracts.session.write_table (atomic CSV); frames go to a PNG folder (lossless)
 or a video file. OpenCV 5 headless, measured on this machine (docs/session.md): FFV1, HFYU and
 MPNG in .avi are lossless (max |error| 0 on random frames); MJPG, XVID, mp4v are lossy. Default:
 lossless FFV1 .avi for recordings, MJPG .avi for the small shipped demo. The manifest is written
@@ -16,8 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from runtime.errors import SessionError
-from runtime.session import STREAM_COLUMNS, STREAM_FILES, new_manifest, write_manifest, write_table
+from ...contracts.errors import SessionError
+from ...contracts.session import STREAM_COLUMNS, STREAM_FILES, new_manifest, write_manifest, write_table
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ def encode_video(staging: Path, out: Path, fourcc: str, fps: float, count: int, 
             raise SessionError(f"{staging / f'{i:06d}.npy'}: staged frame missing or unreadable") from None
 
     if fourcc == "MJPG":  # OpenCV ignores the quality setting for MJPG: own writer (tools/sessions/avi.py)
-        from tools.sessions.avi import write_mjpg_avi
+        from .avi import write_mjpg_avi
 
         return write_mjpg_avi(out, (load(i) for i in range(count)), fps, quality)
     first = load(0)

@@ -22,8 +22,8 @@ import logging
 import shutil
 from pathlib import Path
 
-from runtime.calibration import sha256_file
-from tools.train.model.data import DatasetError
+from ...contracts.store import sha256_file
+from .model.data import DatasetError
 
 log = logging.getLogger(__name__)
 
@@ -51,10 +51,10 @@ def average_run(tuned_run: Path, base_state: Path, weight: float, out: Path, bas
     """Write the averaged run folder `out`; returns its config.json dict."""
     import torch
 
-    from tools.train.fields import read_bounds
-    from tools.train.model import build_model
-    from runtime.files import atomic_write_json
-    from tools.train.model.train import FitConfig, remap_heads
+    from .fields import read_bounds
+    from .model import build_model
+    from ...contracts.files import atomic_write_json
+    from .model.train import FitConfig, remap_heads
 
     tuned_run, base_state, out = Path(tuned_run), Path(base_state), Path(out)
     for need in ("best.pt", "bounds.json", "metrics.json"):
@@ -98,8 +98,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.paths import models_dir
-    from tools.train.export import ExportConfig, export_run
+    from ...contracts.paths import models_dir
+    from .export import ExportConfig, export_run
 
     average_run(Path(args.tuned), Path(args.base), args.weight, Path(args.out),
                 Path(args.base_bounds) if args.base_bounds else None)

@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 
 
 def _inputs(size: int, n: int, seed: int = 0) -> np.ndarray:
-    from tools.train.model.data import synthetic_sample
+    from .model.data import synthetic_sample
 
     rng = np.random.default_rng(seed)
     return np.stack([synthetic_sample(rng, size)[0] for _ in range(n)]).astype(np.float32) / 255.0
@@ -46,9 +46,9 @@ def train_throughput(model, size: int, threads: int, steps: int, batch: int = 8)
 
 def run_bench(sizes=(96, 128), archs=("hiera_qup", "unet", "vit"), threads: int = 2, steps: int = 6,
               latency_runs: int = 60) -> dict:
-    from tools.train.export import ExportConfig, export_onnx, latency_ms, quantize_int8
-    from tools.train.model import build_model
-    from tools.train.model.layers import count_params
+    from .export import ExportConfig, export_onnx, latency_ms, quantize_int8
+    from .model import build_model
+    from .model.layers import count_params
 
     res = {"machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
                        "load_avg_start": list(os.getloadavg())},

@@ -3,7 +3,7 @@
     (0) sessions → (1) keypoints → (2) FE labels → (3) 2D–3D correspondence → (4) sim-to-real ratios
     → (5) dataset → (6) [MAE pretrain] + fit → (7) export → exported_models/<name>/ → (8) evaluation
 
-Every stage writes under `<cache>/train/<build>/` (runtime.paths.cache_dir()) and finishes with a
+Every stage writes under `<cache>/train/<build>/` (contracts.paths.cache_dir()) and finishes with a
 stamp file `stamps/<stage>.json` (config key, outputs, wall time); a rerun skips stamped stages whose
 configuration is unchanged, and the long stages (recording, fitting) resume inside themselves.
 The build configuration is one dataclass (`BuildConfig`); a recipe (tools/train/recipe.py) gives its fields.
@@ -17,7 +17,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from runtime.files import atomic_write_json
+from ...contracts.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -42,8 +42,8 @@ class SessionSpec:
 
     def record_config(self, physics: str, size: int):
         """The twin RecordConfig that records (and, for labels, re-plans) this session."""
-        from tools.twin.record import RecordConfig
-        from tools.twin.trajectory import with_ranges
+        from ..twin.record import RecordConfig
+        from ..twin.trajectory import with_ranges
 
         rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=physics,
                             frame_format=self.frames, mjpg_quality=self.quality, model_size=size)
@@ -99,7 +99,7 @@ class BuildConfig:
     latency_runs: int = 50
     eval_contact_n: float = 1.5                   # stage 8: measured |F| above this = contact (seed §III.C)
     eval_demo: bool = True                        # also evaluate on runtime/demo (held out: own unit/plan)
-    models_dir: str = ""                          # default runtime.paths.models_dir()
+    models_dir: str = ""                          # default contracts.paths.models_dir()
     figures: bool = True                          # write docs/ figures (Fig. 10/11 style) after evaluation
 
     @staticmethod
@@ -148,7 +148,7 @@ class Build:
     """Paths and stamps of one build folder."""
 
     def __init__(self, cfg: BuildConfig, root: Path | None = None, command: str = "", step: str = ""):
-        from runtime.paths import cache_dir
+        from ...contracts.paths import cache_dir
 
         self.cfg = cfg
         self.root = Path(root) if root else cache_dir() / "train" / cfg.build
@@ -215,7 +215,7 @@ class Build:
 def tiny_config(name: str = "tiny-smoke", build: str = "tiny") -> BuildConfig:
     """The `tiny` recipe (tools/train/recipes/tiny.toml) as one BuildConfig: the minutes-long smoke run of
     the whole chain for tests and CI (analytic twin physics — never the physics of a shipped model)."""
-    from tools.train.recipe import load_recipe
+    from .recipe import load_recipe
 
     recipe = load_recipe("tiny")
     cfg = config_from_dict(recipe.config(recipe.steps()[-1]), recipe.source)
@@ -227,7 +227,7 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
     """BuildConfig from a recipe step's fields; an unknown field or a bad session entry is one line."""
     from dataclasses import fields
 
-    from tools.train.recipe import RecipeError
+    from .recipe import RecipeError
 
     known = {f.name for f in fields(BuildConfig)}
     unknown = sorted(set(d) - known)
@@ -248,7 +248,7 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
 def recipe_build(ref: str, sets: list[str] | tuple = (), root: str | Path | None = None) -> Build:
     """The build folder of a recipe's last step, for the tools that read a build (budget, crosseval,
     resolve-check): its sessions, calibrations and dataset."""
-    from tools.train.recipe import load_recipe
+    from .recipe import load_recipe
 
     recipe = load_recipe(ref, sets)
     steps = recipe.steps()
@@ -260,14 +260,14 @@ def recipe_build(ref: str, sets: list[str] | tuple = (), root: str | Path | None
 def unit_meta(b, serial: str) -> dict:
     """The unit's current calibration metadata (gel design geometry `gel`, camera) — what a real rig's
     calibration store holds before any training stage runs."""
-    from runtime.calibration import CalibrationStore
+    from ...contracts.store import CalibrationStore
 
     return CalibrationStore(b.store_root).load(serial).meta
 
 
 def unit_calibration(b, serial: str):
     """The calibration the dataset and evaluation use for a unit (stage 3's choice)."""
-    from runtime.calibration import CalibrationStore
+    from ...contracts.store import CalibrationStore
 
     info = json.loads((b.root / "correspondence" / f"{serial}.json").read_text())
     return CalibrationStore(b.store_root).load(serial, info["version"])

@@ -17,27 +17,27 @@ import logging
 import shlex
 import time
 from pathlib import Path
-from runtime.files import atomic_write_json
+from ...contracts.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
 # Tools on built packages and builds: each module exposes add_arguments(parser) and run(args).
 TOOLS = (
-    ("threshold", "tools.train.threshold",
+    ("threshold", "tensortouch.tools.train.threshold",
      "measure a package's contact thresholds, light-touch rule and merging on sessions (--write), or --check them"),
-    ("crosseval", "tools.train.crosseval",
+    ("crosseval", "tensortouch.tools.train.crosseval",
      "several packages side by side on held-out sessions through the runtime: detection, |F| MAE, phantoms"),
-    ("average", "tools.train.average", "weight-space average of a fine-tune and its start (optionally exported)"),
-    ("resolve-check", "tools.train.resolve_check",
+    ("average", "tensortouch.tools.train.average", "weight-space average of a fine-tune and its start (optionally exported)"),
+    ("resolve-check", "tensortouch.tools.train.resolve_check",
      "twin-only check of stage 2: FE re-solved from measured keypoints against the twin's own solves"),
 )
 
 
 
 def cmd_keypoints(args) -> int:
-    from runtime.paths import cache_dir
-    from runtime.session import load_session
-    from tools.train.keypoints import KeypointConfig, extract_keypoints, keypoints_doc
+    from ...contracts.paths import cache_dir
+    from ...contracts.session import load_session
+    from .keypoints import KeypointConfig, extract_keypoints, keypoints_doc
 
     ses = load_session(args.session, check_frames=False)
     cfg = KeypointConfig(image_rate_hz=args.image_rate, max_keypoints=args.max_keypoints)
@@ -51,7 +51,7 @@ def cmd_keypoints(args) -> int:
 
 
 def cmd_synth(args) -> int:
-    from tools.train.model.data import write_synthetic_dataset
+    from .model.data import write_synthetic_dataset
 
     h = write_synthetic_dataset(args.out, args.n, args.size, args.seed, min_contacts=args.min_contacts)
     print(f"synthetic dataset ({args.n} samples, {args.size}²) → {args.out}  data hash {h}")
@@ -59,7 +59,7 @@ def cmd_synth(args) -> int:
 
 
 def cmd_pretrain(args) -> int:
-    from tools.train.model.train import PretrainConfig, pretrain
+    from .model.train import PretrainConfig, pretrain
 
     cfg = PretrainConfig(epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr,
                          device=args.device)
@@ -69,7 +69,7 @@ def cmd_pretrain(args) -> int:
 
 
 def cmd_fit(args) -> int:
-    from tools.train.model.train import FitConfig, fit
+    from .model.train import FitConfig, fit
 
     cfg = FitConfig(arch=args.arch, epochs=args.epochs, batch_size=args.batch, threads=args.threads, lr=args.lr,
                     device=args.device)
@@ -81,8 +81,8 @@ def cmd_fit(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from runtime.paths import models_dir
-    from tools.train.export import ExportConfig, export_run
+    from ...contracts.paths import models_dir
+    from .export import ExportConfig, export_run
 
     t0 = time.monotonic()
     root = Path(args.models_dir) if args.models_dir else models_dir()
@@ -103,7 +103,7 @@ def cmd_export(args) -> int:
 
 
 def cmd_weights(args) -> int:
-    from tools.train.from_package import write_init
+    from .from_package import write_init
 
     path = write_init(args.package, args.out, args.precision)
     info = json.loads((path.parent / "from_package.json").read_text())
@@ -113,7 +113,7 @@ def cmd_weights(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from tools.train.bench import run_bench
+    from .bench import run_bench
 
     res = run_bench(sizes=args.sizes, archs=args.archs, threads=args.threads, steps=args.steps,
                     latency_runs=args.runs)
@@ -205,15 +205,15 @@ def register(sub) -> None:
         mod.add_arguments(q)
         q.set_defaults(func=mod.run)
     q = ts.add_parser("budget", help="error budget of a build: label and network error per stage, held out")
-    evaluate = importlib.import_module("tools.train.evaluate")
+    evaluate = importlib.import_module("tensortouch.tools.train.evaluate")
     evaluate.add_budget_arguments(q)
     q.set_defaults(func=evaluate.run_budget_command)
 
 
 def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force: list[str] | None = None) -> int:
-    from tools.train.build import STAGES
-    from tools.train.recipe import load_recipe
-    from tools.train.runner import run_recipe
+    from .build import STAGES
+    from .recipe import load_recipe
+    from .runner import run_recipe
 
     recipe = load_recipe(args.recipe, args.set or [])
     stages = only or getattr(args, "stages", None)
@@ -236,7 +236,7 @@ def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force:
 
 def register_build(ts) -> None:
     """`train all`, `train dataset`, `train evaluate` under the `train` subparsers."""
-    from tools.train.build import STAGES
+    from .build import STAGES
 
     def common(q):
         q.add_argument("--recipe", default="hiera-qup-128",

@@ -81,15 +81,15 @@ def tables_from_theta_phi(theta: np.ndarray, phi: np.ndarray, gel, valid: np.nda
 
 
 def calibration_spec(serial: str, cfg: CorrespondenceConfig):
-    from tools.train.build import SessionSpec
+    from .build import SessionSpec
 
     return SessionSpec(serial, cfg.seed, cfg.pokes, "mjpg", cfg.quality)
 
 
 def record_calibration_session(b, serial: str, cfg: CorrespondenceConfig):
     """Record (or reuse) the unit's calibration poke session; returns its path."""
-    from tools.progress import stage_progress
-    from tools.twin.record import RecordConfig, Recorder
+    from ..progress import stage_progress
+    from ..twin.record import RecordConfig, Recorder
 
     path = b.root / "correspondence" / "sessions" / f"{serial}-calib"
     rcfg = RecordConfig(serial=serial, pokes=cfg.pokes, seed=cfg.seed, physics=b.cfg.physics,
@@ -104,7 +104,7 @@ def record_calibration_session(b, serial: str, cfg: CorrespondenceConfig):
 def nominal_lens():
     """The sensor design's lens (nominal fisheye of tools.twin.camera.CameraConfig: focal, centre, camera
     height) — what a real unit's datasheet gives before calibration."""
-    from tools.twin.camera import CameraConfig, FisheyeModel
+    from ..twin.camera import CameraConfig, FisheyeModel
 
     return FisheyeModel(CameraConfig())
 
@@ -112,11 +112,11 @@ def nominal_lens():
 def poke_moments(session, cfg: CorrespondenceConfig, gel_surface, catalog=None) -> list[dict]:
     """Single-indenter contacts of a calibration session → per poke: indenter id/name, the deepest
     moment t_peak (smallest clearance of the smoothed mocap pose to the rest gel), the tip there."""
-    from tools.fe import Indenter
-    from tools.fe.indenters import make_shape
-    from tools.train.keypoints import KeypointConfig, extract_keypoints
-    from tools.train.resolve import PoseTrack, ResolveConfig, clearance, fit_pose, surface_samples
-    from tools.twin.trajectory import INDENTER_SET
+    from ..fe import Indenter
+    from ..fe.indenters import make_shape
+    from .keypoints import KeypointConfig, extract_keypoints
+    from .resolve import PoseTrack, ResolveConfig, clearance, fit_pose, surface_samples
+    from ..twin.trajectory import INDENTER_SET
 
     catalog = catalog or INDENTER_SET
     rcfg = ResolveConfig()
@@ -149,9 +149,9 @@ def correspondences(b, session_dir, gel, cfg: CorrespondenceConfig = Corresponde
     FE of each poke re-solved from its measured poses (cached) and the model-based 2D detector."""
     import cv2
 
-    from runtime.session import load_session
-    from tools.sessions.writer import read_frames
-    from tools.train.pokes2d import FlowPredictor, PokeDetectConfig, fit_offset, track_dots
+    from ...contracts.session import load_session
+    from ..sessions.writer import read_frames
+    from .pokes2d import FlowPredictor, PokeDetectConfig, fit_offset, track_dots
 
     ses = load_session(session_dir)
     frames = ses.table("frames")
@@ -195,13 +195,13 @@ def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
     """FE displacement of each calibration poke at its deepest moment: scenario from the measured
     poses (clear initial pose → one FE frame at t_peak), solved through the tools.fe batch runner
     (shared cache); hertz-fallback builds use the analytic stand-in. None where it failed."""
-    from tools.fe import GelGeometry, save_scenario
-    from tools.fe.batch import run_batch
-    from tools.train.resolve import ResolveError, period_scenario
-    from tools.train.sources import fallback_solve, fe_cache_dir
-    from tools.twin.trajectory import INDENTER_SET
+    from ..fe import GelGeometry, save_scenario
+    from ..fe.batch import run_batch
+    from .resolve import ResolveError, period_scenario
+    from .sources import fallback_solve, fe_cache_dir
+    from ..twin.trajectory import INDENTER_SET
 
-    from tools.fe import load_result
+    from ..fe import load_result
 
     fe_gel = GelGeometry(kind="flattened_dome", radius=gel.radius, cap_height=gel.cap_height, skirt=gel.skirt)
     items = []
@@ -236,8 +236,8 @@ def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
 def gpr_tables(xy, theta, phi, gel, center0: tuple[float, float], radius: float, size: tuple[int, int]):
     """Poke correspondences → (GeometryFit, store tables, valid-pixel camera coordinates x, y):
     GPR θ(dist) + φ from `refresh_geometry`, completed on the gel by `tables_from_theta_phi`."""
-    from runtime.preprocess import Preprocessor
-    from tools.recalib.gpr_geometry import refresh_geometry
+    from ...runtime.stages.preprocess import Preprocessor
+    from ..recalib.gpr_geometry import refresh_geometry
 
     fit = refresh_geometry(xy, theta, phi, center0, radius, size)
     vv, uu = np.mgrid[0:size[0], 0:size[1]].astype(float)
@@ -263,8 +263,8 @@ def truth_errors(unit, tables: dict, x: np.ndarray, y: np.ndarray, theta_max: fl
 
 def fit_unit(b, spec_serial: str, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:
     """GPR calibration of one unit → new store version; returns diagnostics (vs the twin truth)."""
-    from runtime.calibration import CalibrationStore
-    from tools.twin.unit import TwinUnit, VariationConfig, calibration_meta
+    from ...contracts.store import CalibrationStore
+    from ..twin.unit import TwinUnit, VariationConfig, calibration_meta
 
     unit = TwinUnit(spec_serial)
     nominal = TwinUnit(spec_serial, variation=VariationConfig(0.0, 0.0, 0.0, 0.0))
@@ -296,8 +296,8 @@ def _px_truth_errors(unit, c: dict) -> list:
 def build_unit_calibrations(b, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:
     """Stage 3 for every unit of the build: GPR tables (tables = "gpr"), falling back to the unit's
     true tables when the fit fails; writes correspondence/<serial>.json naming the version to use."""
-    from runtime.calibration import CalibrationStore
-    from runtime.errors import TensorTouchError
+    from ...contracts.store import CalibrationStore
+    from ...contracts.errors import TensorTouchError
 
     store = CalibrationStore(b.store_root)
     out = {}

@@ -18,7 +18,7 @@ from pathlib import Path
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
-    from tools.train.evaluate import EvalConfig
+    from .evaluate import EvalConfig
 
     ap.add_argument("--package", action="append", required=True, help="model package folder (repeat)")
     ap.add_argument("--recipe", help="add this recipe build's held-out sessions (<cache>/train/<recipe name>/)")
@@ -31,12 +31,12 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.calibration import CalibrationStore
-    from runtime.errors import TensorTouchError
-    from runtime.model import load_package
-    from runtime.session import load_session
-    from tools.train.build import recipe_build, unit_calibration
-    from tools.train.evaluate import EvalConfig, evaluate_session, summarize
+    from ...contracts.store import CalibrationStore
+    from ...contracts.errors import TensorTouchError
+    from ...runtime.stages.model import load_package
+    from ...contracts.session import load_session
+    from .build import recipe_build, unit_calibration
+    from .evaluate import EvalConfig, evaluate_session, summarize
 
     if len(args.store) != len(args.session):
         raise TensorTouchError("crosseval: give one --store per --session")

@@ -1,7 +1,7 @@
 """Stage 5 (shell) — twin sessions + FE results → the training dataset (docs/train.md "Dataset").
 
 For each session frame chosen as a sample:
-- input  = the runtime's own view: `runtime.preprocess.Preprocessor(cx, cy, R, S).crop` of a baseline
+- input  = the runtime's own view: `runtime.stages.preprocess.Preprocessor(cx, cy, R, S).crop` of a baseline
            rest frame and of the current frame, with the unit's calibration centre/radius → uint8 (6, S, S);
 - target = `tools.train.fields.fe_to_fields` of the FE solution at that frame (surface U, S, contact
            normal/shear forces), interpolated between the poke's keypoints with the twin's own PCHIP in the
@@ -22,7 +22,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from runtime.fields import N_CHANNELS
+from ...contracts.fields import N_CHANNELS
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ def select_frames(frame_poke: np.ndarray, cfg: DatasetConfig = DatasetConfig()) 
 
 def surface_view(res) -> SimpleNamespace:
     """FE result → its free-surface nodes: rest xyz, per-keypoint U/S/contact forces, triangles, areas."""
-    from tools.train.fields import tributary_area
+    from .fields import tributary_area
 
     sn = np.asarray(res.surface_nodes)
     remap = np.full(res.nodes.shape[0], -1)
@@ -94,7 +94,7 @@ class FieldProjector:
     def __init__(self, xyz: np.ndarray, area: np.ndarray, tables: dict, field_cfg):
         from scipy import sparse
 
-        from tools.train.fields import contact_area, interpolate_to_grid, surface_angles
+        from .fields import contact_area, interpolate_to_grid, surface_angles
 
         self.xyz, self.cfg = np.asarray(xyz, float), field_cfg
         self.mask = np.asarray(tables["pixel_area"]) > 0
@@ -108,7 +108,7 @@ class FieldProjector:
         self.key = (len(self.xyz), float(np.round(self.xyz.sum(), 6)))
 
     def project(self, u, s, cn, cs) -> np.ndarray:
-        from tools.train.fields import smooth_fields
+        from .fields import smooth_fields
 
         values = np.concatenate([u, s, cn * self.inv_area[:, None], cs * self.inv_area[:, None]], axis=1)
         img = np.zeros((values.shape[1],) + self.mask.shape)
@@ -121,8 +121,8 @@ def frame_fields(view, poke, t: float, ratios: np.ndarray, stress_scale: float, 
     """(15, S, S) physical fields of one frame at session time t inside the poke's keypoint span.
 
     ratios (K, 3): sim-to-real ratios of the poke's indenters (k-th indenter of the poke)."""
-    from tools.train.fields import attribute_contacts, fe_to_fields
-    from tools.twin.physics import interpolate
+    from .fields import attribute_contacts, fe_to_fields
+    from ..twin.physics import interpolate
 
     tt = np.array([float(t)])
     u, s = interpolate(view, poke, tt, "U")[0], interpolate(view, poke, tt, "S")[0] * stress_scale
@@ -136,7 +136,7 @@ def frame_fields(view, poke, t: float, ratios: np.ndarray, stress_scale: float, 
         else:
             pos = interpolate(view, poke, tt, "pose_position")[0]
             owner[touch] = attribute_contacts(view.xyz[touch], pos)
-    from tools.train.simreal import apply_ratios
+    from .simreal import apply_ratios
 
     cn, cs = apply_ratios(cn, owner, ratios), apply_ratios(cs, owner, ratios)
     if projector is not None:
@@ -149,7 +149,7 @@ def crops(session, pre, indices) -> dict[int, np.ndarray]:
     """{frame index: (S, S, 3) uint8 RGB crop} through the runtime's Preprocessor."""
     import cv2
 
-    from tools.sessions.writer import read_frames
+    from ..sessions.writer import read_frames
 
     return {i: pre.crop(cv2.cvtColor(img, cv2.COLOR_BGR2RGB)) for i, img in read_frames(session, indices)}
 
@@ -159,11 +159,11 @@ def session_samples(session_dir: Path, calibration, plan, fe_results, slot_of_po
     """All samples of one session: {'input' (n,6,S,S) u8, 'target' (n,15,S,S) f32 physical,
     'frame', 'baseline', 'poke' (n,)}.
 
-    calibration: runtime.calibration.Calibration of the unit (tables + crop); fe_results[p]: the FEResult
+    calibration: contracts.store.Calibration of the unit (tables + crop); fe_results[p]: the FEResult
     of poke p; slot_of_poke[p]: session indenter id per poke indenter; ratios: {slot: {'ratio': [3], ...}}."""
-    from runtime.preprocess import Preprocessor
-    from runtime.session import load_session, read_table
-    from tools.train.fields import FieldConfig
+    from ...runtime.stages.preprocess import Preprocessor
+    from ...contracts.session import load_session, read_table
+    from .fields import FieldConfig
 
     ses = load_session(session_dir)
     fr = read_table(Path(session_dir) / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
@@ -209,8 +209,8 @@ def write_dataset(root: Path, parts: list[dict], size: int, source: str, pixel_a
     """parts: per session {'input', 'target' (physical), 'val' (bool per sample)} → dataset directory
     (index.json, bounds.json, samples/, and pixel_area.npy = the units' mean pixel area in mm² when
     given, for the fit's total-force term); returns the data hash (SHA-256 of index.json)."""
-    from tools.train.fields import compute_bounds, normalize_global, write_bounds
-    from tools.train.model.data import write_index, write_sample
+    from .fields import compute_bounds, normalize_global, write_bounds
+    from .model.data import write_index, write_sample
 
     root = Path(root)
     bounds = compute_bounds(t for p in parts for t in p["target"])

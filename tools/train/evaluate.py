@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.offline import match_contacts, measured_at
+from ...runtime.offline import match_contacts, measured_at
 
 log = logging.getLogger(__name__)
 
@@ -36,12 +36,12 @@ class EvalConfig:
 
 
 def frame_errors(clusters: list, tips: np.ndarray, forces: np.ndarray, cfg: EvalConfig = EvalConfig()) -> list[dict]:
-    """Match one frame's clusters (centroid_mm, force_n) to the indenters in contact (tips/forces (K, 3)):
+    """Match one frame's clusters (position_mm, force_n) to the indenters in contact (tips/forces (K, 3)):
     strongest indenter first, each takes its nearest free cluster (runtime.offline.match_contacts);
     one row per indenter in contact."""
     mags = np.linalg.norm(forces, axis=1)
     order = [k for k in np.argsort(-mags) if mags[k] >= cfg.contact_n]
-    got = match_contacts(tips, [c.centroid_mm for c in clusters], order=order)
+    got = match_contacts(tips, [c.position_mm for c in clusters], order=order)
     rows = []
     for k in order:
         row = {"indenter": int(k), "meas_force": forces[k].tolist(), "tip": tips[k].tolist()}
@@ -49,7 +49,7 @@ def frame_errors(clusters: list, tips: np.ndarray, forces: np.ndarray, cfg: Eval
             row.update(miss=True, pred_force=[0.0, 0.0, 0.0], pred_pos=None)
         else:
             c = clusters[got[k]]
-            row.update(miss=False, pred_force=list(map(float, c.force_n)), pred_pos=list(map(float, c.centroid_mm)))
+            row.update(miss=False, pred_force=list(map(float, c.force_n)), pred_pos=list(map(float, c.position_mm)))
         rows.append(row)
     return rows
 
@@ -87,15 +87,15 @@ def has_phantom(clusters: list, frame_rows: list[dict], cfg: EvalConfig = EvalCo
     """On a frame with one indenter in contact: a cluster other than the matched one holds > phantom_n."""
     pos = next((r["pred_pos"] for r in frame_rows if not r["miss"]), None)
     return any(c.force_mag_n > cfg.phantom_n for c in clusters
-               if pos is None or list(map(float, c.centroid_mm)) != pos)
+               if pos is None or list(map(float, c.position_mm)) != pos)
 
 
 def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalConfig(), keep_fields_at=None) -> dict:
     """Replay a session through the runtime (runtime.offline.replay_session); returns rows, rest
     forces, per-frame traces."""
-    from runtime.offline import replay_session
-    from runtime.session import load_session
-    from tools.sessions.writer import read_frames
+    from ...runtime.offline import replay_session
+    from ...contracts.session import load_session
+    from ..sessions.writer import read_frames
 
     ses = load_session(session_dir)
     frames = ses.table("frames")
@@ -140,7 +140,7 @@ def sample_forces(fields: np.ndarray, calibration, tips: np.ndarray, forces: np.
                   cfg: EvalConfig = EvalConfig(), contacts=None) -> dict:
     """One frame's (15, S, S) physical fields → image-integral force (3,) N and the matched cluster rows
     (`frame_errors`) against the measured tips/forces (K, 3), with the runtime's contact clustering."""
-    from runtime.contacts import ContactConfig, find_clusters, pixel_forces
+    from ...runtime.stages.contacts import ContactConfig, find_clusters, pixel_forces
 
     fp = pixel_forces(fields, calibration.pixel_area)
     cl = find_clusters(fp, calibration.surface_xyz, calibration.normals, calibration.pixel_area, calibration.mask,
@@ -179,9 +179,9 @@ def budget_table(items: list[dict], key: str = "label") -> dict:
 def session_label_samples(b, spec, stride: int = 1):
     """(samples dict as the dataset builds them + 'nind', calibration) of one session: the build's own
     label path (twin solves or re-solved FE, stage-4 ratios, the unit's tables), every `stride`-th frame."""
-    from tools.train import sources
-    from tools.train.build import unit_calibration
-    from tools.train.dataset import DatasetConfig, session_samples
+    from . import sources
+    from .build import unit_calibration
+    from .dataset import DatasetConfig, session_samples
 
     src = sources.label_sources(b, spec)
     ratios = {int(k): v for k, v in json.loads((b.root / "simreal" / f"{spec.name}.json").read_text())["ratios"].items()}
@@ -191,7 +191,7 @@ def session_label_samples(b, spec, stride: int = 1):
         d = session_samples(b.session(spec), cal, [s.poke for s in src], [s.result for s in src],
                             [s.slots for s in src], ratios, dcfg)
     else:
-        from tools.train.labels import session_samples_measured
+        from .labels import session_samples_measured
 
         d = session_samples_measured(b.session(spec), cal, src, ratios, dcfg)
     return d, cal
@@ -200,8 +200,8 @@ def session_label_samples(b, spec, stride: int = 1):
 def budget_items(b, spec, d: dict, cal, predict=None, bounds: dict | None = None, cfg: EvalConfig = EvalConfig()) -> list[dict]:
     """Per sample of one session: measured force, label forces (after the bounds' clipping when given) and,
     with `predict` ((n, 6, S, S) uint8 → (n, 15, S, S) physical), the model's forces."""
-    from runtime.session import load_session
-    from tools.train.fields import denormalize, normalize_global
+    from ...contracts.session import load_session
+    from .fields import denormalize, normalize_global
 
     ses = load_session(b.session(spec))
     meas = measured_at(ses, ses.table("frames")[:, 0])
@@ -224,8 +224,8 @@ def budget_items(b, spec, d: dict, cal, predict=None, bounds: dict | None = None
 def run_budget(b, predict=None, stride: int = 1, with_train: bool = True) -> dict:
     """The error budget of a build: label ceiling on the held-out sessions, and (with `predict`) the
     network's errors on train / validation / held-out samples. Returns nested tables (JSON-able)."""
-    from tools.train.dataset import split_pokes
-    from tools.train.fields import read_bounds
+    from .dataset import split_pokes
+    from .fields import read_bounds
 
     bounds = read_bounds(b.dataset / "bounds.json") if (b.dataset / "bounds.json").is_file() else None
     out = {"label_ceiling": {}, "network": {}}
@@ -255,16 +255,16 @@ def _predictor(run: str | None, package: str | None, precision: str = "int8", bo
     if run:
         import torch
 
-        from tools.train.fields import denormalize, read_bounds
-        from tools.train.model.train import load_trained, predict
+        from .fields import denormalize, read_bounds
+        from .model.train import load_trained, predict
 
         model, _ = load_trained(run)
         torch.set_num_threads(1)
         bounds = read_bounds(bounds_file)
         return lambda x: np.stack([denormalize(y, bounds) for y in predict(model, x)])
     if package:
-        from runtime.model import FieldModel, load_package
-        from runtime.paths import models_dir
+        from ...runtime.stages.model import FieldModel, load_package
+        from ...contracts.paths import models_dir
 
         m = FieldModel(load_package(Path(package) if "/" in package else models_dir() / package), precision, 2)
         return lambda x: np.stack([m(xi.astype(np.float32) / 255.0) for xi in x])
@@ -285,7 +285,7 @@ def add_budget_arguments(ap) -> None:
 
 
 def run_budget_command(args) -> int:
-    from tools.train.build import recipe_build
+    from .build import recipe_build
 
     b = recipe_build(args.recipe, args.set, args.root)
     res = run_budget(b, _predictor(args.run, args.package, args.precision, b.dataset / "bounds.json"), args.stride,

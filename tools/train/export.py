@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import ModelPackageError
-from tools.train.package import (FP32, INT8, atomic_copy, build_manifest, repo_relative, verify_package,
+from ...contracts.errors import ModelPackageError
+from .package import (FP32, INT8, atomic_copy, build_manifest, repo_relative, verify_package,
                                  write_package)
 
 log = logging.getLogger(__name__)
@@ -71,7 +71,7 @@ def export_onnx(model, path: str | Path, image_size: int, opset: int = ExportCon
 
     import torch
 
-    from tools.train.export_graph import reparametrize
+    from .export_graph import reparametrize
 
     path = Path(path)
     model = model.eval()
@@ -175,7 +175,7 @@ def latency_ms(paths: dict[str, str | Path], sample: np.ndarray, cfg: ExportConf
 def total_force_n(y: np.ndarray, bounds: dict, pixel_area: np.ndarray) -> np.ndarray:
     """(N, 3) total contact force in N of min/max-normalized fields (N, 15, H, W): what the runtime
     integrates (normal + shear traction times pixel area, runtime.contacts.pixel_forces)."""
-    from runtime.fields import CHANNELS
+    from ...contracts.fields import CHANNELS
 
     lo = np.array([bounds[c][0] for c in CHANNELS[9:15]], np.float64)[None, :, None, None]
     hi = np.array([bounds[c][1] for c in CHANNELS[9:15]], np.float64)[None, :, None, None]
@@ -188,7 +188,7 @@ def parity_report(fp32_path, int8_path, inputs: np.ndarray, targets: np.ndarray 
     """Per-modality PSNR of int8 against fp32; with targets also each model against the truth; with
     bounds and the dataset's pixel area also the int8 - fp32 total force |ΔF| (N: mean, p95, max).
     PSNR alone can miss clipped int8 ranges that move a slide's force by tenths of a newton."""
-    from tools.train.model.metrics import evaluate, psnr_per_modality
+    from .model.metrics import evaluate, psnr_per_modality
 
     y32 = run_model(session(fp32_path, 2), inputs)
     y8 = run_model(session(int8_path, 2), inputs)
@@ -247,9 +247,9 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
 
     The fp32 graph is always made (parity and latency are measured against it); without
     `cfg.with_fp32` it is left in the build cache (`fp32_cache_path(run, name)`), not in the package."""
-    from tools.train.fields import read_bounds
-    from tools.train.model.data import data_hash, load_split
-    from tools.train.model.train import load_trained
+    from .fields import read_bounds
+    from .model.data import data_hash, load_split
+    from .model.train import load_trained
 
     run, data = Path(run), Path(data)
     model, info = load_trained(run)

@@ -116,7 +116,7 @@ def reparametrize(model: nn.Module, image_size: int, in_channels: int = 6,
 
     Raises ValueError when a rewritten model's output differs from the original's by more than
     `cfg.check_atol` (the rewrite would then be wrong, not merely rounded)."""
-    from tools.train.model.qupsample import Heads
+    from .model.qupsample import Heads
 
     model = model.eval()
     done: list[str] = []

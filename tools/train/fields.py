@@ -1,6 +1,6 @@
 """Stage 5 core — FE surface data → 15-channel field images on the θ/φ grid (seed §III.H).
 
-Channel contract: docs/fields.md (runtime.fields.CHANNELS). Contact channels are tractions (MPa):
+Channel contract: docs/fields.md (contracts.fields.CHANNELS). Contact channels are tractions (MPa):
 per-node contact force (N) divided by the node's tributary area (mm²); the runtime multiplies by the
 per-pixel gel area to get N per pixel, so Σ traction·pixel_area over the image ≈ total contact force.
 
@@ -30,9 +30,9 @@ from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import Delaunay, cKDTree
 
-from runtime.errors import TensorTouchError
-from runtime.fields import CHANNELS, N_CHANNELS
-from runtime.files import atomic_write_json
+from ...contracts.errors import TensorTouchError
+from ...contracts.fields import CHANNELS, N_CHANNELS
+from ...contracts.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -270,7 +270,7 @@ def normalize_per_image(img: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 def write_bounds(path: str | Path, bounds: dict) -> None:
     """Atomic write of bounds.json ({"channels": [...], "units": ..., "bounds": {name: [lo, hi]}})."""
     _bounds_arrays(bounds)
-    from runtime.fields import CHANNEL_UNITS
+    from ...contracts.fields import CHANNEL_UNITS
 
     doc = {"schema": "tensortouch.bounds", "schema_version": 1, "channels": list(CHANNELS),
            "units": list(CHANNEL_UNITS), "bounds": {c: list(map(float, bounds[c])) for c in CHANNELS}}

@@ -18,7 +18,7 @@ log = logging.getLogger(__name__)
 
 
 def _docs() -> Path:
-    from runtime.paths import ROOT
+    from ...contracts.paths import ROOT
 
     return ROOT / "docs"
 
@@ -78,7 +78,7 @@ def fig10(fields: np.ndarray, image: np.ndarray, title: str, out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from runtime.fields import CHANNEL_UNITS, CHANNELS
+    from ...contracts.fields import CHANNEL_UNITS, CHANNELS
 
     fig, ax = plt.subplots(3, 6, figsize=(14, 7))
     ax[0, 0].imshow(image)
@@ -104,8 +104,8 @@ def fig10(fields: np.ndarray, image: np.ndarray, title: str, out: Path) -> Path:
 
 def write_figures(b, package, docs: Path | None = None) -> list[Path]:
     """Fig. 11 and Fig. 10 for the build's first held-out session."""
-    from tools.train.evaluate import evaluate_session
-    from tools.train.build import unit_calibration
+    from .evaluate import evaluate_session
+    from .build import unit_calibration
 
     docs = docs or _docs()
     spec = b.cfg.heldout[0]

@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.calibration import sha256_file
-from runtime.errors import ModelPackageError
-from tools.train.package import FP32, INT8
+from ...contracts.store import sha256_file
+from ...contracts.errors import ModelPackageError
+from .package import FP32, INT8
 
 log = logging.getLogger(__name__)
 
@@ -110,8 +110,8 @@ def state_dict_from_package(folder: str | Path, precision: str = "best") -> tupl
     the fp32 graph when the package ships it, else the int8 one."""
     import torch
 
-    from runtime.model import load_package
-    from tools.train.model import build_model
+    from ...runtime.stages.model import load_package
+    from .model import build_model
 
     pkg = load_package(folder)
     man = pkg.manifest
@@ -156,8 +156,8 @@ def state_dict_from_package(folder: str | Path, precision: str = "best") -> tupl
 def _template_positions(model, size: int, n_ids: int, tmp: Path, rewrite: bool) -> dict:
     """Id positions in the graph the export makes of the id-valued template (with or without the
     export_graph rewrites; the rewrites' numeric check is off: ids are not a network)."""
-    from tools.train.export import export_onnx
-    from tools.train.export_graph import RewriteConfig, reparametrize
+    from .export import export_onnx
+    from .export_graph import RewriteConfig, reparametrize
 
     net = copy.deepcopy(model)
     if rewrite:
@@ -172,8 +172,8 @@ def write_init(folder: str | Path, out: str | Path, precision: str = "best") -> 
     dataset with other bounds rescales the heads) + out/from_package.json (provenance)."""
     import torch
 
-    from tools.train.fields import write_bounds
-    from tools.train.model.train import load_any_bounds
+    from .fields import write_bounds
+    from .model.train import load_any_bounds
 
     state, info = state_dict_from_package(folder, precision)
     out = Path(out)

@@ -198,7 +198,7 @@ def _interp_rows(t_src: np.ndarray, values: np.ndarray, t_dst: np.ndarray) -> np
 
 def extract_keypoints(poses: np.ndarray, wrench: np.ndarray, frames: np.ndarray | None = None,
                       cfg: KeypointConfig = KeypointConfig()) -> list[Keypoints]:
-    """Run the whole stage on session tables (columns of runtime.session.STREAM_COLUMNS).
+    """Run the whole stage on session tables (columns of contracts.session.STREAM_COLUMNS).
 
     poses (M, 9): t, indenter, x, y, z, qw, qx, qy, qz; wrench (L, 8): t, indenter, fx, fy, fz, tx, ty, tz;
     frames (F, 2): t, index (optional). Every indenter needs both streams. Returns one Keypoints per

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.fields import N_CHANNELS
+from ...contracts.fields import N_CHANNELS
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,7 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
 
     sources[p]: .times (J,), .t_init, .slots, .is_keypoint (J,); tracks: {slot: resolve.PoseTrack};
     wrench: session wrench table (t, indenter, fx, fy, fz, ...)."""
-    from tools.train.resolve import ResolveConfig, frame_sigma
+    from .resolve import ResolveConfig, frame_sigma
 
     rcfg = rcfg or ResolveConfig()
     t = np.asarray(frame_t, float)
@@ -87,9 +87,9 @@ def keypoint_frame_share(frame_t: np.ndarray, label: np.ndarray, sources: list) 
 
 def source_fields(view, sigma: float, ratios: np.ndarray, stress_scale: float, projector) -> np.ndarray:
     """(15, S, S) fields of one frame at FE parameter σ of a source (view = dataset.surface_view)."""
-    from tools.train.fields import attribute_contacts
-    from tools.train.resolve import interp_frames
-    from tools.train.simreal import apply_ratios
+    from .fields import attribute_contacts
+    from .resolve import interp_frames
+    from .simreal import apply_ratios
 
     u = interp_frames(view.U, sigma)
     s = interp_frames(view.S, sigma) * stress_scale
@@ -106,11 +106,11 @@ def session_samples_measured(session_dir: Path, calibration, sources: list, rati
                              lcfg: LabelConfig = LabelConfig(), rcfg=None, progress=None) -> dict:
     """All samples of one session from re-solved FE (same output as dataset.session_samples):
     {'input' (n,6,S,S) u8, 'target' (n,15,S,S) f32 physical, 'frame', 'baseline', 'poke' (n,)}."""
-    from runtime.preprocess import Preprocessor
-    from runtime.session import load_session
-    from tools.train.dataset import FieldProjector, crops, select_frames, surface_view
-    from tools.train.fields import FieldConfig
-    from tools.train.resolve import PoseTrack
+    from ...runtime.stages.preprocess import Preprocessor
+    from ...contracts.session import load_session
+    from .dataset import FieldProjector, crops, select_frames, surface_view
+    from .fields import FieldConfig
+    from .resolve import PoseTrack
 
     ses = load_session(session_dir)
     frames = ses.table("frames")

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import ModelPackageError
-from runtime.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
-from runtime.files import atomic_write, atomic_write_json
+from ...contracts.errors import ModelPackageError
+from ...contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
+from ...contracts.files import atomic_write, atomic_write_json
 
 SCHEMA = "tensortouch.model"
 SCHEMA_VERSION = 1
@@ -36,7 +36,7 @@ def sha256_file(path: str | Path) -> str:
 
 
 def git_commit() -> str:
-    from runtime.paths import ROOT
+    from ...contracts.paths import ROOT
 
     try:
         return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True,
@@ -47,7 +47,7 @@ def git_commit() -> str:
 
 def repo_relative(path: Path) -> str:
     """Path relative to the repository root when inside it (manifests are committed)."""
-    from runtime.paths import ROOT
+    from ...contracts.paths import ROOT
 
     path = Path(path).resolve()
     try:

@@ -32,7 +32,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from runtime.errors import TensorTouchError
+from ...contracts.errors import TensorTouchError
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 TOP_KEYS = {"name", "about", "sessions", "build", "steps"}

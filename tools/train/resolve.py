@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from runtime.errors import TensorTouchError
+from ...contracts.errors import TensorTouchError
 
 log = logging.getLogger(__name__)
 
@@ -183,8 +183,8 @@ def period_scenario(tracks: list[PoseTrack], slots: list[int], names: list[str],
 
     catalog: indenter name → {"shape", "params"} (the rig's indenter library); gel_geometry: tools.fe
     GelGeometry; gel_surface: tools.twin.geometry.GelSurface of the same gel (clearance test)."""
-    from tools.fe import Indenter, Keypoint, MeshSettings, Scenario
-    from tools.fe.indenters import make_shape
+    from ..fe import Indenter, Keypoint, MeshSettings, Scenario
+    from ..fe.indenters import make_shape
 
     if not (len(tracks) == len(slots) == len(names)) or not tracks:
         raise ResolveError(f"period_scenario: {len(tracks)} tracks, {len(slots)} slots, {len(names)} names")

@@ -25,12 +25,12 @@ def compare_session(b, spec, reference: str = "recorded") -> list[dict]:
     what building scenarios from measured keypoints costs from any FE change since the recording)."""
     import json as _json
 
-    from tools.fe import load_result
-    from tools.train.sources import recorder, resolved_sources
-    from tools.twin.fe_physics import from_fe_result
-    from tools.twin.geometry import GelSurface
-    from tools.twin.physics import interpolate
-    from tools.twin.record import make_physics
+    from ..fe import load_result
+    from .sources import recorder, resolved_sources
+    from ..twin.fe_physics import from_fe_result
+    from ..twin.geometry import GelSurface
+    from ..twin.physics import interpolate
+    from ..twin.record import make_physics
 
     rec = recorder(b, spec)
     physics = make_physics(rec.cfg, rec.unit)
@@ -72,10 +72,10 @@ def compare_session(b, spec, reference: str = "recorded") -> list[dict]:
 def label_coverage(b, spec) -> dict:
     """Camera frames with labels: twin poke windows (truth/frames.csv) vs the resolve path (labels.py:
     all frames in the FE spans, of which at a stage-1 keypoint — the seed's labels-at-keypoints)."""
-    from runtime.session import load_session, read_table
-    from tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share
-    from tools.train.resolve import PoseTrack
-    from tools.train.sources import resolved_sources
+    from ...contracts.session import load_session, read_table
+    from .labels import BUSY_ID, frame_labels, keypoint_frame_share
+    from .resolve import PoseTrack
+    from .sources import resolved_sources
 
     ses = load_session(b.session(spec), check_frames=False)
     fr = ses.table("frames")
@@ -127,7 +127,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.train.build import recipe_build
+    from .build import recipe_build
 
     b = recipe_build(args.recipe, (), args.root)
     rows, cover = [], {}

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.train.build import unit_meta
-from tools.train.sources import fe_cache_dir, gel_of
+from .build import unit_meta
+from .sources import fe_cache_dir, gel_of
 
 log = logging.getLogger(__name__)
 
@@ -33,9 +33,9 @@ SCHEMA = "tensortouch.train_fe"
 
 def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: dict, catalog=None, cfg=None):
     """[(period index, PeriodScenario | None, error str)] of one session."""
-    from runtime.session import load_session
-    from tools.train.resolve import PoseTrack, ResolveConfig, ResolveError, period_scenario
-    from tools.twin.trajectory import INDENTER_SET
+    from ...contracts.session import load_session
+    from .resolve import PoseTrack, ResolveConfig, ResolveError, period_scenario
+    from ..twin.trajectory import INDENTER_SET
 
     cfg = cfg or ResolveConfig()
     catalog = catalog or INDENTER_SET
@@ -64,10 +64,10 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
 
 def stage_fe_resolve(b, cfg=None) -> dict:
     """Stage 2 (resolve) over every session of the build; returns counts for the stamp."""
-    from tools.fe import save_scenario
-    from tools.fe.batch import run_batch
-    from tools.train.resolve import ResolveConfig
-    from runtime.files import atomic_write_json
+    from ..fe import save_scenario
+    from ..fe.batch import run_batch
+    from .resolve import ResolveConfig
+    from ...contracts.files import atomic_write_json
 
     cfg = cfg or ResolveConfig()
     docs, jobs = {}, []

@@ -7,9 +7,9 @@ import logging
 import time
 from pathlib import Path
 
-from tools.train import stages
-from tools.train.build import STAGES, Build, BuildConfig, config_from_dict, fit_dir
-from tools.train.package import update_manifest
+from . import stages
+from .build import STAGES, Build, BuildConfig, config_from_dict, fit_dir
+from .package import update_manifest
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ def git_commit() -> str | None:
 
 def check_replace(package: Path, recipe_hash: str, data_hash: str | None, replace: bool) -> None:
     """Export never silently replaces a package made from another recipe or other data."""
-    from tools.train.recipe import RecipeError
+    from .recipe import RecipeError
 
     man_path = package / "manifest.json"
     if replace or not man_path.is_file():
@@ -91,7 +91,7 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
     All steps share one build folder (`<cache>/train/<recipe name>/`): the stages before the fit are
     run once when the steps agree on them; each step's pretrain/fit/export/evaluate stamps are its own.
     A step with `after = "<step>"` starts its fit from that step's best weights."""
-    from runtime.paths import cache_dir
+    from ...contracts.paths import cache_dir
 
     root = Path(root) if root else cache_dir() / "train" / recipe.name
     steps = recipe.steps()
@@ -126,6 +126,6 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
 
 
 def _models_dir() -> Path:
-    from runtime.paths import models_dir
+    from ...contracts.paths import models_dir
 
     return models_dir()

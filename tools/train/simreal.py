@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.errors import TensorTouchError
-from runtime.offline import ft_to_sensor
+from ...contracts.errors import TensorTouchError
+from ...runtime.offline import ft_to_sensor
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +74,7 @@ def apply_ratios(force: np.ndarray, owner: np.ndarray, ratios: np.ndarray) -> np
 def session_ratios(session, plan, slot_of_poke, rf_fe_per_poke, cfg: SimRealConfig = SimRealConfig()) -> dict:
     """Ratios per indentation module (session indenter id) of one session.
 
-    session: runtime.session.Session; plan: list of twin Poke (keypoint times); slot_of_poke[p][k]:
+    session: contracts.session.Session; plan: list of twin Poke (keypoint times); slot_of_poke[p][k]:
     the session indenter id of the poke's k-th indenter; rf_fe_per_poke[p]: (J, K, 3) FE reactions at the
     poke's keypoints. The F/T reading and mocap pose are interpolated at each keypoint time."""
     wrench, poses = session.table("wrench"), session.table("poses")

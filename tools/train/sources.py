@@ -11,14 +11,14 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from tools.train.build import unit_meta
+from .build import unit_meta
 
 log = logging.getLogger(__name__)
 
 
 def recorder(b, spec):
     """The twin Recorder of a session spec (not run): plan, unit, modules, physics config."""
-    from tools.twin.record import Recorder
+    from ..twin.record import Recorder
 
     return Recorder(spec.record_config(b.cfg.physics, b.cfg.size), b.session(spec))
 
@@ -29,8 +29,8 @@ def fe_results(b, spec) -> list:
     images and F/T come from one physics even if tools/fe changed since; a solve missing from the cache is
     redone with the current FE (its hash then differs and a warning says so). With hertz-fallback physics
     (smoke tests only) the twin's PokeSolve stands in."""
-    from tools.fe import load_result
-    from tools.twin.record import make_physics
+    from ..fe import load_result
+    from ..twin.record import make_physics
 
     rec = recorder(b, spec)
     physics = make_physics(rec.cfg, rec.unit)
@@ -71,7 +71,7 @@ def fallback_result(ps):
     reaction spread over the touched nodes) — only so the smoke test can run the chain without FE."""
     J, N = ps.U.shape[:2]
     K = ps.RF.shape[1]
-    from tools.twin.geometry import GelSurface
+    from ..twin.geometry import GelSurface
 
     n0 = GelSurface().normals(ps.nodes)
     cn = np.zeros((J, N, 3))
@@ -87,7 +87,7 @@ def fallback_result(ps):
                 owner[j, sel] = k
     from scipy.spatial import Delaunay
 
-    from tools.train.fields import _disc, surface_angles
+    from .fields import _disc, surface_angles
 
     tris = Delaunay(_disc(*surface_angles(ps.nodes))).simplices
     return SimpleNamespace(nodes=ps.nodes, surface_nodes=np.arange(N), surface_tris=tris, U=ps.U,
@@ -96,15 +96,15 @@ def fallback_result(ps):
 
 
 def fe_cache_dir() -> Path:
-    from tools.fe.batch import default_dir
+    from ..fe.batch import default_dir
 
     return default_dir()
 
 
 def gel_of(calibration_meta: dict):
     """tools.fe GelGeometry + tools.twin GelSurface of the unit's gel design (calibration meta.gel)."""
-    from tools.fe import GelGeometry
-    from tools.twin.geometry import GelSurface
+    from ..fe import GelGeometry
+    from ..twin.geometry import GelSurface
 
     g = calibration_meta.get("gel", {})
     shape = g.get("shape", "flattened_dome")
@@ -115,8 +115,8 @@ def gel_of(calibration_meta: dict):
 
 def fallback_solve(ps, gel_surface):
     """Analytic (hertz-fallback) stand-in for tools.fe on a period scenario — smoke tests only."""
-    from tools.twin.physics import HertzFallbackPhysics
-    from tools.twin.trajectory import Poke
+    from ..twin.physics import HertzFallbackPhysics
+    from ..twin.trajectory import Poke
 
     sc = ps.scenario
     K = len(sc.indenters)
@@ -133,7 +133,7 @@ def fallback_solve(ps, gel_surface):
 
 def resolved_sources(b, spec) -> list:
     """Label sources of a session from fe/<session>.json (resolve mode), solved periods only."""
-    from tools.fe import load_result, load_scenario
+    from ..fe import load_result, load_scenario
 
     doc = json.loads((b.root / "fe" / f"{spec.name}.json").read_text())
     if doc.get("mode") != "resolve":

@@ -1,6 +1,6 @@
 """Stage shells of `tensortouch train all` (tools/train/build.py): each reads the build folder, writes its
 outputs there and returns a small dict stored in its stamp. Twin sessions are read through
-runtime.session; the twin's plan and FE results are reconstructed from the same RecordConfig the
+contracts.session; the twin's plan and FE results are reconstructed from the same RecordConfig the
 sessions stage used (so the FE scenario hash is checked against truth/truth.json)."""
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.files import atomic_write, atomic_write_json
+from ...contracts.files import atomic_write, atomic_write_json
 
-from tools.train.build import fit_dir, pretrain_dir, unit_calibration
-from tools.train.package import update_manifest
-from tools.train.sources import fe_mode, fe_results, label_sources, recorder
+from .build import fit_dir, pretrain_dir, unit_calibration
+from .package import update_manifest
+from .sources import fe_mode, fe_results, label_sources, recorder
 
 log = logging.getLogger(__name__)
 
@@ -39,9 +39,9 @@ FALLBACK_CONTACT_N = (0.3, 0.22)
 def stage_sessions(b) -> dict:
     """Record the twin sessions (FE physics, cached per poke) and write each unit's TRUE calibration
     into the build's store (the twin truth the correspondence stage is checked against)."""
-    from tools.progress import stage_progress
-    from tools.twin.record import Recorder
-    from tools.twin.unit import write_true_calibration
+    from ..progress import stage_progress
+    from ..twin.record import Recorder
+    from ..twin.unit import write_true_calibration
 
     out = {}
     for i, spec in enumerate(b.all_sessions()):
@@ -60,8 +60,8 @@ def stage_sessions(b) -> dict:
 
 def stage_keypoints(b) -> dict:
     """Stage 1 on every session (measured F/T + mocap) → keypoints/<session>.json."""
-    from runtime.session import load_session
-    from tools.train.keypoints import KeypointConfig, extract_keypoints, keypoints_doc
+    from ...contracts.session import load_session
+    from .keypoints import KeypointConfig, extract_keypoints, keypoints_doc
 
     kcfg = KeypointConfig(contact_force_n=b.cfg.contact_force_n, detach_force_n=b.cfg.detach_force_n)
     if b.cfg.physics != "fe":
@@ -84,7 +84,7 @@ def stage_fe(b) -> dict:
     solved by tools.fe's batch runner (tools/train/resolve_stage.py). twin: the twin's cached solves of
     the session's plan (re-solved when missing from the cache); lists any poke whose solve was redone."""
     if fe_mode(b) != "twin":
-        from tools.train.resolve_stage import stage_fe_resolve
+        from .resolve_stage import stage_fe_resolve
 
         return stage_fe_resolve(b)
     out = {}
@@ -101,15 +101,15 @@ def stage_fe(b) -> dict:
 
 
 def stage_correspondence(b) -> dict:
-    from tools.train.correspondence import build_unit_calibrations
+    from .correspondence import build_unit_calibrations
 
     return build_unit_calibrations(b)
 
 
 def stage_simreal(b) -> dict:
     """Stage 4: sim-to-real ratios per session and indenter → simreal/<session>.json."""
-    from runtime.session import load_session
-    from tools.train.simreal import session_ratios
+    from ...contracts.session import load_session
+    from .simreal import session_ratios
 
     out = {}
     for spec in b.all_sessions():
@@ -132,7 +132,7 @@ def stage_simreal(b) -> dict:
 
 def stage_dataset(b) -> dict:
     """Stage 5 + sample selection: training sessions → dataset/ (per-session parts cached in .work/)."""
-    from tools.train.dataset import DatasetConfig, session_samples, split_pokes, write_dataset
+    from .dataset import DatasetConfig, session_samples, split_pokes, write_dataset
 
     work = b.dataset / ".work" / b.keys["dataset"]   # per configuration: a changed label source starts anew
     work.mkdir(parents=True, exist_ok=True)
@@ -155,7 +155,7 @@ def stage_dataset(b) -> dict:
                 d = session_samples(b.session(spec), unit_calibration(b, spec.serial), rec.plan, fe_results(b, spec),
                                     [p.slots for p in rec.plan], rat, dcfg, prog)
             else:
-                from tools.train.labels import session_samples_measured
+                from .labels import session_samples_measured
 
                 d = session_samples_measured(b.session(spec), unit_calibration(b, spec.serial),
                                              label_sources(b, spec), rat, dcfg, progress=prog)
@@ -193,7 +193,7 @@ def _inputs_hash(b, spec) -> str:
 def stage_pretrain(b) -> dict:
     if b.cfg.pretrain_epochs <= 0:
         return {"skipped": True}
-    from tools.train.model.train import PretrainConfig, pretrain
+    from .model.train import PretrainConfig, pretrain
 
     res = pretrain(b.dataset, pretrain_dir(b),
                    PretrainConfig(epochs=b.cfg.pretrain_epochs, batch_size=b.cfg.batch, threads=b.cfg.threads,
@@ -202,7 +202,7 @@ def stage_pretrain(b) -> dict:
 
 
 def stage_fit(b) -> dict:
-    from tools.train.model.train import FitConfig, fit
+    from .model.train import FitConfig, fit
 
     enc = pretrain_dir(b) / "encoder.pt"
     res = fit(b.dataset, fit_dir(b),
@@ -215,14 +215,14 @@ def stage_fit(b) -> dict:
 
 
 def build_wall_time(b, extra: float = 0.0) -> float:
-    from tools.train.build import STAGES
+    from .build import STAGES
 
     return float(sum(b.read_stamp(s).get("seconds", 0.0) for s in STAGES) + extra)
 
 
 def stage_export(b) -> dict:
-    from runtime.paths import models_dir
-    from tools.train.export import ExportConfig, export_run
+    from ...contracts.paths import models_dir
+    from .export import ExportConfig, export_run
 
     root = Path(b.cfg.models_dir) if b.cfg.models_dir else models_dir()
     t0 = time.monotonic()
@@ -246,7 +246,7 @@ def stage_export(b) -> dict:
 def package_threshold(b, package_dir: Path) -> dict:
     """The package's contact threshold from up to `threshold_sessions` training sessions spread over
     the list (tools/train/threshold.py), recorded in its manifest."""
-    from tools.train.threshold import ThresholdConfig, measure
+    from .threshold import ThresholdConfig, measure
 
     specs = list(b.cfg.train)
     k = max(1, min(len(specs), b.cfg.threshold_sessions))
@@ -273,10 +273,10 @@ def _set_wall_time(folder: Path, seconds: float) -> None:
 
 def stage_evaluate(b) -> dict:
     """Stage 8 of a build: held-out sessions (+ the shipped demo) → eval/*.json, docs figures."""
-    from runtime.calibration import CalibrationStore
-    from runtime.model import load_package
-    from runtime.paths import demo_dir, models_dir
-    from tools.train.evaluate import EvalConfig, evaluate_session, summarize
+    from ...contracts.store import CalibrationStore
+    from ...runtime.stages.model import load_package
+    from ...contracts.paths import demo_dir, models_dir
+    from .evaluate import EvalConfig, evaluate_session, summarize
 
     root = Path(b.cfg.models_dir) if b.cfg.models_dir else models_dir()
     package = load_package(root / b.cfg.name)
@@ -300,7 +300,7 @@ def stage_evaluate(b) -> dict:
         log.info("evaluate %s: %s", name, json.dumps(s))
     (b.root / "eval" / "summary.json").write_text(json.dumps(summary, indent=1))
     if b.cfg.figures and b.cfg.heldout:
-        from tools.train.figures import write_figures
+        from .figures import write_figures
 
         write_figures(b, package)
     return {"summary": summary}

@@ -67,13 +67,13 @@ def two_sample(fp: np.ndarray, tips: np.ndarray, forces: np.ndarray, cfg: Suppor
 
 
 def _clusters(fp, cal, cc):
-    from runtime.contacts import find_clusters
+    from ...runtime.stages.contacts import find_clusters
 
     return find_clusters(fp, cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask, cfg=cc)
 
 
 def _nearest(cl, tip) -> int:
-    return min(range(len(cl)), key=lambda j: float(np.linalg.norm(np.asarray(cl[j].centroid_mm) - tip)))
+    return min(range(len(cl)), key=lambda j: float(np.linalg.norm(np.asarray(cl[j].position_mm) - tip)))
 
 
 def merge_counts(single: list[dict], single_cals: list, two: list[dict], two_cals: list, contacts,

@@ -1,6 +1,6 @@
 """The package's contact threshold, measured on training sessions (part of the export stage).
 
-The runtime's cluster core threshold (per-pixel |f| in N, runtime/contacts.py) depends on the
+The runtime's cluster core threshold (per-pixel |f| in N, runtime/stages/contacts.py) depends on the
 network: how much force it paints on an untouched gel (false contacts) and how thin it spreads a
 light touch. So every package carries its own, measured after export on training sessions through
 the runtime (int8, the unit's calibration): the lowest value of a grid at which no rest frame
@@ -31,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tools.train.support import SupportConfig, choose_merge, choose_support, support_sample, two_sample
+from .support import SupportConfig, choose_merge, choose_support, support_sample, two_sample
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +89,7 @@ def rest_frames(t: np.ndarray, fmax: np.ndarray, cfg: "ThresholdConfig") -> np.n
 
 def weak_totals(fp: np.ndarray, mag: np.ndarray, mask: np.ndarray, grid) -> list[float]:
     """Per weak threshold: the largest |total force| (N) of a component of pixels above it."""
-    from runtime.contacts import weak_components
+    from ...runtime.stages.contacts import weak_components
 
     none = np.zeros(mag.shape, bool)
     return [float(weak_components(fp, mag, mask, none, w)[1].max(initial=0.0)) for w in grid]
@@ -98,9 +98,9 @@ def weak_totals(fp: np.ndarray, mag: np.ndarray, mask: np.ndarray, grid) -> list
 def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = ThresholdConfig()) -> dict:
     """Per grid value: rest frames with a cluster core, contact frames with one (counts); per weak
     threshold the largest component total on a rest frame; the light-contact frames' cores and totals."""
-    from runtime.contacts import pixel_forces
-    from runtime.offline import measured_at, replay_session
-    from runtime.session import load_session
+    from ...runtime.stages.contacts import pixel_forces
+    from ...runtime.offline import measured_at, replay_session
+    from ...contracts.session import load_session
 
     ses = load_session(session_dir)
     frames = ses.table("frames")
@@ -184,7 +184,7 @@ def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
     support frames)."""
     from dataclasses import replace
 
-    from runtime.pipeline import contact_config
+    from ...runtime.pipeline import contact_config
 
     samples = [x for s in sweeps for x in s.get("support", [])]
     cals = [s["calibration"] for s in sweeps for _ in s.get("support", [])]
@@ -231,7 +231,7 @@ def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict
 def record(package_dir: Path, result: dict) -> None:
     """Write the result into the manifest (atomic): the contact settings, by ContactConfig's own field
     names, under runtime.contacts; how they were measured under runtime.measured."""
-    from tools.train.package import update_manifest
+    from .package import update_manifest
 
     contacts = {k: v for k, v in result.items() if k != "measured"}
 
@@ -245,7 +245,7 @@ def record(package_dir: Path, result: dict) -> None:
 def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True,
             command: str | None = None) -> dict:
     """sessions: [(session_dir, Calibration)]; `command` is recorded with the measurement."""
-    from runtime.model import load_package
+    from ...runtime.stages.model import load_package
 
     package = load_package(package_dir)
     sweeps = []
@@ -271,11 +271,11 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
     """The package's detection (its manifest's values) on other sessions, e.g. held-out ones: per
     measured |F| band the frames with a core by the strong threshold alone and with the light-touch
     rule, and the rest frames (`rest_frames`) with a core. Same frames and fields for both."""
-    from runtime.contacts import light_cores, pixel_forces
-    from runtime.model import load_package
-    from runtime.offline import measured_at, replay_session
-    from runtime.pipeline import PipelineConfig
-    from runtime.session import load_session
+    from ...runtime.stages.contacts import light_cores, pixel_forces
+    from ...runtime.stages.model import load_package
+    from ...runtime.offline import measured_at, replay_session
+    from ...runtime.pipeline import PipelineConfig
+    from ...contracts.session import load_session
 
     package = load_package(package_dir)
     cc = PipelineConfig.for_package(package).contacts
@@ -322,9 +322,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.calibration import CalibrationStore
-    from runtime.errors import TensorTouchError
-    from runtime.session import load_session
+    from ...contracts.store import CalibrationStore
+    from ...contracts.errors import TensorTouchError
+    from ...contracts.session import load_session
 
     pairs = []
     for item in args.session:

@@ -19,9 +19,9 @@ log = logging.getLogger(__name__)
 
 
 def render_rate(n: int = 30) -> dict:
-    from tools.twin.physics import HertzFallbackPhysics
-    from tools.twin.trajectory import plan_session
-    from tools.twin.unit import TwinUnit
+    from .physics import HertzFallbackPhysics
+    from .trajectory import plan_session
+    from .unit import TwinUnit
 
     unit = TwinUnit("TWIN-BENCH")
     r = unit.renderer
@@ -45,21 +45,21 @@ def render_rate(n: int = 30) -> dict:
 
 
 def throughput(pokes: int, cache: Path, frames: str = "ffv1") -> dict:
-    from tools.twin.record import RecordConfig, Recorder
+    from .record import RecordConfig, Recorder
 
     res = {}
     for label in ("cold", "warm"):
         tmp = Path(tempfile.mkdtemp(prefix="twin-bench-"))
         cfg = RecordConfig(serial="TWIN-BENCH", pokes=pokes, seed=7, physics="fe", frame_format=frames)
         rec = Recorder(cfg, tmp / "s")
-        from tools.twin.record import make_physics
+        from .record import make_physics
 
         rec.physics = make_physics(cfg, rec.unit)
         rec.physics.cache = cache
         t = time.perf_counter()
         rec.run()
         wall = time.perf_counter() - t
-        from runtime.session import load_session
+        from ...contracts.session import load_session
 
         dur = float(load_session(tmp / "s").table("frames")[-1, 0])
         res[label] = {"recorded_s": dur, "compute_s": wall, "rec_s_per_min": dur / wall * 60,
@@ -71,7 +71,7 @@ def throughput(pokes: int, cache: Path, frames: str = "ffv1") -> dict:
 
 def _densify(poke, factor: int):
     """The same poke with `factor` keypoints per original segment (positions linear in the phase)."""
-    from tools.twin.trajectory import Poke
+    from .trajectory import Poke
 
     J = len(poke.times)
     s = np.linspace(0, J - 1, (J - 1) * factor + 1)
@@ -81,7 +81,7 @@ def _densify(poke, factor: int):
     rv = poke.rotvec[:, j] + f * (poke.rotvec[:, j + 1] - poke.rotvec[:, j])
     # times: the phase s = k/factor inside a min-jerk segment is reached at the tau solving minjerk(tau) = s
     taus = np.linspace(0, 1, 2001)
-    from tools.twin.trajectory import minjerk
+    from .trajectory import minjerk
 
     tau = np.interp(s - j, minjerk(taus), taus)
     times = poke.times[j] + tau * (poke.times[j + 1] - poke.times[j])
@@ -90,10 +90,10 @@ def _densify(poke, factor: int):
 
 
 def interpolation_error(cache: Path, factor: int = 4, kind: str = "slide") -> dict:
-    from tools.twin.physics import PokeSolve, interpolate
-    from tools.twin.record import RecordConfig, make_physics
-    from tools.twin.trajectory import TrajectoryConfig, plan_session
-    from tools.twin.unit import TwinUnit
+    from .physics import PokeSolve, interpolate
+    from .record import RecordConfig, make_physics
+    from .trajectory import TrajectoryConfig, plan_session
+    from .unit import TwinUnit
 
     unit = TwinUnit("TWIN-BENCH")
     cfg = TrajectoryConfig(kinds=(kind,), p_two=0.0, indenters=("sphere5",))

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tools.twin.geometry import GelSurface
+from .geometry import GelSurface
 
 log = logging.getLogger(__name__)
 

@@ -10,15 +10,15 @@ from __future__ import annotations
 import importlib
 import logging
 
-from tools.progress import stage_progress
+from ..progress import stage_progress
 
 log = logging.getLogger(__name__)
 
 
 def _record(args) -> int:
-    from runtime.errors import TensorTouchError
-    from tools.twin.effect_specs import parse_effect_arg
-    from tools.twin.record import RecordConfig, Recorder
+    from ...contracts.errors import TensorTouchError
+    from .effect_specs import parse_effect_arg
+    from .record import RecordConfig, Recorder
 
     try:
         effects = [parse_effect_arg(e) for e in args.effect or []]
@@ -37,7 +37,7 @@ def _record(args) -> int:
         cfg.noise.read_sigma = args.read_noise
     rec = Recorder(cfg, args.out, progress=stage_progress(cfg.serial))
     if args.calibration:
-        from tools.twin.unit import write_true_calibration
+        from .unit import write_true_calibration
 
         version = write_true_calibration(rec.unit, args.store, args.model_size)
         print(f"true calibration of {args.unit}: {version}")
@@ -49,14 +49,14 @@ def _record(args) -> int:
 
 
 def _show(args) -> int:
-    from tools.twin.show import contact_sheet
+    from .show import contact_sheet
 
     print(contact_sheet(args.session, args.out, n=args.frames))
     return 0
 
 
 def _calibration(args) -> int:
-    from tools.twin.unit import TwinUnit, write_true_calibration
+    from .unit import TwinUnit, write_true_calibration
 
     print(write_true_calibration(TwinUnit(args.unit), args.store, args.model_size))
     return 0
@@ -86,7 +86,7 @@ def register(sub) -> None:
     r.add_argument("--jpeg", type=int, default=0, metavar="QUALITY",
                    help="JPEG round trip of every frame inside the camera (0 = off), as a USB MJPG camera")
     r.add_argument("--calibration", action="store_true", help="also write the unit's true calibration")
-    r.add_argument("--store", help="calibration store root (default: runtime.paths.calibration_dir())")
+    r.add_argument("--store", help="calibration store root (default: contracts.paths.calibration_dir())")
     r.set_defaults(func=_record)
     s = tsub.add_parser("show", help="contact sheet of a session: frames, deformation, force trace")
     s.add_argument("session")
@@ -95,12 +95,12 @@ def register(sub) -> None:
     s.set_defaults(func=_show)
     c = tsub.add_parser("calibration", help="write a twin unit's true calibration into the calibration store")
     c.add_argument("--unit", required=True)
-    c.add_argument("--store", help="calibration store root (default: runtime.paths.calibration_dir())")
+    c.add_argument("--store", help="calibration store root (default: contracts.paths.calibration_dir())")
     c.add_argument("--model-size", type=int, default=128)
     c.set_defaults(func=_calibration)
     for name, module, helptext in (
-            ("demo", "tools.twin.demo", "regenerate the shipped demo session (runtime/demo) and its true calibration"),
-            ("gauge", "tools.recalib.twin_gauge", "play a session's force as a serial force gauge (recalibration tests)")):
+            ("demo", "tensortouch.tools.twin.demo", "regenerate the shipped demo session (runtime/demo) and its true calibration"),
+            ("gauge", "tensortouch.tools.recalib.twin_gauge", "play a session's force as a serial force gauge (recalibration tests)")):
         mod = importlib.import_module(module)
         q = tsub.add_parser(name, help=helptext, description=helptext)
         mod.add_arguments(q)

@@ -14,7 +14,7 @@ import logging
 import shutil
 from pathlib import Path
 
-from runtime import paths
+from ...contracts import paths
 
 log = logging.getLogger(__name__)
 SERIAL, POKES, SEED, QUALITY = "TWIN-DEMO", 3, 7, 65
@@ -26,9 +26,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.progress import stage_progress
-    from tools.twin.record import RecordConfig, Recorder
-    from tools.twin.unit import write_true_calibration
+    from ..progress import stage_progress
+    from .record import RecordConfig, Recorder
+    from .unit import write_true_calibration
 
     out = Path(args.out)
     staging = out.with_name(out.name + ".new")

@@ -1,13 +1,13 @@
 """Physical-effect *specifications* for the twin, taken from the runtime's canonical definitions.
 
 The effect vocabulary -- names, parameters (units, bounds, defaults), identity values, stages,
-covariates and equations -- is defined once, in `runtime/effects/builtin.py` (the model side the
+covariates and equations -- is defined once, in `runtime/stages/effects/builtin.py` (the model side the
 runtime applies and the workbench fits; docs/effects-model.md). The twin (which switches effects on
 in "truth", tools/twin/effects.py) reads it from there through the small `EffectSpec` view below, so
 the two sides cannot drift apart. Only the truth *forward forms* are written separately in the twin
 (so a test can check two independent implementations of the same physics against each other).
 
-Covariate names and units are `runtime.effects.COVARIATES`; the twin provides, per sample: time (s
+Covariate names and units are `runtime.stages.effects.COVARIATES`; the twin provides, per sample: time (s
 since session start), temperature (degC), depth (mm), max_depth (mm), normal (unit vectors),
 force_n / force_t (N), rim_distance (mm), gel_height (mm). Equations: docs/effects.md.
 """
@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-from runtime.effects import BUILTIN, CANONICAL, COVARIATES, STAGES, Param
+from ...runtime.stages.effects import BUILTIN, CANONICAL, COVARIATES, STAGES, Param
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """Physical effects in *truth*: the forward forms the digital twin applies (numpy).
 
 Specs (names, parameters, units, bounds, covariates, equations) are the runtime's canonical
-definitions (runtime/effects/builtin.py, seen through effect_specs.py); this module only holds the
+definitions (runtime/stages/effects/builtin.py, seen through effect_specs.py); this module only holds the
 twin's own forward functions, written independently of the runtime's. The model never sees
 which effects are on except through the measurements they change. See docs/effects.md.
 
@@ -20,7 +20,7 @@ import logging
 import numpy as np
 from scipy.special import erf
 
-from tools.twin.effect_specs import SPECS, EffectSpec
+from .effect_specs import SPECS, EffectSpec
 
 log = logging.getLogger(__name__)
 

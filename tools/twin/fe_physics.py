@@ -2,7 +2,7 @@
 
 Each poke becomes an FE scenario (docs/fe.md): the unit's gel, the nominal material, the poke's
 indenters with their initial poses and keypoints. Results are cached as FE result files under
-`<cache>/twin/fe/<scenario hash>.npz` (runtime.paths.cache_dir() by default), so re-recording,
+`<cache>/twin/fe/<scenario hash>.npz` (contracts.paths.cache_dir() by default), so re-recording,
 resuming or recording another unit with the same plan reuses them. The unit's stiffness scale is
 applied by the recorder (exact for displacement-controlled indentation of a hyperelastic gel whose
 constants are all scaled: displacements are unchanged, forces scale).
@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime import paths
-from runtime.errors import TensorTouchError
-from tools.twin.geometry import GelSurface
-from tools.twin.physics import PokeSolve
-from tools.twin.trajectory import INDENTER_SET, Poke
-from runtime.files import atomic_write_json
+from ...contracts import paths
+from ...contracts.errors import TensorTouchError
+from .geometry import GelSurface
+from .physics import PokeSolve
+from .trajectory import INDENTER_SET, Poke
+from ...contracts.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ class FEPhysics:
     stats: dict = field(default_factory=lambda: {"solved": 0, "cached": 0, "failed": 0, "seconds": 0.0})
 
     def __post_init__(self):
-        from tools.fe import GelGeometry, Material, MeshSettings, SolverSettings
+        from ..fe import GelGeometry, Material, MeshSettings, SolverSettings
 
         self.gel = self.gel or GelGeometry()
         self.material = self.material or Material()
@@ -61,7 +61,7 @@ class FEPhysics:
         self.cache = Path(self.cache) if self.cache else paths.cache_dir() / "twin" / "fe"
 
     def scenario(self, poke: Poke):
-        from tools.fe import Indenter, Keypoint, Scenario
+        from ..fe import Indenter, Keypoint, Scenario
 
         inds = []
         for k, name in enumerate(poke.indenters):
@@ -89,8 +89,8 @@ class FEPhysics:
         converge leaves `<hash>.failed.json` (message, last converged keypoint) beside the cache so a
         resumed recording does not solve it again; when every attempt fails, PokeSolveFailed says
         which keypoint was the last one reached."""
-        from tools.fe import FEConvergenceError, load_result, save_result, solve
-        from tools.fe.solver import SOLVER_REVISION
+        from ..fe import FEConvergenceError, load_result, save_result, solve
+        from ..fe.solver import SOLVER_REVISION
 
         last, reasons = -1, []
         for k, sc in enumerate(self.attempts(poke)):

@@ -4,7 +4,7 @@ intersection from the camera below the base, outward normals, θ/φ, rim distanc
 Sensor frame = FE gel frame (docs/fe.md, docs/fields.md): origin at the centre of the gel base,
 +z along the dome axis. θ = atan2(sqrt(x²+y²), z) is the angle of a surface point from the
 dome axis seen from the centre of the cap sphere (0, 0, sphere_z) -- the same θ as
-runtime.geometry.DomeProfile(radius_mm=sphere_radius, center_z_mm=sphere_z) -- continued onto the
+runtime.stages.geometry.DomeProfile(radius_mm=sphere_radius, center_z_mm=sphere_z) -- continued onto the
 skirt; φ = atan2(y, x).
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.errors import TensorTouchError
+from ...contracts.errors import TensorTouchError
 
 log = logging.getLogger(__name__)
 

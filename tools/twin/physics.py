@@ -25,8 +25,8 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tools.twin.geometry import GelSurface
-from tools.twin.trajectory import INDENTER_SET, Poke, segment_phase
+from .geometry import GelSurface
+from .trajectory import INDENTER_SET, Poke, segment_phase
 
 log = logging.getLogger(__name__)
 

@@ -18,18 +18,18 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import SessionError
-from runtime.session import write_table
-from tools.sessions.writer import SessionWriter
-from tools.twin.camera import NoiseConfig
-from tools.twin.effects import FrictionMismatch, apply_stage, build_effects
-from tools.twin.physics import HertzFallbackPhysics, interpolate
-from tools.twin.signals import (Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track,
+from ...contracts.errors import SessionError
+from ...contracts.session import write_table
+from ..sessions.writer import SessionWriter
+from .camera import NoiseConfig
+from .effects import FrictionMismatch, apply_stage, build_effects
+from .physics import HertzFallbackPhysics, interpolate
+from .signals import (Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track,
                                 temperature)
-from tools.twin.fe_physics import PokeSolveFailed
-from tools.twin.trajectory import (GuidedConfig, TrajectoryConfig, apply_replans, module_indenters, plan_guided,
+from .fe_physics import PokeSolveFailed
+from .trajectory import (GuidedConfig, TrajectoryConfig, apply_replans, module_indenters, plan_guided,
                                    plan_session, segment_phase, session_duration, shorten)
-from tools.twin.unit import TwinUnit
+from .unit import TwinUnit
 
 log = logging.getLogger(__name__)
 PHYSICS = ("fe", "hertz-fallback")
@@ -69,8 +69,8 @@ def make_physics(cfg: RecordConfig, unit: TwinUnit, progress=None):
     if cfg.physics == "hertz-fallback":
         return HertzFallbackPhysics(unit.gel)
     if cfg.physics == "fe":
-        from tools.fe import GelGeometry, MeshSettings
-        from tools.twin.fe_physics import FEPhysics
+        from ..fe import GelGeometry, MeshSettings
+        from .fe_physics import FEPhysics
 
         g = unit.gel
         gel = GelGeometry(kind="flattened_dome", radius=g.radius, cap_height=g.cap_height, skirt=g.skirt)

@@ -9,8 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from runtime.session import load_session
-from tools.sessions.writer import read_frames
+from ...contracts.session import load_session
+from ..sessions.writer import read_frames
 
 log = logging.getLogger(__name__)
 COLORS = [(40, 40, 230), (230, 120, 30), (40, 170, 40), (160, 40, 160)]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tools.twin.trajectory import Poke, minjerk, poke_pose
+from .trajectory import Poke, minjerk, poke_pose
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tools.twin.geometry import GelSurface
+from .geometry import GelSurface
 
 log = logging.getLogger(__name__)
 

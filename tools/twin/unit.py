@@ -4,7 +4,7 @@ A serial (e.g. "TWIN-0001") seeds a generator (sha256 of the serial), which draw
 stiffness scale, image centre offset, focal length scale and per-LED brightness. The true
 calibration (θ/φ, surface_xyz, normals, pixel_area, mask per model pixel, gel centre/radius in
 px) is what the calibration stage must later recover; `write_true_calibration` stores it with
-runtime.calibration.CalibrationStore (provenance method "twin-truth").
+contracts.store.CalibrationStore (provenance method "twin-truth").
 """
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from tools.twin.camera import CameraConfig, FisheyeModel, LEDConfig, NoiseConfig, PatternConfig, Renderer
-from tools.twin.geometry import GelSurface
+from .camera import CameraConfig, FisheyeModel, LEDConfig, NoiseConfig, PatternConfig, Renderer
+from .geometry import GelSurface
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,7 @@ class TwinUnit:
 
 def true_tables(unit: TwinUnit, model_size: int = 128) -> dict[str, np.ndarray]:
     """The unit's exact per-model-pixel tables (calibration store contract)."""
-    from runtime.preprocess import Preprocessor
+    from ...runtime.stages.preprocess import Preprocessor
 
     cx, cy = unit.gel_center_px
     pre = Preprocessor(cx, cy, unit.gel_radius_px, model_size)
@@ -150,7 +150,7 @@ def calibration_meta(unit: TwinUnit, model_size: int = 128) -> dict:
             "gel": {"shape": "flattened_dome" if g.cap_height < g.radius else "dome",
                     "base_radius_mm": g.radius, "cap_height_mm": g.cap_height, "skirt_mm": g.skirt,
                     "radius_mm": g.sphere_radius, "center_z_mm": g.sphere_z,
-                    "theta": "angle from +z about (0, 0, center_z_mm) (runtime.geometry.DomeProfile)"},
+                    "theta": "angle from +z about (0, 0, center_z_mm) (runtime.stages.geometry.DomeProfile)"},
             "provenance": {"method": "twin-truth", "pokes": 0,
                            "notes": f"exact tables of twin unit {unit.serial} (tools.twin.unit)",
                            "unit": unit.params.to_dict()}}
@@ -159,8 +159,8 @@ def calibration_meta(unit: TwinUnit, model_size: int = 128) -> dict:
 def write_true_calibration(unit: TwinUnit, root=None, model_size: int = 128, force: bool = False) -> str:
     """Store the unit's true calibration as a new version under calibration_store/<serial>/;
     when the current version already holds exactly these tables, keep it (unless `force`)."""
-    from runtime.calibration import CalibrationStore
-    from runtime.errors import CalibrationError
+    from ...contracts.store import CalibrationStore
+    from ...contracts.errors import CalibrationError
 
     store = CalibrationStore(root)
     tables = true_tables(unit, model_size)

@@ -5,7 +5,7 @@ import logging
 import sys
 import time
 
-from runtime.zenoh_session import add_zenoh_options, describe, session_from_args
+from ...runtime.apps.zenoh_session import add_zenoh_options, describe, session_from_args
 
 log = logging.getLogger(__name__)
 
@@ -29,10 +29,10 @@ def register(sub) -> None:
 
 
 def cmd_view(args) -> int:
-    from tools.view.server import ViewState, serve
+    from .server import ViewState, serve
 
     if getattr(args, "rerun", False):
-        from tools.viewers.rerun_live import run_rerun_view
+        from ..viewers.rerun_live import run_rerun_view
 
         return run_rerun_view(args)
     session = session_from_args(args, "subscriber")

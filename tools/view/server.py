@@ -29,7 +29,7 @@ from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 
-from tools.view.render import frame_view, lut_json
+from .render import frame_view, lut_json
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +59,8 @@ def _status_view(status: dict | None) -> dict | None:
 
 
 def nominal_surface(grid: int = NOMINAL_GRID) -> dict:
-    """Ideal equidistant fisheye onto the default dome (runtime.geometry), for sensors without info."""
-    from runtime.geometry import DomeProfile, equidistant_theta_phi, surface_tables
+    """Ideal equidistant fisheye onto the default dome (runtime.stages.geometry), for sensors without info."""
+    from ...runtime.stages.geometry import DomeProfile, equidistant_theta_phi, surface_tables
 
     theta, phi = equidistant_theta_phi((grid, grid), NOMINAL_THETA_EDGE_RAD)
     t = surface_tables(theta, phi, DomeProfile())
@@ -73,7 +73,7 @@ class ViewState:
     """Latest fields / contacts / status per sensor, fed by a runtime Subscriber."""
 
     def __init__(self, session, sensor: str = "*", *, forget_after_s: float = 10.0, max_sensors: int = 32):
-        from runtime.subscriber import Subscriber
+        from ...runtime.apps.subscriber import Subscriber
 
         self.forget_after_s = float(forget_after_s)
         self.max_sensors = max(1, int(max_sensors))
@@ -128,8 +128,8 @@ class ViewState:
             return cached
         if not known:
             return nominal_surface()
-        from runtime.errors import TensorTouchError
-        from runtime.subscriber import query_info
+        from ...contracts.errors import TensorTouchError
+        from ...runtime.apps.subscriber import query_info
 
         try:
             info = query_info(self.session, sensor, timeout=1.0)

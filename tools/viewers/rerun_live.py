@@ -17,7 +17,7 @@ import sys
 import time
 from urllib.parse import quote
 
-from runtime.errors import TensorTouchError
+from ...contracts.errors import TensorTouchError
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +74,9 @@ def stop_server(proc) -> None:
 
 
 def run_rerun_view(args) -> int:
-    from runtime.subscriber import Subscriber, query_info, queued_callbacks
-    from runtime.zenoh_session import config_from_args, describe
-    from tools.viewers.rerun_saver import RerunSaver
+    from ...runtime.apps.subscriber import Subscriber, query_info, queued_callbacks
+    from ...runtime.apps.zenoh_session import config_from_args, describe
+    from .rerun_saver import RerunSaver
 
     def stop_on_sigterm(*_):
         raise KeyboardInterrupt              # so the server started below is stopped too

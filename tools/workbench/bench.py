@@ -52,7 +52,7 @@ def _parse_effect(text: str) -> tuple:
 
 
 def _cli(argv: list[str]) -> tuple[int, float]:
-    from tools.workbench import cli
+    from . import cli
 
     parser = argparse.ArgumentParser(prog="tensortouch")
     cli.register(parser.add_subparsers(dest="command", required=True))
@@ -65,15 +65,15 @@ def _cli(argv: list[str]) -> tuple[int, float]:
 def run(args) -> int:
     import os
 
-    from runtime import paths
-    from tools.workbench.scenarios import Scenario, fresh_store, record
+    from ...contracts import paths
+    from .scenarios import Scenario, fresh_store, record
 
     work = Path(args.out) if args.out else paths.cache_dir() / "workbench" / "bench"
     work.mkdir(parents=True, exist_ok=True)
     net = args.model == "network"
     t0 = time.perf_counter()
     if net:
-        from tools.workbench.scenarios import NET_TEST_SEED, net_scenario
+        from .scenarios import NET_TEST_SEED, net_scenario
 
         calib = [record(net_scenario(s)) for s in args.calib_seeds]
         session = record(net_scenario(args.seed or NET_TEST_SEED, pokes=args.pokes or 32, fps=args.fps,

@@ -22,8 +22,8 @@ import json
 import logging
 from pathlib import Path
 
-from tools.workbench.cli_common import compare_session, last_diagnosis_path, registry_of, session_args
-from tools.workbench.effects_cli import register_effects
+from .cli_common import compare_session, last_diagnosis_path, registry_of, session_args
+from .effects_cli import register_effects
 
 log = logging.getLogger(__name__)
 
@@ -63,15 +63,15 @@ def register(sub) -> None:
                    "(residual vs the top covariate) and shape.png (the verdict's fitted shape) here")
     d.set_defaults(func=cmd_diagnose)
     register_effects(sub)
-    from tools.workbench.generality import register as register_generality
+    from .generality import register as register_generality
 
     register_generality(sub)
 
 
 # ----- commands --------------------------------------------------------------------------------
 def cmd_compare(args) -> int:
-    from tools.workbench.report import write_report
-    from tools.workbench.table import write_residuals_csv
+    from .report import write_report
+    from .table import write_residuals_csv
 
     out = Path(args.out)
     previous = None
@@ -112,7 +112,7 @@ def cmd_compare(args) -> int:
 def cmd_diagnose(args) -> int:
     from dataclasses import replace
 
-    from tools.workbench.diagnose import DiagnoseConfig, diagnose
+    from .diagnose import DiagnoseConfig, diagnose
 
     comp = compare_session(args)
     cfg = DiagnoseConfig()
@@ -136,7 +136,7 @@ def cmd_diagnose(args) -> int:
     for line in diag.words():
         print(line)
     if args.pictures:
-        from tools.workbench.report import covariate_ranking, effect_shape, residual_vs_covariate
+        from .report import covariate_ranking, effect_shape, residual_vs_covariate
 
         pic = Path(args.pictures)
         pic.mkdir(parents=True, exist_ok=True)

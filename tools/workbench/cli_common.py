@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tools.progress import count_progress
+from ..progress import count_progress
 
 
 def session_args(p, session: bool = True) -> None:
@@ -17,14 +17,14 @@ def session_args(p, session: bool = True) -> None:
 
 
 def store_of(args):
-    from runtime.calibration import CalibrationStore
+    from ...contracts.store import CalibrationStore
 
     return CalibrationStore(args.store) if args.store else CalibrationStore()
 
 
 def registry_of(args):
-    from runtime.effects import Registry
-    from runtime.errors import TensorTouchError
+    from ...runtime.stages.effects import Registry
+    from ...contracts.errors import TensorTouchError
 
     try:
         return Registry.default(plugin_dirs=args.plugins)
@@ -37,27 +37,27 @@ def sensor_of(args) -> str:
         return args.sensor
     if getattr(args, "session", None):
         return json.loads((Path(args.session) / "session.json").read_text())["sensor_id"]
-    from runtime.errors import TensorTouchError
+    from ...contracts.errors import TensorTouchError
 
     raise TensorTouchError("--sensor is required")
 
 
 def default_model_path(sensor: str) -> Path:
-    from tools.workbench.compare import cache_root
+    from .compare import cache_root
 
     return cache_root() / "models" / f"{sensor}.json"
 
 
 def last_diagnosis_path(sensor: str) -> Path:
-    from tools.workbench.compare import cache_root
+    from .compare import cache_root
 
     return cache_root() / f"diagnosis-{sensor}.json"
 
 
 def contact_law(args, sensor: str, store, path=None):
-    from runtime.errors import TensorTouchError
-    from tools.workbench.compare import load_table
-    from tools.workbench.models import ContactLaw
+    from ...contracts.errors import TensorTouchError
+    from .compare import load_table
+    from .models import ContactLaw
 
     if getattr(args, "model_from", None):
         table, _ = load_table(args.model_from, store.load(sensor), cache=not args.no_cache)
@@ -75,9 +75,9 @@ def contact_law(args, sensor: str, store, path=None):
 def model_of(args, sensor: str, store):
     """--model: package (path/name) -> the deployed network; 'contact-law' or a .json -> contact law;
     default: the installed package when it fits the calibration and the session has frames."""
-    from runtime.errors import ModelPackageError
-    from runtime.model import find_package
-    from tools.workbench.network import NetworkConfig, NetworkModel
+    from ...contracts.errors import ModelPackageError
+    from ...runtime.stages.model import find_package
+    from .network import NetworkConfig, NetworkModel
 
     choice = getattr(args, "model", None)
     cfg = NetworkConfig(precision=getattr(args, "precision", "int8"))
@@ -109,16 +109,16 @@ _network_pass = count_progress("network pass", "frame")
 
 
 def compare_session(args, store=None, sensor=None):
-    from tools.workbench.compare import run_compare
+    from .compare import run_compare
 
     sensor = sensor or sensor_of(args)
     store = store or store_of(args)
     model = model_of(args, sensor, store)
     if getattr(args, "correction_from", None):
-        from tools.workbench.nominal import fit_and_store_correction
+        from .nominal import fit_and_store_correction
 
         if not hasattr(model, "build_table"):
-            from runtime.errors import TensorTouchError
+            from ...contracts.errors import TensorTouchError
 
             raise TensorTouchError("--correction-from needs the network model (the contact law has no correction)")
         version, text = fit_and_store_correction(args.correction_from, sensor, store, model, registry_of(args),

@@ -19,14 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime import paths
-from runtime.calibration import CalibrationStore
-from runtime.effects import EffectChain, Registry
-from runtime.errors import TensorTouchError
-from runtime.session import load_session
-from tools.workbench.fit import deployed_prediction
-from tools.workbench.samples import SampleConfig, build_table
-from tools.workbench.table import SampleTable
+from ...contracts import paths
+from ...contracts.store import CalibrationStore
+from ...runtime.stages.effects import EffectChain, Registry
+from ...contracts.errors import TensorTouchError
+from ...contracts.session import load_session
+from .fit import deployed_prediction
+from .samples import SampleConfig, build_table
+from .table import SampleTable
 
 log = logging.getLogger(__name__)
 
@@ -190,7 +190,7 @@ def run_compare(session_path, sensor: str | None, store: CalibrationStore, model
         raise TensorTouchError(f"{cal.folder / 'calibration.json'}: {exc}") from None
     extra = {}
     if hasattr(model, "build_table"):   # the deployed network: frames through the runtime's code
-        from tools.workbench.fastpost import correction_post
+        from .fastpost import correction_post
 
         session = load_session(session_path)
         table = model.build_table(session, cal, table, folder if cache else None,

@@ -36,13 +36,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.effects import Effect, EffectChain, EnabledEffect, Registry
-from tools.workbench.fit import Candidate, Channels, FitConfig, channel_of
-from tools.workbench.mde import MDEConfig, minimum_detectable_effect
-from tools.workbench.mde import words as mde_words
-from tools.workbench.pairs import PairConfig, score_pairs
-from tools.workbench.scan import ScanConfig, scan
-from tools.workbench.table import SCAN_COVARIATES, SCAN_VECTORS, SampleTable
+from ...runtime.stages.effects import Effect, EffectChain, EnabledEffect, Registry
+from .fit import Candidate, Channels, FitConfig, channel_of
+from .mde import MDEConfig, minimum_detectable_effect
+from .mde import words as mde_words
+from .pairs import PairConfig, score_pairs
+from .scan import ScanConfig, scan
+from .table import SCAN_COVARIATES, SCAN_VECTORS, SampleTable
 
 log = logging.getLogger(__name__)
 
@@ -466,7 +466,7 @@ def family_of(effect: Effect) -> str:
 
 def pick_members(scores: list, cfg: DiagnoseConfig) -> list:
     """One score per effect family: the named library form, unless its flexible member
-    (runtime/effects/flexible.py) has a held-out error lower by more than `flex_margin` (relative);
+    (runtime/stages/effects/flexible.py) has a held-out error lower by more than `flex_margin` (relative);
     the other member is kept on the chosen score (`alternatives`) for the shape picture."""
     groups: dict[str, list] = {}
     for s in scores:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tools.workbench.cli_common import (last_diagnosis_path, model_of, progress, registry_of, sensor_of,
+from .cli_common import (last_diagnosis_path, model_of, progress, registry_of, sensor_of,
                                         session_args, store_of)
 
 
@@ -46,8 +46,8 @@ def cmd_effects_list(args) -> int:
 
 
 def cmd_effects_add(args) -> int:
-    from runtime.effects import EnabledEffect
-    from runtime.errors import TensorTouchError
+    from ...runtime.stages.effects import EnabledEffect
+    from ...contracts.errors import TensorTouchError
 
     reg = registry_of(args)
     sensor = sensor_of(args)
@@ -91,10 +91,10 @@ def cmd_effects_add(args) -> int:
 def _refit(args, sensor, store, reg, current, entry, session):
     """Joint refit of the enabled effects + the new one on the diagnosed session (same model and
     deployed order as compare/diagnose: force-stage effects, then the sensor's correction)."""
-    from runtime.effects import EffectChain
-    from runtime.errors import TensorTouchError
-    from tools.workbench.compare import run_compare
-    from tools.workbench.fit import refit_chain
+    from ...runtime.stages.effects import EffectChain
+    from ...contracts.errors import TensorTouchError
+    from .compare import run_compare
+    from .fit import refit_chain
 
     if not session or not Path(session, "session.json").is_file():
         print("note: parameters not refitted jointly (diagnosed session not found)")
@@ -119,7 +119,7 @@ def _refit(args, sensor, store, reg, current, entry, session):
 
 
 def cmd_effects_remove(args) -> int:
-    from runtime.errors import TensorTouchError
+    from ...contracts.errors import TensorTouchError
 
     store = store_of(args)
     sensor = sensor_of(args)
@@ -136,11 +136,11 @@ def cmd_effects_remove(args) -> int:
 
 def param_value(eff, item: str) -> tuple[str, float]:
     """`--param P=V` or `P=V UNIT` (e.g. tau=1900ms, t_ref=295.15K): V in the parameter's own unit,
-    or converted to it from UNIT (runtime/units.py). TensorTouchError naming what was expected."""
+    or converted to it from UNIT (contracts/units.py). TensorTouchError naming what was expected."""
     import re
 
-    from runtime.errors import TensorTouchError
-    from runtime.units import convert
+    from ...contracts.errors import TensorTouchError
+    from ...contracts.units import convert
 
     key, eq, val = item.partition("=")
     key = key.strip()

@@ -1,7 +1,7 @@
 """The sensor's correction on table rows, evaluated exactly but cheaply inside diagnosis.
 
 Diagnosis evaluates the deployed prediction thousands of times per candidate (grid, folds, finite
-differences), and each evaluation ran the correction forest (ONNX, runtime/correction.py) over
+differences), and each evaluation ran the correction forest (ONNX, runtime/stages/correction.py) over
 every row. For the workbench's correction (`random_forest_gain` on |F|, θ, u, v) a row's gain only
 changes when |F| crosses one of the forest's split thresholds on |F|: θ, u, v are the row's fixed
 cluster position. So the gain is memoized per (row, |F| interval between consecutive thresholds),
@@ -58,7 +58,7 @@ class MemoGain:
         self.stats = {"calls": 0, "rows": 0, "evaluated": 0}
 
     def __call__(self, forces: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        from runtime.correction import apply_output, feature_matrix
+        from ...runtime.stages.correction import apply_output, feature_matrix
 
         forces = np.asarray(forces, dtype=np.float64).reshape(-1, 3)
         mag = np.linalg.norm(forces, axis=1).astype(np.float32)   # as feature_matrix computes it
@@ -102,7 +102,7 @@ def memo_gain(corr, uv: np.ndarray, theta_phi: np.ndarray) -> MemoGain | None:
 def correction_post(table, cal, memoize: bool = True):
     """The sensor's correction on table rows (table sign convention), or None when it has none.
     `memoize`: the exact memoized evaluation of tools/workbench/fastpost.py where it applies."""
-    from runtime.correction import ForceCorrection
+    from ...runtime.stages.correction import ForceCorrection
 
     corr = ForceCorrection.from_calibration(cal)
     if not corr.enabled or "corr_uv" not in table.vec:

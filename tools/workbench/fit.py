@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
-from runtime.effects import Effect, EffectChain
-from tools.workbench.table import SampleTable
+from ...runtime.stages.effects import Effect, EffectChain
+from .table import SampleTable
 
 log = logging.getLogger(__name__)
 
@@ -238,7 +238,7 @@ def refit_chain(table: SampleTable, chain: EffectChain, cfg: FitConfig | None = 
     """Jointly refit the free parameters of every force/measurement-stage effect of `chain` on the
     whole table (bounded least squares from the current values): effects found one after the
     other were each fitted while the others were still missing. Returns (chain, rms before, after)."""
-    from runtime.effects import EnabledEffect
+    from ...runtime.stages.effects import EnabledEffect
 
     cfg = cfg or FitConfig()
     items = [it for it in chain.items if it.effect.stage in ("force", "measurement")]

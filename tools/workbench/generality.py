@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.effects import EffectChain, EnabledEffect, Registry
-from tools.workbench.diagnose import DiagnoseConfig, diagnose
-from tools.workbench.fit import deployed_prediction
-from tools.workbench.table import SampleTable
+from ...runtime.stages.effects import EffectChain, EnabledEffect, Registry
+from .diagnose import DiagnoseConfig, diagnose
+from .fit import deployed_prediction
+from .table import SampleTable
 
 log = logging.getLogger(__name__)
 

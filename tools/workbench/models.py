@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from runtime.errors import TensorTouchError
-from tools.workbench.scan import hat_basis
-from tools.workbench.table import SampleTable
+from ...contracts.errors import TensorTouchError
+from .scan import hat_basis
+from .table import SampleTable
 
 log = logging.getLogger(__name__)
 

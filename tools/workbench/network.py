@@ -34,15 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import SessionError, TensorTouchError
-from runtime.offline import (
+from ...contracts.errors import SessionError, TensorTouchError
+from ...runtime.offline import (
     cache_key,
     match_contacts,
     network_passes,
     pack_clusters,
     unpack_clusters,
 )
-from tools.workbench.table import SampleTable, nearest_index
+from .table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +88,7 @@ def unpack_frame(passed: dict, j: int) -> list:
 def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path | None, progress=None) -> tuple[dict, dict]:
     """The raw network pass (runtime.offline.network_passes with effects and correction off, its cache
     in `cache_dir`) and its provenance {key, seconds, cached}."""
-    from runtime.correction import ForceCorrection
+    from ...runtime.stages.correction import ForceCorrection
 
     if tuple(cal.model_size) != tuple(package.size):
         raise TensorTouchError(f"{cal.folder / 'calibration.json'}: model_size {list(cal.model_size)} does not "
@@ -113,9 +113,9 @@ def replay(passed: dict, cal, temperature=None, correction=None, covariates: boo
     Returns per cluster row: "force" (N,3) as published (force on the gel, N), "flags" per frame;
     with covariates=True also the runtime's effect covariates per cluster row, the correction inputs
     (uv, θ/φ) and the raw force."""
-    from runtime.correction import ForceCorrection
-    from runtime.effect_stage import EffectStage
-    from runtime.pipeline import correction_inputs, finish_clusters
+    from ...runtime.stages.correction import ForceCorrection
+    from ...runtime.stages.effects.stage import EffectStage
+    from ...runtime.pipeline import correction_inputs, finish_clusters
 
     stage = EffectStage(cal)
     corr = correction if correction is not None else ForceCorrection.from_calibration(cal)
@@ -207,7 +207,7 @@ def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -
     for j in np.unique(frame):
         rows = np.flatnonzero(frame == j)
         cl = np.arange(starts[j], starts[j + 1])
-        got = match(tip[rows], passed["cl_centroid_mm"][cl], cfg.match_mm)
+        got = match(tip[rows], passed["cl_position_mm"][cl], cfg.match_mm)
         cl_row[rows[got >= 0]] = cl[got[got >= 0]]
     hit = cl_row >= 0
     raw = np.zeros_like(meas)
@@ -226,7 +226,7 @@ def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -
     vec["corr_uv"] = np.where(hit[:, None], runtime["uv"][np.maximum(cl_row, 0)], 0.0)
     vec["corr_theta_phi"] = np.where(hit[:, None], runtime["theta_phi"][np.maximum(cl_row, 0)], 0.0)
     pos = np.full_like(meas, np.nan)
-    pos[hit] = passed["cl_centroid_mm"][cl_row[hit]] - tip[hit]
+    pos[hit] = passed["cl_position_mm"][cl_row[hit]] - tip[hit]
     vec["position_residual"] = pos
     vec["tip"] = tip
     cols["cluster_row"] = cl_row.astype(np.float64)

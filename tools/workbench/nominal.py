@@ -3,7 +3,7 @@
 A trained network is not exact (≈ 0.6 N on held-out twin units, mostly a gain error that grows
 with depth). Diagnosis would read that systematic error as a physical effect (strain stiffening,
 rim stiffening, ...). The deployed pipeline already has the place for it: the zero-constrained
-force correction (seed §III.I, runtime/correction.py) that `tensortouch recalibrate` fits from 5–7
+force correction (seed §III.I, runtime/stages/correction.py) that `tensortouch recalibrate` fits from 5–7
 pokes. Here the same correction (a random-forest gain on |F|, θ, u, v; tools/recalib/fit.py,
 ONNX, stored as a new calibration version) is fitted on every matched contact frame of a
 calibration session recorded without hidden physics. From then on `compare`/`diagnose` see the
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.workbench.table import SampleTable
+from .table import SampleTable
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,7 @@ class NominalConfig:
 
 def correction_pokes(table: SampleTable, pre: np.ndarray, cfg: NominalConfig = NominalConfig()):
     """Matched contact rows as a recalibration PokeSet (predicted force = model + enabled effects)."""
-    from tools.recalib.fit import PokeSet
+    from ..recalib.fit import PokeSet
 
     ref = np.linalg.norm(table.meas, axis=1)
     pm = np.linalg.norm(pre, axis=1)
@@ -52,7 +52,7 @@ def correction_pokes(table: SampleTable, pre: np.ndarray, cfg: NominalConfig = N
 
 
 def _fit_cfg(cfg: NominalConfig):
-    from tools.recalib.fit import FitConfig
+    from ..recalib.fit import FitConfig
 
     return FitConfig(inputs=tuple(cfg.inputs), n_estimators=cfg.n_estimators, max_depth=cfg.max_depth,
                      min_samples_leaf=cfg.min_samples_leaf)
@@ -68,7 +68,7 @@ def folds_of(times: np.ndarray, sessions: np.ndarray) -> np.ndarray:
 
 def blocked_check(pokes, folds: np.ndarray, cfg: NominalConfig = NominalConfig()) -> dict:
     """Held-out |F| error before/after: for each fold, the forest fitted on the other folds."""
-    from tools.recalib.fit import corrected_magnitude, error_stats, fit_forest
+    from ..recalib.fit import corrected_magnitude, error_stats, fit_forest
 
     fc = _fit_cfg(cfg)
     est = np.empty(len(pokes))
@@ -84,7 +84,7 @@ def choose_inputs(pokes, folds: np.ndarray, cfg: NominalConfig = NominalConfig()
     richer one is better by `select_margin`. Returns (config with those inputs, {set: check})."""
     from dataclasses import replace
 
-    from tools.recalib.fit import simplest_adequate
+    from ..recalib.fit import simplest_adequate
 
     sets = [tuple(x) for x in (cfg.input_sets or (cfg.inputs,))]
     checks = {",".join(x): blocked_check(pokes, folds, replace(cfg, inputs=x)) for x in sets}
@@ -98,7 +98,7 @@ def choose_inputs(pokes, folds: np.ndarray, cfg: NominalConfig = NominalConfig()
 
 def forest_post(table: SampleTable, rf, fc):
     """The fitted forest as the runtime applies it (gain clipped, zero stays zero), on table rows."""
-    from runtime.correction import apply_output, feature_matrix
+    from ...runtime.stages.correction import apply_output, feature_matrix
 
     uv, tp = table.vec["corr_uv"], table.vec["corr_theta_phi"]
 
@@ -130,8 +130,8 @@ def nominal_reductions(tables: list, chain, pokes, row_of: list, folds: np.ndarr
     are diagnosed with it (contact positions and loads new to that correction, as a test session's
     are). The baseline is the mean over the folds (each fold's value is kept under `folds`).
     `row_of[i]`: (table index, row) of poke i; `folds[i]`: its fold."""
-    from tools.recalib.fit import fit_forest
-    from tools.workbench.diagnose import diagnose
+    from ..recalib.fit import fit_forest
+    from .diagnose import diagnose
 
     cfg = cfg or NominalConfig()
     fc = _fit_cfg(cfg)
@@ -164,10 +164,10 @@ def fit_and_store_correction(calib_sessions, sensor: str, store, model, registry
     Several short sessions that together cover the gel are better than one long one: each stays in
     the conditions (duration, temperature range) of the sessions being diagnosed, and each is a
     natural cross-fitting fold."""
-    from runtime.effects import EffectChain
-    from tools.recalib.fit import PokeSet, _check_onnx, fit_forest, to_onnx
-    from tools.recalib.store_ops import store_recalibration
-    from tools.workbench.compare import run_compare
+    from ...runtime.stages.effects import EffectChain
+    from ..recalib.fit import PokeSet, _check_onnx, fit_forest, to_onnx
+    from ..recalib.store_ops import store_recalibration
+    from .compare import run_compare
 
     sessions = [calib_sessions] if isinstance(calib_sessions, (str, Path)) else list(calib_sessions)
     chain = EffectChain.from_calibration(store.load(sensor), registry)
@@ -184,7 +184,7 @@ def fit_and_store_correction(calib_sessions, sensor: str, store, model, registry
     pokes = PokeSet(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("pred_force", "ref_force", "uv", "theta_phi")))
     names = ", ".join(str(s) for s in sessions)
     if len(pokes) < cfg.min_frames:
-        from runtime.errors import CalibrationError
+        from ...contracts.errors import CalibrationError
 
         raise CalibrationError(f"{names}: only {len(pokes)} matched contact frames; a nominal "
                                "correction needs calibration sessions with pokes the network sees")

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from tools.workbench.fit import Candidate, Channels
+from .fit import Candidate, Channels
 
 log = logging.getLogger(__name__)
 

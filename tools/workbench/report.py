@@ -133,7 +133,7 @@ def _frame_at(session_path: Path, t: float):
     try:
         import cv2
 
-        from runtime.session import load_session
+        from ...contracts.session import load_session
 
         s = load_session(session_path, check_frames=False)
         fr = s.table("frames")
@@ -288,7 +288,7 @@ def covariate_ranking(diag, path: Path, top: int = 12) -> str:
 def residual_vs_covariate(table, diag, path: Path, name: str | None = None) -> str:
     """The residual that remains against one covariate (default: the top one); for a vector
     covariate the residual component along it against its magnitude. Red: binned median."""
-    from tools.workbench.table import SCAN_VECTORS
+    from .table import SCAN_VECTORS
 
     plt = _plt()
     name = name or diag.unexplained.get("covariate")

@@ -25,9 +25,9 @@ import numpy as np
 from scipy.signal import butter, filtfilt
 from scipy.spatial.transform import Rotation, Slerp
 
-from runtime.errors import CalibrationError, SessionError
-from runtime.session import Session
-from tools.workbench.table import SampleTable, nearest_index
+from ...contracts.errors import CalibrationError, SessionError
+from ...contracts.session import Session
+from .table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
 

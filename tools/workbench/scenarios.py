@@ -15,7 +15,7 @@ import shutil
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from runtime import paths
+from ...contracts import paths
 
 log = logging.getLogger(__name__)
 
@@ -48,8 +48,8 @@ def root() -> Path:
 
 def store_root(unit: str = "TWIN-WB01", model_size: int = 64) -> Path:
     """A calibration store holding the unit's true calibration (written once)."""
-    from runtime.calibration import CalibrationStore
-    from tools.twin.unit import TwinUnit, write_true_calibration
+    from ...contracts.store import CalibrationStore
+    from ..twin.unit import TwinUnit, write_true_calibration
 
     folder = root() / f"store-{unit}-{model_size}"
     if not CalibrationStore(folder).versions(unit):
@@ -68,8 +68,8 @@ def fresh_store(dest: Path, unit: str = "TWIN-WB01", model_size: int = 64) -> Pa
 
 def record(sc: Scenario, progress=None) -> Path:
     """The scenario's session folder (recorded on first use)."""
-    from tools.twin.record import RecordConfig, Recorder
-    from tools.twin.trajectory import with_ranges
+    from ..twin.record import RecordConfig, Recorder
+    from ..twin.trajectory import with_ranges
 
     out = root() / f"s-{sc.key()}"
     if (out / "session.json").is_file():

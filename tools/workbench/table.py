@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import SessionError
+from ...contracts.errors import SessionError
 
 log = logging.getLogger(__name__)
 

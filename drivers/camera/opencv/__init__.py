@@ -1,5 +1,5 @@
 """Live camera through OpenCV (CAP_V4L2 with MJPG by default)."""
-from drivers.camera.opencv.camera import OpenCVCamera
-from drivers.camera.opencv.config import OpenCVCameraConfig
+from .camera import OpenCVCamera
+from .config import OpenCVCameraConfig
 
 __all__ = ["OpenCVCamera", "OpenCVCameraConfig"]

@@ -19,9 +19,9 @@ import time
 import cv2
 import numpy as np
 
-from drivers.camera.camera import Camera, Frame, to_rgb
-from drivers.camera.opencv.config import V4L2_EXPOSURE_UNIT_S, OpenCVCameraConfig
-from runtime.errors import CaptureError, DeviceNotFoundError
+from ..camera import Camera, Frame, to_rgb
+from .config import V4L2_EXPOSURE_UNIT_S, OpenCVCameraConfig
+from ....contracts.errors import CaptureError, DeviceNotFoundError
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ class OpenCVCamera(Camera):
     def _resolve_device(self) -> int | str:
         c = self.config
         if c.device is None:
-            from drivers.usb import find_camera
+            from ...usb import find_camera
 
             return find_camera(c.serial)
         device = c.device

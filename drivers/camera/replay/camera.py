@@ -18,10 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.camera.camera import Camera, EndOfStream, Frame, to_rgb
-from drivers.camera.replay.config import DEFAULT_VIDEO_FPS, ReplayCameraConfig
-from runtime.errors import CaptureError
-from runtime.session import load_session
+from ..camera import Camera, EndOfStream, Frame, to_rgb
+from .config import DEFAULT_VIDEO_FPS, ReplayCameraConfig
+from ....contracts.errors import CaptureError
+from ....contracts.session import load_session
 
 log = logging.getLogger(__name__)
 

@@ -43,8 +43,8 @@ class TensorTouchCamera(Camera):
     @staticmethod
     def find_cameras() -> list[dict[str, Any]]:
         """Sensors alive on the default loopback endpoint (Zenoh liveliness)."""
-        from runtime.publisher import open_session
-        from runtime.subscriber import alive_sensors
+        from tensortouch.runtime.apps.publisher import open_session
+        from tensortouch.runtime.apps.subscriber import alive_sensors
 
         session = open_session(None, connect=["tcp/127.0.0.1:7447"])
         try:
@@ -55,7 +55,7 @@ class TensorTouchCamera(Camera):
     def connect(self, warmup: bool = True) -> None:
         from lerobot.utils.errors import DeviceAlreadyConnectedError
 
-        from runtime.subscriber import Subscriber
+        from tensortouch.runtime.apps.subscriber import Subscriber
 
         if self.is_connected:
             raise DeviceAlreadyConnectedError(f"{self} is already connected")

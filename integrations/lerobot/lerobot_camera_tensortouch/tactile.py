@@ -38,7 +38,7 @@ def feature_names(name: str, top_k: int) -> list[str]:
 
 
 def state_floats(name: str, top_k: int, wrench, contacts) -> dict[str, float]:
-    """Named floats from a decoded Wrench and a list of decoded Contacts (runtime.wire)."""
+    """Named floats from a decoded Wrench and a list of decoded Contacts (contracts.wire)."""
     out = dict(zip((f"{name}.{f}" for f in WRENCH_FIELDS), (*map(float, wrench.force_n), *map(float, wrench.torque_nmm))))
     ranked = sorted(contacts, key=lambda c: -float(c.force_mag_n))[:top_k]
     for i in range(top_k):
@@ -76,7 +76,7 @@ class TensorTouchTactile:
         return self._sub is not None
 
     def connect(self, warmup: bool = True) -> None:
-        from runtime.subscriber import Subscriber
+        from tensortouch.runtime.apps.subscriber import Subscriber
 
         if self.is_connected:
             raise RuntimeError(f"tactile {self.config.sensor_id} is already connected")

@@ -11,16 +11,16 @@ ARCHS = ("hiera_qup", "unet", "vit")
 def build_model(arch: str, image_size: int):
     """A fresh network for `arch` ∈ ARCHS at a square input size (6 ch in, 15 ch out)."""
     if arch == "hiera_qup":
-        from tools.train.model.hiera import HieraConfig
-        from tools.train.model.qupsample import HieraQUpsample
+        from .hiera import HieraConfig
+        from .qupsample import HieraQUpsample
 
         return HieraQUpsample(HieraConfig(image_size=image_size))
     if arch == "unet":
-        from tools.train.model.baselines import UNet
+        from .baselines import UNet
 
         return UNet()
     if arch == "vit":
-        from tools.train.model.baselines import ViTConfig, ViTDense
+        from .baselines import ViTConfig, ViTDense
 
         return ViTDense(ViTConfig(image_size=image_size))
     raise ValueError(f"unknown architecture {arch!r}; choose one of {ARCHS}")

@@ -15,8 +15,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from tools.train.model.layers import Block
-from tools.train.model.qupsample import Heads
+from .layers import Block
+from .qupsample import Heads
 
 log = logging.getLogger(__name__)
 

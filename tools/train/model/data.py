@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from runtime.errors import TensorTouchError
-from runtime.fields import CHANNELS, INPUT_CHANNELS, N_CHANNELS
-from runtime.files import atomic_write
+from ....contracts.errors import TensorTouchError
+from ....contracts.fields import CHANNELS, INPUT_CHANNELS, N_CHANNELS
+from ....contracts.files import atomic_write
 
 log = logging.getLogger(__name__)
 SCHEMA = "tensortouch.dataset"
@@ -170,7 +170,7 @@ def synthetic_sample(rng: np.random.Generator, size: int = 128, base: np.ndarray
 def write_synthetic_dataset(root: str | Path, n: int, size: int = 128, seed: int = 0,
                             val_fraction: float = 0.1, min_contacts: int = 0) -> str:
     """Generate n synthetic samples (one baseline per 'session' of 20 samples); returns the data hash."""
-    from tools.train.fields import compute_bounds, normalize_global, write_bounds
+    from ..fields import compute_bounds, normalize_global, write_bounds
 
     root = Path(root)
     rng = np.random.default_rng(seed)

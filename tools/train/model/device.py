@@ -13,7 +13,7 @@ import contextlib
 
 import torch
 
-from tools.train.model.data import DatasetError
+from .data import DatasetError
 
 DEVICES = ("auto", "cpu", "cuda")
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from tools.train.model.layers import Mlp, attention, from_units, to_units, unit_pool
+from .layers import Mlp, attention, from_units, to_units, unit_pool
 
 log = logging.getLogger(__name__)
 
@@ -158,7 +158,7 @@ class HieraMAE(nn.Module):
     def __init__(self, encoder: Hiera, decoder_dim: int = 64, decoder_depth: int = 2,
                  decoder_heads: int = 2, mask_ratio: float = 0.75):
         super().__init__()
-        from tools.train.model.layers import Block
+        from .layers import Block
 
         cfg = encoder.cfg
         self.encoder, self.mask_ratio = encoder, mask_ratio

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from runtime.fields import CHANNELS, MODALITIES
+from ....contracts.fields import CHANNELS, MODALITIES
 
 log = logging.getLogger(__name__)
 

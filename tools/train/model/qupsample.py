@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from runtime.fields import MODALITIES
-from tools.train.model.hiera import Hiera, HieraConfig
-from tools.train.model.layers import Block, Mlp, attention, from_units, to_units
+from ....contracts.fields import MODALITIES
+from .hiera import Hiera, HieraConfig
+from .layers import Block, Mlp, attention, from_units, to_units
 
 log = logging.getLogger(__name__)
 

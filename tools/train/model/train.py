@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tools.train.model import build_model
-from tools.train.model.data import DatasetError, load_split, read_index
-from tools.train.model.device import Precision, cpu_state, resolve_device
-from tools.train.model.metrics import evaluate
-from runtime.files import atomic_write, atomic_write_json
+from . import build_model
+from .data import DatasetError, load_split, read_index
+from .device import Precision, cpu_state, resolve_device
+from .metrics import evaluate
+from ....contracts.files import atomic_write, atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -218,7 +218,7 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, o
 
 def load_any_bounds(path: str | Path) -> dict[str, list[float]]:
     """Output bounds from a bounds.json or from a model package's manifest.json (output.bounds)."""
-    from tools.train.fields import read_bounds
+    from ..fields import read_bounds
 
     path = Path(path)
     if path.is_dir():
@@ -229,7 +229,7 @@ def load_any_bounds(path: str | Path) -> dict[str, list[float]]:
         bounds = json.loads(path.read_text())["output"]["bounds"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise DatasetError(f"{path}: no output.bounds in this model manifest ({exc})") from None
-    from runtime.fields import CHANNELS
+    from ....contracts.fields import CHANNELS
 
     missing = [c for c in CHANNELS if c not in bounds]
     if missing:
@@ -240,7 +240,7 @@ def load_any_bounds(path: str | Path) -> dict[str, list[float]]:
 def head_remap(old: dict, new: dict) -> tuple[np.ndarray, np.ndarray]:
     """(scale, offset) per channel that turn outputs normalized with `old` bounds into the same physical
     values normalized with `new`: y_new = (lo_o − lo_n + span_o · y_old) / span_n."""
-    from runtime.fields import CHANNELS
+    from ....contracts.fields import CHANNELS
 
     lo_o, hi_o = (np.array([old[c][i] for c in CHANNELS], np.float64) for i in (0, 1))
     lo_n, hi_n = (np.array([new[c][i] for c in CHANNELS], np.float64) for i in (0, 1))
@@ -284,7 +284,7 @@ def predict(model, x_uint8: np.ndarray, batch: int = 16) -> np.ndarray:
 def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder_init: str | Path | None = None
         ) -> dict:
     """Supervised training on a dataset directory; returns {'metrics', 'samples_per_s', ...}."""
-    from tools.train.fields import read_bounds, write_bounds
+    from ..fields import read_bounds, write_bounds
 
     data, out = Path(data), Path(out)
     index = read_index(data)
@@ -309,7 +309,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         model.encoder.load_state_dict(state, strict=True)
         log.info("encoder initialised from %s", encoder_init)
 
-    from runtime.fields import CHANNELS
+    from ....contracts.fields import CHANNELS
 
     lo = np.array([bounds[c][0] for c in CHANNELS])
     hi = np.array([bounds[c][1] for c in CHANNELS])
@@ -359,7 +359,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
 def _force_scale(data: Path, bounds: dict) -> torch.Tensor:
     """(6, H, W) tensor: channel span (MPa per normalized unit) × pixel area (mm²) of the contact channels
     (fn_x … fs_z), so Σ_pixels Δy·scale is a force in N."""
-    from runtime.fields import CHANNELS
+    from ....contracts.fields import CHANNELS
 
     path = data / "pixel_area.npy"
     if not path.is_file():
@@ -389,7 +389,7 @@ def total_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Ten
 
 def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainConfig()) -> dict:
     """MAE pretraining of the Hiera encoder on the 6-channel inputs; writes encoder.pt."""
-    from tools.train.model.hiera import Hiera, HieraConfig, HieraMAE
+    from .hiera import Hiera, HieraConfig, HieraMAE
 
     data, out = Path(data), Path(out)
     size = int(read_index(data)["size"][0])
@@ -416,5 +416,5 @@ def load_trained(run: str | Path):
 
 
 def save_state(obj, path: Path) -> None:
-    """torch.save, atomically (runtime.files)."""
+    """torch.save, atomically (contracts.files)."""
     atomic_write(path, lambda fh: torch.save(obj, fh))

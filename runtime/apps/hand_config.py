@@ -1,0 +1,228 @@
+"""Hand configuration (TOML): which sensors one runtime process serves (docs/hand.md).
+
+    [hand]
+    name = "left"                     # used in log lines and the hand summary
+    model = "tt-hiera-128"            # package name in exported_models/ or a path (default: newest)
+    precision = "int8"
+    share_model = false               # true: one onnxruntime session for every finger
+    inference_workers = 2             # fingers running inference at the same time (0: no limit)
+    calibration_store = "calibration_store"   # relative paths are relative to this file
+
+    [zenoh]
+    listen = ["tcp/127.0.0.1:7447"]   # default: the meeting point (runtime/apps/zenoh_session.py)
+    connect = []
+    config = "sensor.json5"           # optional: Zenoh's own JSON5 config (TLS, access control)
+
+    [ros2]                            # optional: ROS 2 topics in rmw_zenoh's format (docs/wire.md)
+    distro = "jazzy"                  # jazzy | kilted | rolling | humble
+    domain_id = 0                     # default: $ROS_DOMAIN_ID or 0
+    router = "tcp/127.0.0.1:7447"     # rmw_zenohd; "" = none. With a router and no [zenoh] listen,
+                                      # the hand connects to it instead of listening on 7447
+
+    [can]                             # optional: compact summary on CAN (python-can)
+    interface = "socketcan"
+    channel = "can0"
+    id_base = 0x300
+    rate_hz = 100
+
+    [[finger]]
+    name = "index"
+    serial = "TT-0001"                # sensor serial = sensor id on the wire
+    source = "usb:TT-0001"            # default: usb:<serial>
+    calibration = "TT-0001"           # calibration store folder (default: serial)
+    can_slot = 0                      # default: position in the list
+
+Unknown keys are errors (a typo must not silently fall back to a default).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ...drivers.can_bus import CanConfig
+from ...contracts import wire
+from ...contracts.errors import TensorTouchError
+from .ros2_publisher import Ros2Config
+from ...contracts.ros2_wire import name_token as rw_name_token
+
+log = logging.getLogger(__name__)
+
+
+class HandConfigError(TensorTouchError):
+    """The hand configuration file is missing, malformed or inconsistent."""
+
+
+@dataclass(frozen=True)
+class FingerConfig:
+    name: str
+    serial: str                        # sensor id: wire key chunk and default calibration folder
+    source: str = ""                   # camera source string (drivers.camera); "" -> usb:<serial>
+    calibration: str = ""              # calibration store folder; "" -> serial
+    can_slot: int = -1                 # -1 -> position in the finger list
+    enabled: bool = True
+
+    @property
+    def source_uri(self) -> str:
+        return self.source or f"usb:{self.serial}"
+
+    @property
+    def calibration_id(self) -> str:
+        return self.calibration or self.serial
+
+
+@dataclass(frozen=True)
+class HandConfig:
+    fingers: tuple[FingerConfig, ...]
+    name: str = "hand"
+    model: str | None = None
+    precision: str = "int8"
+    threads: int = 1                   # onnxruntime intra-op threads per session
+    share_model: bool = False          # measured: no consistent speed difference; shared saves ~7 MB/finger
+    inference_workers: int = field(default_factory=lambda: os.cpu_count() or 2)
+    calibration_store: str | None = None
+    publish_fields: bool = True
+    listen: tuple[str, ...] = ()       # listen and connect both empty: listen on the meeting point
+    connect: tuple[str, ...] = ()
+    zenoh_config: str | None = None    # Zenoh's JSON5 config file; listen/connect replace its endpoints
+    multicast: bool = False            # multicast + gossip scouting
+    can: CanConfig | None = None
+    # camera faults: SensorLoop gives up after max_camera_failures reads; the hand then
+    # reconnects every reconnect_s and drops the sensor's liveliness token after offline_after_s
+    max_camera_failures: int = 20
+    reconnect_s: float = 0.5
+    offline_after_s: float = 5.0
+    status_every_s: float = 0.5
+    model_poll_s: float = 1.0          # how often model files are checked for replacement
+    camera_options: dict = field(default_factory=dict)   # extra camera config (e.g. realtime, loop)
+    ros2: Ros2Config | None = None     # [ros2]: also publish ROS 2 topics (runtime/apps/ros2_publisher.py)
+
+    def slots(self) -> dict[str, int]:
+        return {f.name: (f.can_slot if f.can_slot >= 0 else i) for i, f in enumerate(self.fingers)}
+
+
+def _take(table: dict, cls, where: str, renames: dict | None = None) -> dict:
+    names = {f.name for f in dataclasses.fields(cls)}
+    out = {}
+    for key, value in table.items():
+        k = (renames or {}).get(key, key)
+        if k not in names:
+            raise HandConfigError(f"{where}: unknown key {key!r} (known: {', '.join(sorted(names))})")
+        out[k] = value
+    return out
+
+
+def _check(cfg: HandConfig, where: str) -> None:
+    if not cfg.fingers:
+        raise HandConfigError(f"{where}: no [[finger]] entries (a hand needs at least one sensor)")
+    for what in ("name", "serial"):
+        seen = [getattr(f, what) for f in cfg.fingers]
+        dup = sorted({v for v in seen if seen.count(v) > 1})
+        if dup:
+            raise HandConfigError(f"{where}: finger {what} {dup} used more than once")
+    for f in cfg.fingers:
+        try:
+            wire.check_sensor_id(f.serial)
+        except wire.WireError as exc:
+            raise HandConfigError(f"{where}: finger {f.name!r}: {exc}") from None
+    slots = list(cfg.slots().values())
+    if len(set(slots)) != len(slots):
+        raise HandConfigError(f"{where}: can_slot values {slots} collide")
+    if cfg.precision not in ("int8", "fp32"):
+        raise HandConfigError(f"{where}: hand.precision {cfg.precision!r}, expected 'int8' or 'fp32'")
+    if cfg.inference_workers < 0 or cfg.threads < 1:
+        raise HandConfigError(f"{where}: hand.inference_workers must be >= 0 (0: no limit) and "
+                              "hand.threads >= 1")
+    if cfg.can is not None:
+        from ...contracts.can_frame import check_id_range
+
+        try:
+            check_id_range(cfg.can.id_base, max(slots) + 1, cfg.can.extended_id)
+        except ValueError as exc:
+            raise HandConfigError(f"{where}: [can] {exc}") from None
+
+
+def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | None = None) -> HandConfig:
+    """A parsed TOML document -> validated HandConfig."""
+    unknown = set(data) - {"hand", "zenoh", "can", "finger", "camera", "ros2"}
+    if unknown:
+        raise HandConfigError(f"{where}: unknown table(s) {sorted(unknown)} "
+                              "(expected [hand], [zenoh], [can], [camera], [ros2], [[finger]])")
+    fingers_raw = data.get("finger", [])
+    if not isinstance(fingers_raw, list):
+        raise HandConfigError(f"{where}: 'finger' must be an array of tables ([[finger]])")
+    fingers = []
+    for i, fr in enumerate(fingers_raw):
+        kw = _take(fr, FingerConfig, f"{where}: finger #{i + 1}")
+        for req in ("name", "serial"):
+            if not kw.get(req):
+                raise HandConfigError(f"{where}: finger #{i + 1} needs '{req}'")
+        fingers.append(FingerConfig(**kw))
+    hand = _take(data.get("hand", {}), HandConfig, f"{where}: [hand]")
+    for bad in ("fingers", "listen", "connect", "zenoh_config", "multicast", "can", "camera_options", "ros2"):
+        if bad in data.get("hand", {}):
+            raise HandConfigError(f"{where}: [hand] {bad} belongs in its own table")
+    zen = data.get("zenoh", {})
+    extra = set(zen) - {"listen", "connect", "config", "multicast"}
+    if extra:
+        raise HandConfigError(f"{where}: [zenoh] unknown key(s) {sorted(extra)} "
+                              "(known: listen, connect, config, multicast)")
+    if "config" in zen:
+        zpath = Path(str(zen["config"]))
+        if base_dir is not None and not zpath.is_absolute():
+            zpath = base_dir / zpath
+        hand["zenoh_config"] = str(zpath)
+    if "multicast" in zen:
+        if not isinstance(zen["multicast"], bool):
+            raise HandConfigError(f"{where}: [zenoh] multicast must be true or false")
+        hand["multicast"] = zen["multicast"]
+    if "listen" in zen:
+        hand["listen"] = tuple(zen["listen"])
+    if "connect" in zen:
+        hand["connect"] = tuple(zen["connect"])
+    if "can" in data:
+        try:
+            hand["can"] = CanConfig(**_take(data["can"], CanConfig, f"{where}: [can]"))
+        except (TypeError, ValueError) as exc:
+            raise HandConfigError(f"{where}: [can] {exc}") from None
+    if "camera" in data:
+        hand["camera_options"] = dict(data["camera"])
+    if "ros2" in data:
+        kw = _take(data["ros2"], Ros2Config, f"{where}: [ros2]")
+        kw.setdefault("node", rw_name_token(f"tensortouch_{hand.get('name', 'hand')}"))
+        for k in ("images", "mount_xyz_m", "mount_xyzw"):
+            if k in kw:
+                kw[k] = tuple(kw[k])
+        try:
+            hand["ros2"] = Ros2Config(**kw)
+        except (TypeError, ValueError, TensorTouchError) as exc:
+            raise HandConfigError(f"{where}: [ros2] {exc}") from None
+        if hand["ros2"].router:
+            hand["connect"] = tuple(hand.get("connect", ())) + (hand["ros2"].router,)
+            if "listen" not in zen:           # the router (rmw_zenohd) holds 7447: connect, not listen
+                hand["listen"] = ()
+    store = hand.get("calibration_store")
+    if store and base_dir is not None and not Path(store).is_absolute():
+        hand["calibration_store"] = str(base_dir / store)
+    try:
+        cfg = HandConfig(fingers=tuple(fingers), **hand)
+    except TypeError as exc:
+        raise HandConfigError(f"{where}: {exc}") from None
+    _check(cfg, where)
+    return cfg
+
+
+def load_hand_config(path: str | Path) -> HandConfig:
+    path = Path(path)
+    if not path.is_file():
+        raise HandConfigError(f"{path}: hand config file not found")
+    try:
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise HandConfigError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start}); expected TOML") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise HandConfigError(f"{path}: not valid TOML ({exc})") from None
+    return parse_hand_config(data, str(path), path.parent)

@@ -1,0 +1,2 @@
+"""The command-line shells: `tensortouch` and its deploy subcommands.
+"""

@@ -1,0 +1,232 @@
+"""Contact clustering (seed §III.M): contact-force field → ranked, tracked contact clusters.
+
+|f_n + f_s| per pixel (N, = traction × pixel area) above a threshold (seed: 0.005 N; default 0.002 N, see ContactConfig) → binary mask →
+8-connected components (the cluster cores; a light touch spreads thinner than the threshold, so a
+component of pixels above the weak threshold counts as a core too when its total force reaches
+min_total_n) → each core grown onto weaker pixels nearby, so its total
+force includes the tails the threshold cuts off → per cluster: 2D centroid, 3D centroid (deformed surface, mm), mean normal,
+area (mm²), total force vector (N), perimeter (px), circularity 4πA/P², priority from force and
+stability. Ids stay stable across frames by matching 3D centroids (Hungarian assignment with a gate).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    # per-pixel force (N) that makes a cluster core. The seed uses 0.005 N on its grid; on ours (128²,
+    # pixel area 0.044–0.066 mm²) with the current FE gel a 1 N poke peaks at ~0.004 N per pixel, so
+    # 0.005 N missed every contact below ~1.5 N. 0.002 N: the lowest value with no false contact on any
+    # rest frame of the 6 training sessions with the shipped model (0.0015 N gave 2–16 per session);
+    # docs/BENCHMARKS.md "Shipped model".
+    threshold_n: float = 0.002
+    support_floor_n: float = 0.0001  # weaker pixels near a cluster still add their force ...
+    support_radius_px: float = 10.0  # ... if within this distance of the cluster's core mask (the σ = 2 px
+                                     # tails of a 4 N contact: 0.0005 N / 6 px lost 2.5 % of its force)
+    min_pixels: int = 3             # drop specks smaller than this (noise)
+    # light touches: a component of pixels above weak_threshold_n with no pixel above threshold_n is a core
+    # when |its total force| >= min_total_n (N). 0 = off; packages carry measured values
+    # (manifest.runtime, tools/train/threshold.py): with the shipped model 0.3-0.5 / 0.5-1 N contacts went
+    # from 43 / 80 % to 81 / 97 % of held-out frames detected (docs/BENCHMARKS.md "Light contacts")
+    weak_threshold_n: float = 0.0
+    min_total_n: float = 0.0
+    # cores joined by pixels above merge_n (N) are one cluster (0 = off); packages carry a measured value
+    merge_n: float = 0.0
+    match_gate_mm: float = 4.0      # max centroid jump to keep a cluster's id between frames
+    stable_frames: int = 5          # frames until a cluster counts as fully stable for priority
+    max_contacts: int = 16          # cap published clusters (highest priority first)
+
+
+@dataclass
+class Cluster:
+    id: int
+    uv_px: tuple[float, float]       # (u = column, v = row) on the model grid, force-weighted
+    position_mm: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    area_mm2: float
+    force_n: tuple[float, float, float]
+    force_mag_n: float
+    pixels: int
+    perimeter_px: float
+    circularity: float
+    priority: float = 0.0
+    age_frames: int = 0                    # frames this id has been tracked
+    indentation_mm: float = 0.0            # deepest inward displacement (along the rest normal) of its pixels
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def pixel_forces(fields: np.ndarray, pixel_area: np.ndarray) -> np.ndarray:
+    """(15, H, W) fields (tractions in MPa) → (3, H, W) contact force per pixel in N."""
+    return (fields[9:12] + fields[12:15]) * pixel_area[None]
+
+
+def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.ndarray,
+                  pixel_area: np.ndarray, mask: np.ndarray, disp: np.ndarray | None = None,
+                  cfg: ContactConfig = ContactConfig()) -> list[Cluster]:
+    """Untracked clusters (id = -1) of one frame, in label order."""
+    mag = np.sqrt((force_px ** 2).sum(axis=0))
+    binary = ((mag > cfg.threshold_n) & mask).astype(np.uint8)
+    light = light_cores(force_px, mag, mask, binary, cfg)
+    if light is not None:
+        binary = binary | light
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    if n <= 1:
+        return []
+    if n > 2 and cfg.merge_n > 0:
+        labels, n, stats = merge_bridged(labels, binary, mag, mask, cfg.merge_n)
+    k = n
+    support = _support_labels(labels, mag, cfg)
+    idx = np.flatnonzero(support)                 # only pixels that belong to some cluster
+    lab = support.ravel()[idx]
+    w = mag.ravel()[idx]
+    wsum = np.bincount(lab, weights=w, minlength=k)
+    safe = np.where(wsum > 0, wsum, 1.0)
+    wd = mag.shape[1]
+    vv, uu = np.divmod(idx, wd)
+
+    def wmean(values):  # force-weighted mean per cluster of (len(idx), ...) values
+        values = values.reshape(len(idx), -1)
+        return np.stack([np.bincount(lab, weights=w * values[:, i], minlength=k)
+                         for i in range(values.shape[1])], 1) / safe[:, None]
+
+    uv = wmean(np.stack([uu + 0.5, vv + 0.5], 1))
+    pos = surface_xyz.reshape(-1, 3)[idx]
+    indent = np.zeros(k)
+    if disp is not None:
+        d = disp.reshape(3, -1)[:, idx].T
+        pos = pos + d
+        # the indenter's depth: the cluster's deepest point, not its force-weighted centroid
+        np.maximum.at(indent, lab, -np.einsum("ij,ij->i", d, normals.reshape(-1, 3)[idx]))
+    centroid = wmean(pos)
+    nsum = wmean(normals.reshape(-1, 3)[idx])
+    nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
+    fvec = np.stack([np.bincount(lab, weights=force_px[i].ravel()[idx], minlength=k) for i in range(3)], 1)
+    core = labels.ravel()
+    area = np.bincount(core, weights=pixel_area.ravel(), minlength=k)
+    perim, circ = _shape_metrics(binary, labels, k)
+    out = []
+    for j in range(1, k):
+        if stats[j, cv2.CC_STAT_AREA] < cfg.min_pixels:
+            continue
+        out.append(Cluster(
+            id=-1, uv_px=(float(uv[j, 0]), float(uv[j, 1])), position_mm=tuple(map(float, centroid[j])),
+            normal=tuple(map(float, nsum[j])), area_mm2=float(area[j]), force_n=tuple(map(float, fvec[j])),
+            force_mag_n=float(np.linalg.norm(fvec[j])), pixels=int(stats[j, cv2.CC_STAT_AREA]),
+            perimeter_px=float(perim[j]), circularity=float(circ[j]), indentation_mm=float(indent[j])))
+    return out
+
+
+def merge_bridged(labels: np.ndarray, binary: np.ndarray, mag: np.ndarray, mask: np.ndarray,
+                  merge_n: float) -> tuple[np.ndarray, int, np.ndarray]:
+    """Cores joined by a path of pixels above merge_n (8-connected) become one cluster: one contact
+    whose field dips between two peaks (a sliding contact's split shear) is not published twice.
+    Returns (labels, n incl. background, stats with CC_STAT_AREA filled)."""
+    _, wl = cv2.connectedComponents((((mag > merge_n) & mask) | (binary > 0)).astype(np.uint8), connectivity=8)
+    core = np.where(labels > 0, wl, 0)
+    present = np.zeros(int(wl.max()) + 1, bool)
+    present[core[labels > 0]] = True
+    present[0] = False
+    remap = np.cumsum(present) * present
+    new = remap[core].astype(np.int32)
+    n = int(remap.max()) + 1
+    stats = np.zeros((n, 5), np.int64)
+    stats[:, cv2.CC_STAT_AREA] = np.bincount(new.ravel(), minlength=n)
+    return new, n, stats
+
+
+def weak_components(force_px: np.ndarray, mag: np.ndarray, mask: np.ndarray, strong: np.ndarray,
+                    weak_n: float) -> tuple[np.ndarray, np.ndarray]:
+    """Components of pixels above weak_n that hold no strong pixel: (labels (H, W), |total force| per
+    label (N), 0 for label 0 and for labels holding a strong pixel)."""
+    n, labels = cv2.connectedComponents(((mag > weak_n) & mask).astype(np.uint8), connectivity=8)
+    idx = np.flatnonzero(labels)                 # only the (few) pixels above weak_n
+    lab = labels.ravel()[idx]
+    tot = np.linalg.norm(np.stack([np.bincount(lab, weights=force_px[i].ravel()[idx], minlength=n)
+                                   for i in range(3)], 1), axis=1)
+    tot[np.bincount(lab, weights=strong.ravel()[idx].astype(np.float64), minlength=n) > 0] = 0.0
+    tot[0] = 0.0
+    return labels, tot
+
+
+def light_cores(force_px, mag, mask, strong, cfg: ContactConfig) -> np.ndarray | None:
+    """Mask (uint8) of the weak components whose total force reaches cfg.min_total_n, or None (rule off)."""
+    if cfg.weak_threshold_n <= 0 or cfg.min_total_n <= 0 or cfg.weak_threshold_n >= cfg.threshold_n:
+        return None
+    labels, tot = weak_components(force_px, mag, mask, strong, cfg.weak_threshold_n)
+    keep = tot >= cfg.min_total_n
+    return keep[labels].astype(np.uint8) if keep.any() else None
+
+
+def _support_labels(labels: np.ndarray, mag: np.ndarray, cfg: ContactConfig) -> np.ndarray:
+    """Core labels grown onto weaker nearby pixels (nearest core pixel within the support radius),
+    so a cluster's force includes the tails the detection threshold cuts off."""
+    if cfg.support_radius_px <= 0:
+        return labels
+    dist, nearest = cv2.distanceTransformWithLabels((labels == 0).astype(np.uint8), cv2.DIST_L2, 5,
+                                                    labelType=cv2.DIST_LABEL_PIXEL)
+    flat = labels.ravel()
+    by_seed = np.concatenate([[0], flat[flat > 0]])  # DIST_LABEL_PIXEL numbers core pixels in raster order
+    grown = by_seed[nearest]
+    keep = (labels > 0) | ((mag > cfg.support_floor_n) & (dist <= cfg.support_radius_px))
+    return np.where(keep, grown, 0).astype(np.int32)
+
+
+def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Perimeter (contour length, px) and circularity 4πA/P² per label (1 for a disc)."""
+    perim = np.zeros(k)
+    circ = np.zeros(k)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    for c in contours:
+        x, y = c[0, 0]
+        j = labels[y, x]
+        p = cv2.arcLength(c, True)
+        a = cv2.contourArea(c)
+        if p > perim[j]:  # one external contour per 8-connected component; keep the longest
+            perim[j] = p
+            circ[j] = min(1.0, 4 * np.pi * a / (p * p)) if p > 0 else 0.0
+    return perim, circ
+
+
+@dataclass
+class ContactTracker:
+    """Assigns stable ids across frames and ranks clusters by force and stability."""
+
+    cfg: ContactConfig = field(default_factory=ContactConfig)
+    _prev: list[Cluster] = field(default_factory=list)
+    _next_id: int = 0
+
+    def update(self, clusters: list[Cluster]) -> list[Cluster]:
+        prev = self._prev
+        if prev and clusters:
+            a = np.array([c.position_mm for c in prev])
+            b = np.array([c.position_mm for c in clusters])
+            cost = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
+            rows, cols = linear_sum_assignment(cost)
+            for r, c in zip(rows, cols):
+                if cost[r, c] <= self.cfg.match_gate_mm:
+                    clusters[c].id = prev[r].id
+                    clusters[c].age_frames = prev[r].age_frames + 1
+        for c in clusters:
+            if c.id < 0:
+                c.id = self._next_id
+                self._next_id += 1
+        for c in clusters:
+            stability = min(1.0, (c.age_frames + 1) / self.cfg.stable_frames)
+            c.priority = float(c.force_mag_n * stability)
+        clusters.sort(key=lambda c: c.priority, reverse=True)
+        clusters = clusters[: self.cfg.max_contacts]
+        self._prev = clusters
+        return clusters
+
+    def reset(self) -> None:
+        self._prev = []
