@@ -109,14 +109,14 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
     d = Ros2Config.__dataclass_fields__
     g.add_argument("--ros2", action="store_true",
                    help="also publish ROS 2 messages (WrenchStamped, Image, PointCloud2, diagnostics, tf)")
-    g.add_argument("--ros2-distro", choices=rw.DISTROS, default=d["distro"].default)
+    g.add_argument("--ros2-distro", choices=rw.DISTROS, default=d["distro"].default, help="ROS 2 distribution whose type hashes are published (humble has none)")
     g.add_argument("--ros2-domain", type=int, metavar="ID", help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or 0)")
-    g.add_argument("--ros2-namespace", default=d["namespace"].default, metavar="NS")
+    g.add_argument("--ros2-namespace", default=d["namespace"].default, metavar="NS", help="topic namespace: topics become /NS/<sensor>/…")
     g.add_argument("--ros2-router", default=ROUTER_ENDPOINT, metavar="ENDPOINT",
                    help=f"connect to this Zenoh router, e.g. rmw_zenohd (default {ROUTER_ENDPOINT}); "
                         "'none' to connect to none")
-    g.add_argument("--ros2-qos", choices=tuple(rw.RELIABILITY), default=d["reliability"].default)
-    g.add_argument("--ros2-depth", type=int, default=d["depth"].default, metavar="N")
+    g.add_argument("--ros2-qos", choices=tuple(rw.RELIABILITY), default=d["reliability"].default, help="QoS reliability announced in the liveliness tokens")
+    g.add_argument("--ros2-depth", type=int, default=d["depth"].default, metavar="N", help="QoS history depth (KEEP_LAST N)")
     g.add_argument("--ros2-stamp", choices=STAMPS, default=d["stamp"].default,
                    help="header stamps: frame time moved onto the system clock (wall) or as it is (frame)")
     g.add_argument("--ros2-images", default=",".join(d["images"].default), metavar="CH,CH",

@@ -17,7 +17,7 @@ import numpy as np
 
 def add_arguments(p) -> None:
     p.add_argument("--store", default="calibration_store", help="calibration store root")
-    p.add_argument("--sensor", default="TWIN-DEMO")
+    p.add_argument("--sensor", default="TWIN-DEMO", help="sensor whose calibration (tables) the clustering uses")
     p.add_argument("--frames", type=int, default=500, help="timed calls per configuration and field")
     p.add_argument("--weak", type=float, default=0.0012, help="weak threshold (N per pixel)")
     p.add_argument("--min-total", type=float, default=0.041, help="min_total_n (N)")

@@ -363,14 +363,14 @@ def run(args) -> int:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--sensors", type=int, default=4)
+    p.add_argument("--sensors", type=int, default=4, help="fingertip sensors in the one process")
     p.add_argument("--model", default=None,
                    help="model package name in exported_models/ or a folder; 'synthetic' = the synthetic "
                         "net (timing only); default: the newest shipped package, else synthetic")
     p.add_argument("--size", type=int, default=None,
                    help=f"input size of the synthetic net (default {DEFAULT_SYNTHETIC_SIZE}); with a package: "
                         "must match it")
-    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision")
     p.add_argument("--seconds", type=float, default=20.0, help="timed seconds per mode")
     p.add_argument("--warmup", type=float, default=5.0, help="seconds before timing (baseline startup)")
     p.add_argument("--workers", type=int, default=0, help="inference gate (default: cpu count)")

@@ -267,7 +267,7 @@ def run(args) -> int:
 def add_arguments(p) -> None:
     p.add_argument("--sizes", default="96,128", help="model input sizes, comma separated")
     p.add_argument("--frames", type=int, default=200, help="timed frames per configuration")
-    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads")
     p.add_argument("--chunk", type=int, default=25, help="frames per turn when alternating configurations")
     p.add_argument("--fields-every", type=int, default=1,
                    help="also run int8 publishing fields every N-th frame only (LoopConfig.fields_every)")

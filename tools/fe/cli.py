@@ -140,7 +140,7 @@ def register(sub) -> None:
 
     p = fsub.add_parser("fit-material", help="fit Yeoh/NH/MR/Ogden to uniaxial+biaxial data")
     p.add_argument("data", help="CSV (mode,stretch,stress_MPa) or 'synthetic'")
-    p.add_argument("--models", default="yeoh,neo_hookean,mooney_rivlin,ogden")
+    p.add_argument("--models", default="yeoh,neo_hookean,mooney_rivlin,ogden", help="hyperelastic models to fit, comma separated")
     p.add_argument("--plot", help="write a PNG of the fits here (needs matplotlib)")
     p.add_argument("--json-out", help="write the fitted constants as JSON here")
     p.set_defaults(func=_cmd_fit)
@@ -150,15 +150,15 @@ def register(sub) -> None:
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
     g = isub.add_parser("generate", help="write the standardized indenter STL files")
     g.add_argument("--out-dir", default=None, help="folder (default <cache>/fe/indenters)")
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--count", type=int, default=12)
+    g.add_argument("--seed", type=int, default=0, help="random seed of the generated shapes")
+    g.add_argument("--count", type=int, default=12, help="number of indenters")
     g.set_defaults(func=_cmd_ind_generate)
     ls = isub.add_parser("list", help="list the procedural object kinds")
     ls.set_defaults(func=_cmd_ind_list)
 
     p = fsub.add_parser("export-inp", help="write the scenario as a CalculiX (or Abaqus) .inp deck")
     p.add_argument("scenario", help="scenario file, or 'standard'")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="deck (.inp) to write")
     p.add_argument("--dialect", choices=("ccx", "abaqus"), default="ccx",
                    help="ccx: runs in CalculiX 2.20 as written (default); abaqus: parts/instances, C3D4H, R3D3")
     p.add_argument("--bulk", choices=("solver", "material"), default="solver",
@@ -174,7 +174,7 @@ def register(sub) -> None:
     p.set_defaults(func=_cmd_crosscheck)
 
     p = fsub.add_parser("study", help="convergence / CalculiX study (press, slide, mupress, locking, mesh)")
-    p.add_argument("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"))
+    p.add_argument("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"), help="studies to run")
     p.add_argument("--work-dir", required=True, help="folder for the decks and ccx's output")
     p.add_argument("--json", help="write all rows here")
     p.set_defaults(func=_cmd_study)

@@ -30,7 +30,7 @@ def register(sub) -> None:
     p.add_argument("--gauge-protocol", choices=("tt", "mark10"), default="tt",
                    help="tt: 'F <newtons>*<xor>' stream; mark10: '?' request, '<value> <unit>' reply")
     p.add_argument("--baud", type=int, default=None, help="gauge baud rate (default 115200 tt, 9600 mark10)")
-    p.add_argument("--pokes", type=int, default=6, choices=range(5, 8), metavar="{5,6,7}")
+    p.add_argument("--pokes", type=int, default=6, choices=range(5, 8), metavar="{5,6,7}", help="guided pokes to record (5–7)")
     p.add_argument("--reach-deg", type=float, default=None,
                    help="suggest pokes only up to this angle from the dome apex (deg), e.g. the range the model "
                         "was trained on (default: 85 %% of the gel's θ range)")
@@ -46,8 +46,8 @@ def register(sub) -> None:
     p.add_argument("--report", help="write the session report (pokes, errors, decision) as JSON here")
     p.add_argument("--store", help="calibration store folder (default: calibration_store/)")
     p.add_argument("--model", help="model package name or path (default: newest installed)")
-    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
-    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision the recalibration replays")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads")
     p.set_defaults(func=cmd_recalibrate)
 
 

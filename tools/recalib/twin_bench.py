@@ -324,11 +324,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", choices=("nominal", "true"), default="nominal",
                    help="what the store holds before recalibrating: the nominal calibration (as shipped) or "
                         "the unit's true one (factory-calibrated unit whose gel changed)")
-    p.add_argument("--physics", choices=("fe", "hertz-fallback"), default="fe")
+    p.add_argument("--physics", choices=("fe", "hertz-fallback"), default="fe", help="twin contact physics: FE, or the analytic Hertz fallback")
     p.add_argument("--model", help="model package name or path (default: newest installed)")
-    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
-    p.add_argument("--held-out-pokes", type=int, default=10)
-    p.add_argument("--reach-deg", type=float, default=TwinBenchConfig.reach_deg)
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision")
+    p.add_argument("--held-out-pokes", type=int, default=10, help="probe pokes per unit, never used for fitting")
+    p.add_argument("--reach-deg", type=float, default=TwinBenchConfig.reach_deg, help="polar reach (°) of the guided poke pattern")
     p.add_argument("--root", help="sessions and stores folder (default <cache>/recalib/twin)")
     p.add_argument("--geometry", choices=("full", "center"), default="",
                    help="also a two-stage recalibration: geometry from the pokes' true points first (full: GPR "

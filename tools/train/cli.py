@@ -134,24 +134,24 @@ def register(sub) -> None:
     k.add_argument("session", help="session directory (docs/session.md)")
     k.add_argument("--out", help="output JSON (default: cache/keypoints/<session>.json)")
     k.add_argument("--image-rate", type=float, default=30.0, help="camera frame rate f_image (Hz)")
-    k.add_argument("--max-keypoints", type=int, default=12)
+    k.add_argument("--max-keypoints", type=int, default=12, help="at most this many keypoints per contact period")
     k.set_defaults(func=cmd_keypoints)
 
     s = ts.add_parser("synth", help="write a synthetic (not physical) dataset for tests and benchmarks")
-    s.add_argument("--out", required=True)
-    s.add_argument("--n", type=int, default=200)
-    s.add_argument("--size", type=int, default=96)
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", required=True, help="folder for the synthetic dataset")
+    s.add_argument("--n", type=int, default=200, help="number of samples")
+    s.add_argument("--size", type=int, default=96, help="image size (px)")
+    s.add_argument("--seed", type=int, default=0, help="random seed")
     s.add_argument("--min-contacts", type=int, default=0, help="contacts per sample at least (0..2)")
     s.set_defaults(func=cmd_synth)
 
     def common(q, epochs, batch):
         q.add_argument("--data", required=True, help="dataset directory (index.json, bounds.json, samples/)")
         q.add_argument("--out", required=True, help="run directory (resumes if it holds a checkpoint)")
-        q.add_argument("--epochs", type=int, default=epochs)
-        q.add_argument("--batch", type=int, default=batch)
-        q.add_argument("--lr", type=float, default=1e-3)
-        q.add_argument("--threads", type=int, default=2)
+        q.add_argument("--epochs", type=int, default=epochs, help="passes over the training set")
+        q.add_argument("--batch", type=int, default=batch, help="samples per step")
+        q.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate")
+        q.add_argument("--threads", type=int, default=2, help="torch CPU threads")
         q.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
                        help="auto (default): CUDA with mixed precision when present, else CPU")
 
@@ -161,7 +161,7 @@ def register(sub) -> None:
 
     f = ts.add_parser("fit", help="stage 6b: supervised training, L1, AdamW, warmup + cosine")
     common(f, 20, 16)
-    f.add_argument("--arch", default="hiera_qup", choices=("hiera_qup", "unet", "vit"))
+    f.add_argument("--arch", default="hiera_qup", choices=("hiera_qup", "unet", "vit"), help="network architecture")
     f.add_argument("--encoder", help="encoder.pt from `train pretrain` (hiera_qup only)")
     f.set_defaults(func=cmd_fit)
 
@@ -191,8 +191,8 @@ def register(sub) -> None:
     w.set_defaults(func=cmd_weights)
 
     b = ts.add_parser("bench", help="network benchmark: params, training samples/s, ORT fp32 vs int8 latency")
-    b.add_argument("--sizes", type=int, nargs="+", default=[96, 128])
-    b.add_argument("--archs", nargs="+", default=["hiera_qup", "unet", "vit"])
+    b.add_argument("--sizes", type=int, nargs="+", default=[96, 128], help="input sizes (px) to time")
+    b.add_argument("--archs", nargs="+", default=["hiera_qup", "unet", "vit"], help="architectures to time")
     b.add_argument("--threads", type=int, default=2, help="torch threads for the training measurement")
     b.add_argument("--steps", type=int, default=6, help="timed training steps per model")
     b.add_argument("--runs", type=int, default=60, help="latency runs per model")

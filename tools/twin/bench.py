@@ -126,9 +126,9 @@ def interpolation_error(cache: Path, factor: int = 4, kind: str = "slide") -> di
 
 
 def add_arguments(ap) -> None:
-    ap.add_argument("--pokes", type=int, default=3)
+    ap.add_argument("--pokes", type=int, default=3, help="pokes in the recorded plan")
     ap.add_argument("--cache", help="FE cache for the benchmark (default: a fresh temp dir -> cold really cold)")
-    ap.add_argument("--skip", nargs="*", default=[], choices=["render", "throughput", "interp"])
+    ap.add_argument("--skip", nargs="*", default=[], choices=["render", "throughput", "interp"], help="parts of the benchmark to leave out")
 
 
 def run(args) -> int:
