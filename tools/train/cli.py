@@ -27,7 +27,6 @@ TOOLS = (
      "measure a package's contact thresholds, light-touch rule and merging on sessions (--write), or --check them"),
     ("crosseval", "tensortouch.tools.train.crosseval",
      "several packages side by side on held-out sessions through the runtime: detection, |F| MAE, phantoms"),
-    ("average", "tensortouch.tools.train.average", "weight-space average of a fine-tune and its start (optionally exported)"),
     ("resolve-check", "tensortouch.tools.train.resolve_check",
      "twin-only check of stage 2: FE re-solved from measured keypoints against the twin's own solves"),
 )
