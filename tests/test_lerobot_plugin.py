@@ -240,10 +240,11 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
 
         cfg = draccus.parse(Command, args=[
             "--robot.type=tensortouch", "--robot.sensor_id=TWIN-DEMO", f"--robot.top_k={top_k}",
-            "--robot.timeout_ms=15000", "--robot.max_age_ms=500", f"--robot.calibration_dir={tmp_path}"]).robot
+            "--robot.timeout_ms=15000", "--robot.max_age_ms=500", f"--robot.calibration_dir={tmp_path}",
+            "--robot.cameras={gel: {type: tensortouch, sensor_id: TWIN-DEMO, timeout_ms: 15000, "
+            "width: 128, height: 128, fps: 30}}"]).robot
         assert isinstance(cfg, TensorTouchRobotConfig) and cfg.type == "tensortouch" and cfg.connect is None
-        cfg.cameras = {"gel": TensorTouchCameraConfig(sensor_id="TWIN-DEMO", timeout_ms=15000,
-                                                      width=128, height=128, fps=30)}
+        assert isinstance(cfg.cameras["gel"], TensorTouchCameraConfig)
         robot = make_robot_from_config(cfg)
         assert isinstance(robot, TensorTouchRobot) and isinstance(robot.cameras["gel"], TensorTouchCamera)
         names = [f"tactile.{f}" for f in ("fx", "fy", "fz", "tx", "ty", "tz")] + [
