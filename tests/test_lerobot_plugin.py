@@ -210,17 +210,12 @@ def _expected_floats(wrench, contacts, prefix: str, top_k: int) -> dict[str, flo
 
 
 def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, monkeypatch):
-    robots, stubbed = _lerobot_robots()
     try:
         importlib.metadata.distribution("lerobot_robot_tensortouch")
     except importlib.metadata.PackageNotFoundError:
         pytest.skip(f"lerobot_robot_tensortouch is not installed ({ROBOT_INSTALL})")
-    import draccus
-    from lerobot.robots import RobotConfig, make_robot_from_config
-    from lerobot.utils.errors import DeviceNotConnectedError
-    from lerobot.utils.import_utils import register_third_party_plugins
-
-    # the meeting point moved to a free loopback port, for the runtime and for the plugins' defaults
+    # the meeting point moved to a free loopback port, for the runtime and for the plugins' defaults;
+    # the runtime starts first so that its start-up overlaps LeRobot's imports
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     monkeypatch.setenv("TENSORTOUCH_ENDPOINT", endpoint)
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", "--loop"],
@@ -228,6 +223,13 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     robot = None
     try:
+        _, stubbed = _lerobot_robots()
+        import draccus
+        from lerobot.cameras.utils import make_cameras_from_configs
+        from lerobot.robots import RobotConfig, make_robot_from_config
+        from lerobot.utils.errors import DeviceNotConnectedError
+        from lerobot.utils.import_utils import register_third_party_plugins
+
         register_third_party_plugins()            # imports both plugins by their distribution names
         from lerobot_camera_tensortouch import TensorTouchCamera, TensorTouchCameraConfig, from_image
         from lerobot_robot_tensortouch import TensorTouchRobot, TensorTouchRobotConfig
@@ -268,7 +270,7 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
             assert [c["id"] for c in TensorTouchCamera.find_cameras()] == ["TWIN-DEMO"]
             checked = pressed = frames = 0
             deadline = time.monotonic() + 25
-            while (pressed < 5 or frames < 5) and time.monotonic() < deadline:
+            while (pressed < 3 or frames < 3) and time.monotonic() < deadline:
                 obs = robot.get_observation()
                 seq, cam_seq = robot.tactile.last_read_seq, robot.cameras["gel"].last_read_seq
                 assert list(obs) == [*names, "gel"] and all(isinstance(obs[n], float) for n in names)
@@ -289,7 +291,19 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
                     assert img.shape == (128, 128, 3) and img.dtype == np.uint8
                     assert np.abs(from_image(img, ("disp_x", "disp_y", "disp_z")) - ref).max() <= 2.5 / 127 * 0.51 + 1e-3
                     frames += 1
-            assert pressed >= 5 and frames >= 5, (checked, pressed, frames)
+            assert pressed >= 3 and frames >= 3, (checked, pressed, frames)
+
+            # a missing sensor and a camera config that does not match the published grid fail on connect
+            missing = make_robot_from_config(TensorTouchRobotConfig(sensor_id="NO-SUCH-SENSOR", timeout_ms=300,
+                                                                    calibration_dir=tmp_path))
+            with pytest.raises(ConnectionError, match="NO-SUCH-SENSOR"):
+                missing.connect()
+            assert not missing.is_connected
+            wrong = make_cameras_from_configs({"x": TensorTouchCameraConfig(
+                sensor_id="TWIN-DEMO", width=64, height=64, fps=30, timeout_ms=15000)})["x"]
+            with pytest.raises(ValueError, match="64×64 but the runtime publishes 128×128"):
+                wrong.connect()
+            assert not wrong.is_connected
 
             assert robot.send_action({}) == {}
             with pytest.raises(ValueError, match="no action"):
@@ -306,10 +320,7 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
         print(f"LeRobot robot: {checked} observations checked against the subscriber, {pressed} pressed; "
               f"torchvision stand-in: {stubbed}")
     finally:
-        if robot is not None:
-            try:
-                robot.disconnect()                   # open Zenoh sessions would hold up the interpreter's exit
-            except DeviceNotConnectedError:
-                pass
+        if robot is not None and robot.tactile.is_connected:
+            robot.disconnect()                       # open Zenoh sessions would hold up the interpreter's exit
         if proc.poll() is None:
             stop(proc)
