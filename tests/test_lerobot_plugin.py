@@ -158,7 +158,8 @@ ROBOT_INSTALL = ("pip install --no-deps ./integrations/lerobot_robot plus LeRobo
 
 
 def _lerobot_robots():
-    """Import LeRobot's robot layer; the torchvision stand-in only when torchvision cannot be imported."""
+    """Import LeRobot's robot layer; the torchvision stand-in only when torchvision cannot be imported.
+    Called with the robot plugin installed, so a layer that does not import is a failure, not a skip."""
     try:
         import torchvision  # noqa: F401
         stub = False
@@ -169,7 +170,7 @@ def _lerobot_robots():
         try:
             import datasets  # noqa: F401 - it records whether torchvision exists: let it see that it does not
         except ImportError as exc:
-            pytest.skip(f"LeRobot's robot layer needs `datasets`: {exc} ({ROBOT_INSTALL})")
+            pytest.fail(f"LeRobot's robot layer needs `datasets`: {exc} ({ROBOT_INSTALL})")
         for name in names:
             sys.modules.pop(name, None)
             mod = types.ModuleType(name)
@@ -183,10 +184,10 @@ def _lerobot_robots():
         sys.modules["torchvision"].transforms = sys.modules["torchvision.transforms"]
         sys.modules["torchvision.transforms"].functional = sys.modules["torchvision.transforms.functional"]
     try:
-        import lerobot.robots
-        return lerobot.robots, stub
+        import lerobot.robots  # noqa: F401
+        return stub
     except ImportError as exc:
-        pytest.skip(f"LeRobot's robot layer does not import: {exc} ({ROBOT_INSTALL})")
+        pytest.fail(f"LeRobot's robot layer does not import: {exc} ({ROBOT_INSTALL})")
     finally:
         if stub:
             for name in names:
@@ -223,7 +224,7 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     robot = None
     try:
-        _, stubbed = _lerobot_robots()
+        stubbed = _lerobot_robots()
         import draccus
         from lerobot.cameras.utils import make_cameras_from_configs
         from lerobot.robots import RobotConfig, make_robot_from_config
