@@ -2,7 +2,8 @@
 
 LeRobot imports this package when the distribution is installed (its third-party plugin discovery);
 importing it registers the camera config, and `make_cameras_from_configs` then builds
-`TensorTouchCamera` from a `TensorTouchCameraConfig`.
+`TensorTouchCamera` from a `TensorTouchCameraConfig`. Both readers here share reading.ZenohReader;
+the sensor-only robot (distribution lerobot_robot_tensortouch) builds on `TensorTouchTactile`.
 """
 from .camera_tensortouch import TensorTouchCamera
 from .configuration_tensortouch import TensorTouchCameraConfig

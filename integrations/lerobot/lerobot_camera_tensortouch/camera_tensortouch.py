@@ -1,122 +1,72 @@
-"""LeRobot camera over a TensorTouch sensor's published fields (Zenoh subscriber, no polling thread:
-Zenoh delivers each message on its own thread and the newest one is kept)."""
+"""LeRobot camera over a TensorTouch sensor's published fields (reading rules: reading.ZenohReader)."""
 from __future__ import annotations
 
-import logging
-import threading
-import time
 from typing import Any
 
-import numpy as np
 from lerobot.cameras.camera import Camera
 
 from .configuration_tensortouch import TensorTouchCameraConfig
+from .reading import ZenohReader
 from .scale import to_image
 
-log = logging.getLogger(__name__)
 
-
-class TensorTouchCamera(Camera):
+class TensorTouchCamera(ZenohReader, Camera):
     """`read()` waits for the next fields message; `async_read(timeout_ms)` returns the newest one not
     returned yet (waiting up to timeout_ms); `read_latest(max_age_ms)` returns the newest one at once
-    and raises TimeoutError when it is older than max_age_ms (a stopped or stalled runtime)."""
+    and raises TimeoutError when it is older than max_age_ms (a stopped or stalled runtime).
+
+    `width`/`height` come from the config when given (a LeRobot robot needs them up front) and must
+    then match the published grid; otherwise from the first frame."""
+
+    what = "fields"
 
     def __init__(self, config: TensorTouchCameraConfig):
-        super().__init__(config)
+        Camera.__init__(self, config)
         self.config = config
-        self._sub = None
-        self._cond = threading.Condition()
-        self._frame: np.ndarray | None = None
-        self._arrived = 0.0          # time.perf_counter() when the newest frame arrived
-        self._seq = -1               # its runtime sequence number
-        self._count = 0              # frames received
-        self._returned = 0           # value of _count when read()/async_read() last returned
-        self.last_read_seq = -1      # runtime sequence number of the frame read()/async_read() last returned
+        self._init_reader(config.sensor_id, config.connect, config.timeout_ms)
+        self._shape: tuple[int, int] | None = None      # (height, width) of the published grid
 
     def __str__(self) -> str:
         return f"TensorTouchCamera({self.config.sensor_id})"
 
-    @property
-    def is_connected(self) -> bool:
-        return self._sub is not None
+    def _already_connected(self) -> Exception:
+        from lerobot.utils.errors import DeviceAlreadyConnectedError
+
+        return DeviceAlreadyConnectedError(f"{self} is already connected")
+
+    def _not_connected(self) -> Exception:
+        from lerobot.utils.errors import DeviceNotConnectedError
+
+        return DeviceNotConnectedError(f"{self} is not connected")
 
     @staticmethod
     def find_cameras() -> list[dict[str, Any]]:
-        """Sensors alive on the default loopback endpoint (Zenoh liveliness)."""
-        from tensortouch.runtime.apps.publisher import open_session
+        """Sensors alive at the meeting point (TENSORTOUCH_ENDPOINT, else loopback 7447; Zenoh liveliness)."""
         from tensortouch.runtime.apps.subscriber import alive_sensors
+        from tensortouch.runtime.apps.zenoh_session import default_endpoint, open_session
 
-        session = open_session(None, connect=["tcp/127.0.0.1:7447"])
+        session = open_session(connect=[default_endpoint()], role="subscriber")
         try:
             return [{"name": f"TensorTouch {s}", "type": "tensortouch", "id": s} for s in alive_sensors(session)]
         finally:
             session.close()
 
     def connect(self, warmup: bool = True) -> None:
-        from lerobot.utils.errors import DeviceAlreadyConnectedError
-
-        from tensortouch.runtime.apps.subscriber import Subscriber
-
-        if self.is_connected:
-            raise DeviceAlreadyConnectedError(f"{self} is already connected")
-        self._sub = Subscriber(self.config.sensor_id, connect=[self.config.connect], on_fields=self._on_fields)
+        self._subscribe(warmup, on_fields=self._on_fields)
         if warmup:
-            try:
-                self.async_read(self.config.timeout_ms)
-            except TimeoutError:
-                self.disconnect()
-                raise ConnectionError(f"{self}: no fields from {self.config.connect} within "
-                                      f"{self.config.timeout_ms:.0f} ms; is `tensortouch run` publishing fields "
-                                      "(not --no-fields) for this sensor?") from None
+            self._check_shape()
+
+    def _check_shape(self) -> None:
+        want = (self.config.height, self.config.width)
+        if None not in want and self._shape != want:
+            self.disconnect()
+            raise ValueError(f"{self}: config height × width {want[0]}×{want[1]} but the runtime publishes "
+                             f"{self._shape[0]}×{self._shape[1]} fields")
 
     def _on_fields(self, frame) -> None:
         image = to_image(frame.data, frame.channels, self.config.channels)
-        with self._cond:
-            self._frame, self._arrived, self._seq = image, time.perf_counter(), frame.seq
-            self._count += 1
-            if self.height is None:
-                self.height, self.width = image.shape[:2]
-            self._cond.notify_all()
-
-    def _require(self) -> None:
-        if not self.is_connected:
-            from lerobot.utils.errors import DeviceNotConnectedError
-
-            raise DeviceNotConnectedError(f"{self} is not connected")
-
-    def read(self) -> np.ndarray:
-        return self.async_read(self.config.timeout_ms)
-
-    def async_read(self, timeout_ms: float = 200) -> np.ndarray:
-        self._require()
-        deadline = time.perf_counter() + timeout_ms / 1e3
-        with self._cond:
-            while self._count == self._returned:
-                left = deadline - time.perf_counter()
-                if left <= 0:
-                    raise TimeoutError(f"{self}: no new fields within {timeout_ms:.0f} ms")
-                self._cond.wait(left)
-            self._returned = self._count
-            self.last_read_seq = self._seq
-            return self._frame
-
-    def read_latest(self, max_age_ms: int = 500) -> np.ndarray:
-        self._require()
-        with self._cond:
-            frame, arrived = self._frame, self._arrived
-        if frame is None:
-            raise RuntimeError(f"{self} has not received any fields yet")
-        age_ms = (time.perf_counter() - arrived) * 1e3
-        if age_ms > max_age_ms:
-            raise TimeoutError(f"{self}: the latest fields are {age_ms:.0f} ms old (max {max_age_ms} ms)")
-        return frame
-
-    @property
-    def latest_seq(self) -> int:
-        """Runtime sequence number of the newest frame (-1 before the first)."""
-        return self._seq
-
-    def disconnect(self) -> None:
-        self._require()
-        sub, self._sub = self._sub, None
-        sub.close()
+        if self._shape is None:
+            self._shape = image.shape[:2]
+            if self.height is None or self.width is None:
+                self.height, self.width = self._shape
+        self._put(image, frame.seq)
