@@ -121,8 +121,10 @@ def fp32_package(pkg, work: Path):
         run = pkg.manifest.get("training", {}).get("run")
         run = (ROOT / run) if run and not Path(run).is_absolute() else (Path(run) if run else None)
         if run is None or not (run / "best.pt").is_file():
-            return None, (f"fp32 graph neither in the build cache ({cached}) nor regenerable (fit run "
-                          f"{run} has no best.pt); regenerate with: {info.get('regenerate', 'tensortouch train export')}")
+            return None, f"fp32 graph neither in the build cache ({cached}) nor regenerable (fit run {run} has no best.pt); " + (
+                f"rebuild the package with its recipe: tensortouch train all --recipe {pkg.folder / 'manifest.json'}"
+                if pkg.manifest.get("training", {}).get("recipe") else
+                "this package names no recipe, so no fp32 graph can be rebuilt from a checkout; compare int8 only")
         try:
             from ..train.export import export_onnx
             from ..train.model.train import load_trained
