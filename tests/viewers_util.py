@@ -3,7 +3,12 @@ an install of the `viewers` extra does (a dist-info folder with entry_points.txt
 a `tensortouch listen` process), so it finds them through importlib.metadata, with no mock."""
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def site_with_savers(folder: Path) -> Path:
@@ -15,3 +20,12 @@ def site_with_savers(folder: Path) -> Path:
                                            "rrd = tools.viewers.rerun_saver:RerunSaver\n")
     return folder
 
+
+
+def listen_save(endpoint: str, out: Path, site: Path) -> subprocess.CompletedProcess:
+    """`tensortouch listen dome01 --count 40 --save out` in its own process, connected to `endpoint`,
+    finding the savers through the dist-info made in `site`."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site_with_savers(site)), str(ROOT)]))
+    return subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "dome01", "--connect", endpoint,
+                           "--count", "40", "--save", str(out)], env=env, capture_output=True, text=True, timeout=60,
+                          check=False)
