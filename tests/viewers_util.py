@@ -16,8 +16,8 @@ def site_with_savers(folder: Path) -> Path:
     dist = folder / "tensortouch_viewers_test-0.0.0.dist-info"
     dist.mkdir(parents=True)
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: tensortouch-viewers-test\nVersion: 0.0.0\n")
-    (dist / "entry_points.txt").write_text("[tensortouch.savers]\nmcap = tools.viewers.mcap_saver:McapSaver\n"
-                                           "rrd = tools.viewers.rerun_saver:RerunSaver\n")
+    (dist / "entry_points.txt").write_text("[tensortouch.savers]\nmcap = tensortouch.tools.viewers.mcap_saver:McapSaver\n"
+                                           "rrd = tensortouch.tools.viewers.rerun_saver:RerunSaver\n")
     return folder
 
 
