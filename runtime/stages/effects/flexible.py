@@ -52,8 +52,10 @@ class MonotoneSpline(Effect):
             for k in range(len(cls.knots) - 1))
         cls.off = {p.name: 0.0 for p in cls.params}
 
-    def covariate(self, cov: dict) -> np.ndarray:  # pragma: no cover - written by subclasses
-        raise NotImplementedError
+    def covariate(self, cov: dict) -> np.ndarray:
+        """The value the shape is a function of: by default the member's one covariate itself."""
+        (name,) = self.covariates
+        return need(cov, name, self.name)
 
     def increments(self, p: dict) -> np.ndarray:
         """(K,) the increments a1..aK of parameter values p."""
@@ -94,9 +96,6 @@ class RimStiffeningSpline(MonotoneSpline):
     def shape(self, c, p):
         return np.maximum(MIN_GAIN, 1.0 + (1.0 - ramps(c, self.knots)) @ self.increments(p))
 
-    def covariate(self, cov):
-        return need(cov, "rim_distance", self.name)
-
 
 class TemperatureSofteningSpline(MonotoneSpline):
     name = "temperature_softening_spline"
@@ -108,9 +107,6 @@ class TemperatureSofteningSpline(MonotoneSpline):
     sign = -1.0
     increment_hi = 0.5
     lead = (Param("b", "-", 0.0, -0.5, 0.5, "gain at the coldest knot minus 1"),)
-
-    def covariate(self, cov):
-        return need(cov, "temperature", self.name)
 
 
 class MullinsSofteningSpline(MonotoneSpline):
