@@ -3,6 +3,7 @@
     atomic_write(path, b"...")                   # bytes
     atomic_write(path, lambda fh: np.save(fh, a)) # or a writer given the open binary file
     atomic_write_json(path, obj)
+    finish_partial(partial_path(path), path)     # a file another library wrote in full beside `path`
 
 The data goes to a temp file beside `path` (same filesystem), is flushed and fsynced, then renamed
 over `path`; the folder is fsynced after the rename so the rename itself survives a power loss. On any
@@ -67,3 +68,18 @@ def atomic_write_text(path: str | os.PathLike, text: str, **kw) -> Path:
 def atomic_write_json(path: str | os.PathLike, obj, *, indent: int | None = 1, sort_keys: bool = False,
                       default=None, **kw) -> Path:
     return atomic_write_text(path, json.dumps(obj, indent=indent, sort_keys=sort_keys, default=default), **kw)
+
+
+def partial_path(path: str | os.PathLike) -> Path:
+    """Where a file that a library writes itself (a recording) grows until `finish_partial`: `<name>.partial`."""
+    path = Path(path)
+    return path.with_name(path.name + ".partial")
+
+
+def finish_partial(partial: str | os.PathLike, path: str | os.PathLike) -> Path:
+    """Put a completely written `partial` file in place of `path`: fsynced, renamed, folder fsynced."""
+    with open(partial, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(partial, path)
+    fsync_dir(Path(path).parent)
+    return Path(path)

@@ -62,14 +62,10 @@ def poke_frames(n: int = 90, seed: int = 0, press=(45, 75), dx: float = 25.0):
 
 
 def write_frames(frames, path: Path, fps: float = 30.0) -> Path:
-    import cv2
+    """RGB frames as an MJPG video (the benchmarks' writer, at 30 frames/s by default)."""
+    from tensortouch.tools.bench.runtime_bench import write_video
 
-    h, w = frames[0].shape[:2]
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
-    for f in frames:
-        vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
-    vw.release()
-    return path
+    return write_video(frames, path, fps)
 
 
 def make_video(path: Path, n: int = 90, seed: int = 0, dx: float = 25.0) -> Path:

@@ -83,17 +83,22 @@ def _check(session_dir):
     assert s.streams["wrench"]["ft_to_indenter"]["translation_mm"] == [0, 0, 44]
 
 
+def _write_bag(writer, ts, serialize):
+    """Every test message through a rosbags bag writer (ROS1 or ROS2), one connection per topic."""
+    conns = {}
+    for topic, typ, t, m in _msgs(ts):
+        if topic not in conns:
+            conns[topic] = writer.add_connection(topic, typ, typestore=ts)
+        writer.write(conns[topic], int(t * 1e9), serialize(m, typ))
+
+
 def test_ros1_bag_to_session(tmp_path):
     from rosbags.rosbag1 import Writer
 
     ts = get_typestore(Stores.ROS1_NOETIC)
     bag = tmp_path / "rec.bag"
     with Writer(bag) as w:
-        conns = {}
-        for topic, typ, t, m in _msgs(ts):
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=ts)
-            w.write(conns[topic], int(t * 1e9), ts.serialize_ros1(m, typ))
+        _write_bag(w, ts, ts.serialize_ros1)
     _check(convert(bag, TopicMap.load(MAP), tmp_path / "s"))
 
 
@@ -104,11 +109,7 @@ def test_ros2_bag_to_session(tmp_path, plugin):
     ts = get_typestore(Stores.ROS2_HUMBLE)
     bag = tmp_path / "rec2"
     with Writer(bag, version=9, storage_plugin=getattr(StoragePlugin, plugin)) as w:
-        conns = {}
-        for topic, typ, t, m in _msgs(ts):
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=ts)
-            w.write(conns[topic], int(t * 1e9), ts.serialize_cdr(m, typ))
+        _write_bag(w, ts, ts.serialize_cdr)
     _check(convert(bag, TopicMap.load(MAP), tmp_path / "s"))
 
 

@@ -353,18 +353,25 @@ def test_model_file_replaced_by_corrupt_one_while_running(rig, tmp_path):
         Hand(cfg)                                                             # a restart refuses it clearly
 
 
-def test_calibration_replaced_by_corrupt_one_while_running(rig, tmp_path):
+def running_hand_on_store(rig, store_root, col):
+    """A running hand of every serial (and its subscriber) reading a fresh calibration store at
+    `store_root`; returns (hand, subscriber, store)."""
     from tensortouch.contracts.store import CalibrationStore
-    from tests.conftest import dome_calibration
 
     tmp, pkg, videos = rig
-    store_root = tmp_path / "store"
     make_store(store_root, SERIALS)
     cfg = dataclasses.replace(hand_cfg(tmp, pkg, {s: f"file:{videos[s]}" for s in SERIALS}),
                               calibration_store=str(store_root))
-    col = Collector()
     hand, sub = running_hand(cfg, col)
-    store = CalibrationStore(store_root)
+    return hand, sub, CalibrationStore(store_root)
+
+
+def test_calibration_replaced_by_corrupt_one_while_running(rig, tmp_path):
+    from tests.conftest import dome_calibration
+
+    store_root = tmp_path / "store"
+    col = Collector()
+    hand, sub, store = running_hand_on_store(rig, store_root, col)
     try:
         v_old = store.current(SICK)
         v_bad = dome_calibration(store_root, SICK, size=32, image=(160, 120), radius_px=48.0)
@@ -409,19 +416,13 @@ def _mount_tmpfs(path, size="1m"):
 def test_disk_full_during_calibration_write(rig, tmp_path):
     """A full disk (tmpfs at its size limit where mounting is allowed, else a file-size limit in a
     separate process) fails the write; the running hand and the stored versions are untouched."""
-    from tensortouch.contracts.store import CalibrationStore
     from tests.conftest import dome_calibration
 
-    tmp, pkg, videos = rig
     disk = tmp_path / "disk"
     mounted = _mount_tmpfs(disk)
     store_root = disk / "store"
-    make_store(store_root, SERIALS)
-    cfg = dataclasses.replace(hand_cfg(tmp, pkg, {s: f"file:{videos[s]}" for s in SERIALS}),
-                              calibration_store=str(store_root))
     col = Collector()
-    hand, sub = running_hand(cfg, col)
-    store = CalibrationStore(store_root)
+    hand, sub, store = running_hand_on_store(rig, store_root, col)
     try:
         v_old = store.current(SICK)
         if mounted:

@@ -4,7 +4,7 @@ import os
 
 import pytest
 
-from tensortouch.contracts.files import atomic_write, atomic_write_json
+from tensortouch.contracts.files import atomic_write, atomic_write_json, finish_partial, partial_path
 
 
 def test_writes_bytes_callables_and_json(tmp_path):
@@ -34,3 +34,17 @@ def test_file_and_folder_are_fsynced(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")), real(fd)))
     atomic_write(tmp_path / "a.bin", b"x")
     assert str(tmp_path) in synced and any(s.startswith(str(tmp_path / ".a.bin.")) for s in synced)
+
+
+def test_a_finished_partial_file_replaces_the_old_one_fsynced(tmp_path, monkeypatch):
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")), real(fd)))
+    final = tmp_path / "rec.mcap"
+    final.write_bytes(b"old")
+    partial = partial_path(final)
+    assert partial == tmp_path / "rec.mcap.partial"
+    partial.write_bytes(b"new recording")
+    assert finish_partial(partial, final) == final
+    assert final.read_bytes() == b"new recording" and os.listdir(tmp_path) == ["rec.mcap"]
+    assert synced == [str(partial), str(tmp_path)]

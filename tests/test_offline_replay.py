@@ -74,6 +74,19 @@ def demo_store(root: Path, effects=EFFECTS, gain=1.1) -> CalibrationStore:
     return store
 
 
+def poke_recording(tmp_path: Path):
+    """(session, package, store): a synthetic poke recording, a small difference network, and a
+    nominal calibration with strain stiffening (k = 40) and a constant 1.1 gain correction."""
+    session = write_poke_session(tmp_path / "session")
+    pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
+    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    store = CalibrationStore(tmp_path / "calib")
+    store.derive(SENSOR, {"effects": [{"name": "strain_stiffening", "params": {"k": 40.0}}],
+                          "correction": {"file": "correction.onnx", "inputs": ["fmag", "u", "v"], "output": "gain"}},
+                 files={"correction.onnx": gain_model(tmp_path / "gain.onnx", 3, 1.1)})
+    return session, pkg, store
+
+
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
     from tensortouch.runtime.stages.model import find_package
@@ -150,13 +163,7 @@ def test_run_and_replay_session_publish_the_same_contacts_and_forces(demo):
 
 def test_run_and_replay_session_agree_on_a_small_recording(tmp_path):
     """The same check, fast: a synthetic poke recording and a small difference network."""
-    session = write_poke_session(tmp_path / "session")
-    pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
-    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
-    store = CalibrationStore(tmp_path / "calib")
-    store.derive(SENSOR, {"effects": [{"name": "strain_stiffening", "params": {"k": 40.0}}],
-                          "correction": {"file": "correction.onnx", "inputs": ["fmag", "u", "v"], "output": "gain"}},
-                 files={"correction.onnx": gain_model(tmp_path / "gain.onnx", 3, 1.1)})
+    session, pkg, store = poke_recording(tmp_path)
     run_and_replay(session, pkg, store, SENSOR, min_touched=10)
 
 
@@ -195,13 +202,7 @@ def test_recalibration_replays_with_the_effect_stage(tmp_path):
     """The recalibration's fit surface (tools.recalib.replay) is the runtime's output with the
     calibration's effects applied and the correction off; its re-applied correction is what the
     runtime publishes with that correction on."""
-    session = write_poke_session(tmp_path / "session")
-    pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
-    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
-    store = CalibrationStore(tmp_path / "calib")
-    store.derive(SENSOR, {"effects": [{"name": "strain_stiffening", "params": {"k": 40.0}}],
-                          "correction": {"file": "correction.onnx", "inputs": ["fmag", "u", "v"], "output": "gain"}},
-                 files={"correction.onnx": gain_model(tmp_path / "gain.onnx", 3, 1.1)})
+    session, pkg, store = poke_recording(tmp_path)
     cal = store.load(SENSOR)
     frames = collect_frames(session, cal, pkg, "fp32", cache=tmp_path / "cache")
     assert len(frames) == 90 and sum(len(c) for _, c in frames) > 10

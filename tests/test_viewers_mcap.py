@@ -1,10 +1,6 @@
 """`tensortouch listen --save out.mcap`: MCAP with Foxglove's schemas, read back with the `mcap` reader
 and the protobuf descriptors stored in the file itself."""
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,10 +13,9 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from tensortouch.contracts import wire
 from tests import test_listen
 from tests.test_listen import CONTACT
-from tests.viewers_util import site_with_savers
+from tests.viewers_util import listen_save
 from tensortouch.tools.viewers.mcap_saver import McapSaver
 
-ROOT = Path(__file__).resolve().parents[1]
 sensor_fixture = test_listen.running_sensor          # a publisher on loopback (its endpoint)
 
 
@@ -92,10 +87,8 @@ def test_mcap_schemas_and_values(tmp_path):
 
 
 def test_listen_save_mcap_from_a_running_sensor(sensor_fixture, tmp_path):
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site_with_savers(tmp_path / "site")), str(ROOT)]))
     out = tmp_path / "out.mcap"
-    r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "dome01", "--connect", sensor_fixture,
-                        "--count", "40", "--save", str(out)], env=env, capture_output=True, text=True, timeout=60, check=False)
+    r = listen_save(sensor_fixture, out, tmp_path / "site")
     assert r.returncode == 0, r.stderr[-2000:]
     got = read_mcap(out)
     kinds = {t.rsplit("/", 1)[-1] for t in got}

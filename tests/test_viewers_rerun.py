@@ -1,10 +1,7 @@
 """`tensortouch listen --save out.rrd`: a Rerun recording that rerun's own loader (rerun.chunk.RrdReader
 and `rerun rrd verify`) opens, with the dome, fields tensor, contacts, arrows and time series."""
-import os
 import shutil
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,9 +11,7 @@ pytest.importorskip("rerun")
 from rerun.chunk import RrdReader
 
 from tests import test_listen
-from tests.viewers_util import site_with_savers
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.viewers_util import listen_save
 
 sensor_fixture = test_listen.running_sensor          # a publisher on loopback (its endpoint)
 
@@ -30,10 +25,8 @@ def entities(path):
 
 
 def test_listen_save_rrd_opens_with_rerun(sensor_fixture, tmp_path):
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site_with_savers(tmp_path / "site")), str(ROOT)]))
     out = tmp_path / "out.rrd"
-    r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "dome01", "--connect", sensor_fixture,
-                        "--count", "40", "--save", str(out)], env=env, capture_output=True, text=True, timeout=60, check=False)
+    r = listen_save(sensor_fixture, out, tmp_path / "site")
     assert r.returncode == 0, r.stderr[-2000:]
     assert out.is_file() and not (tmp_path / "out.rrd.partial").exists()
     rerun_cli = shutil.which("rerun")

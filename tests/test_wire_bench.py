@@ -12,6 +12,7 @@ import sys
 import textwrap
 import time
 import timeit
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,14 +26,26 @@ SHAPE = (15, 128, 128)
 # Publisher process: publish_fields at `rate` Hz for `duration` s; t = wall clock just before the
 # call, so the measured latency includes encode + transport + decode + dispatch.
 CHILD = textwrap.dedent("""
-    import sys, time
+    import sys
     import numpy as np
+    sys.path.insert(0, sys.argv[4])
     from tensortouch.runtime.apps.publisher import Publisher
+    from tests.test_wire_bench import publish_paced
     ep, rate, duration = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
     rng = np.random.default_rng(0)
     fields = rng.normal(size=(15, 128, 128)).astype(np.float32)
     pub = Publisher("bench01", connect=[ep])
     sys.stdin.readline()                       # parent says: subscriber ready
+    publish_paced(pub, fields, rate, duration)
+    print(pub.stats.sent["fields"], flush=True)
+    pub.close()
+""")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def publish_paced(pub, fields, rate: float, duration: float) -> int:
+    """Publish `fields` at `rate` Hz for `duration` s (seq 0, 1, ...), then give the last frames
+    0.5 s to arrive; returns how many were published."""
     period, n = 1.0 / rate, int(rate * duration)
     start = time.perf_counter()
     for seq in range(n):
@@ -41,9 +54,7 @@ CHILD = textwrap.dedent("""
             time.sleep(delay)
         pub.publish_fields(fields, seq, time.time())
     time.sleep(0.5)
-    print(pub.stats.sent["fields"], flush=True)
-    pub.close()
-""")
+    return n
 
 
 def free_endpoint() -> str:
@@ -95,7 +106,7 @@ def latency_cross_process(rate: float, duration: float) -> dict:
     lat = []
     with Subscriber("bench01", listen=[ep],
                     on_fields=lambda fr: lat.append((time.time() - fr.t) * 1e3)) as sub:
-        proc = subprocess.Popen([sys.executable, "-c", CHILD, ep, str(rate), str(duration)],
+        proc = subprocess.Popen([sys.executable, "-c", CHILD, ep, str(rate), str(duration), str(ROOT)],
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         try:
             deadline = time.monotonic() + 30
@@ -132,14 +143,7 @@ def latency_same_process(rate: float, duration: float) -> dict:
             pub.publish_fields(fields, -1, time.time())
             time.sleep(0.05)
         lat.clear()
-        period, n = 1.0 / rate, int(rate * duration)
-        start = time.perf_counter()
-        for seq in range(n):
-            delay = start + seq * period - time.perf_counter()
-            if delay > 0:
-                time.sleep(delay)
-            pub.publish_fields(fields, seq, time.time())
-        time.sleep(0.5)
+        n = publish_paced(pub, fields, rate, duration)
         assert sub.errors == 0
     return _stats(lat, n)
 

@@ -24,7 +24,7 @@ from ...contracts.store import CalibrationStore
 from ...contracts.errors import CaptureError, TensorTouchError
 from ..stages.geometry import surface_grid
 from .hand_config import FingerConfig, HandConfig
-from .zenoh_session import default_endpoint
+from .zenoh_session import default_endpoint, release
 
 log = logging.getLogger(__name__)
 
@@ -290,10 +290,7 @@ class Hand:
         if self.ros2 is not None:
             self.ros2.close()
         if self._own_session:
-            try:
-                self.session.close()
-            except Exception as exc:  # noqa: BLE001
-                log.debug("session close: %s", exc)
+            release(self.session.close, "session close", log)
 
     def __enter__(self) -> "Hand":
         return self.start()

@@ -219,20 +219,11 @@ class Publisher:
         for name in ("_queryable", "_token"):
             obj = getattr(self, name, None)
             if obj is not None:
-                try:
-                    obj.undeclare()
-                except Exception as exc:  # noqa: BLE001
-                    log.debug("undeclare %s: %s", name, exc)
+                zenoh_session.release(obj.undeclare, f"undeclare {name}", log)
         for pub in getattr(self, "_pubs", {}).values():
-            try:
-                pub.undeclare()
-            except Exception as exc:  # noqa: BLE001
-                log.debug("undeclare publisher: %s", exc)
+            zenoh_session.release(pub.undeclare, "undeclare publisher", log)
         if self._owns_session and getattr(self, "session", None) is not None:
-            try:
-                self.session.close()
-            except Exception as exc:  # noqa: BLE001
-                log.debug("session close: %s", exc)
+            zenoh_session.release(self.session.close, "session close", log)
 
     def __enter__(self) -> "Publisher":
         return self

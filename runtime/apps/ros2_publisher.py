@@ -34,6 +34,7 @@ import zenoh
 from ...contracts import ros2_cdr as cdr
 from ...contracts import ros2_wire as rw
 from ...contracts.fields import CHANNEL_UNITS, CHANNELS
+from .zenoh_session import release
 
 log = logging.getLogger(__name__)
 
@@ -163,10 +164,7 @@ class _Topic:
 
     def close(self) -> None:
         for obj in (self.token, self.pub):
-            try:
-                obj.undeclare()
-            except Exception as exc:  # noqa: BLE001
-                log.debug("ros2 undeclare %s: %s", self.topic, exc)
+            release(obj.undeclare, f"ros2 undeclare {self.topic}", log)
 
 
 class Ros2Node:
@@ -208,10 +206,7 @@ class Ros2Node:
             s.close()
         for t in (self.diagnostics, self.tf):
             t.close()
-        try:
-            self._token.undeclare()
-        except Exception as exc:  # noqa: BLE001
-            log.debug("ros2 node token: %s", exc)
+        release(self._token.undeclare, "ros2 node token", log)
 
     def __enter__(self) -> Self:
         return self

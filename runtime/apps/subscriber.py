@@ -19,6 +19,7 @@ import zenoh
 from ...contracts import wire
 from ...contracts.errors import TensorTouchError
 from .publisher import _open
+from .zenoh_session import release
 
 log = logging.getLogger(__name__)
 
@@ -135,15 +136,9 @@ class Subscriber:
         self._closed = True
         sub = getattr(self, "_sub", None)
         if sub is not None:
-            try:
-                sub.undeclare()
-            except Exception as exc:  # noqa: BLE001
-                log.debug("undeclare subscriber: %s", exc)
+            release(sub.undeclare, "undeclare subscriber", log)
         if self._owns_session:
-            try:
-                self.session.close()
-            except Exception as exc:  # noqa: BLE001
-                log.debug("session close: %s", exc)
+            release(self.session.close, "session close", log)
 
     def __enter__(self) -> "Subscriber":
         return self

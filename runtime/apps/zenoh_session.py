@@ -13,9 +13,10 @@ scouting are off unless asked for, and a subscriber opens a peer session that on
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import zenoh
@@ -102,6 +103,15 @@ def open_session(config: zenoh.Config | None = None, *, listen: Sequence[str] = 
         where = f"config {config_file}, " if config_file else ""
         raise TensorTouchError(f"cannot open zenoh session ({where}listen={_endpoints(config, 'listen')}, "
                                f"connect={_endpoints(config, 'connect')}): {_zerror(exc)}") from None
+
+
+def release(step: Callable[[], object], what: str, log: logging.Logger) -> None:
+    """One step of letting go of Zenoh at shutdown (an undeclare, a session close). A session or
+    peer that is already gone may refuse it; that is logged at debug level as `what: error`."""
+    try:
+        step()
+    except Exception as exc:  # noqa: BLE001 - nothing left to do for an entity that is gone
+        log.debug("%s: %s", what, exc)
 
 
 def _zerror(exc: Exception) -> str:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..command_group import command_group
 from ..progress import stage_progress
 
 log = logging.getLogger(__name__)
@@ -119,9 +120,8 @@ def _cmd_study(args) -> int:
 
 def register(sub) -> None:
     """Add the `fe` command and its subcommands to an argparse subparsers object."""
-    fe = sub.add_parser("fe", help="hyperelastic FE of the gel (solve, batch, fit-material, indenters)")
-    fsub = fe.add_subparsers(dest="fe_command", metavar="SUBCOMMAND")
-    fe.set_defaults(func=lambda a: (fe.print_help(), 2)[1])
+    fsub = command_group(sub, "fe", "hyperelastic FE of the gel (solve, batch, fit-material, indenters)",
+                         "fe_command", "SUBCOMMAND")
 
     p = fsub.add_parser("solve", help="solve one scenario file (JSON/TOML) -> result .npz")
     p.add_argument("scenario", help="scenario file, or 'standard' for the standard dome")
@@ -145,9 +145,8 @@ def register(sub) -> None:
     p.add_argument("--json-out", help="write the fitted constants as JSON here")
     p.set_defaults(func=_cmd_fit)
 
-    p = fsub.add_parser("indenters", help="procedural indenter set (seed III.B standardization)")
-    isub = p.add_subparsers(dest="ind_command", metavar="ACTION")
-    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+    isub = command_group(fsub, "indenters", "procedural indenter set (seed III.B standardization)",
+                         "ind_command", "ACTION")
     g = isub.add_parser("generate", help="write the standardized indenter STL files")
     g.add_argument("--out-dir", default=None, help="folder (default <cache>/fe/indenters)")
     g.add_argument("--seed", type=int, default=0, help="random seed of the generated shapes")

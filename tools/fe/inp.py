@@ -108,6 +108,22 @@ def _gel_faces(gm) -> dict[int, list[int]]:
     return faces
 
 
+def _gel_lines(gm, element_type: str, tets) -> list[str]:
+    """The gel's node rows (after a *NODE line), its elements (set GEL), the fixed base (set BASE)
+    and its free surface GEL_TOP as element-face sets TOP_S1..TOP_S4."""
+    out = [f"{i + 1}, {x:.6f}, {y:.6f}, {z:.6f}" for i, (x, y, z) in enumerate(gm.nodes)]
+    out.append(f"*ELEMENT, TYPE={element_type}, ELSET=GEL")
+    out += [f"{e + 1}, " + ", ".join(str(n + 1) for n in t) for e, t in enumerate(tets)]
+    out += ["*NSET, NSET=BASE", _lines(gm.fixed_nodes + 1)]
+    faces = _gel_faces(gm)
+    for k, els in faces.items():
+        if els:
+            out += [f"*ELSET, ELSET=TOP_S{k + 1}", _lines(els)]
+    out.append("*SURFACE, TYPE=ELEMENT, NAME=GEL_TOP")
+    out += [f"TOP_S{k + 1}, S{k + 1}" for k, els in faces.items() if els]
+    return out
+
+
 def _material_lines(m, d1: float) -> list[str]:
     if m.model == "yeoh":
         return [f"*HYPERELASTIC, YEOH\n{m.C10:.8g}, {m.C20:.8g}, {m.C30:.8g}, {d1:.8g}, 0., 0."]
@@ -181,17 +197,7 @@ def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver") ->
     out = [(f"*HEADING\nTensorTouch FE scenario {scenario.name} hash {scenario.hash()} (units mm, N, MPa); "
             f"dialect ccx, bulk {bulk} K = {K:.6g} MPa"),
            "*NODE, NSET=NALL"]
-    out += [f"{i + 1}, {x:.6f}, {y:.6f}, {z:.6f}" for i, (x, y, z) in enumerate(gm.nodes)]
-    etype = "C3D10" if order == 2 else "C3D4"
-    out.append(f"*ELEMENT, TYPE={etype}, ELSET=GEL")
-    out += [f"{e + 1}, " + ", ".join(str(n + 1) for n in t) for e, t in enumerate(gm.tets)]
-    out += ["*NSET, NSET=BASE", _lines(gm.fixed_nodes + 1)]
-    faces = _gel_faces(gm)
-    for k, els in faces.items():
-        if els:
-            out += [f"*ELSET, ELSET=TOP_S{k + 1}", _lines(els)]
-    out.append("*SURFACE, TYPE=ELEMENT, NAME=GEL_TOP")
-    out += [f"TOP_S{k + 1}, S{k + 1}" for k, els in faces.items() if els]
+    out += _gel_lines(gm, "C3D10" if order == 2 else "C3D4", gm.tets)
     out += ["*MATERIAL, NAME=GEL", *_material_lines(m, 2.0 / K), "*SOLID SECTION, ELSET=GEL, MATERIAL=GEL"]
     # rigid indenters: thin tets under the surface, one rigid body each (material needed, stiffness unused)
     out += ["*MATERIAL, NAME=RIGID", "*ELASTIC", "1000., 0.3"]
@@ -252,17 +258,7 @@ def _export_abaqus(scenario: Scenario, path, mesh=None) -> Path:
     gm = mesh if mesh is not None else build_mesh(scenario)
     out = [f"*HEADING\nTensorTouch FE scenario {scenario.name} hash {scenario.hash()} (units mm, N, MPa)",
            "*PART, NAME=GEL", "*NODE"]
-    out += [f"{i + 1}, {x:.6f}, {y:.6f}, {z:.6f}" for i, (x, y, z) in enumerate(gm.nodes)]
-    out.append("*ELEMENT, TYPE=C3D4H, ELSET=GEL")
-    out += [f"{e + 1}, " + ", ".join(str(n + 1) for n in t) for e, t in enumerate(gm.corner_tets)]
-    out += ["*NSET, NSET=BASE", _lines(gm.fixed_nodes + 1)]
-    # free-surface faces as element-face sets S1..S4
-    faces = _gel_faces(gm)
-    for k, els in faces.items():
-        if els:
-            out += [f"*ELSET, ELSET=TOP_S{k + 1}", _lines(els)]
-    out.append("*SURFACE, TYPE=ELEMENT, NAME=GEL_TOP")
-    out += [f"TOP_S{k + 1}, S{k + 1}" for k, els in faces.items() if els]
+    out += _gel_lines(gm, "C3D4H", gm.corner_tets)
     out += ["*SOLID SECTION, ELSET=GEL, MATERIAL=GEL", "*END PART"]
     m = scenario.material
     out.append("*MATERIAL, NAME=GEL\n*DENSITY\n1.07e-09")

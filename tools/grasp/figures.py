@@ -1,4 +1,5 @@
-"""Pictures of a pose selection: the two heatmaps and the contact cloud with both axes."""
+"""Pictures of a pose selection: the two heatmaps and the contact cloud with both axes (and the
+matplotlib set-up and saving the grasp pictures share)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +9,8 @@ import numpy as np
 from .mount import MountResult
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (files only, no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -17,9 +19,18 @@ def _plt():
     return plt
 
 
+def save_figure(fig, path: str | Path, dpi: int) -> Path:
+    """Write `fig` as `path` (its folder made) and close it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path
+
+
 def heatmaps(result: MountResult, path: str | Path) -> Path:
     """Left: mean thumb manipulability per (z, pitch); right: best-axis inliers per (z, pitch)."""
-    plt = _plt()
+    plt = pyplot()
     cfg = result.config
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
     for ax, what, title, fmt in ((axes[0], "mean_w", "mean manipulability √det(JJᵀ) [1e-4]", "{:.2f}"),
@@ -39,16 +50,12 @@ def heatmaps(result: MountResult, path: str | Path) -> Path:
         ax.add_patch(plt.Rectangle((ci[1] - 0.5, ci[0] - 0.5), 1, 1, fill=False, ec="r", lw=2))
         fig.colorbar(im, ax=ax, fraction=0.046)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90)
 
 
 def contacts_3d(result: MountResult, path: str | Path) -> Path:
     """Contact points of the chosen variant (blue), PCA axis (red), best inlier axis (green), mm."""
-    plt = _plt()
+    plt = pyplot()
     v = result.chosen
     P = v.workspace.contact_points * 1000
     fig = plt.figure(figsize=(5, 4.5))
@@ -70,8 +77,4 @@ def contacts_3d(result: MountResult, path: str | Path) -> Path:
     ax.set_title(f"z = {v.z_cm:g} cm, pitch = {v.pitch_deg:g}°: {v.n_contacts} contacts", fontsize=9)
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90)

@@ -7,13 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .figures import pyplot, save_figure
+
 
 def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     stages = [f for f in frames if f["label"] in ("pinch", "pull", "final")]
     fig, axes = plt.subplots(3, len(stages), figsize=(3.2 * len(stages), 8.2), squeeze=False)
     for col, f in enumerate(stages):
@@ -51,8 +49,4 @@ def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
     fig.suptitle(f"{result.pair}: pulled object {result.pulled} (red), judged {result.judged}: {result.outcome}",
                  fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=80)

@@ -9,6 +9,8 @@ from __future__ import annotations
 import logging
 import sys
 
+from ..command_group import command_group
+
 log = logging.getLogger(__name__)
 
 
@@ -93,9 +95,8 @@ def register_record(sub) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("session", help="import ROS/MCAP recordings as sessions; validate sessions")
-    ssub = p.add_subparsers(dest="session_command", metavar="SESSION_COMMAND")
-    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+    ssub = command_group(sub, "session", "import ROS/MCAP recordings as sessions; validate sessions",
+                         "session_command", "SESSION_COMMAND")
     i = ssub.add_parser("import", help="ROS1 .bag, ROS2 bag folder or .mcap -> session (topic map file)")
     i.add_argument("bag", help="ROS 1 bag, ROS 2 bag folder or MCAP file")
     i.add_argument("--map", required=True, help="topic map (JSON or TOML), see docs/session.md")

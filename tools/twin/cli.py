@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import logging
 
+from ..command_group import command_group
 from ..progress import stage_progress
 
 log = logging.getLogger(__name__)
@@ -63,9 +64,8 @@ def _calibration(args) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("twin", help="digital twin sensor: record sessions, contact sheets, true calibration")
-    tsub = p.add_subparsers(dest="twin_command", metavar="TWIN_COMMAND")
-    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+    tsub = command_group(sub, "twin", "digital twin sensor: record sessions, contact sheets, true calibration",
+                         "twin_command", "TWIN_COMMAND")
     r = tsub.add_parser("record", help="simulate a recording session of one twin unit")
     r.add_argument("--unit", required=True, help="twin unit serial (sets the unit's variation; = sensor id)")
     r.add_argument("--pokes", type=int, default=5, help="number of indenter pokes in the plan")

@@ -17,11 +17,12 @@ message was received. The file is written as `<name>.partial` and renamed when t
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ...contracts.files import finish_partial, partial_path
 
 ARROW_M_PER_N = 0.01            # arrow length per newton of contact force
 
@@ -66,7 +67,7 @@ class McapSaver:
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.partial = self.path.with_name(self.path.name + ".partial")
+        self.partial = partial_path(self.path)
         self.context = foxglove.Context()
         self.writer = foxglove.open_mcap(str(self.partial), allow_overwrite=True, context=self.context)
         self.channels: dict[str, Any] = {}
@@ -137,6 +138,4 @@ class McapSaver:
             return
         self._closed = True
         self.writer.close()
-        with open(self.partial, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(self.partial, self.path)
+        finish_partial(self.partial, self.path)

@@ -17,11 +17,12 @@ Per sensor `<s>`, on the timelines `frame_time` (the frame time `t`, s) and `seq
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ...contracts.files import finish_partial, partial_path
 
 ARROW_MM_PER_N = 5.0
 
@@ -45,7 +46,7 @@ class RerunSaver:
         self.partial = None
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.partial = self.path.with_name(self.path.name + ".partial")
+            self.partial = partial_path(self.path)
             self.rec.save(str(self.partial))
         elif grpc_url:
             self.rec.connect_grpc(grpc_url)
@@ -147,6 +148,4 @@ class RerunSaver:
         self.rec.flush()
         self.rec.disconnect()
         if self.partial is not None:
-            with open(self.partial, "rb") as fh:
-                os.fsync(fh.fileno())
-            os.replace(self.partial, self.path)
+            finish_partial(self.partial, self.path)

@@ -19,7 +19,8 @@ from typing import ClassVar
 import numpy as np
 
 from .base import Effect, Param, need, scale_rows
-from .builtin import MIN_GAIN, prony_history, unilateral
+from .builtin import (MIN_GAIN, MullinsSoftening, RimStiffening, StrainStiffening, TemperatureSoftening,
+                      prony_history, unilateral)
 
 
 def ramps(c: np.ndarray, knots: tuple) -> np.ndarray:
@@ -29,89 +30,94 @@ def ramps(c: np.ndarray, knots: tuple) -> np.ndarray:
 
 
 class MonotoneSpline(Effect):
-    """Base of the spline members (not registered itself: no name)."""
+    """Base of the spline members (not registered itself: no name).
 
+    A member names its library form (`library`, whose name is its `family` and whose covariates it
+    reads), its knots, the sign of its shape and the bound of each increment; its parameters
+    (`lead`, then the increments a1..aK) and its identity (every parameter 0) follow from those."""
+
+    library: type[Effect] | None = None
     knots: tuple = ()
     sign: float = 1.0
+    increment_hi: float = 1.0    # upper bound of each increment a_k
+    lead: tuple = ()             # parameters before the increments (temperature: the offset b)
     linear = True
 
-    def covariate(self, cov: dict) -> np.ndarray:  # pragma: no cover - written by subclasses
-        raise NotImplementedError
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        if cls.library is not None:
+            cls.family, cls.covariates = cls.library.name, cls.library.covariates
+        cls.params = cls.lead + tuple(
+            Param(f"a{k + 1}", "-", 0.05, 0.0, cls.increment_hi, f"gain change over knot interval {k + 1}")
+            for k in range(len(cls.knots) - 1))
+        cls.off = {p.name: 0.0 for p in cls.params}
+
+    def covariate(self, cov: dict) -> np.ndarray:
+        """The value the shape is a function of: by default the member's one covariate itself."""
+        (name,) = self.covariates
+        return need(cov, name, self.name)
+
+    def increments(self, p: dict) -> np.ndarray:
+        """(K,) the increments a1..aK of parameter values p."""
+        return np.array([p[f"a{k + 1}"] for k in range(len(self.knots) - 1)])
 
     def shape(self, c: np.ndarray, p: dict) -> np.ndarray:
         """The gain as a function of the covariate value c."""
-        a = np.array([p[f"a{k + 1}"] for k in range(len(self.knots) - 1)])
-        return np.maximum(MIN_GAIN, 1.0 + p.get("b", 0.0) + self.sign * (ramps(c, self.knots) @ a))
+        return np.maximum(MIN_GAIN, 1.0 + p.get("b", 0.0) + self.sign * (ramps(c, self.knots) @ self.increments(p)))
 
     def forward(self, x, cov, p):
         return scale_rows(x, self.shape(self.covariate(cov), p))
 
 
-def _increments(n: int, hi: float, unit: str = "-") -> tuple:
-    return tuple(Param(f"a{k + 1}", unit, 0.05, 0.0, hi, f"gain change over knot interval {k + 1}") for k in range(n))
-
-
 class StrainStiffeningSpline(MonotoneSpline):
     name = "strain_stiffening_spline"
-    family = "strain_stiffening"
+    library = StrainStiffening
     summary = "stiffening that grows with strain, any monotone shape (saturating, quadratic, ...)"
     words = "force grows faster than the model at deep indentation (free monotone shape)"
     equation = "F = F0 * (1 + sum_k a_k ramp_k(depth / gel_height)), a_k >= 0"
     knots = (0.0, 0.03, 0.06, 0.1, 0.15, 0.25)
-    params = _increments(5, 3.0)
-    covariates = ("depth", "gel_height")
-    off: ClassVar[dict] = {f"a{k + 1}": 0.0 for k in range(5)}
+    increment_hi = 3.0
 
     def covariate(self, cov):
         return np.clip(need(cov, "depth", self.name), 0.0, None) / need(cov, "gel_height", self.name)
 
 
 class RimStiffeningSpline(MonotoneSpline):
+    """The profile falls with the rim distance: each increment counts fully at the rim (1 - ramp)."""
+
     name = "rim_stiffening_spline"
-    family = "rim_stiffening"
+    library = RimStiffening
     summary = "stiffening near the rim, any profile falling with the distance to it"
     words = "gel is stiffer near its rim (free profile)"
     equation = "F = F0 * (1 + sum_k a_k (1 - ramp_k(rim_distance))), a_k >= 0"
     knots = (0.0, 1.0, 2.0, 3.5, 5.5, 8.0)
-    params = _increments(5, 3.0)
-    covariates = ("rim_distance",)
-    off: ClassVar[dict] = {f"a{k + 1}": 0.0 for k in range(5)}
+    increment_hi = 3.0
 
     def shape(self, c, p):
-        a = np.array([p[f"a{k + 1}"] for k in range(5)])
-        return np.maximum(MIN_GAIN, 1.0 + (1.0 - ramps(c, self.knots)) @ a)
-
-    def covariate(self, cov):
-        return need(cov, "rim_distance", self.name)
+        return np.maximum(MIN_GAIN, 1.0 + (1.0 - ramps(c, self.knots)) @ self.increments(p))
 
 
 class TemperatureSofteningSpline(MonotoneSpline):
     name = "temperature_softening_spline"
-    family = "temperature_softening"
+    library = TemperatureSoftening
     summary = "softening with temperature, any monotone law"
     words = "gel softens as it warms (free monotone law)"
     equation = "F = F0 * (1 + b - sum_k a_k ramp_k(temperature)), a_k >= 0"
     knots = (15.0, 20.0, 24.0, 27.0, 30.0, 34.0, 45.0)
     sign = -1.0
-    params = (Param("b", "-", 0.0, -0.5, 0.5, "gain at the coldest knot minus 1"),) + _increments(6, 0.5)
-    covariates = ("temperature",)
-    off: ClassVar[dict] = {"b": 0.0, **{f"a{k + 1}": 0.0 for k in range(6)}}
-
-    def covariate(self, cov):
-        return need(cov, "temperature", self.name)
+    increment_hi = 0.5
+    lead = (Param("b", "-", 0.0, -0.5, 0.5, "gain at the coldest knot minus 1"),)
 
 
 class MullinsSofteningSpline(MonotoneSpline):
     name = "mullins_softening_spline"
-    family = "mullins_softening"
+    library = MullinsSoftening
     summary = "softer reloading below the largest past depth, any monotone shape"
     words = "gel is softer below its largest past indentation (free shape)"
     equation = "F = F0 * (1 - sum_k a_k ramp_k(max_depth - depth)), a_k >= 0"
     knots = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)
     sign = -1.0
-    params = _increments(5, 0.6)
-    covariates = ("depth", "max_depth")
-    off: ClassVar[dict] = {f"a{k + 1}": 0.0 for k in range(5)}
+    increment_hi = 0.6
 
     def covariate(self, cov):
         return np.clip(need(cov, "max_depth", self.name) - need(cov, "depth", self.name), 0.0, None)
