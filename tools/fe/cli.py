@@ -155,22 +155,22 @@ def register(sub) -> None:
     ls = isub.add_parser("list", help="list the procedural object kinds")
     ls.set_defaults(func=_cmd_ind_list)
 
-    p = fsub.add_parser("export-inp", help="write the scenario as a CalculiX (or Abaqus) .inp deck")
-    p.add_argument("scenario", help="scenario file, or 'standard'")
+    def deck_parser(name: str, helptext: str, func):
+        """export-inp and crosscheck: a scenario written as a deck, with the deck's bulk modulus."""
+        q = fsub.add_parser(name, help=helptext)
+        q.add_argument("scenario", help="scenario file, or 'standard'")
+        q.add_argument("--bulk", choices=("solver", "material"), default="solver",
+                       help="bulk modulus in the deck: tools.fe's (P1 cap, default) or the material's D1")
+        q.set_defaults(func=func)
+        return q
+
+    p = deck_parser("export-inp", "write the scenario as a CalculiX (or Abaqus) .inp deck", _cmd_inp)
     p.add_argument("--out", required=True, help="deck (.inp) to write")
     p.add_argument("--dialect", choices=("ccx", "abaqus"), default="ccx",
                    help="ccx: runs in CalculiX 2.20 as written (default); abaqus: parts/instances, C3D4H, R3D3")
-    p.add_argument("--bulk", choices=("solver", "material"), default="solver",
-                   help="ccx: bulk modulus tools.fe uses (P1 cap, default) or the material's D1")
-    p.set_defaults(func=_cmd_inp)
-
-    p = fsub.add_parser("crosscheck", help="solve a scenario in tools.fe and in CalculiX (ccx), same mesh")
-    p.add_argument("scenario", help="scenario file, or 'standard'")
+    p = deck_parser("crosscheck", "solve a scenario in tools.fe and in CalculiX (ccx), same mesh", _cmd_crosscheck)
     p.add_argument("--work-dir", required=True, help="folder for the deck and ccx's output")
-    p.add_argument("--bulk", choices=("solver", "material"), default="solver",
-                   help="bulk modulus in the deck: tools.fe's (default) or the material's D1")
     p.add_argument("--threads", type=int, default=1, help="ccx solver threads (default 1)")
-    p.set_defaults(func=_cmd_crosscheck)
 
     p = fsub.add_parser("study", help="convergence / CalculiX study (press, slide, mupress, locking, mesh)")
     p.add_argument("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"), help="studies to run")
