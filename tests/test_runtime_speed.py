@@ -101,7 +101,12 @@ def test_bench_takes_fp32_from_the_build_cache_and_checks_its_hash(tmp_path):
     data[len(data) // 2] ^= 0xFF
     (tmp_path / "cached.onnx").write_bytes(bytes(data))
     none, why = fp32_package(pkg, tmp_path / "work2")
-    assert none is None and "--with-fp32" in why
+    assert none is None and "names no recipe" in why and "cache" not in why.split(";")[-1]
+    man = json.loads((tmp_path / "pkg" / "manifest.json").read_text())   # a package built from a recipe
+    man["training"]["recipe"] = {"source": "hiera-qup-128", "hash": "0" * 64}
+    (tmp_path / "pkg" / "manifest.json").write_text(json.dumps(man))
+    none, why = fp32_package(load_package(tmp_path / "pkg"), tmp_path / "work3")
+    assert none is None and f"train all --recipe {tmp_path / 'pkg' / 'manifest.json'}" in why
 
 
 @pytest.mark.slow
