@@ -117,6 +117,35 @@ def test_controller_names_the_sheared_object_and_plans_past_it():
     assert len(qs) == len(d.path) and np.all(np.diff(times) > 0)
 
 
+def test_lateral_distance_from_pinch_axes():
+    from tensortouch.tools.grasp.controller import lateral_mm
+
+    pts = np.array([[0, 0, 0], [0.001, 0, 0]])
+    nrm = np.array([[0, 0, 1.0], [1.0, 0, 0]])
+    # 3-4-5 off the z axis through the origin; off the x axis through (1, 0, 0) mm: √(4² + 10²)
+    np.testing.assert_allclose(lateral_mm(pts, nrm, np.array([0.003, 0.004, 0.010])), [5.0, np.hypot(4, 10)])
+
+
+def test_goal_keeps_the_moving_object_and_clears_the_other():
+    from tensortouch.tools.grasp.controller import goal_scores
+
+    xs = np.array([-8, -4, 0, 4, 6, 8, 4.0])
+    pts = np.stack([xs / 1000, np.zeros(7), np.zeros(7)], 1)
+    nrm = np.tile([0, 0, 1.0], (7, 1))
+    nrm[6] = [np.sin(np.radians(30)), 0, np.cos(np.radians(30))]     # 30° off the current normal
+    costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2])
+    cfg = ControllerConfig(keep_mm=3.0, clear_mm=8.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0)
+    mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
+    sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), mov, oth, cfg)
+    # x = 4: ρ_m 0.5, ρ_o 7.5, clearance 7 (1 short of 8) → 10·1 + 0.5 + 2·0.2 = 10.9
+    # x = 6: ρ_m 2.5, ρ_o 9.5, clearance 7 → 10 + 2.5 + 0.6 = 13.1; x = 8: ρ_m 4.5 > keep;
+    # x = 0, −4, −8: the moving object 3.5 mm or more off the axis; node 6: tilted; node 5: unreachable
+    np.testing.assert_allclose(sc, [np.inf, np.inf, np.inf, 10.9, 13.1, np.inf, np.inf])
+    # a pen-like other 10 mm away: the clearance is met, only ρ_m and the path count
+    sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), np.array([0.003, 0, 0]), np.array([-0.010, 0, 0]), cfg)
+    np.testing.assert_allclose(sc[[3, 4]], [1 + 0.4, 3 + 0.6])
+
+
 def test_controller_stays_put_without_a_clear_change():
     g = _line_graph()
     ctrl = SelectiveGraspController(g, 4, SensorMount())

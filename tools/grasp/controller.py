@@ -13,9 +13,14 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    node's fingertip poses and the sensor mount and grouped into objects (≤ `group_mm` apart);
    an object's score is the sum of its clusters' |ΔF| over both sensors. The object whose score
    exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
-3. Plan: the target pinch point lies `shift_mm` beyond the moving object, away from the other;
-   the goal is the reachable graph node nearest that point with a pinch normal within
-   `max_normal_deg` of the current one; Dijkstra gives the joint path.
+3. Plan (`goal_scores`): for every reachable graph node with a pinch normal within
+   `max_normal_deg` of the current one, the lateral distances ρ of the moving and the other
+   object from that node's pinch axis (the line through its pinch point along its normal). Two
+   fingertips closing on the moving object stop at it before they reach the other one when the
+   other lies farther off their axis (ρ_other > ρ_moving for equal objects; more for a thicker
+   other). So the goal keeps the moving object within `keep_mm` of the axis and the other at
+   least `clear_mm` farther out where the graph allows it (the largest clearance otherwise), then
+   prefers the moving object near the axis and a short joint path. Dijkstra gives the path.
 """
 from __future__ import annotations
 
@@ -32,13 +37,16 @@ from .sensor_mount import SensorMount
 class ControllerConfig:
     reference_frames: int = 4
     shear_only: bool = True                 # score the change of the force along the gel surface
+    per_load: bool = False                  # divide each cluster's change by its reference |F|
+    min_ref_n: float = 0.0                  # clusters weaker than this in the reference are ignored
     match_mm: float = 3.0
     group_mm: float = 4.0
     min_change_n: float = 0.15
     lead_ratio: float = 1.2
     confirm_frames: int = 2
-    shift_mm: float = 3.0
-    max_normal_deg: float = 25.0
+    keep_mm: float = 3.0                    # the moving object stays this near the goal's pinch axis
+    clear_mm: float = 8.0                   # wanted extra distance of the other object from that axis
+    max_normal_deg: float = 15.0
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
     step_s: float = 0.04                    # time per path node when executing
 
@@ -145,6 +153,8 @@ class SelectiveGraspController:
         pts, changes = [], []
         for s in self.SENSORS:
             for p_ref, f_ref, nrm in self._ref[s]:
+                if np.linalg.norm(f_ref) < self.cfg.min_ref_n:
+                    continue
                 cur = latest[s]
                 d = [np.linalg.norm(q - p_ref) for q, _, _ in cur]
                 if d and min(d) <= self.cfg.match_mm:
@@ -155,7 +165,10 @@ class SelectiveGraspController:
                 df = f - f_ref
                 if self.cfg.shear_only:                # a pull drags the gel along its surface
                     df = df - (df @ nrm) * nrm
-                changes.append(float(np.linalg.norm(df)))
+                ch = float(np.linalg.norm(df))
+                if self.cfg.per_load:
+                    ch /= max(float(np.linalg.norm(f_ref)), 1e-6)
+                changes.append(ch)
         objects: list[dict] = []
         for p, ch in zip(pts, changes):
             for o in objects:
@@ -169,16 +182,10 @@ class SelectiveGraspController:
         return objects
 
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float]) -> Decision:
-        g, cfg = self.graph, self.cfg
-        away = moving - (other if other is not None else g.point[self.node])
-        nrm = np.linalg.norm(away)
-        away = away / nrm if nrm > 1e-9 else np.zeros(3)
-        target = moving + away * cfg.shift_mm / 1000.0
-        costs = g.reachable_costs(self.node)
-        ok = np.isfinite(costs) & (g.normal @ g.normal[self.node] >= np.cos(np.radians(cfg.max_normal_deg)))
-        score = np.linalg.norm(g.point - target, axis=1) * 1000 + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=1e9)
-        score[~ok] = np.inf
-        goal = int(np.argmin(score))
+        g = self.graph
+        score = goal_scores(g.point, g.normal, g.reachable_costs(self.node), g.normal[self.node], moving, other,
+                            self.cfg)
+        goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
         return Decision(moving, other, goal, g.path(self.node, goal), scores)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
@@ -187,6 +194,29 @@ class SelectiveGraspController:
             return np.zeros(0), np.zeros((0, self.graph.q.shape[1]))
         qs = self.graph.q[self.decision.path]
         return np.arange(1, len(qs) + 1) * self.cfg.step_s, qs
+
+
+def lateral_mm(points: np.ndarray, normals: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Distance (mm) of world point x (m) from each pinch axis: the line through points[i] (m)
+    along normals[i] (unit)."""
+    d = np.asarray(x, float)[None, :] - points
+    along = np.einsum("ij,ij->i", d, normals)
+    return np.linalg.norm(d - along[:, None] * normals, axis=1) * 1000.0
+
+
+def goal_scores(points: np.ndarray, normals: np.ndarray, costs: np.ndarray, normal_now: np.ndarray,
+                moving: np.ndarray, other: np.ndarray | None, cfg: ControllerConfig) -> np.ndarray:
+    """Score of each graph node as the goal (lower is better, inf = not allowed): nodes reachable
+    (finite path cost, rad) with a pinch normal within `max_normal_deg` of `normal_now` and the
+    moving object within `keep_mm` of their pinch axis. Score = 10 · (shortfall of the other's
+    extra clearance ρ_other − ρ_moving below `clear_mm`) + ρ_moving + cost_weight · path cost."""
+    rho_m = lateral_mm(points, normals, moving)
+    gain = np.full(len(points), cfg.clear_mm) if other is None else lateral_mm(points, normals, other) - rho_m
+    score = 10.0 * np.clip(cfg.clear_mm - gain, 0.0, None) + rho_m + cfg.cost_weight_mm_per_rad * np.nan_to_num(
+        costs, posinf=0.0)
+    ok = (np.isfinite(costs) & (normals @ normal_now >= np.cos(np.radians(cfg.max_normal_deg)))
+          & (rho_m <= cfg.keep_mm))
+    return np.where(ok, score, np.inf)
 
 
 class ControllerNode:
