@@ -134,16 +134,20 @@ def test_goal_keeps_the_moving_object_and_clears_the_other():
     nrm = np.tile([0, 0, 1.0], (7, 1))
     nrm[6] = [np.sin(np.radians(30)), 0, np.cos(np.radians(30))]     # 30° off the current normal
     costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2])
-    cfg = ControllerConfig(keep_mm=3.0, clear_mm=8.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0)
+    cfg = ControllerConfig(keep_mm=3.0, clear_mm=12.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0)
     mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
     sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), mov, oth, cfg)
-    # x = 4: ρ_m 0.5, ρ_o 7.5, clearance 7 (1 short of 8) → 10·1 + 0.5 + 2·0.2 = 10.9
-    # x = 6: ρ_m 2.5, ρ_o 9.5, clearance 7 → 10 + 2.5 + 0.6 = 13.1; x = 8: ρ_m 4.5 > keep;
+    # x = 4: ρ_m 0.5, ρ_o 7.5 (4.5 short of 12) → 10·4.5 + 0.5 + 2·0.2 = 45.9
+    # x = 6: ρ_m 2.5, ρ_o 9.5 → 10·2.5 + 2.5 + 2·0.3 = 28.1 (the better goal); x = 8: ρ_m 4.5 > keep;
     # x = 0, −4, −8: the moving object 3.5 mm or more off the axis; node 6: tilted; node 5: unreachable
-    np.testing.assert_allclose(sc, [np.inf, np.inf, np.inf, 10.9, 13.1, np.inf, np.inf])
-    # a pen-like other 10 mm away: the clearance is met, only ρ_m and the path count
+    np.testing.assert_allclose(sc, [np.inf, np.inf, np.inf, 45.9, 28.1, np.inf, np.inf])
+    # a pen-like other 10 mm away: cleared from both, only ρ_m and the path count
     sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), np.array([0.003, 0, 0]), np.array([-0.010, 0, 0]), cfg)
     np.testing.assert_allclose(sc[[3, 4]], [1 + 0.4, 3 + 0.6])
+    # a pinch point 1.5 mm off the objects' plane along the normal adds 1.5; 2.5 mm is too far off
+    pts[3, 2], pts[4, 2] = 0.0015, 0.0025
+    sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), np.array([0.003, 0, 0]), np.array([-0.010, 0, 0]), cfg)
+    np.testing.assert_allclose(sc[[3, 4]], [1 + 1.5 + 0.4, np.inf])
 
 
 def test_controller_stays_put_without_a_clear_change():

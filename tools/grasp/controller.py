@@ -15,12 +15,15 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
 3. Plan (`goal_scores`): for every reachable graph node with a pinch normal within
    `max_normal_deg` of the current one, the lateral distances ρ of the moving and the other
-   object from that node's pinch axis (the line through its pinch point along its normal). Two
-   fingertips closing on the moving object stop at it before they reach the other one when the
-   other lies farther off their axis (ρ_other > ρ_moving for equal objects; more for a thicker
-   other). So the goal keeps the moving object within `keep_mm` of the axis and the other at
-   least `clear_mm` farther out where the graph allows it (the largest clearance otherwise), then
-   prefers the moving object near the axis and a short joint path. Dijkstra gives the path.
+   object from that node's pinch axis (the line through its pinch point along its normal).
+   Fingertips closing on the moving object touch the other one as well while it lies within
+   about √((R + r)² − h²) of their axis (R fingertip, r object radius, h how far each fingertip
+   centre stays from the objects' plane), so the goal keeps the moving object within `keep_mm`
+   of the axis and puts the other one `clear_mm` off it where the graph allows (as far as it can
+   otherwise), then prefers the moving object near the axis and a short joint path. The goal's
+   pinch point stays within `depth_mm` of the moving object along the normal (a pinch centred
+   off the objects' plane pushes the object into one fingertip and away from the other). Dijkstra
+   gives the path.
 """
 from __future__ import annotations
 
@@ -37,15 +40,17 @@ from .sensor_mount import SensorMount
 class ControllerConfig:
     reference_frames: int = 4
     shear_only: bool = True                 # score the change of the force along the gel surface
-    per_load: bool = False                  # divide each cluster's change by its reference |F|
-    min_ref_n: float = 0.0                  # clusters weaker than this in the reference are ignored
+    per_load: bool = True                   # an object's change per newton of its reference |F|
+    min_ref_n: float = 0.3                  # clusters weaker than this in the reference are ignored
+    load_floor_n: float = 0.0               # added to an object's load before dividing (per_load)
     match_mm: float = 3.0
     group_mm: float = 4.0
-    min_change_n: float = 0.15
+    min_change: float = 0.08                # N per N of load (per_load), else N
     lead_ratio: float = 1.2
     confirm_frames: int = 2
     keep_mm: float = 3.0                    # the moving object stays this near the goal's pinch axis
-    clear_mm: float = 8.0                   # wanted extra distance of the other object from that axis
+    depth_mm: float = 2.0                   # ... and this near its pinch point along the normal
+    clear_mm: float = 12.0                  # wanted distance of the other object from that axis
     max_normal_deg: float = 15.0
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
     step_s: float = 0.04                    # time per path node when executing
@@ -118,7 +123,7 @@ class SelectiveGraspController:
         order = np.argsort(scores)[::-1]
         best = int(order[0])
         second = scores[order[1]] if len(order) > 1 else 0.0
-        ok = scores[best] >= self.cfg.min_change_n and scores[best] >= self.cfg.lead_ratio * second
+        ok = scores[best] >= self.cfg.min_change and scores[best] >= self.cfg.lead_ratio * second
         key = tuple(np.round(objects[best]["point"] * 1000 / self.cfg.group_mm).astype(int)) if ok else None
         streak = self._streak[1] + 1 if ok and key == self._streak[0] else (1 if ok else 0)
         self._streak = (key, streak)
@@ -150,7 +155,7 @@ class SelectiveGraspController:
         return T[:3, 3] + T[:3, :3] @ u * (self.mount.tip_radius_mm / 1000.0)
 
     def _objects(self, latest: dict[str, list]) -> list[dict]:
-        pts, changes = [], []
+        pts, changes, loads = [], [], []
         for s in self.SENSORS:
             for p_ref, f_ref, nrm in self._ref[s]:
                 if np.linalg.norm(f_ref) < self.cfg.min_ref_n:
@@ -165,20 +170,22 @@ class SelectiveGraspController:
                 df = f - f_ref
                 if self.cfg.shear_only:                # a pull drags the gel along its surface
                     df = df - (df @ nrm) * nrm
-                ch = float(np.linalg.norm(df))
-                if self.cfg.per_load:
-                    ch /= max(float(np.linalg.norm(f_ref)), 1e-6)
-                changes.append(ch)
+                changes.append(float(np.linalg.norm(df)))
+                loads.append(float(np.linalg.norm(f_ref)))
         objects: list[dict] = []
-        for p, ch in zip(pts, changes):
+        for p, ch, load in zip(pts, changes, loads):
             for o in objects:
                 if np.linalg.norm(o["point"] - p) * 1000 <= self.cfg.group_mm:
                     o["members"].append(p)
                     o["point"] = np.mean(o["members"], axis=0)
                     o["change"] += ch
+                    o["load"] += load
                     break
             else:
-                objects.append({"point": p, "members": [p], "change": ch})
+                objects.append({"point": p, "members": [p], "change": ch, "load": load})
+        if self.cfg.per_load:                          # change per newton the object was held with
+            for o in objects:
+                o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6)
         return objects
 
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float]) -> Decision:
@@ -208,14 +215,16 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, costs: np.ndarray, norm
                 moving: np.ndarray, other: np.ndarray | None, cfg: ControllerConfig) -> np.ndarray:
     """Score of each graph node as the goal (lower is better, inf = not allowed): nodes reachable
     (finite path cost, rad) with a pinch normal within `max_normal_deg` of `normal_now` and the
-    moving object within `keep_mm` of their pinch axis. Score = 10 · (shortfall of the other's
-    extra clearance ρ_other − ρ_moving below `clear_mm`) + ρ_moving + cost_weight · path cost."""
+    moving object within `keep_mm` of their pinch axis and `depth_mm` of their pinch point along
+    it (h). Score = 10 · (shortfall of the other's distance ρ_other from the axis below
+    `clear_mm`) + ρ_moving + |h| + cost_weight · path cost."""
     rho_m = lateral_mm(points, normals, moving)
-    gain = np.full(len(points), cfg.clear_mm) if other is None else lateral_mm(points, normals, other) - rho_m
-    score = 10.0 * np.clip(cfg.clear_mm - gain, 0.0, None) + rho_m + cfg.cost_weight_mm_per_rad * np.nan_to_num(
+    h = np.abs(np.einsum("ij,ij->i", np.asarray(moving, float)[None, :] - points, normals)) * 1000.0
+    rho_o = np.full(len(points), cfg.clear_mm) if other is None else lateral_mm(points, normals, other)
+    score = 10.0 * np.clip(cfg.clear_mm - rho_o, 0.0, None) + rho_m + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(
         costs, posinf=0.0)
     ok = (np.isfinite(costs) & (normals @ normal_now >= np.cos(np.radians(cfg.max_normal_deg)))
-          & (rho_m <= cfg.keep_mm))
+          & (rho_m <= cfg.keep_mm) & (h <= cfg.depth_mm))
     return np.where(ok, score, np.inf)
 
 
