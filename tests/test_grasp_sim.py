@@ -117,6 +117,40 @@ def test_controller_names_the_sheared_object_and_plans_past_it():
     assert len(qs) == len(d.path) and np.all(np.diff(times) > 0)
 
 
+def test_controller_scores_shear_change_per_newton_of_load():
+    """A light cable pulled beside a heavily loaded neighbour that picks up more shear by crosstalk:
+    per newton of its reference force the pulled one leads; a cluster only one fingertip feels
+    (a spurious edge of a contact) does not compete."""
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0]), np.array([0.009, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    load = [1.0, 3.0, 0.35]
+    # shear per sensor once pulled: object 0 (pulled) 0.3 N, object 1 0.45 N (crosstalk),
+    # the thumb-only cluster 0.3 N: per newton 0.3, 0.15 and 0.86; in newtons 0.6 vs 0.9 in all
+    pulled = [0.3, 0.45, 0.3]
+
+    def frame(s, k):
+        cs = [(pos[s][i], np.array([0, 0, -load[i]]) + (np.array([pulled[i], 0, 0]) if k >= 4 else 0))
+              for i in range(3) if s == "thumb" or i < 2]
+        return _frame(cs)
+
+    for cfg, named in ((ControllerConfig(), 0), (ControllerConfig(per_load=False, min_change=0.15), 1)):
+        ctrl = SelectiveGraspController(g, start, m, cfg)
+        ctrl.watch()
+        d = None
+        for k in range(8):
+            for s in ("thumb", "index"):
+                ctrl.on_contacts(s, frame(s, k))
+            d = ctrl.update() or d
+        assert d is not None
+        assert np.linalg.norm(d.moving_point - objs[named]) < 0.0015
+        if cfg.per_load:
+            np.testing.assert_allclose(sorted(d.scores), [0.15, 0.3], atol=1e-6)
+
+
 def test_lateral_distance_from_pinch_axes():
     from tensortouch.tools.grasp.controller import lateral_mm
 

@@ -43,6 +43,7 @@ class ControllerConfig:
     per_load: bool = True                   # an object's change per newton of its reference |F|
     min_ref_n: float = 0.3                  # clusters weaker than this in the reference are ignored
     load_floor_n: float = 0.0               # added to an object's load before dividing (per_load)
+    both_sensors: bool = True               # only objects felt by both fingertips compete (if ≥ 2)
     match_mm: float = 3.0
     group_mm: float = 4.0
     min_change: float = 0.08                # N per N of load (per_load), else N
@@ -155,7 +156,7 @@ class SelectiveGraspController:
         return T[:3, 3] + T[:3, :3] @ u * (self.mount.tip_radius_mm / 1000.0)
 
     def _objects(self, latest: dict[str, list]) -> list[dict]:
-        pts, changes, loads = [], [], []
+        pts, changes, loads, who = [], [], [], []
         for s in self.SENSORS:
             for p_ref, f_ref, nrm in self._ref[s]:
                 if np.linalg.norm(f_ref) < self.cfg.min_ref_n:
@@ -172,17 +173,23 @@ class SelectiveGraspController:
                     df = df - (df @ nrm) * nrm
                 changes.append(float(np.linalg.norm(df)))
                 loads.append(float(np.linalg.norm(f_ref)))
+                who.append(s)
         objects: list[dict] = []
-        for p, ch, load in zip(pts, changes, loads):
+        for p, ch, load, s in zip(pts, changes, loads, who):
             for o in objects:
                 if np.linalg.norm(o["point"] - p) * 1000 <= self.cfg.group_mm:
                     o["members"].append(p)
                     o["point"] = np.mean(o["members"], axis=0)
                     o["change"] += ch
                     o["load"] += load
+                    o["sensors"].add(s)
                     break
             else:
-                objects.append({"point": p, "members": [p], "change": ch, "load": load})
+                objects.append({"point": p, "members": [p], "change": ch, "load": load, "sensors": {s}})
+        if self.cfg.both_sensors:                      # a cluster only one fingertip feels is not a pinched object
+            both = [o for o in objects if len(o["sensors"]) == len(self.SENSORS)]
+            if len(both) >= 2:
+                objects = both
         if self.cfg.per_load:                          # change per newton the object was held with
             for o in objects:
                 o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6)
