@@ -158,30 +158,45 @@ def test_lateral_distance_from_pinch_axes():
     nrm = np.array([[0, 0, 1.0], [1.0, 0, 0]])
     # 3-4-5 off the z axis through the origin; off the x axis through (1, 0, 0) mm: √(4² + 10²)
     np.testing.assert_allclose(lateral_mm(pts, nrm, np.array([0.003, 0.004, 0.010])), [5.0, np.hypot(4, 10)])
+    np.testing.assert_allclose(lateral_mm(pts, np.array([0, 0, 1.0]), np.array([0.003, 0.004, 0.010])),
+                               [5.0, np.hypot(2, 4)])
+
+
+def _pinches(xs_mm, tilt_deg):
+    """Pinch points along x (m), normals tilted about y, fingertip centres 12 mm either side."""
+    xs = np.asarray(xs_mm, float) / 1000
+    pts = np.stack([xs, np.zeros(len(xs)), np.zeros(len(xs))], 1)
+    t = np.radians(np.asarray(tilt_deg, float))
+    nrm = np.stack([np.sin(t), np.zeros(len(t)), np.cos(t)], 1)
+    tips = np.stack([pts + 0.012 * nrm, pts - 0.012 * nrm], axis=1)
+    return pts, nrm, tips
 
 
 def test_goal_keeps_the_moving_object_and_clears_the_other():
     from tensortouch.tools.grasp.controller import goal_scores
 
-    xs = np.array([-8, -4, 0, 4, 6, 8, 4.0])
-    pts = np.stack([xs / 1000, np.zeros(7), np.zeros(7)], 1)
-    nrm = np.tile([0, 0, 1.0], (7, 1))
-    nrm[6] = [np.sin(np.radians(30)), 0, np.cos(np.radians(30))]     # 30° off the current normal
-    costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2])
-    cfg = ControllerConfig(keep_mm=3.0, clear_mm=12.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0)
+    pts, nrm, tips = _pinches([-8, -4, 0, 4, 6, 8, 4, 6], [0, 0, 0, 0, 0, 0, 30, 10])
+    costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2, 0.3])
+    cfg = ControllerConfig(keep_mm=3.0, clear_mm=12.0, depth_mm=2.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0)
+    z = np.array([0, 0, 1.0])
     mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
-    sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), mov, oth, cfg)
+    sc = goal_scores(pts, nrm, tips, costs, z, mov, oth, cfg)
     # x = 4: ρ_m 0.5, ρ_o 7.5 (4.5 short of 12) → 10·4.5 + 0.5 + 2·0.2 = 45.9
-    # x = 6: ρ_m 2.5, ρ_o 9.5 → 10·2.5 + 2.5 + 2·0.3 = 28.1 (the better goal); x = 8: ρ_m 4.5 > keep;
-    # x = 0, −4, −8: the moving object 3.5 mm or more off the axis; node 6: tilted; node 5: unreachable
-    np.testing.assert_allclose(sc, [np.inf, np.inf, np.inf, 45.9, 28.1, np.inf, np.inf])
+    # x = 6: ρ_m 2.5, ρ_o 9.5 → 10·2.5 + 2.5 + 2·0.3 = 28.1 (the best goal)
+    # x = 0: ρ_m = ρ_o = 3.5 → 10·(8.5 + 0.5) + 3.5 = 93.5; x = −4: 10·(11.5 + 4.5) + 7.5 + 0.4 = 167.9
+    # x = −8: 10·(7.5 + 8.5) + 11.5 + 0.8 = 172.3; node 5: unreachable; node 6: 30° tilted
+    # node 7 (x = 6, tilted 10°): fingertips at x = 6 ± 12·sin 10° = 8.084 / 3.916, so ρ_m 4.584 and
+    # ρ_o 7.416 → 10·(4.584 + 1.584) + 4.584 + 0.6
+    t7 = 10 * (4.5838 + 1.5838) + 4.5838 + 0.6
+    np.testing.assert_allclose(sc, [172.3, 167.9, 93.5, 45.9, 28.1, np.inf, np.inf, t7], atol=2e-3)
     # a pen-like other 10 mm away: cleared from both, only ρ_m and the path count
-    sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), np.array([0.003, 0, 0]), np.array([-0.010, 0, 0]), cfg)
+    far = np.array([-0.010, 0, 0])
+    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.003, 0, 0]), far, cfg)
     np.testing.assert_allclose(sc[[3, 4]], [1 + 0.4, 3 + 0.6])
-    # a pinch point 1.5 mm off the objects' plane along the normal adds 1.5; 2.5 mm is too far off
+    # a pinch point 1.5 mm off the objects' plane along the normal adds 1.5; 2.5 mm is 0.5 beyond depth_mm
     pts[3, 2], pts[4, 2] = 0.0015, 0.0025
-    sc = goal_scores(pts, nrm, costs, np.array([0, 0, 1.0]), np.array([0.003, 0, 0]), np.array([-0.010, 0, 0]), cfg)
-    np.testing.assert_allclose(sc[[3, 4]], [1 + 1.5 + 0.4, np.inf])
+    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.003, 0, 0]), far, cfg)
+    np.testing.assert_allclose(sc[[3, 4]], [1 + 1.5 + 0.4, 3 + 2.5 + 10 * 0.5 + 0.6])
 
 
 def test_controller_stays_put_without_a_clear_change():

@@ -14,16 +14,16 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    an object's score is the sum of its clusters' |ΔF| over both sensors. The object whose score
    exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
 3. Plan (`goal_scores`): for every reachable graph node with a pinch normal within
-   `max_normal_deg` of the current one, the lateral distances ρ of the moving and the other
-   object from that node's pinch axis (the line through its pinch point along its normal).
-   Fingertips closing on the moving object touch the other one as well while it lies within
-   about √((R + r)² − h²) of their axis (R fingertip, r object radius, h how far each fingertip
-   centre stays from the objects' plane), so the goal keeps the moving object within `keep_mm`
-   of the axis and puts the other one `clear_mm` off it where the graph allows (as far as it can
-   otherwise), then prefers the moving object near the axis and a short joint path. The goal's
-   pinch point stays within `depth_mm` of the moving object along the normal (a pinch centred
-   off the objects' plane pushes the object into one fingertip and away from the other). Dijkstra
-   gives the path.
+   `max_normal_deg` of the current one, where its two fingertip centres lie across the current
+   pinch normal relative to the objects (ρ: distance in the objects' plane). Fingertips closing
+   on the moving object also touch the other one while it lies within about √((R + r)² − h²) of a
+   fingertip centre across the normal (R fingertip, r object radius, h how far the fingertip
+   centre stays from the objects' plane), so the goal keeps both fingertips within `keep_mm` of
+   the moving object and `clear_mm` from the other one, and its pinch point within `depth_mm` of
+   the moving object along the normal (a pinch centred off the objects' plane pushes the object
+   into one fingertip and away from the other) — where the graph allows, and as near as it can
+   otherwise — then prefers the fingertips near the moving object and a short joint path.
+   Dijkstra gives the path.
 """
 from __future__ import annotations
 
@@ -197,8 +197,9 @@ class SelectiveGraspController:
 
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float]) -> Decision:
         g = self.graph
-        score = goal_scores(g.point, g.normal, g.reachable_costs(self.node), g.normal[self.node], moving, other,
-                            self.cfg)
+        tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
+        score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
+                            other, self.cfg)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
         return Decision(moving, other, goal, g.path(self.node, goal), scores)
 
@@ -211,27 +212,35 @@ class SelectiveGraspController:
 
 
 def lateral_mm(points: np.ndarray, normals: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Distance (mm) of world point x (m) from each pinch axis: the line through points[i] (m)
-    along normals[i] (unit)."""
+    """Distance (mm) of world point x (m) from each line through points[i] (m) along normals[i]
+    (unit; one normal for all lines when given as (3,))."""
     d = np.asarray(x, float)[None, :] - points
+    normals = np.broadcast_to(normals, d.shape)
     along = np.einsum("ij,ij->i", d, normals)
     return np.linalg.norm(d - along[:, None] * normals, axis=1) * 1000.0
 
 
-def goal_scores(points: np.ndarray, normals: np.ndarray, costs: np.ndarray, normal_now: np.ndarray,
-                moving: np.ndarray, other: np.ndarray | None, cfg: ControllerConfig) -> np.ndarray:
-    """Score of each graph node as the goal (lower is better, inf = not allowed): nodes reachable
-    (finite path cost, rad) with a pinch normal within `max_normal_deg` of `normal_now` and the
-    moving object within `keep_mm` of their pinch axis and `depth_mm` of their pinch point along
-    it (h). Score = 10 · (shortfall of the other's distance ρ_other from the axis below
-    `clear_mm`) + ρ_moving + |h| + cost_weight · path cost."""
-    rho_m = lateral_mm(points, normals, moving)
-    h = np.abs(np.einsum("ij,ij->i", np.asarray(moving, float)[None, :] - points, normals)) * 1000.0
-    rho_o = np.full(len(points), cfg.clear_mm) if other is None else lateral_mm(points, normals, other)
-    score = 10.0 * np.clip(cfg.clear_mm - rho_o, 0.0, None) + rho_m + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(
-        costs, posinf=0.0)
-    ok = (np.isfinite(costs) & (normals @ normal_now >= np.cos(np.radians(cfg.max_normal_deg)))
-          & (rho_m <= cfg.keep_mm) & (h <= cfg.depth_mm))
+def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs: np.ndarray,
+                normal_now: np.ndarray, moving: np.ndarray, other: np.ndarray | None,
+                cfg: ControllerConfig) -> np.ndarray:
+    """Score of each graph node as the goal (lower is better, inf = not allowed). `tips` (N, 2, 3):
+    both fingertip centres of each node (m). Distances are taken across the current pinch normal
+    `normal_now` (the objects lie in the plane it spans): ρ_moving, the farther fingertip's
+    distance from the moving object, and ρ_other, the nearer fingertip's distance from the other.
+    Allowed: reachable (finite path cost, rad) with a pinch normal within `max_normal_deg` of
+    `normal_now`. h: the pinch point's distance from the moving object along `normal_now`.
+    Score = 10 · (shortfall of ρ_other below `clear_mm` + excess of ρ_moving over `keep_mm` + excess
+    of h over `depth_mm`) + ρ_moving + h + cost_weight · path cost, so the limits are met where the
+    graph allows and approached as near as it can otherwise."""
+    n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
+    rho_m = np.max([lateral_mm(tips[:, k], n0, moving) for k in range(tips.shape[1])], axis=0)
+    rho_o = (np.full(len(points), cfg.clear_mm) if other is None
+             else np.min([lateral_mm(tips[:, k], n0, other) for k in range(tips.shape[1])], axis=0))
+    h = np.abs((np.asarray(moving, float)[None, :] - points) @ n0) * 1000.0
+    miss = (np.clip(cfg.clear_mm - rho_o, 0.0, None) + np.clip(rho_m - cfg.keep_mm, 0.0, None)
+            + np.clip(h - cfg.depth_mm, 0.0, None))
+    score = 10.0 * miss + rho_m + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=0.0)
+    ok = np.isfinite(costs) & (normals @ n0 >= np.cos(np.radians(cfg.max_normal_deg)))
     return np.where(ok, score, np.inf)
 
 
