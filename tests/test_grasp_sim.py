@@ -177,7 +177,8 @@ def test_goal_keeps_the_moving_object_and_clears_the_other():
 
     pts, nrm, tips = _pinches([-8, -4, 0, 4, 6, 8, 4, 6], [0, 0, 0, 0, 0, 0, 30, 10])
     costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2, 0.3])
-    cfg = ControllerConfig(keep_mm=3.0, clear_mm=12.0, depth_mm=2.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0)
+    cfg = ControllerConfig(keep_mm=3.0, clear_mm=12.0, depth_mm=2.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0,
+                           keep_weight=10.0, clear_weight=10.0)
     z = np.array([0, 0, 1.0])
     mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
     sc = goal_scores(pts, nrm, tips, costs, z, mov, oth, cfg)

@@ -49,9 +49,11 @@ class ControllerConfig:
     min_change: float = 0.08                # N per N of load (per_load), else N
     lead_ratio: float = 1.2
     confirm_frames: int = 2
-    keep_mm: float = 3.0                    # the moving object stays this near the goal's pinch axis
-    depth_mm: float = 2.0                   # ... and this near its pinch point along the normal
-    clear_mm: float = 12.0                  # wanted distance of the other object from that axis
+    keep_mm: float = 2.5                    # both goal fingertips this near the moving object, across
+    depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
+    clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
+    keep_weight: float = 30.0               # score per mm beyond keep_mm or depth_mm
+    clear_weight: float = 10.0              # score per mm short of clear_mm
     max_normal_deg: float = 15.0
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
     step_s: float = 0.04                    # time per path node when executing
@@ -229,17 +231,17 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
     distance from the moving object, and ρ_other, the nearer fingertip's distance from the other.
     Allowed: reachable (finite path cost, rad) with a pinch normal within `max_normal_deg` of
     `normal_now`. h: the pinch point's distance from the moving object along `normal_now`.
-    Score = 10 · (shortfall of ρ_other below `clear_mm` + excess of ρ_moving over `keep_mm` + excess
-    of h over `depth_mm`) + ρ_moving + h + cost_weight · path cost, so the limits are met where the
-    graph allows and approached as near as it can otherwise."""
+    Score = clear_weight · (shortfall of ρ_other below `clear_mm`) + keep_weight · (excess of
+    ρ_moving over `keep_mm` + excess of h over `depth_mm`) + ρ_moving + h + cost_weight · path cost,
+    so the limits are met where the graph allows and approached as near as it can otherwise."""
     n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
     rho_m = np.max([lateral_mm(tips[:, k], n0, moving) for k in range(tips.shape[1])], axis=0)
     rho_o = (np.full(len(points), cfg.clear_mm) if other is None
              else np.min([lateral_mm(tips[:, k], n0, other) for k in range(tips.shape[1])], axis=0))
     h = np.abs((np.asarray(moving, float)[None, :] - points) @ n0) * 1000.0
-    miss = (np.clip(cfg.clear_mm - rho_o, 0.0, None) + np.clip(rho_m - cfg.keep_mm, 0.0, None)
-            + np.clip(h - cfg.depth_mm, 0.0, None))
-    score = 10.0 * miss + rho_m + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=0.0)
+    miss = (cfg.clear_weight * np.clip(cfg.clear_mm - rho_o, 0.0, None)
+            + cfg.keep_weight * (np.clip(rho_m - cfg.keep_mm, 0.0, None) + np.clip(h - cfg.depth_mm, 0.0, None)))
+    score = miss + rho_m + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=0.0)
     ok = np.isfinite(costs) & (normals @ n0 >= np.cos(np.radians(cfg.max_normal_deg)))
     return np.where(ok, score, np.inf)
 
