@@ -43,6 +43,7 @@ class ControllerConfig:
     per_load: bool = True                   # an object's change per newton of its reference |F|
     min_ref_n: float = 0.3                  # clusters weaker than this in the reference are ignored
     load_floor_n: float = 0.0               # added to an object's load before dividing (per_load)
+    lost_is_change: bool = False            # True: a reference cluster with no match counts as released
     both_sensors: bool = True               # only objects felt by both fingertips compete (if ≥ 2)
     match_mm: float = 3.0
     group_mm: float = 4.0
@@ -167,8 +168,10 @@ class SelectiveGraspController:
                 d = [np.linalg.norm(q - p_ref) for q, _, _ in cur]
                 if d and min(d) <= self.cfg.match_mm:
                     f = cur[int(np.argmin(d))][1]
-                else:
+                elif self.cfg.lost_is_change:
                     f = np.zeros(3)                    # the cluster vanished: its force changed fully
+                else:
+                    continue                           # the cluster moved or split: no reading this frame
                 pts.append(self._world(s, p_ref))
                 df = f - f_ref
                 if self.cfg.shear_only:                # a pull drags the gel along its surface
