@@ -43,12 +43,13 @@ class ControllerConfig:
     per_load: bool = True                   # an object's change per newton of its reference |F|
     min_ref_n: float = 0.3                  # clusters weaker than this in the reference are ignored
     load_floor_n: float = 0.0               # added to an object's load before dividing (per_load)
+    load_power: float = 0.75                # per_load divides by (load + floor) to this power
     lost_is_change: bool = False            # True: a reference cluster with no match counts as released
     both_sensors: bool = True               # only objects felt by both fingertips compete (if ≥ 2)
     match_mm: float = 3.0
     group_mm: float = 4.0
-    min_change: float = 0.08                # N per N of load (per_load), else N
-    lead_ratio: float = 1.2
+    min_change: float = 0.08                # N per N^load_power of load (per_load), else N
+    lead_ratio: float = 1.1
     confirm_frames: int = 2
     keep_mm: float = 2.5                    # both goal fingertips this near the moving object, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
@@ -197,7 +198,7 @@ class SelectiveGraspController:
                 objects = both
         if self.cfg.per_load:                          # change per newton the object was held with
             for o in objects:
-                o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6)
+                o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
         return objects
 
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float]) -> Decision:
