@@ -194,6 +194,9 @@ def test_goal_keeps_the_moving_object_and_clears_the_other():
     # ρ_o 7.416 → 10·(4.584 + 1.584) + 4.584 + 0.6
     t7 = 10 * (4.5838 + 1.5838) + 4.5838 + 0.6
     np.testing.assert_allclose(sc, [172.3, 167.9, 93.5, 45.9, 28.1, np.inf, np.inf, t7], atol=2e-3)
+    # a fingertip pair displaced along the objects (y) scores the same: only across counts
+    tips_y = tips + np.array([0, 0.005, 0])
+    np.testing.assert_allclose(goal_scores(pts, nrm, tips_y, costs, z, mov, oth, cfg), sc, atol=2e-3)
     # a pen-like other 10 mm away: cleared from both, only ρ_m and the path count
     far = np.array([-0.010, 0, 0])
     sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.003, 0, 0]), far, cfg)

@@ -231,17 +231,26 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
                 cfg: ControllerConfig) -> np.ndarray:
     """Score of each graph node as the goal (lower is better, inf = not allowed). `tips` (N, 2, 3):
     both fingertip centres of each node (m). Distances are taken across the current pinch normal
-    `normal_now` (the objects lie in the plane it spans): ρ_moving, the farther fingertip's
-    distance from the moving object, and ρ_other, the nearer fingertip's distance from the other.
+    `normal_now` (the objects lie in the plane it spans) and across the objects (along the line
+    joining them; the objects lie side by side, so a fingertip's place along them does not count):
+    ρ_moving, the farther fingertip's distance from the moving object, and ρ_other, the nearer
+    fingertip's distance from the other. Without another object: the distance in the plane.
     Allowed: reachable (finite path cost, rad) with a pinch normal within `max_normal_deg` of
     `normal_now`. h: the pinch point's distance from the moving object along `normal_now`.
     Score = clear_weight · (shortfall of ρ_other below `clear_mm`) + keep_weight · (excess of
     ρ_moving over `keep_mm` + excess of h over `depth_mm`) + ρ_moving + h + cost_weight · path cost,
     so the limits are met where the graph allows and approached as near as it can otherwise."""
     n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
-    rho_m = np.max([lateral_mm(tips[:, k], n0, moving) for k in range(tips.shape[1])], axis=0)
-    rho_o = (np.full(len(points), cfg.clear_mm) if other is None
-             else np.min([lateral_mm(tips[:, k], n0, other) for k in range(tips.shape[1])], axis=0))
+    moving = np.asarray(moving, float)
+    across = None if other is None else (moving - other) - ((moving - other) @ n0) * n0
+    if across is not None and np.linalg.norm(across) > 1e-6:
+        # two parallel objects side by side: only the distance across them counts, not along them
+        u = across / np.linalg.norm(across)
+        rho_m = np.max(np.abs((tips - moving) @ u), axis=1) * 1000.0
+        rho_o = np.min(np.abs((tips - np.asarray(other, float)) @ u), axis=1) * 1000.0
+    else:
+        rho_m = np.max([lateral_mm(tips[:, k], n0, moving) for k in range(tips.shape[1])], axis=0)
+        rho_o = np.full(len(points), cfg.clear_mm)
     h = np.abs((np.asarray(moving, float)[None, :] - points) @ n0) * 1000.0
     miss = (cfg.clear_weight * np.clip(cfg.clear_mm - rho_o, 0.0, None)
             + cfg.keep_weight * (np.clip(rho_m - cfg.keep_mm, 0.0, None) + np.clip(h - cfg.depth_mm, 0.0, None)))
