@@ -66,8 +66,11 @@ def test_allegro_graph_contact_nodes_paths_and_sensor_positions():
     spec = hand_model.HandSpec()
     model = hand_model.load(None, spec)
     hand_model.apply_variant(model, spec, hand_model.nominal_placement(model, spec), 0.043, 0.0)
-    g = graph.build(model, spec, (4.3, 0.0), graph.GraphConfig(nodes=300))
-    assert len(g) == 300
+    g = graph.build(model, spec, (4.3, 0.0), graph.GraphConfig(nodes=300, refine_nodes=60))
+    assert len(g) == 360
+    # the refined nodes lie around one pinch: within 2 × refine_radius of each other
+    ref = g.point[300:]
+    assert np.linalg.norm(ref[:, None] - ref[None], axis=2).max() <= 2 * 0.014 + 1e-9
     # every node is a contact: fingertip centres 2 × 10.2 mm apart within the contact band
     d = np.linalg.norm(g.tip_thumb[:, :3, 3] - g.tip_index[:, :3, 3], axis=1)
     assert np.all(d <= 0.0204 + 0.001) and np.all(d >= 0.0204 - 0.003)
@@ -84,3 +87,27 @@ def test_allegro_graph_contact_nodes_paths_and_sensor_positions():
     assert path[0] == 0 and path[-1] == far and len(path) > 2
     steps = np.linalg.norm(np.diff(g.q[path], axis=0), axis=1)
     assert steps.sum() == pytest.approx(costs[far])
+
+
+def _pinch_row(xs_mm, tilt_deg=0.0):
+    """Pinches along world x at xs_mm (normal +z, or tilted about y by tilt_deg), chained by
+    joint steps of 0.1 rad; the index tip's long axis (tip z) along +x."""
+    n = len(xs_mm)
+    q = np.stack([np.arange(n) * 0.1, np.zeros(n)], 1)
+    point = np.stack([np.asarray(xs_mm, float) / 1000, np.zeros(n), np.zeros(n)], 1)
+    t = np.radians(tilt_deg)
+    normal = np.tile([np.sin(t), 0.0, np.cos(t)], (n, 1))
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]          # tip z along world +x
+    z = np.zeros((n, 3))
+    edges, w = graph.knn_edges(q, 1)
+    return graph.ContactGraph(q, point, normal, z, z, z, z, T, T, edges, w, np.array([5.5, 0.0]))
+
+
+def test_room_counts_pinches_on_either_side_across():
+    g = _pinch_row([-10, -8, -7, -2, 0, 3, 6.5, 9, 12])
+    # node 4 (x = 0): across = +x; band 6–11 mm → −10, −8, −7 on the − side, 6.5, 9 on the + side
+    assert graph.room(g, 4) == (3, 2)
+    assert graph.room(g, 4, band_mm=(2.5, 7.0)) == (1, 2)      # −7 | 3, 6.5
+    g.normal[0] = [1.0, 0, 0]                                   # 90° off: not a compatible pinch
+    assert graph.room(g, 4) == (2, 2)

@@ -114,14 +114,14 @@ def test_mount_cli_writes_figures_variant_and_urdf(tmp_path):
     parser = argparse.ArgumentParser(prog="tensortouch")
     register(parser.add_subparsers())
     args = parser.parse_args(["mount", "--out", str(tmp_path), "--samples", "1500", "--z-cm", "4.3,5.1",
-                              "--pitch-deg", "0,10", "--graph-nodes", "60"])
+                              "--pitch-deg", "0,10", "--graph-nodes", "60", "--refine-nodes", "20"])
     assert args.func(args) == 0
     summary = json.loads((tmp_path / "mount.json").read_text())
     assert summary["chosen"]["z_cm"] in (4.3, 5.1) and summary["chosen"]["pitch_deg"] in (0, 10)
     assert np.array(summary["grid"]["inliers"]).shape == (2, 2)
     for name in ("mount_heatmaps.png", "mount_contacts_3d.png", "hand_mounted.urdf", "contact_graph.npz"):
         assert (tmp_path / name).stat().st_size > 500
-    assert summary["graph"]["nodes"] == 60
+    assert summary["graph"]["nodes"] == 80
 
 
 def test_mount_cli_bad_urdf_exits_2(tmp_path, capsys):

@@ -117,6 +117,96 @@ def test_controller_names_the_sheared_object_and_plans_past_it():
     assert len(qs) == len(d.path) and np.all(np.diff(times) > 0)
 
 
+def test_controller_scores_shear_change_per_newton_of_load():
+    """A light cable pulled beside a heavily loaded neighbour that picks up more shear by crosstalk:
+    per newton of its reference force the pulled one leads; a cluster only one fingertip feels
+    (a spurious edge of a contact) does not compete."""
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0]), np.array([0.009, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    load = [1.0, 3.0, 0.35]
+    # shear per sensor once pulled: object 0 (pulled) 0.3 N, object 1 0.45 N (crosstalk), the
+    # thumb-only cluster 0.3 N. Summed over both sensors 0.6 N of 2 N load vs 0.9 N of 6 N: per
+    # newton 0.3 vs 0.15 (the thumb-only cluster: 0.86); per newton^0.75 0.357 vs 0.235; in newtons
+    # 0.6 vs 0.9, where the crosstalk wins
+    pulled = [0.3, 0.45, 0.3]
+
+    def frame(s, k):
+        cs = [(pos[s][i], np.array([0, 0, -load[i]]) + (np.array([pulled[i], 0, 0]) if k >= 4 else 0))
+              for i in range(3) if s == "thumb" or i < 2]
+        return _frame(cs)
+
+    cases = ((ControllerConfig(load_power=1.0), 0, [0.15, 0.3]),
+             (ControllerConfig(load_power=0.75), 0, [0.9 / 6 ** 0.75, 0.6 / 2 ** 0.75]),   # 0.2348, 0.3568
+             (ControllerConfig(per_load=False, min_change=0.15), 1, [0.6, 0.9]))
+    for cfg, named, scores in cases:
+        ctrl = SelectiveGraspController(g, start, m, cfg)
+        ctrl.watch()
+        d = None
+        for k in range(8):
+            for s in ("thumb", "index"):
+                ctrl.on_contacts(s, frame(s, k))
+            d = ctrl.update() or d
+        assert d is not None
+        assert np.linalg.norm(d.moving_point - objs[named]) < 0.0015
+        np.testing.assert_allclose(sorted(d.scores), scores, atol=1e-6)
+
+
+def test_lateral_distance_from_pinch_axes():
+    from tensortouch.tools.grasp.controller import lateral_mm
+
+    pts = np.array([[0, 0, 0], [0.001, 0, 0]])
+    nrm = np.array([[0, 0, 1.0], [1.0, 0, 0]])
+    # 3-4-5 off the z axis through the origin; off the x axis through (1, 0, 0) mm: √(4² + 10²)
+    np.testing.assert_allclose(lateral_mm(pts, nrm, np.array([0.003, 0.004, 0.010])), [5.0, np.hypot(4, 10)])
+    np.testing.assert_allclose(lateral_mm(pts, np.array([0, 0, 1.0]), np.array([0.003, 0.004, 0.010])),
+                               [5.0, np.hypot(2, 4)])
+
+
+def _pinches(xs_mm, tilt_deg):
+    """Pinch points along x (m), normals tilted about y, fingertip centres 12 mm either side."""
+    xs = np.asarray(xs_mm, float) / 1000
+    pts = np.stack([xs, np.zeros(len(xs)), np.zeros(len(xs))], 1)
+    t = np.radians(np.asarray(tilt_deg, float))
+    nrm = np.stack([np.sin(t), np.zeros(len(t)), np.cos(t)], 1)
+    tips = np.stack([pts + 0.012 * nrm, pts - 0.012 * nrm], axis=1)
+    return pts, nrm, tips
+
+
+def test_goal_keeps_the_moving_object_and_clears_the_other():
+    from tensortouch.tools.grasp.controller import goal_scores
+
+    pts, nrm, tips = _pinches([-8, -4, 0, 4, 6, 8, 4, 6], [0, 0, 0, 0, 0, 0, 30, 10])
+    costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2, 0.3])
+    cfg = ControllerConfig(keep_mm=3.0, clear_mm=12.0, depth_mm=2.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0,
+                           keep_weight=10.0, clear_weight=10.0)
+    z = np.array([0, 0, 1.0])
+    mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
+    sc = goal_scores(pts, nrm, tips, costs, z, mov, oth, cfg)
+    # x = 4: ρ_m 0.5, ρ_o 7.5 (4.5 short of 12) → 10·4.5 + 0.5 + 2·0.2 = 45.9
+    # x = 6: ρ_m 2.5, ρ_o 9.5 → 10·2.5 + 2.5 + 2·0.3 = 28.1 (the best goal)
+    # x = 0: ρ_m = ρ_o = 3.5 → 10·(8.5 + 0.5) + 3.5 = 93.5; x = −4: 10·(11.5 + 4.5) + 7.5 + 0.4 = 167.9
+    # x = −8: 10·(7.5 + 8.5) + 11.5 + 0.8 = 172.3; node 5: unreachable; node 6: 30° tilted
+    # node 7 (x = 6, tilted 10°): fingertips at x = 6 ± 12·sin 10° = 8.084 / 3.916, so ρ_m 4.584 and
+    # ρ_o 7.416 → 10·(4.584 + 1.584) + 4.584 + 0.6
+    t7 = 10 * (4.5838 + 1.5838) + 4.5838 + 0.6
+    np.testing.assert_allclose(sc, [172.3, 167.9, 93.5, 45.9, 28.1, np.inf, np.inf, t7], atol=2e-3)
+    # a fingertip pair displaced along the objects (y) scores the same: only across counts
+    tips_y = tips + np.array([0, 0.005, 0])
+    np.testing.assert_allclose(goal_scores(pts, nrm, tips_y, costs, z, mov, oth, cfg), sc, atol=2e-3)
+    # a pen-like other 10 mm away: cleared from both, only ρ_m and the path count
+    far = np.array([-0.010, 0, 0])
+    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.003, 0, 0]), far, cfg)
+    np.testing.assert_allclose(sc[[3, 4]], [1 + 0.4, 3 + 0.6])
+    # a pinch point 1.5 mm off the objects' plane along the normal adds 1.5; 2.5 mm is 0.5 beyond depth_mm
+    pts[3, 2], pts[4, 2] = 0.0015, 0.0025
+    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.003, 0, 0]), far, cfg)
+    np.testing.assert_allclose(sc[[3, 4]], [1 + 1.5 + 0.4, 3 + 2.5 + 10 * 0.5 + 0.6])
+
+
 def test_controller_stays_put_without_a_clear_change():
     g = _line_graph()
     ctrl = SelectiveGraspController(g, 4, SensorMount())

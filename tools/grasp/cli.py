@@ -30,6 +30,8 @@ def register(sub) -> None:
     p.add_argument("--z-cm", default="3.5,3.9,4.3,4.7,5.1,5.5", help="thumb distal z-offsets in cm")
     p.add_argument("--pitch-deg", default="-30,-20,-10,0,10,20,30", help="thumb distal pitches in degrees")
     p.add_argument("--graph-nodes", type=int, default=2700, help="contact-graph nodes (0: no graph)")
+    p.add_argument("--refine-nodes", type=int, default=1300,
+                   help="extra contact-graph nodes around the start pinch (default 1300; 0: none)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_mount)
 
@@ -104,7 +106,8 @@ def cmd_mount(args) -> int:
             model = hand_model.load(urdf, spec)
             hand_model.apply_variant(model, spec, hand_model.nominal_placement(model, spec),
                                      ch.z_cm / 100, np.radians(ch.pitch_deg))
-            g = graph.build(model, spec, (ch.z_cm, ch.pitch_deg), graph.GraphConfig(nodes=args.graph_nodes),
+            gcfg = graph.GraphConfig(nodes=args.graph_nodes, refine_nodes=max(0, args.refine_nodes))
+            g = graph.build(model, spec, (ch.z_cm, ch.pitch_deg), gcfg,
                             progress=lambda i, n: print(f"\r  contact graph: {i}/{n} nodes", end="",
                                                         file=sys.stderr, flush=True))
             print(file=sys.stderr)
@@ -143,7 +146,8 @@ def cmd_grasp(args) -> int:
             import argparse
 
             margs = argparse.Namespace(urdf=None, out=str(hand), samples=10_000, z_cm="3.5,3.9,4.3,4.7,5.1,5.5",
-                                       pitch_deg="-30,-20,-10,0,10,20,30", graph_nodes=2700, seed=0)
+                                       pitch_deg="-30,-20,-10,0,10,20,30", graph_nodes=2700, refine_nodes=1300,
+                                       seed=0)
             if cmd_mount(margs) != 0:
                 return 2
         bench = trial.Bench(graph_path, urdf, model=args.model)

@@ -13,9 +13,17 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    node's fingertip poses and the sensor mount and grouped into objects (≤ `group_mm` apart);
    an object's score is the sum of its clusters' |ΔF| over both sensors. The object whose score
    exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
-3. Plan: the target pinch point lies `shift_mm` beyond the moving object, away from the other;
-   the goal is the reachable graph node nearest that point with a pinch normal within
-   `max_normal_deg` of the current one; Dijkstra gives the joint path.
+3. Plan (`goal_scores`): for every reachable graph node with a pinch normal within
+   `max_normal_deg` of the current one, where its two fingertip centres lie across the current
+   pinch normal relative to the objects (ρ: distance in the objects' plane). Fingertips closing
+   on the moving object also touch the other one while it lies within about √((R + r)² − h²) of a
+   fingertip centre across the normal (R fingertip, r object radius, h how far the fingertip
+   centre stays from the objects' plane), so the goal keeps both fingertips within `keep_mm` of
+   the moving object and `clear_mm` from the other one, and its pinch point within `depth_mm` of
+   the moving object along the normal (a pinch centred off the objects' plane pushes the object
+   into one fingertip and away from the other) — where the graph allows, and as near as it can
+   otherwise — then prefers the fingertips near the moving object and a short joint path.
+   Dijkstra gives the path.
 """
 from __future__ import annotations
 
@@ -32,13 +40,23 @@ from .sensor_mount import SensorMount
 class ControllerConfig:
     reference_frames: int = 4
     shear_only: bool = True                 # score the change of the force along the gel surface
+    per_load: bool = True                   # an object's change per newton of its reference |F|
+    min_ref_n: float = 0.3                  # clusters weaker than this in the reference are ignored
+    load_floor_n: float = 0.0               # added to an object's load before dividing (per_load)
+    load_power: float = 0.75                # per_load divides by (load + floor) to this power
+    lost_is_change: bool = False            # True: a reference cluster with no match counts as released
+    both_sensors: bool = True               # only objects felt by both fingertips compete (if ≥ 2)
     match_mm: float = 3.0
     group_mm: float = 4.0
-    min_change_n: float = 0.15
-    lead_ratio: float = 1.2
+    min_change: float = 0.08                # N per N^load_power of load (per_load), else N
+    lead_ratio: float = 1.1
     confirm_frames: int = 2
-    shift_mm: float = 3.0
-    max_normal_deg: float = 25.0
+    keep_mm: float = 2.5                    # both goal fingertips this near the moving object, across
+    depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
+    clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
+    keep_weight: float = 30.0               # score per mm beyond keep_mm or depth_mm
+    clear_weight: float = 10.0              # score per mm short of clear_mm
+    max_normal_deg: float = 15.0
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
     step_s: float = 0.04                    # time per path node when executing
 
@@ -110,7 +128,7 @@ class SelectiveGraspController:
         order = np.argsort(scores)[::-1]
         best = int(order[0])
         second = scores[order[1]] if len(order) > 1 else 0.0
-        ok = scores[best] >= self.cfg.min_change_n and scores[best] >= self.cfg.lead_ratio * second
+        ok = scores[best] >= self.cfg.min_change and scores[best] >= self.cfg.lead_ratio * second
         key = tuple(np.round(objects[best]["point"] * 1000 / self.cfg.group_mm).astype(int)) if ok else None
         streak = self._streak[1] + 1 if ok and key == self._streak[0] else (1 if ok else 0)
         self._streak = (key, streak)
@@ -142,43 +160,53 @@ class SelectiveGraspController:
         return T[:3, 3] + T[:3, :3] @ u * (self.mount.tip_radius_mm / 1000.0)
 
     def _objects(self, latest: dict[str, list]) -> list[dict]:
-        pts, changes = [], []
+        pts, changes, loads, who = [], [], [], []
         for s in self.SENSORS:
             for p_ref, f_ref, nrm in self._ref[s]:
+                if np.linalg.norm(f_ref) < self.cfg.min_ref_n:
+                    continue
                 cur = latest[s]
                 d = [np.linalg.norm(q - p_ref) for q, _, _ in cur]
                 if d and min(d) <= self.cfg.match_mm:
                     f = cur[int(np.argmin(d))][1]
-                else:
+                elif self.cfg.lost_is_change:
                     f = np.zeros(3)                    # the cluster vanished: its force changed fully
+                else:
+                    continue                           # the cluster moved or split: no reading this frame
                 pts.append(self._world(s, p_ref))
                 df = f - f_ref
                 if self.cfg.shear_only:                # a pull drags the gel along its surface
                     df = df - (df @ nrm) * nrm
                 changes.append(float(np.linalg.norm(df)))
+                loads.append(float(np.linalg.norm(f_ref)))
+                who.append(s)
         objects: list[dict] = []
-        for p, ch in zip(pts, changes):
+        for p, ch, load, s in zip(pts, changes, loads, who):
             for o in objects:
                 if np.linalg.norm(o["point"] - p) * 1000 <= self.cfg.group_mm:
                     o["members"].append(p)
                     o["point"] = np.mean(o["members"], axis=0)
                     o["change"] += ch
+                    o["load"] += load
+                    o["sensors"].add(s)
                     break
             else:
-                objects.append({"point": p, "members": [p], "change": ch})
+                objects.append({"point": p, "members": [p], "change": ch, "load": load, "sensors": {s}})
+        if self.cfg.both_sensors:                      # a cluster only one fingertip feels is not a pinched object
+            both = [o for o in objects if len(o["sensors"]) == len(self.SENSORS)]
+            if len(both) >= 2:
+                objects = both
+        if self.cfg.per_load:                          # change per newton the object was held with
+            for o in objects:
+                o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
         return objects
 
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float]) -> Decision:
-        g, cfg = self.graph, self.cfg
-        away = moving - (other if other is not None else g.point[self.node])
-        nrm = np.linalg.norm(away)
-        away = away / nrm if nrm > 1e-9 else np.zeros(3)
-        target = moving + away * cfg.shift_mm / 1000.0
-        costs = g.reachable_costs(self.node)
-        ok = np.isfinite(costs) & (g.normal @ g.normal[self.node] >= np.cos(np.radians(cfg.max_normal_deg)))
-        score = np.linalg.norm(g.point - target, axis=1) * 1000 + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=1e9)
-        score[~ok] = np.inf
-        goal = int(np.argmin(score))
+        g = self.graph
+        tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
+        score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
+                            other, self.cfg)
+        goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
         return Decision(moving, other, goal, g.path(self.node, goal), scores)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
@@ -187,6 +215,48 @@ class SelectiveGraspController:
             return np.zeros(0), np.zeros((0, self.graph.q.shape[1]))
         qs = self.graph.q[self.decision.path]
         return np.arange(1, len(qs) + 1) * self.cfg.step_s, qs
+
+
+def lateral_mm(points: np.ndarray, normals: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Distance (mm) of world point x (m) from each line through points[i] (m) along normals[i]
+    (unit; one normal for all lines when given as (3,))."""
+    d = np.asarray(x, float)[None, :] - points
+    normals = np.broadcast_to(normals, d.shape)
+    along = np.einsum("ij,ij->i", d, normals)
+    return np.linalg.norm(d - along[:, None] * normals, axis=1) * 1000.0
+
+
+def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs: np.ndarray,
+                normal_now: np.ndarray, moving: np.ndarray, other: np.ndarray | None,
+                cfg: ControllerConfig) -> np.ndarray:
+    """Score of each graph node as the goal (lower is better, inf = not allowed). `tips` (N, 2, 3):
+    both fingertip centres of each node (m). Distances are taken across the current pinch normal
+    `normal_now` (the objects lie in the plane it spans) and across the objects (along the line
+    joining them; the objects lie side by side, so a fingertip's place along them does not count):
+    ρ_moving, the farther fingertip's distance from the moving object, and ρ_other, the nearer
+    fingertip's distance from the other. Without another object: the distance in the plane.
+    Allowed: reachable (finite path cost, rad) with a pinch normal within `max_normal_deg` of
+    `normal_now`. h: the pinch point's distance from the moving object along `normal_now`.
+    Score = clear_weight · (shortfall of ρ_other below `clear_mm`) + keep_weight · (excess of
+    ρ_moving over `keep_mm` + excess of h over `depth_mm`) + ρ_moving + h + cost_weight · path cost,
+    so the limits are met where the graph allows and approached as near as it can otherwise."""
+    n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
+    moving = np.asarray(moving, float)
+    across = None if other is None else (moving - other) - ((moving - other) @ n0) * n0
+    if across is not None and np.linalg.norm(across) > 1e-6:
+        # two parallel objects side by side: only the distance across them counts, not along them
+        u = across / np.linalg.norm(across)
+        rho_m = np.max(np.abs((tips - moving) @ u), axis=1) * 1000.0
+        rho_o = np.min(np.abs((tips - np.asarray(other, float)) @ u), axis=1) * 1000.0
+    else:
+        rho_m = np.max([lateral_mm(tips[:, k], n0, moving) for k in range(tips.shape[1])], axis=0)
+        rho_o = np.full(len(points), cfg.clear_mm)
+    h = np.abs((np.asarray(moving, float)[None, :] - points) @ n0) * 1000.0
+    miss = (cfg.clear_weight * np.clip(cfg.clear_mm - rho_o, 0.0, None)
+            + cfg.keep_weight * (np.clip(rho_m - cfg.keep_mm, 0.0, None) + np.clip(h - cfg.depth_mm, 0.0, None)))
+    score = miss + rho_m + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=0.0)
+    ok = np.isfinite(costs) & (normals @ n0 >= np.cos(np.radians(cfg.max_normal_deg)))
+    return np.where(ok, score, np.inf)
 
 
 class ControllerNode:

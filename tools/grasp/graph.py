@@ -8,7 +8,10 @@ the sphere centre to coal's nearest point) and where each fingertip sensor repor
 
 Nodes are collected the way the seed describes it — exploring the joint space while keeping thumb
 and index in contact: uniform samples seed the set, then random small joint steps from stored nodes
-that stay in contact are added until the set has `nodes` entries.
+that stay in contact are added until the set has `nodes` entries. The region around the start
+pinch (the node whose contacts sit nearest both gels' apexes, where a grasp begins) is then refined
+the same way: smaller random joint steps from stored nodes whose pinch lies within
+`refine_radius_mm` of the start's, keeping the new contacts that also lie within it.
 """
 from __future__ import annotations
 
@@ -43,6 +46,9 @@ class GraphConfig:
     batch: int = 4000
     max_rounds: int = 400
     seed: int = 1
+    refine_nodes: int = 1300     # extra nodes around the start pinch (0: no refinement)
+    refine_radius_mm: float = 14.0
+    refine_step_rad: float = 0.03
 
 
 @dataclass
@@ -107,48 +113,125 @@ def _tip_directions(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     return local / np.maximum(np.linalg.norm(local, axis=1, keepdims=True), 1e-12)
 
 
-def build(model, spec: HandSpec, variant=(np.nan, np.nan), cfg: GraphConfig | None = None,
-          ws_cfg: WorkspaceConfig | None = None, progress=None, mount: SensorMount | None = None) -> ContactGraph:
-    """Explore contacts on `model` (already set to the chosen variant) and connect them. Only
-    contacts that land on both sensors' gels (within `mount`'s cone) are kept."""
-    cfg = cfg or GraphConfig()
-    mount = mount or SensorMount()
+def across(g: ContactGraph, node: int) -> np.ndarray:
+    """Rows: the pinch frame of `node` in world — across the pinch (the index finger's long axis,
+    tip z, made normal to the pinch normal), along the objects, and the pinch normal."""
+    n = g.normal[node] / np.linalg.norm(g.normal[node])
+    v = g.tip_index[node][:3, 2] - (g.tip_index[node][:3, 2] @ n) * n
+    v = v / np.linalg.norm(v)
+    return np.stack([v, np.cross(n, v), n])
+
+
+def room(g: ContactGraph, node: int, band_mm=(6.0, 11.0), lane_mm: float = 3.0, depth_mm: float = 4.0,
+         normal_deg: float = 15.0) -> tuple[int, int]:
+    """How many pinches the graph holds on either side of `node` across the pinch: nodes whose
+    pinch point lies `band_mm` away along the across axis (−, +), within `lane_mm` along the
+    objects and `depth_mm` along the normal, with a pinch normal within `normal_deg`."""
+    rel = (g.point - g.point[node]) @ across(g, node).T * 1000.0
+    ok = ((g.normal @ g.normal[node] >= np.cos(np.radians(normal_deg))) & (np.abs(rel[:, 1]) <= lane_mm)
+          & (np.abs(rel[:, 2]) <= depth_mm))
+    a = np.abs(rel[:, 0])
+    band = ok & (a >= band_mm[0]) & (a <= band_mm[1])
+    return int((band & (rel[:, 0] < 0)).sum()), int((band & (rel[:, 0] > 0)).sum())
+
+
+def start_node(g: ContactGraph, mount: SensorMount, min_room: int = 5, candidates: int = 1000) -> int:
+    """Where a grasp begins: in the largest connected part of the graph, the pinch whose contacts
+    sit nearest both gels' apexes (the larger of the two angles is smallest) among those with at
+    least `min_room` pinches on either side across it (`room`), so that the hand can move the
+    pinch off either of two objects held side by side. Without such a node: nearest the apexes."""
+    from scipy.sparse.csgraph import connected_components
+
+    _, lab = connected_components(g.matrix())
+    big = lab == np.bincount(lab).argmax()
+    ax = np.asarray(mount.axis_tip, float)
+    ang = np.maximum(np.arccos(np.clip(g.dir_thumb @ ax, -1, 1)), np.arccos(np.clip(g.dir_index @ ax, -1, 1)))
+    order = np.argsort(np.where(big, ang, np.inf))[:min(candidates, int(big.sum()))]
+    for node in order:
+        if min(room(g, int(node))) >= min_room:
+            return int(node)
+    return int(order[0])
+
+
+_KEYS = ("q", "point", "normal", "p_thumb", "p_index", "Tt", "Ti")
+
+
+def _explore(model, spec: HandSpec, cfg: GraphConfig, ws_cfg: WorkspaceConfig, mount: SensorMount,
+             rng: np.random.Generator, keep: dict[str, list], target: int, step: float, seed_nodes: int,
+             region=None, progress=None) -> int:
+    """Add contact configurations to `keep` until it holds `target`: uniform samples while it has
+    fewer than `seed_nodes`, then random joint steps of `step` rad from stored nodes (only those
+    whose pinch point passes `region`, when given). New contacts must land on both gels (and pass
+    `region`). Returns the count."""
     cone = mount.cone_cos()
     axis = np.asarray(mount.axis_tip, float) / np.linalg.norm(mount.axis_tip)
-    ws_cfg = ws_cfg or WorkspaceConfig()
-    rng = np.random.default_rng(cfg.seed)
     lo = np.concatenate(limits(model, spec.thumb)[:1] + limits(model, spec.index)[:1])
     hi = np.concatenate(limits(model, spec.thumb)[1:] + limits(model, spec.index)[1:])
-    keep: dict[str, list] = {k: [] for k in ("q", "point", "normal", "p_thumb", "p_index", "Tt", "Ti")}
-    count = 0
+    count = sum(len(a) for a in keep["q"])
     for _ in range(cfg.max_rounds):
-        if count >= cfg.nodes:
+        if count >= target:
             break
-        if count < cfg.seed_nodes:
+        if count < seed_nodes:
             q = sample_q(model, spec, cfg.batch, rng)
         else:
-            base = np.concatenate(keep["q"])[rng.integers(0, count, cfg.batch)]
-            q = np.clip(base + rng.normal(0, cfg.step_rad, base.shape), lo, hi)
+            stored_q = np.concatenate(keep["q"])
+            pool = np.arange(count) if region is None else np.flatnonzero(region(np.concatenate(keep["point"])))
+            if len(pool) == 0:
+                break
+            base = stored_q[pool[rng.integers(0, len(pool), cfg.batch)]]
+            q = np.clip(base + rng.normal(0, step, base.shape), lo, hi)
         ws = evaluate(model, spec, q, ws_cfg)
         c = ws.contact.copy()
         if c.any():
             on_t = _tip_directions(ws.tip_thumb[c], ws.p_thumb[c]) @ axis >= cone
             on_i = _tip_directions(ws.tip_index[c], ws.p_index[c]) @ axis >= cone
-            c[np.flatnonzero(c)[~(on_t & on_i)]] = False
-        for key, arr in (("q", ws.q), ("point", ws.point), ("normal", ws.normal), ("p_thumb", ws.p_thumb),
-                         ("p_index", ws.p_index), ("Tt", ws.tip_thumb), ("Ti", ws.tip_index)):
-            keep[key].append(arr[c])
-        count += int(c.sum())
+            ok = on_t & on_i
+            if region is not None:
+                ok &= region(ws.point[c])
+            c[np.flatnonzero(c)[~ok]] = False
+        for key, arr in zip(_KEYS, (ws.q, ws.point, ws.normal, ws.p_thumb, ws.p_index, ws.tip_thumb, ws.tip_index)):
+            keep[key].append(arr[c][:max(0, target - count)])
+        count = min(target, count + int(c.sum()))
         if progress:
-            progress(min(count, cfg.nodes), cfg.nodes)
-    if count < 2:
-        raise GraphError(f"only {count} contact configurations found; is the hand able to pinch?")
-    n = min(count, cfg.nodes)
-    a = {k: np.concatenate(v)[:n] for k, v in keep.items()}
+            progress(count, target)
+    return count
+
+
+def _assemble(a: dict, cfg: GraphConfig, mount: SensorMount, variant) -> ContactGraph:
     edges, weights = knn_edges(a["q"], cfg.k)
     dt, di = _tip_directions(a["Tt"], a["p_thumb"]), _tip_directions(a["Ti"], a["p_index"])
     return ContactGraph(a["q"], a["point"], a["normal"], dt, di, mount.direction_to_gel(dt),
                         mount.direction_to_gel(di), a["Tt"], a["Ti"], edges, weights, np.asarray(variant, float))
+
+
+def build(model, spec: HandSpec, variant=(np.nan, np.nan), cfg: GraphConfig | None = None,
+          ws_cfg: WorkspaceConfig | None = None, progress=None, mount: SensorMount | None = None) -> ContactGraph:
+    """Explore contacts on `model` (already set to the chosen variant) and connect them. Only
+    contacts that land on both sensors' gels (within `mount`'s cone) are kept; then the region
+    around the start pinch is refined (`GraphConfig.refine_nodes`)."""
+    cfg = cfg or GraphConfig()
+    mount = mount or SensorMount()
+    ws_cfg = ws_cfg or WorkspaceConfig()
+    rng = np.random.default_rng(cfg.seed)
+    keep: dict[str, list] = {k: [] for k in _KEYS}
+    total = cfg.nodes + max(0, cfg.refine_nodes)
+    report = (lambda i, n: progress(i, total)) if progress else None
+    count = _explore(model, spec, cfg, ws_cfg, mount, rng, keep, cfg.nodes, cfg.step_rad, cfg.seed_nodes,
+                     progress=report)
+    if count < 2:
+        raise GraphError(f"only {count} contact configurations found; is the hand able to pinch?")
+    a = {k: np.concatenate(v) for k, v in keep.items()}
+    if cfg.refine_nodes > 0:
+        centre = a["point"][start_node(_assemble(a, cfg, mount, variant), mount, min_room=0)]
+        keep = {k: [v] for k, v in a.items()}
+
+        def region(p):
+            return np.linalg.norm(p - centre, axis=1) <= cfg.refine_radius_mm / 1000.0
+
+        _explore(model, spec, cfg, ws_cfg, mount, rng, keep, count + cfg.refine_nodes, cfg.refine_step_rad, 0,
+                 region=region, progress=report)
+        a = {k: np.concatenate(v) for k, v in keep.items()}
+    return _assemble(a, cfg, mount, variant)
 
 
 _FIELDS = ("q", "point", "normal", "dir_thumb", "dir_index", "sensor_thumb_mm", "sensor_index_mm", "tip_thumb", "tip_index", "edges", "weights",

@@ -75,18 +75,6 @@ def free_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
-def start_node(g: graph_mod.ContactGraph, mount: SensorMount) -> int:
-    """The pinch whose contacts sit nearest both gels' apexes (the larger of the two angles is
-    smallest), in the largest connected part of the graph."""
-    from scipy.sparse.csgraph import connected_components
-
-    _, lab = connected_components(g.matrix())
-    big = lab == np.bincount(lab).argmax()
-    ax = np.asarray(mount.axis_tip, float)
-    ang = np.maximum(np.arccos(np.clip(g.dir_thumb @ ax, -1, 1)), np.arccos(np.clip(g.dir_index @ ax, -1, 1)))
-    return int(np.argmin(np.where(big, ang, np.inf)))
-
-
 class Bench:
     """Everything shared by a series of trials: graph, model, calibration, a Zenoh session."""
 
@@ -101,7 +89,7 @@ class Bench:
         self.graph = graph_mod.load(graph_path)
         self.urdf = str(urdf)
         self.mount = SensorMount()
-        self.start = start_node(self.graph, self.mount)
+        self.start = graph_mod.start_node(self.graph, self.mount)
         self.package = find_package(model)
         self.cal = (store or CalibrationStore()).load(self.cfg.sensor_unit)
         self.unit = TwinUnit(self.cfg.sensor_unit)
