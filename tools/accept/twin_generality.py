@@ -65,6 +65,40 @@ def _scenario(seed: int, unit: str):
     return Scenario(seed, pokes=POKES, unit=unit)
 
 
+def plannable_seed(seed: int, unit: str, limit_s: float = 10.0) -> int:
+    """`seed`, or the first of seed + 100000 k whose plan the twin's planner finishes within `limit_s`
+    (some seeds never finish: the placement of two indenters retries forever). Main thread only."""
+    import signal
+
+    from tools.twin.trajectory import plan_session, with_ranges
+    from tools.twin.unit import TwinUnit
+    from dataclasses import replace
+    from tools.twin.record import RecordConfig
+
+    sc = _scenario(seed, unit)
+    cfg = RecordConfig().trajectory
+    cfg = with_ranges(replace(cfg, indenters=tuple(sc.indenters), kinds=tuple(sc.kinds)), None, "")
+    gel = TwinUnit(unit).gel
+
+    def _stop(*_):
+        raise TimeoutError
+
+    old = signal.signal(signal.SIGALRM, _stop)
+    try:
+        for k in range(5):
+            signal.setitimer(signal.ITIMER_REAL, limit_s)
+            try:
+                plan_session(POKES, seed + 100000 * k, gel, cfg)
+                return seed + 100000 * k
+            except TimeoutError:
+                log.warning("twin plan of seed %d (unit %s) does not finish; using the next seed", seed + 100000 * k, unit)
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0)
+    finally:
+        signal.signal(signal.SIGALRM, old)
+    raise RuntimeError(f"no plannable seed near {seed}")
+
+
 def _gel(unit: str) -> dict:
     from runtime.calibration import CalibrationStore
     from tools.workbench.scenarios import store_root
@@ -131,7 +165,7 @@ def _diag_row(d) -> dict:
             "mde_per_effect": dict(d.mde.get("per_effect", {})) if d.mde else {}}
 
 
-def run_case(form: str, size: float, draw: int, work: str) -> dict:
+def run_case(form: str, size: float, draw: int, work: str, seeds: tuple | None = None) -> dict:
     from runtime.effects import EffectChain, EnabledEffect
     from tools.workbench.diagnose import diagnose
     from tools.workbench.fit import deployed_prediction
@@ -140,12 +174,13 @@ def run_case(form: str, size: float, draw: int, work: str) -> dict:
     i = list(EXPECTED).index(form)
     unit = UNITS[draw % len(UNITS)]
     lab = Lab(unit, Path(work))
-    base = record(_scenario(TEST_SEED + 10 * i + draw, unit))
+    test_seed, second_seed = seeds or (TEST_SEED + 10 * i + draw, SECOND_SEED + 10 * i + draw)
+    base = record(_scenario(test_seed, unit))
     t0 = lab.table(base)
     floor = _rms(t0.meas - t0.model)
     t, amp, got = lab.scaled(base, form, size * floor, f"{form}-{draw}-{size:g}")
     d = diagnose(t, lab.reg)
-    row = {"form": form, "unit": unit, "draw": draw, "size_floor": size, "floor": floor, "size_n": got,
+    row = {"form": form, "unit": unit, "draw": draw, "seed": test_seed, "size_floor": size, "floor": floor, "size_n": got,
            "amp": amp, **_diag_row(d)}
     fam = EXPECTED[form]
     mde = row["mde_per_effect"].get(fam, row["mde"])
@@ -157,7 +192,7 @@ def run_case(form: str, size: float, draw: int, work: str) -> dict:
         row["right"] = row["family"] == fam and not row["pair"]
     v = d.verdict
     if v is not None and v.pair is None and v.channel == "force":      # removed on a second session of the unit
-        second = record(_scenario(SECOND_SEED + 10 * i + draw, unit))
+        second = record(_scenario(second_seed, unit))
         c2 = lab.table(second)
         a2 = lab.altered(second, form, amp, f"{form}-{draw}-{size:g}-second")
         pred = deployed_prediction(a2.model, a2.cov(), EffectChain([EnabledEffect(v.effect, dict(v.params))]))
@@ -167,15 +202,16 @@ def run_case(form: str, size: float, draw: int, work: str) -> dict:
     return row
 
 
-def run_null(k: int, work: str) -> dict:
+def run_null(k: int, work: str, seed: int | None = None) -> dict:
     from tools.workbench.diagnose import diagnose
     from tools.workbench.scenarios import record
 
     unit = UNITS[k % len(UNITS)]
     lab = Lab(unit, Path(work))
-    t = lab.table(record(_scenario(NULL_SEED + k, unit)))
+    seed = NULL_SEED + k if seed is None else seed
+    t = lab.table(record(_scenario(seed, unit)))
     d = diagnose(t, lab.reg)
-    return {"null": k, "unit": unit, "floor": _rms(t.meas - t.model), **_diag_row(d)}
+    return {"null": k, "unit": unit, "seed": seed, "floor": _rms(t.meas - t.model), **_diag_row(d)}
 
 
 def summarize(rows: list, nulls: list) -> dict:
@@ -262,17 +298,23 @@ def run(a: argparse.Namespace) -> int:
     forms = a.forms or list(EXPECTED)
     for unit in UNITS:                 # record the sessions and fit the laws once, before the pool
         Lab(unit, work)
-    for i, form in enumerate(EXPECTED):
+    seeds, null_seeds = {}, {}
+    for i, form in enumerate(EXPECTED):       # record every session once, before the pool
         if form in forms:
             for k in range(a.draws):
-                record(_scenario(TEST_SEED + 10 * i + k, UNITS[k % len(UNITS)]))
-                record(_scenario(SECOND_SEED + 10 * i + k, UNITS[k % len(UNITS)]))
+                unit = UNITS[k % len(UNITS)]
+                seeds[form, k] = tuple(plannable_seed(s + 10 * i + k, unit) for s in (TEST_SEED, SECOND_SEED))
+                for s in seeds[form, k]:
+                    record(_scenario(s, unit))
     for k in range(a.nulls):
-        record(_scenario(NULL_SEED + k, UNITS[k % len(UNITS)]))
-    order = sorted(a.sizes, key=lambda s: (s < 1.0, s))      # the sizes the acceptance is about first
-    tasks = [("case", (f, s, k, str(work))) for s in order if s >= 1.0 for f in forms for k in range(a.draws)]
-    tasks += [("null", (k, str(work))) for k in range(a.nulls)]
-    tasks += [("case", (f, s, k, str(work))) for s in order if s < 1.0 for f in forms for k in range(a.draws)]
+        null_seeds[k] = plannable_seed(NULL_SEED + k, UNITS[k % len(UNITS)])
+        record(_scenario(null_seeds[k], UNITS[k % len(UNITS)]))
+    order = sorted(a.sizes)
+    tasks = [("case", (f, s, k, str(work), seeds[f, k])) for s in order if s >= 1.0 for f in forms
+             for k in range(a.draws)]                               # the sizes the acceptance is about first
+    tasks += [("null", (k, str(work), null_seeds[k])) for k in range(a.nulls)]
+    tasks += [("case", (f, s, k, str(work), seeds[f, k])) for s in order if s < 1.0 for f in forms
+              for k in range(a.draws)]
     rows, nulls = [], []
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:
         futs = [(kind, pool.submit(run_case if kind == "case" else run_null, *args)) for kind, args in tasks]
