@@ -53,6 +53,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--work", default=None, help="work folder (default: cache/workbench/twin-generality)")
     p.add_argument("--out", help="write every row and the summary as JSON here")
     p.add_argument("--pictures", help="write the detection curve here (folder)")
+    p.add_argument("--summarize", metavar="LOG", help="only summarize the JSON rows printed by an earlier run "
+                   "(one per line; a run cut short reports what it finished)")
 
 
 def _rms(x) -> float:
@@ -288,15 +290,44 @@ def markdown(rows: list) -> str:
     return "\n".join(lines)
 
 
+def report(rows: list, nulls: list, a: argparse.Namespace) -> dict:
+    out = {"cases": rows, "nulls": nulls, "summary": summarize(rows, nulls)}
+    print(json.dumps(out["summary"], indent=1))
+    print(markdown(rows))
+    if a.pictures:
+        print(picture(rows, nulls, Path(a.pictures) / "generality_detection.png"))
+    if a.out:
+        from runtime.files import atomic_write_json
+
+        atomic_write_json(a.out, json.loads(json.dumps(out, default=float)), indent=1)
+    return out
+
+
+def read_rows(path: str) -> tuple[list, list]:
+    """Rows and null rows from the JSON lines a run printed."""
+    rows, nulls = [], []
+    for line in Path(path).read_text().splitlines():
+        if line.startswith("{") and line.endswith("}"):
+            r = json.loads(line)
+            if "form" in r:
+                rows.append(r)
+            elif "null" in r:
+                nulls.append(r)
+    return rows, nulls
+
+
 def run(a: argparse.Namespace) -> int:
     from runtime import paths
     from tools.workbench.scenarios import record
 
     logging.basicConfig(level=logging.WARNING)
+    if a.summarize:
+        report(*read_rows(a.summarize), a)
+        return 0
     work = Path(a.work) if a.work else paths.cache_dir() / "workbench" / "twin-generality"
     work.mkdir(parents=True, exist_ok=True)
     forms = a.forms or list(EXPECTED)
-    for unit in UNITS:                 # record the sessions and fit the laws once, before the pool
+    for unit in UNITS:                 # fit the laws once, before the pool
         Lab(unit, work)
     seeds, null_seeds = {}, {}
     for i, form in enumerate(EXPECTED):       # record every session once, before the pool
@@ -313,7 +344,7 @@ def run(a: argparse.Namespace) -> int:
     tasks = [("case", (f, s, k, str(work), seeds[f, k])) for s in order if s >= 1.0 for f in forms
              for k in range(a.draws)]                               # the sizes the acceptance is about first
     tasks += [("null", (k, str(work), null_seeds[k])) for k in range(a.nulls)]
-    tasks += [("case", (f, s, k, str(work), seeds[f, k])) for s in order if s < 1.0 for f in forms
+    tasks += [("case", (f, s, k, str(work), seeds[f, k])) for s in order[::-1] if s < 1.0 for f in forms
               for k in range(a.draws)]
     rows, nulls = [], []
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:
@@ -322,13 +353,5 @@ def run(a: argparse.Namespace) -> int:
             r = fut.result()
             (rows if kind == "case" else nulls).append(r)
             print(json.dumps(r, default=float), flush=True)
-    out = {"cases": rows, "nulls": nulls, "summary": summarize(rows, nulls)}
-    print(json.dumps(out["summary"], indent=1))
-    print(markdown(rows))
-    if a.pictures:
-        print(picture(rows, nulls, Path(a.pictures) / "generality_detection.png"))
-    if a.out:
-        from runtime.files import atomic_write_json
-
-        atomic_write_json(a.out, json.loads(json.dumps(out, default=float)), indent=1)
+    report(rows, nulls, a)
     return 0
