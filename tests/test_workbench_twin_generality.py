@@ -74,3 +74,35 @@ def test_one_case_end_to_end_names_the_velocity_for_a_drag(tmp_path):
     row = run_case("velocity_drag", 2.0, 0, str(tmp_path))
     assert row["size_n"] == pytest.approx(2.0 * row["floor"], rel=0.03)
     assert row["right"], row
+
+
+def test_summary_counts_right_verdicts_removal_nulls_and_the_mde_bins(tmp_path):
+    import json
+
+    from tools.accept.twin_generality import markdown, picture, read_rows, summarize
+
+    def row(form, size, right, verdict, size_mde, removed=None):
+        r = {"form": form, "size_floor": size, "right": right, "verdict": verdict, "p": 0.01 if verdict else None,
+             "best_p": 0.5, "top_covariate": "velocity", "covariate_p": 0.001, "size_mde": size_mde}
+        if removed is not None:
+            r["removed"] = removed
+        return r
+
+    rows = [row("rim_profile", 1.0, True, "rim_stiffening", 3.0, 0.8),
+            row("rim_profile", 1.0, False, "temperature_softening", 3.0, 0.2),
+            row("rim_profile", 0.15, False, "strain_stiffening", 0.4),
+            row("rim_profile", 0.15, False, None, 0.45),
+            row("velocity_drag", 1.0, True, None, 3.0)]
+    nulls = [{"null": 0, "verdict": None, "covariate_p": 0.2}, {"null": 1, "verdict": "ft_bias_drift", "covariate_p": 0.01}]
+    log = tmp_path / "log"
+    log.write_text("WARNING something\n" + "\n".join(json.dumps(r) for r in rows + nulls) + "\n")
+    got_rows, got_nulls = read_rows(str(log))
+    assert len(got_rows) == 5 and len(got_nulls) == 2
+    s = summarize(got_rows, got_nulls)
+    assert s["right_at_or_above_floor"] == "2/3"
+    assert s["removed_at_or_above_floor"]["at_least_70"] == "1/1"      # only right verdicts count
+    assert s["null_false_alarms"] == "1/2" and s["null_covariate_alarms"] == "1/2"
+    assert s["mde_2x_found"] == "1/2" and s["mde_half_claimed"] == "1/2"
+    assert s["detection"]["rim_profile"] == {"0.15": "0/2", "1": "1/2"}
+    assert "| rim_profile | 1 | 1/2 |" in markdown(got_rows)
+    assert picture(got_rows, got_nulls, tmp_path / "p.png").stat().st_size > 1000

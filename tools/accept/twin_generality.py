@@ -250,8 +250,9 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     for form in EXPECTED:
         rs = [r for r in rows if r["form"] == form]
         if rs:
-            y = [np.mean([r["right"] for r in rs if r["size_floor"] == s]) for s in sizes]
-            ax.plot(sizes, y, "o-", ms=4, lw=1.2, label=form.replace("_", " "))
+            xs = [s for s in sizes if any(r["size_floor"] == s for r in rs)]
+            y = [np.mean([r["right"] for r in rs if r["size_floor"] == s]) for s in xs]
+            ax.plot(xs, y, "o-", ms=4, lw=1.2, label=form.replace("_", " "))
     y = [np.mean([r["right"] for r in rows if r["size_floor"] == s]) for s in sizes]
     ax.plot(sizes, y, "k-", lw=2.5, label="all forms")
     if nulls:
