@@ -48,6 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--draws", type=int, default=3, help="draws (test sessions) per form and size")
     p.add_argument("--sizes", type=float, nargs="+", default=[0.3, 1.0, 3.0], help="effect sizes (× the floor)")
     p.add_argument("--nulls", type=int, default=10)
+    p.add_argument("--first-null", type=int, default=0, help="index of the first null session (to split a run)")
     p.add_argument("--forms", nargs="+", choices=sorted(EXPECTED), help="hidden forms (default: all)")
     p.add_argument("--jobs", type=int, default=1, help="diagnoses run in parallel")
     p.add_argument("--work", default=None, help="work folder (default: cache/workbench/twin-generality)")
@@ -241,6 +242,7 @@ def summarize(rows: list, nulls: list) -> dict:
 
 def picture(rows: list, nulls: list, path: Path) -> Path:
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -258,15 +260,16 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     if nulls:
         fa = np.mean([n["verdict"] is not None for n in nulls])
         ax.axhline(fa, color="grey", ls=":", lw=1)
-        ax.text(sizes[0], fa + 0.03, f"false alarms on {len(nulls)} nulls: {100 * fa:.0f} %", fontsize=7, color="grey")
+        ax.text(sizes[0], fa + 0.04, f"false alarms on {len(nulls)} nulls: {100 * fa:.0f} %", fontsize=7, color="grey")
     ax.axvline(1.0, color="grey", lw=0.6)
     ax.set_xscale("log")
     ax.set_xticks(sizes)
     ax.set_xticklabels([f"{s:g}×" for s in sizes])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel("hidden effect's own contribution / the model's floor")
     ax.set_ylabel("right significant verdict")
-    ax.set_title("Detection on twin units", fontsize=9)
+    ax.set_title(f"Detection on twin units ({len(rows)} altered sessions, share of draws per point)", fontsize=9)
     ax.legend(fontsize=6.5, loc="center right")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -305,16 +308,16 @@ def report(rows: list, nulls: list, a: argparse.Namespace) -> dict:
 
 
 def read_rows(path: str) -> tuple[list, list]:
-    """Rows and null rows from the JSON lines a run printed."""
-    rows, nulls = [], []
+    """Rows and null rows from the JSON lines of one or more runs (a case or null met twice counts once)."""
+    rows, nulls = {}, {}
     for line in Path(path).read_text().splitlines():
         if line.startswith("{") and line.endswith("}"):
             r = json.loads(line)
             if "form" in r:
-                rows.append(r)
+                rows.setdefault((r["form"], r["size_floor"], r.get("draw")), r)
             elif "null" in r:
-                nulls.append(r)
-    return rows, nulls
+                nulls.setdefault(r["null"], r)
+    return list(rows.values()), list(nulls.values())
 
 
 def run(a: argparse.Namespace) -> int:
@@ -338,13 +341,13 @@ def run(a: argparse.Namespace) -> int:
                 seeds[form, k] = tuple(plannable_seed(s + 10 * i + k, unit) for s in (TEST_SEED, SECOND_SEED))
                 for s in seeds[form, k]:
                     record(_scenario(s, unit))
-    for k in range(a.nulls):
+    for k in range(a.first_null, a.first_null + a.nulls):
         null_seeds[k] = plannable_seed(NULL_SEED + k, UNITS[k % len(UNITS)])
         record(_scenario(null_seeds[k], UNITS[k % len(UNITS)]))
     order = sorted(a.sizes)
     tasks = [("case", (f, s, k, str(work), seeds[f, k])) for s in order if s >= 1.0 for f in forms
              for k in range(a.draws)]                               # the sizes the acceptance is about first
-    tasks += [("null", (k, str(work), null_seeds[k])) for k in range(a.nulls)]
+    tasks += [("null", (k, str(work), null_seeds[k])) for k in null_seeds]
     tasks += [("case", (f, s, k, str(work), seeds[f, k])) for s in order[::-1] if s < 1.0 for f in forms
               for k in range(a.draws)]
     rows, nulls = [], []
