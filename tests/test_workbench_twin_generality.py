@@ -81,21 +81,21 @@ def test_summary_counts_right_verdicts_removal_nulls_and_the_mde_bins(tmp_path):
 
     from tools.accept.twin_generality import markdown, picture, read_rows, summarize
 
-    def row(form, size, right, verdict, size_mde, removed=None):
-        r = {"form": form, "size_floor": size, "right": right, "verdict": verdict, "p": 0.01 if verdict else None,
+    def row(form, size, right, verdict, size_mde, removed=None, draw=0):
+        r = {"form": form, "size_floor": size, "draw": draw, "right": right, "verdict": verdict, "p": 0.01 if verdict else None,
              "best_p": 0.5, "top_covariate": "velocity", "covariate_p": 0.001, "size_mde": size_mde}
         if removed is not None:
             r["removed"] = removed
         return r
 
     rows = [row("rim_profile", 1.0, True, "rim_stiffening", 3.0, 0.8),
-            row("rim_profile", 1.0, False, "temperature_softening", 3.0, 0.2),
+            row("rim_profile", 1.0, False, "temperature_softening", 3.0, 0.2, draw=1),
             row("rim_profile", 0.15, False, "strain_stiffening", 0.4),
-            row("rim_profile", 0.15, False, None, 0.45),
+            row("rim_profile", 0.15, False, None, 0.45, draw=1),
             row("velocity_drag", 1.0, True, None, 3.0)]
     nulls = [{"null": 0, "verdict": None, "covariate_p": 0.2}, {"null": 1, "verdict": "ft_bias_drift", "covariate_p": 0.01}]
     log = tmp_path / "log"
-    log.write_text("WARNING something\n" + "\n".join(json.dumps(r) for r in rows + nulls) + "\n")
+    log.write_text("WARNING something\n" + "\n".join(json.dumps(r) for r in rows + nulls + rows[:1]) + "\n")
     got_rows, got_nulls = read_rows(str(log))
     assert len(got_rows) == 5 and len(got_nulls) == 2
     s = summarize(got_rows, got_nulls)
