@@ -11,6 +11,8 @@ HARNESSES = {
                   "the workbench loop on twin sessions with hidden effects, nulls, two effects and a plugin"),
     "workbench-generality": ("tensortouch.tools.accept.workbench_generality",
                              "twin-truth effects at parameters no acceptance case uses"),
+    "workbench-twin-generality": ("tensortouch.tools.accept.twin_generality",
+                                  "diagnosis on twin units with hidden effects in forms not in the library"),
     "recalib-generality": ("tensortouch.tools.accept.recalib_generality",
                            "field recalibration on randomly drawn twin units"),
 }

@@ -466,8 +466,11 @@ def family_of(effect: Effect) -> str:
 
 def pick_members(scores: list, cfg: DiagnoseConfig) -> list:
     """One score per effect family: the named library form, unless its flexible member
-    (runtime/stages/effects/flexible.py) has a held-out error lower by more than `flex_margin` (relative);
-    the other member is kept on the chosen score (`alternatives`) for the shape picture."""
+    (runtime/stages/effects/flexible.py) has a held-out error lower by more than `flex_margin` (relative),
+    or the flexible member is significant and the named form is not (parsimony chooses the form
+    to report, it does not decide whether the family is missing: near the practical bar a 2 %
+    margin is half of the smallest reduction that counts); the other member is kept on the chosen
+    score (`alternatives`) for the shape picture."""
     groups: dict[str, list] = {}
     for s in scores:
         groups.setdefault(family_of(s.effect), []).append(s)
@@ -475,7 +478,8 @@ def pick_members(scores: list, cfg: DiagnoseConfig) -> list:
     for fam, members in groups.items():
         named = next((m for m in members if m.effect.name == fam), None)
         best = min(members, key=lambda m: m.after)
-        if named is not None and named.after <= best.after * (1.0 + cfg.flex_margin):
+        if (named is not None and named.after <= best.after * (1.0 + cfg.flex_margin)
+                and (named.significant or not best.significant)):
             best = named
         best.alternatives = [m for m in members if m is not best]
         out.append(best)

@@ -106,8 +106,9 @@ def minimum_detectable_effect(table, resid: np.ndarray, floor: float, shapes: di
 def words(m: dict) -> str:
     """One line: what the session could not have seen, and what to record to see it."""
     per = m.get("per_effect") or {}
-    span = (f"; {min(per.values()):.3g} N for {min(per, key=per.get)} … {max(per.values()):.3g} N for "
-            f"{max(per, key=per.get)}" if len(per) > 1 else "")
+    lo, hi = (min(per.values()), max(per.values())) if per else (0.0, 0.0)
+    span = (f"; {lo:.3g} N for {min(per, key=per.get)} … {hi:.3g} N for {max(per, key=per.get)}"
+            if len(per) > 1 and hi > 1.005 * lo else "; the same for every candidate" if len(per) > 1 else "")
     head = (f"effects smaller than {m['mde']:.3g} N ({m['mde'] / m['floor']:.2f}× the floor {m['floor']:.3g} N) "
             f"would not have been seen (α = {m['alpha']:.2g}, power {100 * m['power']:.0f} %{span})")
     if "more_presses" in m:

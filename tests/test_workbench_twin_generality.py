@@ -1,0 +1,108 @@
+"""The twin generality harness (tools/accept/twin_generality.py): its hidden forms act on the F/T
+stream only, scale with their amplitude, and the drag opposes the indenter's motion; one
+diagnosed case end to end (slow)."""
+import numpy as np
+import pytest
+
+from tensortouch.contracts.session import load_session
+from tensortouch.tools.accept.alter_forms import FORMS, alter, contribution
+
+GEL = {"radius": 14.0, "center_z": -4.0, "skirt": 1.5}
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    from dataclasses import replace
+
+    from tensortouch.tools.twin.record import RecordConfig, record
+
+    cfg = RecordConfig(serial="TWIN-GTEST", pokes=8, seed=11, physics="hertz-fallback", frame_format="png",
+                       model_size=32)
+    cfg.rig = replace(cfg.rig, camera_fps=2.0, temperature_drift_c_per_s=0.3)
+    return record(cfg, tmp_path_factory.mktemp("tw") / "s")
+
+
+def _gel(session):
+    from tensortouch.tools.twin.unit import TwinUnit
+
+    g = TwinUnit("TWIN-GTEST").gel
+    return {"radius": g.sphere_radius, "center_z": g.sphere_z, "skirt": g.skirt}
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_each_form_changes_the_force_and_grows_with_its_amplitude(session, form):
+    s = load_session(session, check_frames=False)
+    f = s.table("wrench")[:, 2:5]
+    gel = _gel(session)
+    one = contribution(s, form, 0.2, gel) - f
+    two = contribution(s, form, 0.4, gel) - f
+    assert np.sqrt(np.mean(one ** 2)) > 1e-4
+    if form != "two_term_relaxation":          # contact loss makes relaxation non-linear in its amplitude
+        np.testing.assert_allclose(two, 2 * one, atol=1e-9)
+    else:
+        assert np.sqrt(np.mean(two ** 2)) > np.sqrt(np.mean(one ** 2))
+
+
+def test_the_drag_opposes_the_motion_and_only_the_force_columns_change(session, tmp_path):
+    from tensortouch.tools.accept.alter import _quat_matrix
+    from tensortouch.tools.accept.alter_forms import _velocity
+
+    s = load_session(session, check_frames=False)
+    out = alter(session, tmp_path / "drag", "velocity_drag", 0.01, _gel(session))
+    a = load_session(out, check_frames=False)
+    w0, w1 = s.table("wrench"), a.table("wrench")
+    np.testing.assert_array_equal(w0[:, [0, 1, 5, 6, 7]], w1[:, [0, 1, 5, 6, 7]])
+    assert not (out / "truth").exists()
+    mount = s.manifest["streams"]["wrench"]["ft_to_indenter"]
+    r_mount = _quat_matrix(np.array([mount["rotation_wxyz"]], float))[0]
+    p = s.table("poses")
+    p = p[p[:, 1] == 0]
+    m = w0[:, 1] == 0
+    j = np.clip(np.searchsorted(p[:, 0], w0[m, 0]), 0, len(p) - 1)
+    rot = _quat_matrix(p[j, 5:9]) @ r_mount
+    drag = np.einsum("nij,nj->ni", rot, w1[m, 2:5] - w0[m, 2:5])      # back in the sensor frame
+    v = _velocity(p, w0[m, 0])
+    moving = np.linalg.norm(v, axis=1) > 1.0
+    assert moving.sum() > 50
+    np.testing.assert_allclose(drag[moving], -0.01 * v[moving], atol=1e-6)
+
+
+@pytest.mark.slow
+def test_one_case_end_to_end_names_the_velocity_for_a_drag(tmp_path):
+    from tensortouch.tools.accept.twin_generality import run_case
+
+    row = run_case("velocity_drag", 2.0, 0, str(tmp_path))
+    assert row["size_n"] == pytest.approx(2.0 * row["floor"], rel=0.03)
+    assert row["right"], row
+
+
+def test_summary_counts_right_verdicts_removal_nulls_and_the_mde_bins(tmp_path):
+    import json
+
+    from tensortouch.tools.accept.twin_generality import markdown, picture, read_rows, summarize
+
+    def row(form, size, right, verdict, size_mde, removed=None, draw=0):
+        r = {"form": form, "size_floor": size, "draw": draw, "right": right, "verdict": verdict, "p": 0.01 if verdict else None,
+             "best_p": 0.5, "top_covariate": "velocity", "covariate_p": 0.001, "size_mde": size_mde}
+        if removed is not None:
+            r["removed"] = removed
+        return r
+
+    rows = [row("rim_profile", 1.0, True, "rim_stiffening", 3.0, 0.8),
+            row("rim_profile", 1.0, False, "temperature_softening", 3.0, 0.2, draw=1),
+            row("rim_profile", 0.15, False, "strain_stiffening", 0.4),
+            row("rim_profile", 0.15, False, None, 0.45, draw=1),
+            row("velocity_drag", 1.0, True, None, 3.0)]
+    nulls = [{"null": 0, "verdict": None, "covariate_p": 0.2}, {"null": 1, "verdict": "ft_bias_drift", "covariate_p": 0.01}]
+    log = tmp_path / "log"
+    log.write_text("WARNING something\n" + "\n".join(json.dumps(r) for r in rows + nulls + rows[:1]) + "\n")
+    got_rows, got_nulls = read_rows(str(log))
+    assert len(got_rows) == 5 and len(got_nulls) == 2
+    s = summarize(got_rows, got_nulls)
+    assert s["right_at_or_above_floor"] == "2/3"
+    assert s["removed_at_or_above_floor"]["at_least_70"] == "1/1"      # only right verdicts count
+    assert s["null_false_alarms"] == "1/2" and s["null_covariate_alarms"] == "1/2"
+    assert s["mde_2x_found"] == "1/2" and s["mde_half_claimed"] == "1/2"
+    assert s["detection"]["rim_profile"] == {"0.15": "0/2", "1": "1/2"}
+    assert "| rim_profile | 1 | 1/2 |" in markdown(got_rows)
+    assert picture(got_rows, got_nulls, tmp_path / "p.png").stat().st_size > 1000
