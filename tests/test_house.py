@@ -140,3 +140,24 @@ def test_contacts_carry_the_wire_names_in_memory():
     from tensortouch.runtime.stages.contacts import Cluster
 
     assert set(CONTACT_FIELDS) <= {f.name for f in fields(Cluster)}
+
+
+def test_every_command_and_option_has_help_text():
+    import argparse
+
+    from tensortouch.runtime.shells.cli import build_parser
+
+    parser, _ = build_parser()
+    missing, commands = [], 0
+
+    def walk(p, path):
+        nonlocal commands
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sp in a.choices.items():
+                    commands += 1
+                    walk(sp, path + [name])
+            elif not isinstance(a, argparse._HelpAction) and not a.help:
+                missing.append(" ".join(path + ["/".join(a.option_strings or [a.dest])]))
+    walk(parser, [])
+    assert commands > 40 and missing == []

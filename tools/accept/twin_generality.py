@@ -47,7 +47,7 @@ VELOCITY = ("velocity", "vel_x", "vel_y", "vel_z")
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--draws", type=int, default=3, help="draws (test sessions) per form and size")
     p.add_argument("--sizes", type=float, nargs="+", default=[0.3, 1.0, 3.0], help="effect sizes (× the floor)")
-    p.add_argument("--nulls", type=int, default=10)
+    p.add_argument("--nulls", type=int, default=10, help="sessions with no hidden effect")
     p.add_argument("--first-null", type=int, default=0, help="index of the first null session (to split a run)")
     p.add_argument("--forms", nargs="+", choices=sorted(EXPECTED), help="hidden forms (default: all)")
     p.add_argument("--jobs", type=int, default=1, help="diagnoses run in parallel")

@@ -32,7 +32,7 @@ def register(sub) -> None:
     p.add_argument("--graph-nodes", type=int, default=2700, help="contact-graph nodes (0: no graph)")
     p.add_argument("--refine-nodes", type=int, default=1300,
                    help="extra contact-graph nodes around the start pinch (default 1300; 0: none)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the joint-configuration samples")
     p.set_defaults(func=cmd_mount)
 
     g = sub.add_parser("grasp", help="selective grasp trials in simulation, closed through the sensor runtime",

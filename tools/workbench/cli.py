@@ -50,7 +50,7 @@ def register(sub) -> None:
     c.add_argument("--out", required=True, help="folder for residuals.csv, summary.json, report.html, PNGs")
     c.add_argument("--before-after", nargs="?", const="", metavar="DIR",
                    help="show the error change against an earlier comparison (default: the one in --out)")
-    c.add_argument("--no-pictures", action="store_true")
+    c.add_argument("--no-pictures", action="store_true", help="write no PNGs (the table and JSON only)")
     c.set_defaults(func=cmd_compare)
     d = sub.add_parser("diagnose", help="which physical effect is missing? (blocked CV, significance test)")
     session_args(d)

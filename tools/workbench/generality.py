@@ -212,10 +212,10 @@ def summarize(rows: list, nulls: list) -> dict:
 def register(sub) -> None:
     g = sub.add_parser("workbench-generality", help="detection rate of the diagnosis on hidden effects of "
                        "forms not in the library (synthetic sessions, nominal law as the model)")
-    g.add_argument("--draws", type=int, default=3)
+    g.add_argument("--draws", type=int, default=3, help="random draws per effect and size")
     g.add_argument("--sizes", type=float, nargs="+", default=[0.3, 1.0, 3.0], help="effect sizes (× the floor)")
-    g.add_argument("--nulls", type=int, default=10)
-    g.add_argument("--effects", nargs="+", choices=sorted(EXPECTED))
+    g.add_argument("--nulls", type=int, default=10, help="sessions with no hidden effect")
+    g.add_argument("--effects", nargs="+", choices=sorted(EXPECTED), help="hide only these effects (default all)")
     g.add_argument("--out", help="write every row as JSON here")
     g.set_defaults(func=cmd_generality)
 
