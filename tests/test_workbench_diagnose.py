@@ -12,7 +12,7 @@ from tensortouch.tools.workbench.diagnose import DiagnoseConfig, add_to_chain, d
 from tensortouch.tools.workbench.fit import refit_chain
 from tensortouch.tools.workbench.scan import covariate_score
 
-PLUGINS = Path(__file__).parent / "workbench_plugins"
+PLUGINS = Path(__file__).resolve().parents[1] / "tools" / "accept" / "workbench_plugins"   # the harness's plugin
 HIDDEN = {
     "temperature_softening": {"alpha": 0.03, "t_ref": 22.0},
     "viscoelastic_relaxation": {"g1": 0.3, "tau": 1.5},
@@ -266,3 +266,11 @@ def test_pairs_the_blocks_cannot_tell_apart_go_by_evidence():
     better = pair("temperature_softening", 0.10, 0.018, [0.10] * 8)
     assert _stronger_pair_first([better, clean], cfg)[0] is better
     assert _stronger_pair_first([noisy, weak], cfg)[0] is noisy
+
+
+def test_the_acceptance_harness_finds_its_plugin():
+    """`tensortouch accept workbench` loads its unknown-effect plugin from the installed tools tree."""
+    from tensortouch.tools.accept.workbench import PLUGINS as HARNESS_PLUGINS
+
+    reg = Registry.default(plugin_dirs=[HARNESS_PLUGINS], entry_points=False)
+    assert "azimuth_stiffness" in reg.names()
