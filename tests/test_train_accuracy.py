@@ -181,3 +181,24 @@ def test_budget_table_bins_label_errors_by_force_and_indenter_count():
     assert t["2 indenter(s)"]["contact_samples"] == 2
     assert t["2 indenter(s)"]["force_mag_mae_n"] == pytest.approx(0.4, abs=1e-6)
     assert t["2 indenter(s)"]["position_mae_mm"]["x"] < 0.05
+    assert "at an FE frame" not in t                   # twin-solve labels carry no label kind
+
+    for it, at in zip(items, (True, False, False)):
+        it["at_fe_frame"] = at
+    t = budget_table(items)
+    assert t["at an FE frame"]["n"] == 1 and t["at an FE frame"]["integral_bias_n"] == pytest.approx(-0.2, abs=1e-6)
+    assert t["between FE frames"]["n"] == 2
+    assert t["between FE frames"]["integral_bias_n"] == pytest.approx(-0.7, abs=1e-6)   # (-0.6 - 0.8) / 2: 6 N, and 2 × 4 N
+
+
+def test_at_fe_frames_is_within_half_a_camera_period_of_any_source():
+    from types import SimpleNamespace
+
+    from tensortouch.tools.train.evaluate import at_fe_frames
+
+    frame_t = np.arange(10) * 0.1                           # 10 Hz camera: half a period is 0.05 s
+    sources = [SimpleNamespace(times=[0.21, 0.5]), SimpleNamespace(times=[0.84])]
+    got = at_fe_frames(frame_t, np.array([1, 2, 3, 5, 8, 9]), sources)
+    assert got.tolist() == [False, True, False, True, True, False]
+    assert at_fe_frames(frame_t, np.array([0, 1]), []).tolist() == [False, False]
+    assert at_fe_frames(frame_t, np.array([4, 6]), [SimpleNamespace(times=[0.43])]).tolist() == [True, False]

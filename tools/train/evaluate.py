@@ -173,7 +173,25 @@ def budget_table(items: list[dict], key: str = "label") -> dict:
         out[f"F {lo:g}-{hi:g} N"] = block(contact & (mag >= lo) & (mag < hi))
     for k in sorted(set(nc[contact].tolist())):
         out[f"{k} indenter(s)"] = block(nc == k)
+    if items and all("at_fe_frame" in it for it in items):   # re-solved labels: at an FE frame, or interpolated
+        at_fe = np.array([it["at_fe_frame"] for it in items], bool)
+        out["at an FE frame"] = block(contact & at_fe)
+        out["between FE frames"] = block(contact & ~at_fe)
     return out
+
+
+def at_fe_frames(frame_t: np.ndarray, frames: np.ndarray, sources: list) -> np.ndarray:
+    """(n,) bool: does each labelled camera frame (indices `frames` into `frame_t`) sit within half a camera
+    period of an FE frame of any source, or is its label interpolated between FE frames?"""
+    t = np.asarray(frame_t, float)
+    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    fe_t = np.sort(np.concatenate([np.asarray(s.times, float) for s in sources])) if sources else np.zeros(0)
+    if not len(fe_t):
+        return np.zeros(len(frames), bool)
+    ti = t[np.asarray(frames, int)]
+    j = np.clip(np.searchsorted(fe_t, ti), 1, len(fe_t) - 1) if len(fe_t) > 1 else np.zeros(len(ti), int)
+    near = np.minimum(np.abs(fe_t[j] - ti), np.abs(fe_t[np.maximum(j - 1, 0)] - ti))
+    return near <= half + 1e-9
 
 
 def session_label_samples(b, spec, stride: int = 1):
@@ -193,7 +211,10 @@ def session_label_samples(b, spec, stride: int = 1):
     else:
         from .labels import session_samples_measured
 
+        from ...contracts.session import load_session
+
         d = session_samples_measured(b.session(spec), cal, src, ratios, dcfg)
+        d["at_fe_frame"] = at_fe_frames(load_session(b.session(spec)).table("frames")[:, 0], d["frame"], src)
     return d, cal
 
 
@@ -215,6 +236,8 @@ def budget_items(b, spec, d: dict, cal, predict=None, bounds: dict | None = None
         it = {"frame": int(i), "poke": int(d["poke"][n]), "meas": forces.sum(0),
               "n_contact": int((np.linalg.norm(forces, axis=1) > cfg.contact_n).sum()),
               "label": sample_forces(lab, cal, tips, forces, cfg)}
+        if "at_fe_frame" in d:
+            it["at_fe_frame"] = bool(d["at_fe_frame"][n])
         if pred is not None:
             it["pred"] = sample_forces(pred[n], cal, tips, forces, cfg)
         items.append(it)
