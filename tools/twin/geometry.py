@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...contracts.errors import TensorTouchError
+from ...runtime.stages.geometry import DomeProfile
 
 log = logging.getLogger(__name__)
 
@@ -39,13 +40,17 @@ class GelSurface:
                                "flattened_dome gels only")
 
     @property
+    def profile(self) -> DomeProfile:
+        """The cap's sphere (the θ of runtime's surface tables is measured about its centre)."""
+        return DomeProfile.of_cap(self.radius, self.cap_height, self.skirt)
+
+    @property
     def sphere_radius(self) -> float:
-        a, h = self.radius, self.cap_height
-        return (a * a + h * h) / (2.0 * h)
+        return self.profile.radius_mm
 
     @property
     def sphere_z(self) -> float:
-        return self.skirt + self.cap_height - self.sphere_radius
+        return self.profile.center_z_mm
 
     @property
     def top_z(self) -> float:
@@ -54,7 +59,7 @@ class GelSurface:
     @property
     def rim_beta(self) -> float:
         """Cap polar angle (about the cap sphere centre) of the cap edge, rad."""
-        return float(np.arcsin(min(1.0, self.radius / self.sphere_radius)))
+        return self.profile.edge_theta(self.radius)
 
     def intersect(self, origin, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rays origin + t*dirs (origin on the axis, below the cap sphere's top) -> first hit on
