@@ -49,10 +49,6 @@ class GelShape:
         return DomeProfile.of_cap(self.base_radius_mm, self.cap_height_mm, self.skirt_mm)
 
     @property
-    def sphere_radius_mm(self) -> float:
-        return self.profile.radius_mm
-
-    @property
     def cap_edge_theta(self) -> float:
         """θ of the cap's edge (where it meets the skirt), rad."""
         return self.profile.edge_theta(self.base_radius_mm)
