@@ -28,7 +28,7 @@ def test_mount_maps_pad_axis_to_apex_and_round_trips():
     # arc length from the apex is kept: 12 mm tip sphere, θ = 0.3 rad → 3.6 mm on the gel
     p = m.direction_to_gel(np.array([np.cos(0.3), 0, np.sin(0.3)]))
     th, _ = m.gel.theta_phi(p)
-    assert th * m.gel.sphere_radius == pytest.approx(0.3 * 12.0)
+    assert th * m.gel.profile.radius_mm == pytest.approx(0.3 * 12.0)
 
 
 def test_line_contact_depth_profile_and_shear():
@@ -257,7 +257,7 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
         sen = SimFingertip("test-thumb", unit, pipe, pub_s)
         try:
             gel = unit.gel
-            objs = [ObjectContact(gel.point_at(abs(x) / gel.sphere_radius, 0.0 if x > 0 else np.pi), np.array([0, 1.0, 0]),
+            objs = [ObjectContact(gel.point_at(abs(x) / gel.profile.radius_mm, 0.0 if x > 0 else np.pi), np.array([0, 1.0, 0]),
                                   1.09, 1.0, np.zeros(3)) for x in (-4.0, 4.0)]
             for i in range(36):
                 sen.show([] if i < 32 else objs, i * 0.04)

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from tensortouch.contracts.store import CalibrationStore
-from tensortouch.runtime.stages.geometry import DomeProfile
 from tensortouch.runtime.stages.preprocess import Preprocessor
 from tensortouch.tools.twin.camera import CameraConfig, FisheyeModel
 from tensortouch.tools.twin.geometry import GelSurface
@@ -94,7 +93,7 @@ def test_true_calibration_consistent(tmp_path):
     m = t["mask"]
     assert 0.6 < m.mean() < 0.8
     # θ/φ follow runtime.stages.geometry.DomeProfile on the cap
-    prof = DomeProfile(radius_mm=unit.gel.sphere_radius, center_z_mm=unit.gel.sphere_z)
+    prof = unit.gel.profile
     cap = m & (t["surface_xyz"][..., 2] > unit.gel.skirt + 1e-6)
     np.testing.assert_allclose(prof.point(t["theta"], t["phi"])[cap], t["surface_xyz"][cap], atol=1e-6)
     # each model pixel's surface point projects back to that pixel's raw camera position
@@ -104,7 +103,7 @@ def test_true_calibration_consistent(tmp_path):
     np.testing.assert_allclose(unit.model.project(t["surface_xyz"])[m], raw[m], atol=1e-6)
     # total area = dome area (cap + skirt), within the pixel discretisation
     g = unit.gel
-    area = 2 * np.pi * g.sphere_radius * g.cap_height + 2 * np.pi * g.radius * g.skirt
+    area = 2 * np.pi * g.profile.radius_mm * g.cap_height + 2 * np.pi * g.radius * g.skirt
     assert abs(t["pixel_area"][m].sum() / area - 1) < 0.03
     version = write_true_calibration(unit, tmp_path, 64)
     cal = CalibrationStore(tmp_path).load("TWIN-CAL")

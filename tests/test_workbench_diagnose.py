@@ -1,28 +1,18 @@
 """Diagnosis core on synthetic sample tables (fast). The hidden effects are applied by an
 independent alteration script (tests/workbench_synth.py: e.g. viscoelasticity via scipy.signal.lsim),
 not by the model-side effect code the diagnosis fits."""
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from tensortouch.runtime.stages.effects import EffectChain, Registry
+from tensortouch.tools.accept.workbench import PLUGINS   # the harness's plugin
+from tests.conftest import hidden_effects
 from tests.workbench_synth import synth_table
 from tensortouch.tools.workbench.diagnose import DiagnoseConfig, add_to_chain, diagnose, holm, sign_flip_pvalue, time_blocks
 from tensortouch.tools.workbench.fit import refit_chain
 from tensortouch.tools.workbench.scan import covariate_score
 
-PLUGINS = Path(__file__).resolve().parents[1] / "tools" / "accept" / "workbench_plugins"   # the harness's plugin
-HIDDEN = {
-    "temperature_softening": {"alpha": 0.03, "t_ref": 22.0},
-    "viscoelastic_relaxation": {"g1": 0.3, "tau": 1.5},
-    "mullins_softening": {"r": 0.3, "m": 0.5},
-    "strain_stiffening": {"k": 20.0},
-    "friction_mismatch": {"mu": 0.5},
-    "rim_stiffening": {"a": 1.5, "w": 3.0},
-    "ft_bias_drift": {"bx": 0.0, "by": 0.001, "bz": 0.003},
-    "led_drift": {"c": -0.002, "beta": 0.01, "t_ref": 25.0},
-}
+HIDDEN = hidden_effects("synthetic")
 
 
 @pytest.fixture(scope="module")
@@ -270,7 +260,5 @@ def test_pairs_the_blocks_cannot_tell_apart_go_by_evidence():
 
 def test_the_acceptance_harness_finds_its_plugin():
     """`tensortouch accept workbench` loads its unknown-effect plugin from the installed tools tree."""
-    from tensortouch.tools.accept.workbench import PLUGINS as HARNESS_PLUGINS
-
-    reg = Registry.default(plugin_dirs=[HARNESS_PLUGINS], entry_points=False)
+    reg = Registry.default(plugin_dirs=[PLUGINS], entry_points=False)
     assert "azimuth_stiffness" in reg.names()

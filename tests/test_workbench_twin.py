@@ -4,30 +4,20 @@ Model = nominal contact law fitted on a calibration session (no hidden effect); 
 has effects switched on in the twin's truth (or measurements altered by tools/accept/alter.py,
 an independent script). Diagnosis reads sample tables built from measured streams only.
 """
-from pathlib import Path
-
 import pytest
 
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.effects import EffectChain, Registry
 from tensortouch.tools.accept.alter import alter_session
+from tensortouch.tools.accept.workbench import PLUGINS   # the harness's plugin
 from tensortouch.tools.workbench.compare import load_table
 from tensortouch.tools.workbench.diagnose import add_to_chain, diagnose
 from tensortouch.tools.workbench.models import ContactLaw
 from tensortouch.tools.workbench.scenarios import Scenario, record, store_root
+from tests.conftest import hidden_effects
 
 pytestmark = pytest.mark.slow
-PLUGINS = Path(__file__).resolve().parents[1] / "tools" / "accept" / "workbench_plugins"   # the harness's plugin
-HIDDEN = {
-    "temperature_softening": {"alpha": 0.04, "t_ref": 20.0},
-    "viscoelastic_relaxation": {"g1": 0.3, "tau": 1.0},
-    "mullins_softening": {"r": 0.3, "m": 0.5},
-    "strain_stiffening": {"k": 15.0},
-    "friction_mismatch": {"mu": 0.15},
-    "rim_stiffening": {"a": 2.0, "w": 4.0},
-    "ft_bias_drift": {"bx": 0.0, "by": 0.002, "bz": 0.004},
-    "led_drift": {"c": -0.003, "beta": 0.0, "t_ref": 25.0},
-}
+HIDDEN = hidden_effects("twin")
 SLIDES = {"friction_mismatch": ("slide", "press")}   # friction shows only while sliding
 
 

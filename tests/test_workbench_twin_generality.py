@@ -26,7 +26,7 @@ def _gel(session):
     from tensortouch.tools.twin.unit import TwinUnit
 
     g = TwinUnit("TWIN-GTEST").gel
-    return {"radius": g.sphere_radius, "center_z": g.sphere_z, "skirt": g.skirt}
+    return {"radius": g.profile.radius_mm, "center_z": g.profile.center_z_mm, "skirt": g.skirt}
 
 
 @pytest.mark.parametrize("form", FORMS)

@@ -45,19 +45,13 @@ class GelShape:
     skirt_mm: float = 2.0
 
     @property
-    def sphere_radius_mm(self) -> float:
-        a, h = self.base_radius_mm, self.cap_height_mm
-        return (a * a + h * h) / (2.0 * h)
-
-    @property
     def profile(self) -> DomeProfile:
-        return DomeProfile(radius_mm=self.sphere_radius_mm,
-                           center_z_mm=self.skirt_mm + self.cap_height_mm - self.sphere_radius_mm)
+        return DomeProfile.of_cap(self.base_radius_mm, self.cap_height_mm, self.skirt_mm)
 
     @property
     def cap_edge_theta(self) -> float:
         """θ of the cap's edge (where it meets the skirt), rad."""
-        return float(np.arcsin(min(1.0, self.base_radius_mm / self.sphere_radius_mm)))
+        return self.profile.edge_theta(self.base_radius_mm)
 
     def meta(self) -> dict:
         p = self.profile

@@ -22,6 +22,18 @@ class DomeProfile:
     radius_mm: float = 16.0
     center_z_mm: float = 0.0
 
+    @classmethod
+    def of_cap(cls, base_radius_mm: float, cap_height_mm: float, skirt_mm: float = 0.0) -> "DomeProfile":
+        """The sphere of a spherical cap of base radius a and height h standing on a vertical skirt:
+        radius (a² + h²) / 2h, centre skirt + h − radius above the base plane (mm)."""
+        a, h = base_radius_mm, cap_height_mm
+        radius = (a * a + h * h) / (2.0 * h)
+        return cls(radius_mm=radius, center_z_mm=skirt_mm + h - radius)
+
+    def edge_theta(self, base_radius_mm: float) -> float:
+        """θ of the cap's edge, where the sphere meets the circle of radius `base_radius_mm`, rad."""
+        return float(np.arcsin(min(1.0, base_radius_mm / self.radius_mm)))
+
     def point(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
         r = self.radius_mm * np.sin(theta)
         z = self.center_z_mm + self.radius_mm * np.cos(theta)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..command_group import command_group
+from ..command_group import add_commands, arg, command_group
 from ..progress import stage_progress
 
 log = logging.getLogger(__name__)
@@ -118,63 +118,54 @@ def _cmd_study(args) -> int:
     return 0
 
 
+# export-inp and crosscheck: a scenario written as a deck, with the deck's bulk modulus
+DECK = (arg("scenario", help="scenario file, or 'standard'"),
+        arg("--bulk", choices=("solver", "material"), default="solver",
+            help="bulk modulus in the deck: tools.fe's (P1 cap, default) or the material's D1"))
+COMMANDS = (
+    ("solve", "solve one scenario file (JSON/TOML) -> result .npz", _cmd_solve, (
+        arg("scenario", help="scenario file, or 'standard' for the standard dome"),
+        arg("--out", required=True, help="result .npz path"),
+        arg("--write-scenario", help="also write the scenario as JSON here"))),
+    ("batch", "solve many scenarios with an on-disk cache (resumable)", _cmd_batch, (
+        arg("scenarios", nargs="+", help="scenario files or folders of *.json/*.toml"),
+        arg("--out-dir", default=None, help="cache folder (default <cache>/fe)"),
+        arg("--workers", type=int, default=2, help="parallel processes (default 2)"),
+        arg("--retry-failed", action="store_true", help="re-run scenarios that failed before"),
+        arg("--cluster", default=None, metavar="tcp://HOST:8786",
+            help="run on this Dask.distributed scheduler instead of local processes (extra 'cluster')"))),
+    ("fit-material", "fit Yeoh/NH/MR/Ogden to uniaxial+biaxial data", _cmd_fit, (
+        arg("data", help="CSV (mode,stretch,stress_MPa) or 'synthetic'"),
+        arg("--models", default="yeoh,neo_hookean,mooney_rivlin,ogden", help="hyperelastic models to fit, comma separated"),
+        arg("--plot", help="write a PNG of the fits here (needs matplotlib)"),
+        arg("--json-out", help="write the fitted constants as JSON here"))),
+    ("export-inp", "write the scenario as a CalculiX (or Abaqus) .inp deck", _cmd_inp, (
+        *DECK,
+        arg("--out", required=True, help="deck (.inp) to write"),
+        arg("--dialect", choices=("ccx", "abaqus"), default="ccx",
+            help="ccx: runs in CalculiX 2.20 as written (default); abaqus: parts/instances, C3D4H, R3D3"))),
+    ("crosscheck", "solve a scenario in tools.fe and in CalculiX (ccx), same mesh", _cmd_crosscheck, (
+        *DECK,
+        arg("--work-dir", required=True, help="folder for the deck and ccx's output"),
+        arg("--threads", type=int, default=1, help="ccx solver threads (default 1)"))),
+    ("study", "convergence / CalculiX study (press, slide, mupress, locking, mesh)", _cmd_study, (
+        arg("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"), help="studies to run"),
+        arg("--work-dir", required=True, help="folder for the decks and ccx's output"),
+        arg("--json", help="write all rows here"))),
+)
+INDENTER_COMMANDS = (
+    ("generate", "write the standardized indenter STL files", _cmd_ind_generate, (
+        arg("--out-dir", default=None, help="folder (default <cache>/fe/indenters)"),
+        arg("--seed", type=int, default=0, help="random seed of the generated shapes"),
+        arg("--count", type=int, default=12, help="number of indenters"))),
+    ("list", "list the procedural object kinds", _cmd_ind_list, ()),
+)
+
+
 def register(sub) -> None:
     """Add the `fe` command and its subcommands to an argparse subparsers object."""
     fsub = command_group(sub, "fe", "hyperelastic FE of the gel (solve, batch, fit-material, indenters)",
                          "fe_command", "SUBCOMMAND")
-
-    p = fsub.add_parser("solve", help="solve one scenario file (JSON/TOML) -> result .npz")
-    p.add_argument("scenario", help="scenario file, or 'standard' for the standard dome")
-    p.add_argument("--out", required=True, help="result .npz path")
-    p.add_argument("--write-scenario", help="also write the scenario as JSON here")
-    p.set_defaults(func=_cmd_solve)
-
-    p = fsub.add_parser("batch", help="solve many scenarios with an on-disk cache (resumable)")
-    p.add_argument("scenarios", nargs="+", help="scenario files or folders of *.json/*.toml")
-    p.add_argument("--out-dir", default=None, help="cache folder (default <cache>/fe)")
-    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
-    p.add_argument("--retry-failed", action="store_true", help="re-run scenarios that failed before")
-    p.add_argument("--cluster", default=None, metavar="tcp://HOST:8786",
-                   help="run on this Dask.distributed scheduler instead of local processes (extra 'cluster')")
-    p.set_defaults(func=_cmd_batch)
-
-    p = fsub.add_parser("fit-material", help="fit Yeoh/NH/MR/Ogden to uniaxial+biaxial data")
-    p.add_argument("data", help="CSV (mode,stretch,stress_MPa) or 'synthetic'")
-    p.add_argument("--models", default="yeoh,neo_hookean,mooney_rivlin,ogden", help="hyperelastic models to fit, comma separated")
-    p.add_argument("--plot", help="write a PNG of the fits here (needs matplotlib)")
-    p.add_argument("--json-out", help="write the fitted constants as JSON here")
-    p.set_defaults(func=_cmd_fit)
-
-    isub = command_group(fsub, "indenters", "procedural indenter set (seed III.B standardization)",
-                         "ind_command", "ACTION")
-    g = isub.add_parser("generate", help="write the standardized indenter STL files")
-    g.add_argument("--out-dir", default=None, help="folder (default <cache>/fe/indenters)")
-    g.add_argument("--seed", type=int, default=0, help="random seed of the generated shapes")
-    g.add_argument("--count", type=int, default=12, help="number of indenters")
-    g.set_defaults(func=_cmd_ind_generate)
-    ls = isub.add_parser("list", help="list the procedural object kinds")
-    ls.set_defaults(func=_cmd_ind_list)
-
-    def deck_parser(name: str, helptext: str, func):
-        """export-inp and crosscheck: a scenario written as a deck, with the deck's bulk modulus."""
-        q = fsub.add_parser(name, help=helptext)
-        q.add_argument("scenario", help="scenario file, or 'standard'")
-        q.add_argument("--bulk", choices=("solver", "material"), default="solver",
-                       help="bulk modulus in the deck: tools.fe's (P1 cap, default) or the material's D1")
-        q.set_defaults(func=func)
-        return q
-
-    p = deck_parser("export-inp", "write the scenario as a CalculiX (or Abaqus) .inp deck", _cmd_inp)
-    p.add_argument("--out", required=True, help="deck (.inp) to write")
-    p.add_argument("--dialect", choices=("ccx", "abaqus"), default="ccx",
-                   help="ccx: runs in CalculiX 2.20 as written (default); abaqus: parts/instances, C3D4H, R3D3")
-    p = deck_parser("crosscheck", "solve a scenario in tools.fe and in CalculiX (ccx), same mesh", _cmd_crosscheck)
-    p.add_argument("--work-dir", required=True, help="folder for the deck and ccx's output")
-    p.add_argument("--threads", type=int, default=1, help="ccx solver threads (default 1)")
-
-    p = fsub.add_parser("study", help="convergence / CalculiX study (press, slide, mupress, locking, mesh)")
-    p.add_argument("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"), help="studies to run")
-    p.add_argument("--work-dir", required=True, help="folder for the decks and ccx's output")
-    p.add_argument("--json", help="write all rows here")
-    p.set_defaults(func=_cmd_study)
-
+    add_commands(fsub, COMMANDS)
+    add_commands(command_group(fsub, "indenters", "procedural indenter set (seed III.B standardization)",
+                               "ind_command", "ACTION"), INDENTER_COMMANDS)

@@ -52,7 +52,7 @@ def displacement(gel: GelSurface, points: np.ndarray, normals: np.ndarray, objec
     P = np.asarray(points, float)
     u = np.zeros_like(P)
     w_best = np.zeros(len(P))
-    R = gel.sphere_radius
+    R = gel.profile.radius_mm
     taper = np.clip(gel.rim_distance(P) / cfg.rim_taper_mm, 0.0, 1.0)
     for ob in objects:
         d = float(np.clip(ob.depth, 0.0, cfg.max_depth_mm))
@@ -60,7 +60,7 @@ def displacement(gel: GelSurface, points: np.ndarray, normals: np.ndarray, objec
             continue
         a = float(ob.radius)
         Rs = 1.0 / (1.0 / a + 1.0 / R)
-        centre = np.array([0.0, 0.0, gel.sphere_z])
+        centre = np.array([0.0, 0.0, gel.profile.center_z_mm])
         n0 = np.asarray(ob.point, float) - centre
         n0 /= np.linalg.norm(n0)
         e = np.asarray(ob.axis, float) - (np.asarray(ob.axis, float) @ n0) * n0   # tangent to the dome

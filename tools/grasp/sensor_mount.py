@@ -34,20 +34,20 @@ class SensorMount:
 
     def cone_cos(self) -> float:
         """cos of the largest pad angle θ that lands on the gel."""
-        return float(np.cos(0.999 * self.gel.theta_max * self.gel.sphere_radius / self.tip_radius_mm))
+        return float(np.cos(0.999 * self.gel.theta_max * self.gel.profile.radius_mm / self.tip_radius_mm))
 
     def direction_to_gel(self, u_tip: np.ndarray) -> np.ndarray:
         """Unit directions (...,3) in the tip frame → gel surface points (...,3) mm, sensor frame."""
         u = np.asarray(u_tip, float) @ self.R_ts          # into sensor axes
         theta = np.arccos(np.clip(u[..., 2], -1.0, 1.0))
         phi = np.arctan2(u[..., 1], u[..., 0])
-        th_gel = np.minimum(theta * self.tip_radius_mm / self.gel.sphere_radius, self.gel.theta_max * 0.999)
+        th_gel = np.minimum(theta * self.tip_radius_mm / self.gel.profile.radius_mm, self.gel.theta_max * 0.999)
         return self.gel.point_at(th_gel, phi)
 
     def gel_to_direction(self, p_sensor: np.ndarray) -> np.ndarray:
         """Gel points (...,3) mm, sensor frame → unit directions in the tip frame."""
         th_gel, phi = self.gel.theta_phi(np.asarray(p_sensor, float))
-        theta = th_gel * self.gel.sphere_radius / self.tip_radius_mm
+        theta = th_gel * self.gel.profile.radius_mm / self.tip_radius_mm
         u = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
         return u @ self.R_ts.T
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import sys
 
-from ..command_group import command_group
+from ..command_group import add_commands, arg, command_group
 
 log = logging.getLogger(__name__)
 
@@ -94,16 +94,17 @@ def register_record(sub) -> None:
     r.set_defaults(func=_record)
 
 
-def register(sub) -> None:
-    ssub = command_group(sub, "session", "import ROS/MCAP recordings as sessions; validate sessions",
-                         "session_command", "SESSION_COMMAND")
-    i = ssub.add_parser("import", help="ROS1 .bag, ROS2 bag folder or .mcap -> session (topic map file)")
-    i.add_argument("bag", help="ROS 1 bag, ROS 2 bag folder or MCAP file")
-    i.add_argument("--map", required=True, help="topic map (JSON or TOML), see docs/session.md")
-    i.add_argument("--out", required=True, help="session folder to write")
-    i.set_defaults(func=_import)
-    c = ssub.add_parser("check", help="validate a session directory (names the first problem)")
-    c.add_argument("session", help="session folder to check")
-    c.set_defaults(func=_check)
-    register_record(sub)
+COMMANDS = (
+    ("import", "ROS1 .bag, ROS2 bag folder or .mcap -> session (topic map file)", _import, (
+        arg("bag", help="ROS 1 bag, ROS 2 bag folder or MCAP file"),
+        arg("--map", required=True, help="topic map (JSON or TOML), see docs/session.md"),
+        arg("--out", required=True, help="session folder to write"))),
+    ("check", "validate a session directory (names the first problem)", _check, (
+        arg("session", help="session folder to check"),)),
+)
 
+
+def register(sub) -> None:
+    add_commands(command_group(sub, "session", "import ROS/MCAP recordings as sessions; validate sessions",
+                               "session_command", "SESSION_COMMAND"), COMMANDS)
+    register_record(sub)

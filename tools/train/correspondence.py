@@ -171,7 +171,7 @@ def correspondences(b, session_dir, gel, cfg: CorrespondenceConfig = Corresponde
     imgs = dict(read_frames(ses, sorted({i for a, c, _, _ in pairs for i in (a, c)})))
     xy, pts, diag = [], [], []
     for base, peak, m, src in pairs:
-        p3 = project_to_cap(m["tip"][None], gel.sphere_z, gel.sphere_radius)[0]
+        p3 = project_to_cap(m["tip"][None], gel.profile.center_z_mm, gel.profile.radius_mm)[0]
         q0 = lens.project(p3)
         x, v = track_dots(cv2.cvtColor(imgs[base], cv2.COLOR_BGR2GRAY), cv2.cvtColor(imgs[peak], cv2.COLOR_BGR2GRAY), dcfg)
         res = src["result"]

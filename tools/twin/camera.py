@@ -17,7 +17,7 @@ Rendering (vectorized numpy + cv2.remap), per frame:
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -157,13 +157,14 @@ def rest_view(model: FisheyeModel, gel: GelSurface, pattern: PatternConfig) -> R
 
 @dataclass
 class Renderer:
-    """Renders frames of one twin unit. `led_brightness` (9,) is the unit's per-LED factor."""
+    """Renders frames of one twin unit (tools/twin/unit.py: TwinUnit.renderer, which holds the unit's
+    optics and their defaults). `led_brightness` (9,) is the unit's per-LED factor."""
 
     model: FisheyeModel
     gel: GelSurface
-    leds: LEDConfig = field(default_factory=LEDConfig)
-    pattern: PatternConfig = field(default_factory=PatternConfig)
-    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    leds: LEDConfig
+    pattern: PatternConfig
+    noise: NoiseConfig
     led_brightness: np.ndarray | None = None
     iterations: int = 3
     shading_step: int = 2           # LED shading evaluated on every 2nd pixel and upsampled

@@ -3,9 +3,8 @@ intersection from the camera below the base, outward normals, θ/φ, rim distanc
 
 Sensor frame = FE gel frame (docs/fe.md, docs/fields.md): origin at the centre of the gel base,
 +z along the dome axis. θ = atan2(sqrt(x²+y²), z) is the angle of a surface point from the
-dome axis seen from the centre of the cap sphere (0, 0, sphere_z) -- the same θ as
-runtime.stages.geometry.DomeProfile(radius_mm=sphere_radius, center_z_mm=sphere_z) -- continued onto the
-skirt; φ = atan2(y, x).
+dome axis seen from the centre of the cap sphere `profile` (runtime.stages.geometry.DomeProfile,
+the same θ as the runtime's surface tables) -- continued onto the skirt; φ = atan2(y, x).
 """
 from __future__ import annotations
 
@@ -15,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...contracts.errors import TensorTouchError
+from ...runtime.stages.geometry import DomeProfile
 
 log = logging.getLogger(__name__)
 
@@ -39,13 +39,9 @@ class GelSurface:
                                "flattened_dome gels only")
 
     @property
-    def sphere_radius(self) -> float:
-        a, h = self.radius, self.cap_height
-        return (a * a + h * h) / (2.0 * h)
-
-    @property
-    def sphere_z(self) -> float:
-        return self.skirt + self.cap_height - self.sphere_radius
+    def profile(self) -> DomeProfile:
+        """The cap's sphere (the θ of runtime's surface tables is measured about its centre)."""
+        return DomeProfile.of_cap(self.radius, self.cap_height, self.skirt)
 
     @property
     def top_z(self) -> float:
@@ -54,14 +50,14 @@ class GelSurface:
     @property
     def rim_beta(self) -> float:
         """Cap polar angle (about the cap sphere centre) of the cap edge, rad."""
-        return float(np.arcsin(min(1.0, self.radius / self.sphere_radius)))
+        return self.profile.edge_theta(self.radius)
 
     def intersect(self, origin, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rays origin + t*dirs (origin on the axis, below the cap sphere's top) -> first hit on
         the inner side of the outer surface (N..,3) and a validity mask."""
         o = np.asarray(origin, dtype=np.float64)
         d = np.asarray(dirs, dtype=np.float64)
-        zc, rho = self.sphere_z, self.sphere_radius
+        zc, rho = self.profile.center_z_mm, self.profile.radius_mm
         oc = o - np.array([0.0, 0.0, zc])
         b = np.sum(d * oc, axis=-1)
         c = float(oc @ oc) - rho * rho
@@ -80,7 +76,7 @@ class GelSurface:
         """Outward unit normals at rest surface points."""
         pts = np.asarray(pts, dtype=np.float64)
         on_cap = pts[..., 2] >= self.skirt - 1e-9
-        n_cap = pts - np.array([0.0, 0.0, self.sphere_z])
+        n_cap = pts - np.array([0.0, 0.0, self.profile.center_z_mm])
         n_sk = pts * np.array([1.0, 1.0, 0.0])
         n = np.where(on_cap[..., None], n_cap, n_sk)
         return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
@@ -89,16 +85,16 @@ class GelSurface:
         """Arc length (mm) along the meridian from a surface point down to the base rim (z = 0)."""
         pts = np.asarray(pts, dtype=np.float64)
         r = np.hypot(pts[..., 0], pts[..., 1])
-        beta = np.arctan2(r, pts[..., 2] - self.sphere_z)
+        beta = np.arctan2(r, pts[..., 2] - self.profile.center_z_mm)
         on_cap = pts[..., 2] >= self.skirt
-        cap = self.sphere_radius * np.clip(self.rim_beta - beta, 0.0, None) + self.skirt
+        cap = self.profile.radius_mm * np.clip(self.rim_beta - beta, 0.0, None) + self.skirt
         return np.where(on_cap, cap, np.clip(pts[..., 2], 0.0, None))
 
     def point_at(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
         """Surface point at angle θ from the axis (about the cap sphere centre) and azimuth φ."""
         theta, phi = np.broadcast_arrays(np.asarray(theta, float), np.asarray(phi, float))
         d = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
-        pts, ok = self.intersect(np.array([0.0, 0.0, self.sphere_z]), d)
+        pts, ok = self.intersect(np.array([0.0, 0.0, self.profile.center_z_mm]), d)
         if not np.all(ok):
             raise TensorTouchError(f"GelSurface.point_at: θ outside the gel (expected 0..{self.theta_max:.3f} rad)")
         return pts
@@ -106,12 +102,12 @@ class GelSurface:
     @property
     def theta_max(self) -> float:
         """θ of the base rim (z = 0)."""
-        return float(np.arctan2(self.radius, -self.sphere_z))
+        return float(np.arctan2(self.radius, -self.profile.center_z_mm))
 
     def theta_phi(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """θ (from the axis, about the cap sphere centre) and φ = atan2(y, x), radians."""
         pts = np.asarray(pts, dtype=np.float64)
-        return (np.arctan2(np.hypot(pts[..., 0], pts[..., 1]), pts[..., 2] - self.sphere_z),
+        return (np.arctan2(np.hypot(pts[..., 0], pts[..., 1]), pts[..., 2] - self.profile.center_z_mm),
                 np.arctan2(pts[..., 1], pts[..., 0]))
 
     def unrolled(self, pts: np.ndarray) -> np.ndarray:
@@ -119,7 +115,7 @@ class GelSurface:
         the meridian arc length from the apex (mm). Bijective on the gel surface."""
         pts = np.asarray(pts, dtype=np.float64)
         theta, phi = self.theta_phi(pts)
-        s = self.sphere_radius * np.minimum(theta, self.rim_beta) + np.clip(self.skirt - pts[..., 2], 0.0, None)
+        s = self.profile.radius_mm * np.minimum(theta, self.rim_beta) + np.clip(self.skirt - pts[..., 2], 0.0, None)
         return np.stack([s * np.cos(phi), s * np.sin(phi)], axis=-1)
 
     def interpolator(self, nodes: np.ndarray, targets: np.ndarray):
@@ -147,7 +143,7 @@ class GelSurface:
 
     def samples(self, spacing: float = 0.5) -> np.ndarray:
         """Quasi-uniform rest surface points (N,3) with about `spacing` mm between neighbours."""
-        rho, zc = self.sphere_radius, self.sphere_z
+        rho, zc = self.profile.radius_mm, self.profile.center_z_mm
         area_cap = 2.0 * np.pi * rho * self.cap_height
         n_cap = max(16, int(area_cap / spacing ** 2))
         i = np.arange(n_cap) + 0.5

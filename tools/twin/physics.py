@@ -144,7 +144,7 @@ class HertzFallbackPhysics:
         contact = np.full((J, K, 3), np.nan)
         G = self.shear_modulus
         Es = 4.0 * G  # E/(1-nu^2), nu = 0.5
-        zc, rho = np.array([0.0, 0.0, self.gel.sphere_z]), self.gel.sphere_radius
+        zc, rho = np.array([0.0, 0.0, self.gel.profile.center_z_mm]), self.gel.profile.radius_mm
         for k in range(K):
             R = _equivalent_radius(poke.indenters[k])
             Rs = 1.0 / (1.0 / R + 1.0 / rho)

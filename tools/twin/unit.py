@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from .camera import CameraConfig, FisheyeModel, LEDConfig, NoiseConfig, PatternConfig, Renderer
+from ...runtime.calib.bringup import GelShape
 from .geometry import GelSurface
 
 log = logging.getLogger(__name__)
@@ -147,10 +148,7 @@ def calibration_meta(unit: TwinUnit, model_size: int = 128) -> dict:
     return {"camera": {"width": unit.camera.width, "height": unit.camera.height},
             "gel_center_px": list(unit.gel_center_px), "gel_radius_px": unit.gel_radius_px,
             "model_size": [model_size, model_size],
-            "gel": {"shape": "flattened_dome" if g.cap_height < g.radius else "dome",
-                    "base_radius_mm": g.radius, "cap_height_mm": g.cap_height, "skirt_mm": g.skirt,
-                    "radius_mm": g.sphere_radius, "center_z_mm": g.sphere_z,
-                    "theta": "angle from +z about (0, 0, center_z_mm) (runtime.stages.geometry.DomeProfile)"},
+            "gel": GelShape(g.radius, g.cap_height, g.skirt).meta(),
             "provenance": {"method": "twin-truth", "pokes": 0,
                            "notes": f"exact tables of twin unit {unit.serial} (tools.twin.unit)",
                            "unit": unit.params.to_dict()}}

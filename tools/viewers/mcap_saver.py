@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ...contracts.files import finish_partial, partial_path
+from .saver import Saver
 
 ARROW_M_PER_N = 0.01            # arrow length per newton of contact force
 
@@ -59,20 +59,16 @@ def _quat_x_to(v: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(c) for c in q)
 
 
-class McapSaver:
+class McapSaver(Saver):
     """Decoded wire messages -> one MCAP file (the `tensortouch.savers` entry point `mcap`)."""
 
     def __init__(self, path: str | Path):
         import foxglove
 
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.partial = partial_path(self.path)
+        self._start(path)
         self.context = foxglove.Context()
         self.writer = foxglove.open_mcap(str(self.partial), allow_overwrite=True, context=self.context)
         self.channels: dict[str, Any] = {}
-        self.counts: dict[str, int] = {}
-        self._closed = False
 
     def _channel(self, topic: str, make):
         ch = self.channels.get(topic)
@@ -82,7 +78,7 @@ class McapSaver:
 
     def _log(self, topic: str, make, msg) -> None:
         self._channel(topic, make).log(msg)
-        self.counts[topic] = self.counts.get(topic, 0) + 1
+        self._count(topic)
 
     def save(self, kind: str, msg: Any) -> Path:
         import foxglove
@@ -132,10 +128,5 @@ class McapSaver:
                 t, schema=_JSON_SCHEMAS[kind], message_encoding="json", context=ctx), body)
         return self.path
 
-    def close(self) -> None:
-        """Finish the file and move it into place (fsynced)."""
-        if self._closed:
-            return
-        self._closed = True
+    def _end(self) -> None:
         self.writer.close()
-        finish_partial(self.partial, self.path)

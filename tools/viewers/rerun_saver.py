@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from ...contracts.files import finish_partial, partial_path
+from .saver import Saver
 
 ARROW_MM_PER_N = 5.0
 
 
-class RerunSaver:
+class RerunSaver(Saver):
     """Decoded wire messages -> a Rerun recording stream: an .rrd file (`path`, written as
     `<name>.partial` and renamed on close; the `tensortouch.savers` entry point `rrd`) or a live
     viewer at `grpc_url` (tools/viewers/rerun_live.py)."""
@@ -42,20 +42,15 @@ class RerunSaver:
 
         self.rr = rr
         self.rec = rr.RecordingStream("tensortouch")
-        self.path = Path(path) if path is not None else None
-        self.partial = None
-        if self.path is not None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.partial = partial_path(self.path)
+        self._start(path)
+        if self.partial is not None:
             self.rec.save(str(self.partial))
         elif grpc_url:
             self.rec.connect_grpc(grpc_url)
         else:
             raise ValueError("RerunSaver needs a path (.rrd) or a gRPC url")
-        self.counts: dict[str, int] = {}
         self._named: set[str] = set()
         self._sensors: list[str] = []
-        self._closed = False
 
     def _time(self, msg) -> None:
         seq, t = (msg["seq"], msg["t"]) if isinstance(msg, dict) else (msg.seq, msg.t)
@@ -64,7 +59,7 @@ class RerunSaver:
 
     def _log(self, entity: str, archetype, static: bool = False) -> None:
         self.rec.log(entity, archetype, static=static)
-        self.counts[entity] = self.counts.get(entity, 0) + 1
+        self._count(entity)
 
     def _layout(self, sensors: list[str]) -> None:
         """A default viewer layout: the gel in 3D, the fields tensor (fn_z first), force and torque plots."""
@@ -140,12 +135,6 @@ class RerunSaver:
                                                     level="WARN" if msg.get("flags") else "INFO"))
         return self.path
 
-    def close(self) -> None:
-        """Flush; for a file, finish it and move it into place (fsynced)."""
-        if self._closed:
-            return
-        self._closed = True
+    def _end(self) -> None:
         self.rec.flush()
         self.rec.disconnect()
-        if self.partial is not None:
-            finish_partial(self.partial, self.path)

@@ -43,6 +43,8 @@ def _plt():
 
 
 def _save(fig, path: Path) -> str:
+    """Lay the figure out, write it to `path` (a temporary file renamed into place) and close it; returns the file name."""
+    fig.tight_layout()
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     kw = {"pil_kwargs": {"quality": 80}} if path.suffix == ".jpg" else {}
     fig.savefig(tmp, dpi=DPI, **kw)
@@ -71,7 +73,6 @@ def residual_map(comp, path: Path) -> str:
     ax.set_xlabel("θ cos φ (rad)")
     ax.set_ylabel("θ sin φ (rad)")
     ax.set_title("residual over the gel (contact samples)")
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -107,7 +108,6 @@ def residual_vs(comp, path: Path) -> str:
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
     fig.suptitle("normal-force residual vs covariates (red: binned median)")
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -125,7 +125,6 @@ def timeline(comp, path: Path) -> str:
     ax[0].legend(fontsize=7, ncol=4)
     ax[1].set_ylabel("|residual| (N)")
     ax[1].set_xlabel("time (s)")
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -179,7 +178,6 @@ def worst(comp, path: Path, session_path: Path | None, k: int = 6) -> tuple[str,
                      "error_n": float(err[i]),
                      "depth_mm": float(c["depth"][i]), "measured": comp.table.meas[i].tolist(),
                      "predicted": comp.pred[i].tolist()})
-    fig.tight_layout()
     return _save(fig, path), rows
 
 
@@ -205,7 +203,6 @@ def position_residuals(comp, path: Path) -> str | None:
     ax[1].set_xlabel("x (mm)")
     ax[1].set_ylabel("y (mm)")
     ax[1].set_title("contact position error over the gel")
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -221,7 +218,6 @@ def before_after(prev: dict, cur: dict, path: Path) -> str:
     ax.set_xticks(x, ["rms x", "rms y", "rms z", "rms |r|", "mean ||F|-|F'||"], fontsize=8)
     ax.set_ylabel("force error (N)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -281,7 +277,6 @@ def covariate_ranking(diag, path: Path, top: int = 12) -> str:
     ax.set_xlabel("held-out partial R² of the residual")
     u = diag.unexplained
     ax.set_title(f"top: {u.get('covariate')} (p = {u.get('p_adjusted', 1.0):.2g}); red: p ≤ 0.05", fontsize=9)
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -316,7 +311,6 @@ def residual_vs_covariate(table, diag, path: Path, name: str | None = None) -> s
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -374,5 +368,4 @@ def effect_shape(score, table, path: Path) -> str:
         ax.set_ylabel("force gain")
     ax.legend(fontsize=7)
     ax.set_title(f"fitted shape: {score.effect.family or score.effect.name}", fontsize=9)
-    fig.tight_layout()
     return _save(fig, path)
