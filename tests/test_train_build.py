@@ -84,6 +84,10 @@ def test_unknown_build_fields_and_session_entries_are_refused(tmp_path):
     r = load_recipe(f)
     with pytest.raises(RecipeError, match=r"sessions.train\[0\] needs serial, seed, pokes"):
         config_from_dict(r.config(r.steps()[0]), r.source)
+    f.write_text('name = "x"\n[build]\nlabel_frames = "between"\n')
+    r = load_recipe(f)
+    with pytest.raises(RecipeError, match="label_frames = 'between'; expected one of interpolated, fe, keypoint"):
+        config_from_dict(r.config(r.steps()[0]), r.source)
 
 
 def test_set_values_are_read_as_toml():

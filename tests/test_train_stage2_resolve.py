@@ -116,5 +116,10 @@ def test_frame_labels_contact_busy_rest_and_keypoint_share():
     assert share["labelled_frames"] == inside.sum() and share["at_keypoint"] == 4 and share["at_fe_frame"] == 5
     from tensortouch.tools.train.labels import LabelConfig
 
-    lab2, _ = frame_labels(frame_t, [src], {0: tr}, wrench, lcfg=LabelConfig(keypoint_frames_only=True))
+    lab2, _ = frame_labels(frame_t, [src], {0: tr}, wrench, lcfg=LabelConfig(frames="keypoint"))
     assert (lab2 == 0).sum() == 4
+    lab3, _ = frame_labels(frame_t, [src], {0: tr}, wrench, lcfg=LabelConfig(frames="fe"))
+    assert (lab3 == 0).sum() == 5                       # no interpolated label between FE frames
+    assert np.all(lab3[inside & (lab3 != 0)] >= BUSY_ID)   # the others in the span: neither contact nor rest
+    with pytest.raises(ValueError, match="LabelConfig.frames"):
+        LabelConfig(frames="between")

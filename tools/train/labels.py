@@ -6,8 +6,8 @@ period: FE frame times, indenter ids, result) define:
   FE parameter σ = j + s comes from the measured motion (`resolve.frame_sigma`: projection of the
   smoothed mocap pose onto the segment between FE frames j and j+1) and the fields are the linear
   interpolation of the two FE frames (`resolve.interp_frames`); frames within half a camera period of
-  an FE frame are (up to that half period) the FE frame itself. `LabelConfig.keypoint_frames_only`
-  keeps only the camera frames nearest each stage-1 keypoint (the seed's labels at keypoint frames);
+  an FE frame are (up to that half period) the FE frame itself. `LabelConfig.frames` = "fe" keeps only
+  those (no interpolated label), "keypoint" only the frames nearest a stage-1 keypoint (the seed's labels);
 - **busy frames**: outside those spans but with a measured |F| above `rest_force_n` on some indenter
   (light contact before 1.5 N / after 1.1 N) or between a period's initial FE pose and its first
   frame: neither contact samples nor rest samples;
@@ -31,7 +31,15 @@ BUSY_ID = 100000     # frame labels ≥ this mark busy frames (dropped after fra
 @dataclass(frozen=True)
 class LabelConfig:
     rest_force_n: float = 0.1             # |F| above this outside a labelled span: not a rest frame
-    keypoint_frames_only: bool = False    # True: contact labels only at stage-1 keypoint frames (seed)
+    frames: str = "interpolated"          # contact labels at: every frame of an FE span (interpolated
+                                          # between FE frames) | "fe" (FE frames only) | "keypoint" (seed)
+
+    def __post_init__(self):
+        if self.frames not in LABEL_FRAMES:
+            raise ValueError(f"LabelConfig.frames: expected one of {', '.join(LABEL_FRAMES)}, got {self.frames!r}")
+
+
+LABEL_FRAMES = ("interpolated", "fe", "keypoint")
 
 
 def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.ndarray,
@@ -56,8 +64,8 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
         times = np.asarray(src.times, float)
         busy |= (t >= src.t_init) & (t <= times[-1])
         inside = np.flatnonzero((t >= times[0]) & (t <= times[-1]))
-        if lcfg.keypoint_frames_only:
-            kt = times[np.asarray(src.is_keypoint, bool)]
+        if lcfg.frames != "interpolated":
+            kt = times[np.asarray(src.is_keypoint, bool)] if lcfg.frames == "keypoint" else times
             near = [i for i in inside if np.min(np.abs(kt - t[i])) <= half + 1e-9]
             inside = np.array(near, int)
         if len(inside):

@@ -155,10 +155,11 @@ def stage_dataset(b) -> dict:
                 d = session_samples(b.session(spec), unit_calibration(b, spec.serial), rec.plan, fe_results(b, spec),
                                     [p.slots for p in rec.plan], rat, dcfg, prog)
             else:
-                from .labels import session_samples_measured
+                from .labels import LabelConfig, session_samples_measured
 
                 d = session_samples_measured(b.session(spec), unit_calibration(b, spec.serial),
-                                             label_sources(b, spec), rat, dcfg, progress=prog)
+                                             label_sources(b, spec), rat, dcfg,
+                                             LabelConfig(frames=b.cfg.label_frames), progress=prog)
             atomic_write(part, lambda fh: np.savez(fh, **d))
             log.info("dataset %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
         with np.load(part) as z:

@@ -17,8 +17,8 @@ The same pass keeps single- and two-contact frames for merging (which cores are 
 --support, the cluster support (how far a contact's force reaches; tools/train/support.py), chosen once
 the threshold and the rule are known.
 
-    python -m tools.train.threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
-    python -m tools.train.threshold --package DIR --session ... --check    # held-out detection report
+    tensortouch train threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
+    tensortouch train threshold --package DIR --session ... --check    # held-out detection report
 """
 from __future__ import annotations
 
