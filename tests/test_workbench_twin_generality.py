@@ -143,8 +143,10 @@ def test_rows_at_mde_multiples_count_in_the_mde_check_only_and_a_work_folder_res
         f = tg._task_file(tmp_path, "case", (r["form"], r["size_floor"], r["draw"]), mult)
         f.write_text(json.dumps(r))
     (tmp_path / "rows" / "null-0.json").write_text(json.dumps({"null": 0, "verdict": None, "covariate_p": 0.4}))
+    (tmp_path / "rows" / "clean-two_term_relaxation-0.json").write_text(json.dumps({"verdict": "ft_bias_drift"}))
     got, nulls = tg.read_rows(str(tmp_path))
-    assert len(got) == 5 and len(nulls) == 1
+    assert len(got) == 5 and len(nulls) == 1                       # the unaltered sessions' diagnoses are apart
+    assert tg.read_clean(tmp_path) == [{"verdict": "ft_bias_drift"}]
     a = argparse.Namespace(draws=2, sizes=[0.15, 1.0], nulls=1, first_null=0, forms=["two_term_relaxation"],
                            jobs=1, work=str(tmp_path), out=None, pictures=None, summarize=None, mde_multiples=[0.5])
     done = {tg._task_file(tmp_path, "case", (r["form"], r["size_floor"], r["draw"]), r.get("mde_target"))

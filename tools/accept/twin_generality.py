@@ -2,8 +2,9 @@
 effects in forms that are not the library's (tools/accept/alter_forms.py), at sizes around the
 model's floor (issue 31's acceptance).
 
-    tensortouch accept workbench-twin-generality [--draws 3] [--sizes 0.3 1 3] [--nulls 10] [--jobs 2]
-                                                 [--out FILE] [--pictures DIR]
+    tensortouch accept workbench-twin-generality [--draws 3] [--sizes 0.15 0.3 0.5 1 3] [--mde-multiples 0.5 2]
+                                                 [--nulls 10] [--jobs 1] [--work DIR] [--out FILE]
+                                                 [--pictures DIR] [--summarize LOG|DIR]
 
 Units TWIN-G01..G03 (draw k uses unit k mod 3), analytic twin physics (hertz-fallback: the FE
 backend is the same pipeline, ~100× slower to record), sessions of 30 pokes (poke / press / slide /
@@ -18,7 +19,11 @@ Reported per row: the verdict and its corrected p; "right" (the verdict's family
 physics; for the drag: the top covariate of what remains is the indenter's velocity and
 significant); the MDE the diagnosis reported for the form's library family and size / MDE;
 "removed" = (before - after) / (before - unaltered) on a second session of the unit (another plan)
-altered the same way, with the verdict added. Nulls: unaltered sessions of new plans.
+altered the same way, with the verdict added. Nulls: unaltered sessions of new plans. Rows at
+`--mde-multiples` scale the form to that multiple of the MDE the unaltered test session's diagnosis
+reported for its family (the check of the MDE). Every finished row is a file in WORK/rows; a
+rerun with the same WORK diagnoses only what is missing, so a run cut short is resumed by running
+it again.
 """
 from __future__ import annotations
 
@@ -59,8 +64,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "every finished row is kept in its rows/ folder and a rerun resumes from them")
     p.add_argument("--out", help="write every row and the summary as JSON here")
     p.add_argument("--pictures", help="write the detection curve here (folder)")
-    p.add_argument("--summarize", metavar="LOG", help="only summarize the JSON rows printed by an earlier run "
-                   "(one per line; a run cut short reports what it finished)")
+    p.add_argument("--summarize", metavar="LOG", help="only summarize the rows of an earlier run: its printed "
+                   "JSON lines (one per line) or its work folder (a run cut short reports what it finished)")
 
 
 def _rms(x) -> float:
@@ -307,7 +312,7 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     ax.set_ylim(-0.08, 1.08)
     ax.set_xlabel("hidden effect's own contribution / the model's floor")
     ax.set_ylabel("share of draws: right significant verdict")
-    ax.legend(fontsize=6, loc="center right")
+    ax.legend(fontsize=6, loc="lower right")
     ax.set_title(f"{len(grid)} altered sessions at fixed sizes", fontsize=9)
 
     lib = [r for r in rows if r["form"] != "velocity_drag"]
@@ -331,12 +336,12 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     bx.axhline(0.1, color="tab:red", ls=":", lw=0.8)
     bx.set_xscale("log")
     bx.set_xticks([0.5, 1, 2, 4, 8])
-    bx.set_xticklabels(["≤0.75", "1", "2", "4", "≥6"])
+    bx.set_xticklabels(["<0.75", "0.75–1.5", "1.5–3", "3–6", "≥6"], fontsize=7)
     bx.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     bx.set_ylim(-0.08, 1.08)
     bx.set_xlabel("size / the unaltered session's MDE (binned)")
     bx.set_title(f"library forms, {len(lib)} sessions", fontsize=9)
-    bx.legend(fontsize=6.5, loc="center right")
+    bx.legend(fontsize=6.5, loc="lower right")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
@@ -362,8 +367,18 @@ def markdown(rows: list) -> str:
     return "\n".join(lines)
 
 
-def report(rows: list, nulls: list, a: argparse.Namespace) -> dict:
+def read_clean(work: Path) -> list:
+    """The diagnoses of the unaltered test sessions (work/rows/clean-*.json): more sessions without a
+    hidden effect, from other plans than the nulls."""
+    return [json.loads(f.read_text()) for f in sorted((Path(work) / "rows").glob("clean-*.json"))]
+
+
+def report(rows: list, nulls: list, a: argparse.Namespace, clean: list | None = None) -> dict:
     out = {"cases": rows, "nulls": nulls, "summary": summarize(rows, nulls)}
+    if clean:
+        out["unaltered_test_sessions"] = clean
+        out["summary"]["unaltered_test_session_verdicts"] = (f"{sum(c['verdict'] is not None for c in clean)}/"
+                                                            f"{len(clean)}")
     print(json.dumps(out["summary"], indent=1))
     print(markdown(rows))
     if a.pictures:
@@ -418,7 +433,7 @@ def run(a: argparse.Namespace) -> int:
 
     logging.basicConfig(level=logging.WARNING)
     if a.summarize:
-        report(*read_rows(a.summarize), a)
+        report(*read_rows(a.summarize), a, read_clean(a.summarize) if Path(a.summarize).is_dir() else None)
         return 0
     work = Path(a.work) if a.work else paths.cache_dir() / "workbench" / "twin-generality"
     (work / "rows").mkdir(parents=True, exist_ok=True)
@@ -465,5 +480,5 @@ def run(a: argparse.Namespace) -> int:
             futs = [(t, pool.submit(_do, *t)) for t in todo]
             for t, fut in futs:
                 keep(*t, fut.result())
-    report(rows, nulls, a)
+    report(rows, nulls, a, read_clean(work))
     return 0
