@@ -51,7 +51,7 @@ VELOCITY = ("velocity", "vel_x", "vel_y", "vel_z")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--draws", type=int, default=3, help="draws (test sessions) per form and size")
-    p.add_argument("--sizes", type=float, nargs="+", default=[0.15, 0.3, 0.5, 1.0, 3.0],
+    p.add_argument("--sizes", type=float, nargs="*", default=[0.15, 0.3, 0.5, 1.0, 3.0],
                    help="effect sizes (× the floor)")
     p.add_argument("--mde-multiples", type=float, nargs="*", default=[0.5, 2.0],
                    help="also effect sizes at these multiples of the MDE the diagnosis reports for the form's "
