@@ -104,5 +104,61 @@ def test_summary_counts_right_verdicts_removal_nulls_and_the_mde_bins(tmp_path):
     assert s["null_false_alarms"] == "1/2" and s["null_covariate_alarms"] == "1/2"
     assert s["mde_2x_found"] == "1/2" and s["mde_half_claimed"] == "1/2"
     assert s["detection"]["rim_profile"] == {"0.15": "0/2", "1": "1/2"}
-    assert "| rim_profile | 1 | 1/2 |" in markdown(got_rows)
+    assert "| rim_profile | 1× floor | 1/2 |" in markdown(got_rows)
     assert picture(got_rows, got_nulls, tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_rows_at_mde_multiples_count_in_the_mde_check_only_and_a_work_folder_resumes(tmp_path):
+    import argparse
+    import json
+
+    from tensortouch.tools.accept import twin_generality as tg
+
+    def row(size, right, verdict, target=None, draw=0, clean=None):
+        r = {"form": "two_term_relaxation", "size_floor": size, "draw": draw, "right": right, "verdict": verdict,
+             "p": 0.01 if verdict else None, "best_p": 0.5, "top_covariate": "time", "covariate_p": 0.3,
+             "size_mde": 9.0, "pair": False}
+        if target is not None:
+            r["mde_target"] = target
+        if clean is not None:
+            r["size_clean_mde"] = clean
+        return r
+
+    rows = [row(1.0, True, "viscoelastic_relaxation", clean=3.0),
+            row(0.15, False, None, clean=0.45),                          # the unaltered session's MDE bins it
+            row(0.2, False, None, target=0.5), row(0.2, False, "ft_bias_drift", target=0.5, draw=1),
+            row(0.7, True, "viscoelastic_relaxation", target=2.0)]
+    s = tg.summarize(rows, [])
+    assert s["detection"] == {"two_term_relaxation": {"0.15": "0/1", "1": "1/1"}}      # targeted rows not in the curve
+    assert s["mde_targeted"] == {"0.5": {"right": "0/2", "claimed": "1/2"}, "2": {"right": "1/1", "claimed": "1/1"}}
+    assert s["mde_half_claimed"] == "1/3" and s["mde_2x_found"] == "2/2"
+    assert "| two_term_relaxation | 0.5× MDE | 0/2 |" in tg.markdown(rows)
+    # a run's rows are files in work/rows; the next run reads them back instead of diagnosing again
+    args = ("two_term_relaxation", 0.0, 1, str(tmp_path), (1, 2))
+    f = tg._task_file(tmp_path, "case", args, 0.5)
+    assert f.name == "case-two_term_relaxation-mde0.5-1.json"
+    f.parent.mkdir(parents=True)
+    for r in rows:
+        mult = r.get("mde_target")
+        f = tg._task_file(tmp_path, "case", (r["form"], r["size_floor"], r["draw"]), mult)
+        f.write_text(json.dumps(r))
+    (tmp_path / "rows" / "null-0.json").write_text(json.dumps({"null": 0, "verdict": None, "covariate_p": 0.4}))
+    (tmp_path / "rows" / "clean-two_term_relaxation-0.json").write_text(json.dumps({"verdict": "ft_bias_drift"}))
+    got, nulls = tg.read_rows(str(tmp_path))
+    assert len(got) == 5 and len(nulls) == 1                       # the unaltered sessions' diagnoses are apart
+    assert tg.read_clean(tmp_path) == [{"verdict": "ft_bias_drift"}]
+    a = argparse.Namespace(draws=2, sizes=[0.15, 1.0], nulls=1, first_null=0, forms=["two_term_relaxation"],
+                           jobs=1, work=str(tmp_path), out=None, pictures=None, summarize=None, mde_multiples=[0.5])
+    done = {tg._task_file(tmp_path, "case", (r["form"], r["size_floor"], r["draw"]), r.get("mde_target"))
+            for r in rows}
+    called = []
+    orig = tg._do
+    tg._do = lambda kind, args, mult: called.append((kind, args[:3], mult)) or {**rows[0], "draw": args[2]}
+    try:
+        tg.run(a)
+    finally:
+        tg._do = orig
+    # not yet done: 1x draw 1, 0.5xMDE ... (draw 0 and 1 done), 0.15x draw 1
+    assert called == [("case", ("two_term_relaxation", 1.0, 1), None),
+                      ("case", ("two_term_relaxation", 0.15, 1), None)]
+    assert all(f.is_file() for f in done)

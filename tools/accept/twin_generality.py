@@ -2,8 +2,9 @@
 effects in forms that are not the library's (tools/accept/alter_forms.py), at sizes around the
 model's floor (issue 31's acceptance).
 
-    tensortouch accept workbench-twin-generality [--draws 3] [--sizes 0.3 1 3] [--nulls 10] [--jobs 2]
-                                                 [--out FILE] [--pictures DIR]
+    tensortouch accept workbench-twin-generality [--draws 3] [--sizes 0.15 0.3 0.5 1 3] [--mde-multiples 0.5 2]
+                                                 [--nulls 10] [--jobs 1] [--work DIR] [--out FILE]
+                                                 [--pictures DIR] [--summarize LOG|DIR]
 
 Units TWIN-G01..G03 (draw k uses unit k mod 3), analytic twin physics (hertz-fallback: the FE
 backend is the same pipeline, ~100× slower to record), sessions of 30 pokes (poke / press / slide /
@@ -18,7 +19,11 @@ Reported per row: the verdict and its corrected p; "right" (the verdict's family
 physics; for the drag: the top covariate of what remains is the indenter's velocity and
 significant); the MDE the diagnosis reported for the form's library family and size / MDE;
 "removed" = (before - after) / (before - unaltered) on a second session of the unit (another plan)
-altered the same way, with the verdict added. Nulls: unaltered sessions of new plans.
+altered the same way, with the verdict added. Nulls: unaltered sessions of new plans. Rows at
+`--mde-multiples` scale the form to that multiple of the MDE the unaltered test session's diagnosis
+reported for its family (the check of the MDE). Every finished row is a file in WORK/rows; a
+rerun with the same WORK diagnoses only what is missing, so a run cut short is resumed by running
+it again.
 """
 from __future__ import annotations
 
@@ -46,16 +51,21 @@ VELOCITY = ("velocity", "vel_x", "vel_y", "vel_z")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--draws", type=int, default=3, help="draws (test sessions) per form and size")
-    p.add_argument("--sizes", type=float, nargs="+", default=[0.3, 1.0, 3.0], help="effect sizes (× the floor)")
+    p.add_argument("--sizes", type=float, nargs="*", default=[0.15, 0.3, 0.5, 1.0, 3.0],
+                   help="effect sizes (× the floor)")
+    p.add_argument("--mde-multiples", type=float, nargs="*", default=[0.5, 2.0],
+                   help="also effect sizes at these multiples of the MDE the diagnosis reports for the form's "
+                        "family on the unaltered test session (library forms only)")
     p.add_argument("--nulls", type=int, default=10, help="sessions with no hidden effect")
     p.add_argument("--first-null", type=int, default=0, help="index of the first null session (to split a run)")
     p.add_argument("--forms", nargs="+", choices=sorted(EXPECTED), help="hidden forms (default: all)")
     p.add_argument("--jobs", type=int, default=1, help="diagnoses run in parallel")
-    p.add_argument("--work", default=None, help="work folder (default: cache/workbench/twin-generality)")
+    p.add_argument("--work", default=None, help="work folder (default: cache/workbench/twin-generality); "
+                   "every finished row is kept in its rows/ folder and a rerun resumes from them")
     p.add_argument("--out", help="write every row and the summary as JSON here")
     p.add_argument("--pictures", help="write the detection curve here (folder)")
-    p.add_argument("--summarize", metavar="LOG", help="only summarize the JSON rows printed by an earlier run "
-                   "(one per line; a run cut short reports what it finished)")
+    p.add_argument("--summarize", metavar="LOG", help="only summarize the rows of an earlier run: its printed "
+                   "JSON lines (one per line) or its work folder (a run cut short reports what it finished)")
 
 
 def _rms(x) -> float:
@@ -66,40 +76,6 @@ def _scenario(seed: int, unit: str):
     from ..workbench.scenarios import Scenario
 
     return Scenario(seed, pokes=POKES, unit=unit)
-
-
-def plannable_seed(seed: int, unit: str, limit_s: float = 10.0) -> int:
-    """`seed`, or the first of seed + 100000 k whose plan the twin's planner finishes within `limit_s`
-    (some seeds never finish: the placement of two indenters retries forever). Main thread only."""
-    import signal
-
-    from ..twin.trajectory import plan_session, with_ranges
-    from ..twin.unit import TwinUnit
-    from dataclasses import replace
-    from ..twin.record import RecordConfig
-
-    sc = _scenario(seed, unit)
-    cfg = RecordConfig().trajectory
-    cfg = with_ranges(replace(cfg, indenters=tuple(sc.indenters), kinds=tuple(sc.kinds)), None, "")
-    gel = TwinUnit(unit).gel
-
-    def _stop(*_):
-        raise TimeoutError
-
-    old = signal.signal(signal.SIGALRM, _stop)
-    try:
-        for k in range(5):
-            signal.setitimer(signal.ITIMER_REAL, limit_s)
-            try:
-                plan_session(POKES, seed + 100000 * k, gel, cfg)
-                return seed + 100000 * k
-            except TimeoutError:
-                log.warning("twin plan of seed %d (unit %s) does not finish; using the next seed", seed + 100000 * k, unit)
-            finally:
-                signal.setitimer(signal.ITIMER_REAL, 0)
-    finally:
-        signal.signal(signal.SIGALRM, old)
-    raise RuntimeError(f"no plannable seed near {seed}")
 
 
 def _gel(unit: str) -> dict:
@@ -168,7 +144,30 @@ def _diag_row(d) -> dict:
             "mde_per_effect": dict(d.mde.get("per_effect", {})) if d.mde else {}}
 
 
-def run_case(form: str, size: float, draw: int, work: str, seeds: tuple | None = None) -> dict:
+def clean_mde(form: str, draw: int, work: str, seed: int) -> dict:
+    """The diagnosis of the unaltered test session (kept in work/rows): its verdict and the MDE it
+    reports for the form's library family -- what a user is told before the effect is there."""
+    path = Path(work) / "rows" / f"clean-{form}-{draw}.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    from ...contracts.files import atomic_write_json
+    from ..workbench.diagnose import diagnose
+    from ..workbench.scenarios import record
+
+    unit = UNITS[draw % len(UNITS)]
+    lab = Lab(unit, Path(work))
+    t0 = lab.table(record(_scenario(seed, unit)))
+    row = {"form": form, "draw": draw, "unit": unit, "seed": seed, "floor": _rms(t0.meas - t0.model),
+           **_diag_row(diagnose(t0, lab.reg))}
+    row["mde_family"] = row["mde_per_effect"].get(EXPECTED[form], row["mde"])
+    atomic_write_json(path, json.loads(json.dumps(row, default=float)))
+    return row
+
+
+def run_case(form: str, size: float, draw: int, work: str, seeds: tuple | None = None,
+             mde_multiple: float | None = None) -> dict:
+    """One altered session diagnosed. `size` × the floor, or with `mde_multiple` that multiple of the
+    MDE the unaltered session's diagnosis reports for the form's family (then `size` is ignored)."""
     from ...runtime.stages.effects import EffectChain, EnabledEffect
     from ..workbench.diagnose import diagnose
     from ..workbench.fit import deployed_prediction
@@ -181,14 +180,26 @@ def run_case(form: str, size: float, draw: int, work: str, seeds: tuple | None =
     base = record(_scenario(test_seed, unit))
     t0 = lab.table(base)
     floor = _rms(t0.meas - t0.model)
-    t, amp, got = lab.scaled(base, form, size * floor, f"{form}-{draw}-{size:g}")
+    extra, clean = {}, None
+    if form != "velocity_drag":
+        clean = clean_mde(form, draw, work, test_seed)
+        extra["mde_clean"] = clean["mde_family"]
+    if mde_multiple is not None:
+        size = mde_multiple * clean["mde_family"] / floor
+        extra["mde_target"] = mde_multiple
+        tag = f"{form}-{draw}-mde{mde_multiple:g}"
+    else:
+        tag = f"{form}-{draw}-{size:g}"
+    t, amp, got = lab.scaled(base, form, size * floor, tag)
     d = diagnose(t, lab.reg)
     row = {"form": form, "unit": unit, "draw": draw, "seed": test_seed, "size_floor": size, "floor": floor, "size_n": got,
-           "amp": amp, **_diag_row(d)}
+           "amp": amp, **extra, **_diag_row(d)}
     fam = EXPECTED[form]
     mde = row["mde_per_effect"].get(fam, row["mde"])
     row["mde_effect"] = mde
     row["size_mde"] = got / mde if mde else None
+    if clean is not None and clean["mde_family"]:
+        row["size_clean_mde"] = got / clean["mde_family"]
     if form == "velocity_drag":
         row["right"] = bool(row["top_covariate"] in VELOCITY and (row["covariate_p"] or 1.0) <= 0.05)
     else:
@@ -197,7 +208,7 @@ def run_case(form: str, size: float, draw: int, work: str, seeds: tuple | None =
     if v is not None and v.pair is None and v.channel == "force":      # removed on a second session of the unit
         second = record(_scenario(second_seed, unit))
         c2 = lab.table(second)
-        a2 = lab.altered(second, form, amp, f"{form}-{draw}-{size:g}-second")
+        a2 = lab.altered(second, form, amp, tag + "-second")
         pred = deployed_prediction(a2.model, a2.cov(), EffectChain([EnabledEffect(v.effect, dict(v.params))]))
         before, after, clean = _rms(a2.meas - a2.model), _rms(a2.meas - pred), _rms(c2.meas - c2.model)
         row.update({"second_before": before, "second_after": after, "second_unaltered": clean,
@@ -217,17 +228,36 @@ def run_null(k: int, work: str, seed: int | None = None) -> dict:
     return {"null": k, "unit": unit, "seed": seed, "floor": _rms(t.meas - t.model), **_diag_row(d)}
 
 
+def mde_multiple(r: dict) -> float | None:
+    """A row's size / MDE: the targeted multiple, else the size over the MDE the unaltered session
+    reported for the family, else over the one the altered session reported."""
+    if r.get("mde_target") is not None:
+        return r["mde_target"]
+    return r.get("size_clean_mde") or r.get("size_mde")
+
+
 def summarize(rows: list, nulls: list) -> dict:
+    """Counts over the rows: `rows` at sizes × the floor and, marked `mde_target`, at multiples of the
+    unaltered session's MDE (those count in the MDE check, not in the size/floor curve)."""
+    grid = [r for r in rows if r.get("mde_target") is None]
     by: dict = {}
-    for r in rows:
+    for r in grid:
         by.setdefault(r["form"], {}).setdefault(r["size_floor"], []).append(r)
     rate = {f: {f"{s:g}": f"{sum(r['right'] for r in rs)}/{len(rs)}" for s, rs in sorted(d.items())}
             for f, d in by.items()}
-    removed = [r["removed"] for r in rows if r["right"] and "removed" in r and r["size_floor"] >= 1.0]
-    big = [r for r in rows if r["size_floor"] >= 1.0]
-    two = [r for r in rows if r["form"] != "velocity_drag" and (r["size_mde"] or 0) >= 2.0]
-    half = [r for r in rows if r["form"] != "velocity_drag" and (r["size_mde"] or 9) <= 0.5]
-    drag = [r for r in rows if r["form"] == "velocity_drag" and r["size_floor"] >= 1.0]
+    removed = [r["removed"] for r in grid if r["right"] and "removed" in r and r["size_floor"] >= 1.0]
+    big = [r for r in grid if r["size_floor"] >= 1.0]
+    lib = [r for r in rows if r["form"] != "velocity_drag"]
+
+    multiple = mde_multiple
+
+    two = [r for r in lib if (multiple(r) or 0) >= 2.0]
+    half = [r for r in lib if (multiple(r) or 9) <= 0.5]
+    targeted = {}
+    for r in lib:
+        if r.get("mde_target") is not None:
+            targeted.setdefault(f"{r['mde_target']:g}", []).append(r)
+    drag = [r for r in grid if r["form"] == "velocity_drag" and r["size_floor"] >= 1.0]
     return {"detection": rate,
             "right_at_or_above_floor": f"{sum(r['right'] for r in big)}/{len(big)}",
             "removed_at_or_above_floor": {"n": len(removed), "median": float(np.median(removed)) if removed else None,
@@ -237,40 +267,81 @@ def summarize(rows: list, nulls: list) -> dict:
             "null_covariate_alarms": f"{sum((n['covariate_p'] or 1.0) <= 0.05 for n in nulls)}/{len(nulls)}",
             "drag_velocity_named": f"{sum(r['right'] for r in drag)}/{len(drag)}",
             "mde_2x_found": f"{sum(r['right'] for r in two)}/{len(two)}",
-            "mde_half_claimed": f"{sum(r['verdict'] is not None for r in half)}/{len(half)}"}
+            "mde_half_claimed": f"{sum(r['verdict'] is not None for r in half)}/{len(half)}",
+            "mde_targeted": {m: {"right": f"{sum(r['right'] for r in rs)}/{len(rs)}",
+                                 "claimed": f"{sum(r['verdict'] is not None for r in rs)}/{len(rs)}"}
+                             for m, rs in sorted(targeted.items(), key=lambda kv: float(kv[0]))}}
 
 
 def picture(rows: list, nulls: list, path: Path) -> Path:
+    """Left: share of draws with the right significant verdict against size / the floor, per form and
+    over all forms (rows at fixed sizes). Right: the library forms against size / the MDE the
+    unaltered session reported (targeted rows at their multiple; the others at their measured ratio,
+    binned), with the share of draws that got any verdict."""
     import matplotlib
     import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5.6, 3.4), dpi=110)
-    sizes = sorted({r["size_floor"] for r in rows})
+    grid = [r for r in rows if r.get("mde_target") is None]
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(8.4, 3.4), dpi=100, gridspec_kw={"width_ratios": [1.25, 1]})
+    sizes = sorted({r["size_floor"] for r in grid})
     for form in EXPECTED:
-        rs = [r for r in rows if r["form"] == form]
+        rs = [r for r in grid if r["form"] == form]
         if rs:
             xs = [s for s in sizes if any(r["size_floor"] == s for r in rs)]
             y = [np.mean([r["right"] for r in rs if r["size_floor"] == s]) for s in xs]
-            ax.plot(xs, y, "o-", ms=4, lw=1.2, label=form.replace("_", " "))
-    y = [np.mean([r["right"] for r in rows if r["size_floor"] == s]) for s in sizes]
-    ax.plot(sizes, y, "k-", lw=2.5, label="all forms")
+            ax.plot(xs, y, "o-", ms=3.5, lw=1.0, alpha=0.8, label=form.replace("_", " "))
+    if sizes:
+        y = [np.mean([r["right"] for r in grid if r["size_floor"] == s]) for s in sizes]
+        n = [sum(r["size_floor"] == s for r in grid) for s in sizes]
+        ax.plot(sizes, y, "k-", lw=2.5, label="all forms")
+        for x, yy, k in zip(sizes, y, n):
+            ax.annotate(f"n={k}", (x, yy), textcoords="offset points", xytext=(0, -11), ha="center", fontsize=6)
+        ax.set_xscale("log")
+        ax.set_xticks(sizes)
+        ax.set_xticklabels([f"{s:g}×" for s in sizes])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     if nulls:
         fa = np.mean([n["verdict"] is not None for n in nulls])
         ax.axhline(fa, color="grey", ls=":", lw=1)
-        ax.text(sizes[0], fa + 0.04, f"false alarms on {len(nulls)} nulls: {100 * fa:.0f} %", fontsize=7, color="grey")
+        ax.text(sizes[0] if sizes else 1.0, fa + 0.04, f"verdicts on {len(nulls)} nulls: {100 * fa:.0f} %",
+                fontsize=7, color="grey")
     ax.axvline(1.0, color="grey", lw=0.6)
-    ax.set_xscale("log")
-    ax.set_xticks(sizes)
-    ax.set_xticklabels([f"{s:g}×" for s in sizes])
-    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    ax.set_ylim(-0.05, 1.05)
+    ax.set_ylim(-0.08, 1.08)
     ax.set_xlabel("hidden effect's own contribution / the model's floor")
-    ax.set_ylabel("right significant verdict")
-    ax.set_title(f"Detection on twin units ({len(rows)} altered sessions, share of draws per point)", fontsize=9)
-    ax.legend(fontsize=6.5, loc="center right")
+    ax.set_ylabel("share of draws: right significant verdict")
+    ax.legend(fontsize=6, loc="lower right")
+    ax.set_title(f"{len(grid)} altered sessions at fixed sizes", fontsize=9)
+
+    lib = [r for r in rows if r["form"] != "velocity_drag"]
+
+    multiple = mde_multiple
+
+    bins = [(0.0, 0.75, 0.5), (0.75, 1.5, 1.0), (1.5, 3.0, 2.0), (3.0, 6.0, 4.0), (6.0, np.inf, 8.0)]
+    xs, right, claimed, ns = [], [], [], []
+    for lo, hi, x in bins:
+        rs = [r for r in lib if multiple(r) is not None and lo <= multiple(r) < hi]
+        if rs:
+            xs.append(x)
+            right.append(np.mean([r["right"] for r in rs]))
+            claimed.append(np.mean([r["verdict"] is not None for r in rs]))
+            ns.append(len(rs))
+    bx.plot(xs, right, "ko-", lw=2, ms=4, label="right verdict")
+    bx.plot(xs, claimed, "s--", color="tab:red", lw=1, ms=3.5, label="any verdict")
+    for x, yy, k in zip(xs, right, ns):
+        bx.annotate(f"n={k}", (x, yy), textcoords="offset points", xytext=(0, -11), ha="center", fontsize=6)
+    bx.axhline(0.9, color="tab:green", ls=":", lw=0.8)
+    bx.axhline(0.1, color="tab:red", ls=":", lw=0.8)
+    bx.set_xscale("log")
+    bx.set_xticks([0.5, 1, 2, 4, 8])
+    bx.set_xticklabels(["<0.75", "0.75–1.5", "1.5–3", "3–6", "≥6"], fontsize=7)
+    bx.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    bx.set_ylim(-0.08, 1.08)
+    bx.set_xlabel("size / the unaltered session's MDE (binned)")
+    bx.set_title(f"library forms, {len(lib)} sessions", fontsize=9)
+    bx.legend(fontsize=6.5, loc="lower right")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
@@ -279,23 +350,35 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
 
 
 def markdown(rows: list) -> str:
-    lines = ["| hidden form | size / floor | right | verdicts (p) | size / MDE | own contribution removed (2nd session) |",
+    lines = ["| hidden form | size | right | verdicts (p) | size / MDE | own contribution removed (2nd session) |",
              "|---|---|---|---|---|---|"]
     by: dict = {}
-    for r in rows:
-        by.setdefault((r["form"], r["size_floor"]), []).append(r)
-    for (form, size), rs in by.items():
+    for r in sorted(rows, key=lambda r: (list(EXPECTED).index(r["form"]), r.get("mde_target") is not None,
+                                         r.get("mde_target") or r["size_floor"], r.get("draw") or 0)):
+        by.setdefault((r["form"], r.get("mde_target"), None if r.get("mde_target") else r["size_floor"]), []).append(r)
+    for (form, target, size), rs in by.items():
         verdicts = ", ".join(f"{r['verdict'] or ('cov ' + str(r['top_covariate']) if form == 'velocity_drag' else 'none')}"
                              f" ({(r['p'] if r['verdict'] else r['covariate_p'] if form == 'velocity_drag' else r['best_p']) or 1:.2g})"
                              for r in rs)
         rem = ", ".join(f"{100 * r['removed']:.0f} %" for r in rs if "removed" in r) or "—"
-        ratio = ", ".join(f"{r['size_mde']:.1f}" for r in rs if r.get("size_mde"))
-        lines.append(f"| {form} | {size:g} | {sum(r['right'] for r in rs)}/{len(rs)} | {verdicts} | {ratio} | {rem} |")
+        ratio = ", ".join(f"{mde_multiple(r):.2g}" for r in rs if mde_multiple(r)) or "—"
+        label = f"{target:g}× MDE" if target is not None else f"{size:g}× floor"
+        lines.append(f"| {form} | {label} | {sum(r['right'] for r in rs)}/{len(rs)} | {verdicts} | {ratio} | {rem} |")
     return "\n".join(lines)
 
 
-def report(rows: list, nulls: list, a: argparse.Namespace) -> dict:
+def read_clean(work: Path) -> list:
+    """The diagnoses of the unaltered test sessions (work/rows/clean-*.json): more sessions without a
+    hidden effect, from other plans than the nulls."""
+    return [json.loads(f.read_text()) for f in sorted((Path(work) / "rows").glob("clean-*.json"))]
+
+
+def report(rows: list, nulls: list, a: argparse.Namespace, clean: list | None = None) -> dict:
     out = {"cases": rows, "nulls": nulls, "summary": summarize(rows, nulls)}
+    if clean:
+        out["unaltered_test_sessions"] = clean
+        out["summary"]["unaltered_test_session_verdicts"] = (f"{sum(c['verdict'] is not None for c in clean)}/"
+                                                            f"{len(clean)}")
     print(json.dumps(out["summary"], indent=1))
     print(markdown(rows))
     if a.pictures:
@@ -307,55 +390,95 @@ def report(rows: list, nulls: list, a: argparse.Namespace) -> dict:
     return out
 
 
+def row_key(r: dict) -> tuple:
+    return (r["form"], r.get("mde_target"), None if r.get("mde_target") is not None else r["size_floor"], r.get("draw"))
+
+
 def read_rows(path: str) -> tuple[list, list]:
-    """Rows and null rows from the JSON lines of one or more runs (a case or null met twice counts once)."""
+    """Rows and null rows from the JSON lines of one or more runs, or from a work folder's rows/
+    (a case or null met twice counts once)."""
+    p = Path(path)
+    if p.is_dir():
+        lines = [f.read_text() for f in sorted((p / "rows").glob("*.json")) if not f.name.startswith("clean-")]
+        lines = [json.dumps(json.loads(x)) for x in lines]
+    else:
+        lines = p.read_text().splitlines()
     rows, nulls = {}, {}
-    for line in Path(path).read_text().splitlines():
+    for line in lines:
         if line.startswith("{") and line.endswith("}"):
             r = json.loads(line)
             if "form" in r:
-                rows.setdefault((r["form"], r["size_floor"], r.get("draw")), r)
+                rows.setdefault(row_key(r), r)
             elif "null" in r:
                 nulls.setdefault(r["null"], r)
     return list(rows.values()), list(nulls.values())
 
 
+def _task_file(work: Path, kind: str, args: tuple, mult) -> Path:
+    if kind == "null":
+        return work / "rows" / f"null-{args[0]}.json"
+    form, size, draw = args[:3]
+    return work / "rows" / (f"case-{form}-mde{mult:g}-{draw}.json" if mult is not None
+                            else f"case-{form}-{size:g}-{draw}.json")
+
+
+def _do(kind: str, args: tuple, mult) -> dict:
+    return run_null(*args) if kind == "null" else run_case(*args, mde_multiple=mult)
+
+
 def run(a: argparse.Namespace) -> int:
     from ...contracts import paths
+    from ...contracts.files import atomic_write_json
     from ..workbench.scenarios import record
 
     logging.basicConfig(level=logging.WARNING)
     if a.summarize:
-        report(*read_rows(a.summarize), a)
+        report(*read_rows(a.summarize), a, read_clean(a.summarize) if Path(a.summarize).is_dir() else None)
         return 0
     work = Path(a.work) if a.work else paths.cache_dir() / "workbench" / "twin-generality"
-    work.mkdir(parents=True, exist_ok=True)
+    (work / "rows").mkdir(parents=True, exist_ok=True)
     forms = a.forms or list(EXPECTED)
-    for unit in UNITS:                 # fit the laws once, before the pool
-        Lab(unit, work)
-    seeds, null_seeds = {}, {}
-    for i, form in enumerate(EXPECTED):       # record every session once, before the pool
-        if form in forms:
-            for k in range(a.draws):
-                unit = UNITS[k % len(UNITS)]
-                seeds[form, k] = tuple(plannable_seed(s + 10 * i + k, unit) for s in (TEST_SEED, SECOND_SEED))
-                for s in seeds[form, k]:
-                    record(_scenario(s, unit))
-    for k in range(a.first_null, a.first_null + a.nulls):
-        null_seeds[k] = plannable_seed(NULL_SEED + k, UNITS[k % len(UNITS)])
-        record(_scenario(null_seeds[k], UNITS[k % len(UNITS)]))
+    seeds = {(f, k): (TEST_SEED + 10 * i + k, SECOND_SEED + 10 * i + k)
+             for i, f in enumerate(EXPECTED) if f in forms for k in range(a.draws)}
+    null_seeds = {k: NULL_SEED + k for k in range(a.first_null, a.first_null + a.nulls)}
     order = sorted(a.sizes)
-    tasks = [("case", (f, s, k, str(work), seeds[f, k])) for s in order if s >= 1.0 for f in forms
-             for k in range(a.draws)]                               # the sizes the acceptance is about first
-    tasks += [("null", (k, str(work), null_seeds[k])) for k in null_seeds]
-    tasks += [("case", (f, s, k, str(work), seeds[f, k])) for s in order[::-1] if s < 1.0 for f in forms
-              for k in range(a.draws)]
-    rows, nulls = [], []
-    with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:
-        futs = [(kind, pool.submit(run_case if kind == "case" else run_null, *args)) for kind, args in tasks]
-        for kind, fut in futs:
-            r = fut.result()
+    lib = [f for f in forms if f != "velocity_drag"]
+    # the sizes the acceptance is about first, then the nulls, the MDE multiples, the small sizes
+    tasks = [("case", (f, s, k, str(work), seeds[f, k]), None) for s in order if s >= 1.0
+             for k in range(a.draws) for f in forms]
+    tasks += [("null", (k, str(work), null_seeds[k]), None) for k in null_seeds]
+    tasks += [("case", (f, 0.0, k, str(work), seeds[f, k]), m) for m in a.mde_multiples or []
+              for k in range(a.draws) for f in lib]
+    tasks += [("case", (f, s, k, str(work), seeds[f, k]), None) for s in order[::-1] if s < 1.0
+              for k in range(a.draws) for f in forms]
+    rows, nulls, todo = [], [], []
+    for kind, args, mult in tasks:                # finished rows are read back: a rerun resumes
+        f = _task_file(work, kind, args, mult)
+        if f.is_file():
+            r = json.loads(f.read_text())
             (rows if kind == "case" else nulls).append(r)
-            print(json.dumps(r, default=float), flush=True)
-    report(rows, nulls, a)
+            print(json.dumps(r), flush=True)
+        else:
+            todo.append((kind, args, mult))
+
+    def keep(kind, args, mult, r):
+        atomic_write_json(_task_file(work, kind, args, mult), json.loads(json.dumps(r, default=float)))
+        (rows if kind == "case" else nulls).append(r)
+        print(json.dumps(r, default=float), flush=True)
+
+    if a.jobs <= 1:
+        for kind, args, mult in todo:
+            keep(kind, args, mult, _do(kind, args, mult))
+    else:
+        for unit in UNITS:                        # fit the laws and record every session once, before the pool
+            Lab(unit, work)
+        for kind, args, _ in todo:
+            unit = UNITS[(args[2] if kind == "case" else args[0]) % len(UNITS)]
+            for s in (args[-1] if kind == "case" else (args[-1],)):
+                record(_scenario(s, unit))
+        with ProcessPoolExecutor(max_workers=a.jobs) as pool:
+            futs = [(t, pool.submit(_do, *t)) for t in todo]
+            for t, fut in futs:
+                keep(*t, fut.result())
+    report(rows, nulls, a, read_clean(work))
     return 0

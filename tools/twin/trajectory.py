@@ -144,6 +144,38 @@ def _steps(total: float, step: float) -> int:
     return max(1, int(np.ceil(abs(total) / step - 1e-9)))
 
 
+def contact_points(rng: np.random.Generator, gel: GelSurface, cfg: TrajectoryConfig, k: int,
+                   restart_after: int = 500, max_draws: int = 20000) -> list[np.ndarray]:
+    """k rest-surface points, uniform in area over θ ≤ theta_max, pairwise ≥ min_separation apart.
+
+    Points are drawn one after another; a first point near the apex can leave no room for a second
+    one (the cap's widest chord through the apex is 2ρ sin(theta_max / 2)), so after `restart_after`
+    rejected draws in a row the set is drawn again from its first point. More than `max_draws` draws
+    in all, or a separation no two points of the cap can have, is an error naming the fields."""
+    rho = gel.sphere_radius
+    if k > 1 and 2.0 * rho * np.sin(min(cfg.theta_max, np.pi / 2)) < cfg.min_separation:
+        raise ValueError(f"trajectory.min_separation {cfg.min_separation:g} mm: no two points with θ ≤ "
+                         f"theta_max {cfg.theta_max:g} rad are that far apart on this gel "
+                         f"(at most {2.0 * rho * np.sin(cfg.theta_max):.2f} mm)")
+    pts: list[np.ndarray] = []
+    rejected = 0
+    for _ in range(max_draws):
+        th = np.arccos(1 - rng.random() * (1 - np.cos(cfg.theta_max)))
+        ph = rng.uniform(-np.pi, np.pi)
+        p = gel.point_at(th, ph)
+        if all(np.linalg.norm(p - q) >= cfg.min_separation for q in pts):
+            pts.append(p)
+            rejected = 0
+            if len(pts) == k:
+                return pts
+        else:
+            rejected += 1
+            if rejected >= restart_after:
+                pts, rejected = [], 0
+    raise ValueError(f"trajectory.min_separation {cfg.min_separation:g} mm: {k} contacts that far apart with "
+                     f"θ ≤ theta_max {cfg.theta_max:g} rad not found in {max_draws} draws")
+
+
 def plan_session(n_pokes: int, seed: int, gel: GelSurface, cfg: TrajectoryConfig | None = None) -> list[Poke]:
     """A deterministic random plan of n_pokes for a given seed."""
     cfg = cfg or TrajectoryConfig()
@@ -158,13 +190,8 @@ def plan_session(n_pokes: int, seed: int, gel: GelSurface, cfg: TrajectoryConfig
             slots = [0, 1]
         else:
             slots = [int(rng.integers(len(modules)))]
-        names, pts = [modules[s] for s in slots], []
-        while len(pts) < len(slots):
-            th = np.arccos(1 - rng.random() * (1 - np.cos(cfg.theta_max)))
-            ph = rng.uniform(-np.pi, np.pi)
-            p = gel.point_at(th, ph)
-            if all(np.linalg.norm(p - q) >= cfg.min_separation for q in pts):
-                pts.append(p)
+        names = [modules[s] for s in slots]
+        pts = contact_points(rng, gel, cfg, len(slots))
         depth = U(cfg.depth_press if kind in ("press", "slide", "twist") else cfg.depth_poke)
         n_press = _steps(depth, cfg.max_step_mm)
         K = len(pts)
