@@ -46,7 +46,7 @@ def test_apex_first_contact_restarts_within_the_draw_bound():
 
 def test_separation_the_cap_cannot_hold_is_an_error_not_a_hang():
     gel = GelSurface()
-    widest = 2 * gel.sphere_radius * np.sin(0.6)
+    widest = 2 * gel.profile.radius_mm * np.sin(0.6)
     with pytest.raises(ValueError, match="min_separation"):
         contact_points(np.random.default_rng(1), gel, replace(_cfg(), min_separation=widest + 0.1), 2)
     # feasible in principle, practically never drawn: the draw bound ends it

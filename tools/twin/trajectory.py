@@ -152,7 +152,7 @@ def contact_points(rng: np.random.Generator, gel: GelSurface, cfg: TrajectoryCon
     one (the cap's widest chord through the apex is 2ρ sin(theta_max / 2)), so after `restart_after`
     rejected draws in a row the set is drawn again from its first point. More than `max_draws` draws
     in all, or a separation no two points of the cap can have, is an error naming the fields."""
-    rho = gel.sphere_radius
+    rho = gel.profile.radius_mm
     if k > 1 and 2.0 * rho * np.sin(min(cfg.theta_max, np.pi / 2)) < cfg.min_separation:
         raise ValueError(f"trajectory.min_separation {cfg.min_separation:g} mm: no two points with θ ≤ "
                          f"theta_max {cfg.theta_max:g} rad are that far apart on this gel "
