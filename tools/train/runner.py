@@ -94,6 +94,7 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
     from ...contracts.paths import cache_dir
 
     root = Path(root) if root else cache_dir() / "train" / recipe.name
+    commit = git_commit()          # the code that runs the build (the export then rewrites the package's own files)
     steps = recipe.steps()
     fits: dict[str, Path] = {}
     lineage: list[dict] = []
@@ -121,7 +122,7 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
             b = run_build(cfg, after, root, command, force, step=b.step)
             if exported:
                 update_manifest(package, lambda man: man["training"].update(
-                    recipe=recipe.record(), git_commit=git_commit(), lineage=lineage))
+                    recipe=recipe.record(), git_commit=commit, lineage=lineage))
     return b
 
 
