@@ -260,13 +260,14 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
 
 
 class ControllerNode:
-    """Wires a controller to Zenoh: one Subscriber per fingertip sensor id."""
+    """Wires a controller to Zenoh: one Subscriber per fingertip sensor id. `controller` may be
+    replaced between trials; the subscriptions stay."""
 
     def __init__(self, controller: SelectiveGraspController, session, sensor_ids: dict[str, str]):
         from ...runtime.apps.subscriber import Subscriber
 
         self.controller = controller
-        self.subs = [Subscriber(sid, session=session, on_contacts=lambda fr, s=name: controller.on_contacts(s, fr))
+        self.subs = [Subscriber(sid, session=session, on_contacts=lambda fr, s=name: self.controller.on_contacts(s, fr))
                      for name, sid in sensor_ids.items()]
 
     def close(self) -> None:
