@@ -271,3 +271,15 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
     finally:
         sub_s.close()
         pub_s.close()
+
+
+def test_trial_verdict_names_the_failure_cause():
+    from tensortouch.tools.grasp.trial import verdict
+
+    t = np.array
+    assert verdict(None, 0, t([[1, 1], [1, 1]])) == ("other", "no decision")
+    assert verdict(1, 0, t([[1, 0], [1, 0]])) == ("false detection", "other object named")
+    assert verdict(0, 0, t([[1, 0], [1, 0]])) == ("success", "")
+    assert verdict(1, 1, t([[0, 1], [1, 1]])) == ("other", "final pinch also touches the other object")
+    assert verdict(1, 1, t([[1, 1], [1, 0]])) == ("other", "final pinch lost the pulled object, touches the other")
+    assert verdict(0, 0, t([[0, 0], [0, 0]])) == ("other", "final pinch lost the pulled object")

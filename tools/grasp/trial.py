@@ -55,6 +55,7 @@ class TrialConfig:
     startup_frames: int = 32
     sensor_unit: str = "TWIN-DEMO"     # twin unit rendered, and its calibration in the store
     release_after_decision: bool = False
+    pull_only: bool = False            # pull for the whole decide window, no path (records the detection's inputs)
     frame_timeout_s: float = 120.0     # wall time a frame's contacts may take over Zenoh (slow machine)
 
 
@@ -178,7 +179,9 @@ class Bench:
             if log_out is not None:
                 log_out.append({"t": round(sim_t, 6), "q": scene.data.qpos[scene.qadr].tolist(),
                                 "contacts": {n: [(p.tolist(), f.tolist()) for p, f, _ in ctrl.latest[n]]
-                                             for n in sensors}})
+                                             for n in sensors},
+                                "felt": {n: [(o.index, o.point.tolist(), o.depth, o.shear.tolist()) for o in felt[n]]
+                                         for n in sensors}})
             if frames_out is not None and record:
                 frames_out.append({"label": record, "t": sim_t, "scene": scene, "felt": felt,
                                    "touching": scene.touching(), "model": scene.snapshot(),
@@ -216,6 +219,9 @@ class Bench:
                 sim_t += cfg.frame_dt
                 frame()
                 decision = ctrl.update()
+                if cfg.pull_only:
+                    decision = None if k < steps - 1 else decision
+                    continue
                 if decision is not None or k == steps - 1:
                     if frames_out is not None:   # the frame the decision was made on (or the last)
                         frames_out.append({"label": "pull", "t": sim_t, "scene": scene, "touching": scene.touching(),
@@ -224,9 +230,9 @@ class Bench:
                                            "contacts": {n: list(ctrl.latest[n]) for n in sensors}})
                     break
             if decision is not None:
-                own = np.linalg.norm(decision.moving_point - np.array(scene.object_axis(pulled)[0]))
-                oth = np.linalg.norm(decision.moving_point - np.array(scene.object_axis(1 - pulled)[0]))
+                own, oth = (_off_axis(decision.moving_point, *scene.object_axis(k)) for k in (pulled, 1 - pulled))
                 judged = pulled if own <= oth else 1 - pulled
+            if decision is not None and not cfg.pull_only:
                 if cfg.release_after_decision:
                     scene.release()
                 _, qs = ctrl.trajectory()
@@ -244,6 +250,12 @@ class Bench:
         return TrialResult(pair, seed, pulled, judged, outcome, touching.astype(int).tolist(), path_len,
                            round(time.perf_counter() - t0, 2), decision.scores if decision else [], cause,
                            len(ctrl.log), [e["scores"] for e in ctrl.log])
+
+
+def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
+    """Distance of point x from the line through centre along the unit axis."""
+    d = np.asarray(x, float) - centre
+    return float(np.linalg.norm(d - (d @ axis) * axis))
 
 
 def verdict(judged: int | None, pulled: int, touching: np.ndarray) -> tuple[str, str]:
