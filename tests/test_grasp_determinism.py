@@ -22,6 +22,7 @@ def small_hand(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_same_seed_same_trial_twice(small_hand):
     from tensortouch.tools.grasp.trial import Bench, TrialConfig
 
