@@ -102,7 +102,8 @@ def test_controller_names_the_sheared_object_and_plans_past_it():
 
     def send(shear_on):
         for s in ("thumb", "index"):
-            fs = [np.array([0, 0, -1.0]) + (np.array([0.4, 0, 0]) if k == shear_on else 0) for k in range(2)]
+            # a pull along the objects' length (world y: gel −y on both sensors) shears the gel along it
+            fs = [np.array([0, 0, -1.0]) + (np.array([0, -0.4, 0]) if k == shear_on else 0) for k in range(2)]
             ctrl.on_contacts(s, _frame(list(zip(pos[s], fs))))
         return ctrl.update()
 
@@ -139,9 +140,10 @@ def test_controller_scores_shear_change_per_newton_of_load():
               for i in range(3) if s == "thumb" or i < 2]
         return _frame(cs)
 
-    cases = ((ControllerConfig(load_power=1.0), 0, [0.15, 0.3]),
-             (ControllerConfig(load_power=0.75), 0, [0.9 / 6 ** 0.75, 0.6 / 2 ** 0.75]),   # 0.2348, 0.3568
-             (ControllerConfig(per_load=False, min_change=0.15), 1, [0.6, 0.9]))
+    summed = {"witness": "sum", "along_only": False}
+    cases = ((ControllerConfig(load_power=1.0, **summed), 0, [0.15, 0.3]),
+             (ControllerConfig(load_power=0.75, **summed), 0, [0.9 / 6 ** 0.75, 0.6 / 2 ** 0.75]),   # 0.2348, 0.3568
+             (ControllerConfig(per_load=False, min_change=0.15, **summed), 1, [0.6, 0.9]))
     for cfg, named, scores in cases:
         ctrl = SelectiveGraspController(g, start, m, cfg)
         ctrl.watch()
@@ -271,3 +273,49 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
     finally:
         sub_s.close()
         pub_s.close()
+
+
+def test_trial_verdict_names_the_failure_cause():
+    from tensortouch.tools.grasp.trial import verdict
+
+    t = np.array
+    assert verdict(None, 0, t([[1, 1], [1, 1]])) == ("other", "no decision")
+    assert verdict(1, 0, t([[1, 0], [1, 0]])) == ("false detection", "other object named")
+    assert verdict(0, 0, t([[1, 0], [1, 0]])) == ("success", "")
+    assert verdict(1, 1, t([[0, 1], [1, 1]])) == ("other", "final pinch also touches the other object")
+    assert verdict(1, 1, t([[1, 1], [1, 0]])) == ("other", "final pinch lost the pulled object, touches the other")
+    assert verdict(0, 0, t([[0, 0], [0, 0]])) == ("other", "final pinch lost the pulled object")
+
+
+def test_controller_scores_the_change_along_the_objects_with_the_stronger_witness():
+    """The pulled object (1) shears one gel along its length; the network puts shear on its
+    neighbour on the other gel, part of it across the objects (a squeeze change). Summed over both
+    gels the neighbour leads; along the objects' length, taking each object's stronger gel, the
+    pulled one does."""
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    along = np.array([0, 1.0, 0])                  # the objects lie along world y: gel y on both sensors
+    across = np.array([1.0, 0, 0])
+    load = {"thumb": [1.0, 1.0], "index": [1.0, 1.0]}
+    shear = {"thumb": [0.30 * along + 0.30 * across, 0.10 * along],
+             "index": [0.20 * along, 0.45 * along]}
+
+    def frame(s, k):
+        return _frame([(pos[s][i], np.array([0, 0, -load[s][i]]) + (shear[s][i] if k >= 4 else 0)) for i in range(2)])
+
+    decided = {}
+    for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False)), ("new", ControllerConfig())):
+        ctrl = SelectiveGraspController(g, start, m, cfg)
+        ctrl.watch()
+        d = None
+        for k in range(8):
+            for s in ("thumb", "index"):
+                ctrl.on_contacts(s, frame(s, k))
+            d = ctrl.update() or d
+        assert d is not None
+        decided[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
+    assert decided == {"sum": 0, "new": 1}

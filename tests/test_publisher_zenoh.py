@@ -267,3 +267,24 @@ def test_status_reports_publish_errors_and_clipping(pair):
     n = sub.counts["status"]
     assert pub.publish_status({"state": "stable"}, 4, 0.2)   # nothing new since: no flags
     assert sub.wait_for("status", timeout=5.0, since=n)["flags"] == []
+
+
+def test_control_congestion_block_delivers_every_contact_frame_and_bad_values_are_refused():
+    """A step-locked simulation publishes contacts with BLOCK: a burst of frames all arrive, in order."""
+    from tensortouch.runtime.apps.publisher import PublisherConfig
+
+    with pytest.raises(TensorTouchError, match="control_congestion"):
+        Publisher("dome01", listen=[free_endpoint()], config=PublisherConfig(control_congestion="LATER"))
+    ep = free_endpoint()
+    pub = Publisher("dome01", listen=[ep], config=PublisherConfig(control_congestion="BLOCK"))
+    seqs = []
+    sub = Subscriber("dome01", connect=[ep], on_contacts=lambda fr: seqs.append(fr.seq))
+    try:
+        publish_until(lambda: pub.publish_status({"state": "warmup"}, 0, 0.0), sub, "status")
+        for k in range(1, 201):
+            assert pub.publish_contacts([make_contact(1, (0.0, 0.0, -1.0), (0.0, 0.0, 8.0))], k, 0.01 * k)
+        assert wait_until(lambda: len(seqs) >= 200, 10.0)
+        assert seqs == list(range(1, 201))
+    finally:
+        sub.close()
+        pub.close()

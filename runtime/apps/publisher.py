@@ -35,6 +35,9 @@ class PublisherConfig:
     control_priority: str = "INTERACTIVE_HIGH"     # contacts, wrench
     status_priority: str = "DATA_LOW"
     control_express: bool = True
+    # contacts/wrench under congestion: DROP (a live sensor: a late frame is worth less than the next
+    # one) or BLOCK (a step-locked simulation: every frame's contacts must arrive)
+    control_congestion: str = "DROP"
     log_every_n_errors: int = 1000                 # first error per stream is logged, then 1 in N
 
 
@@ -93,16 +96,19 @@ class Publisher:
             raise
 
     def _declare(self) -> None:
-        cfg, pr, drop = self.config, zenoh.Priority, zenoh.CongestionControl.DROP
-        qos = {"fields": (getattr(pr, cfg.fields_priority), False),
-               "contacts": (getattr(pr, cfg.control_priority), cfg.control_express),
-               "wrench": (getattr(pr, cfg.control_priority), cfg.control_express),
-               "status": (getattr(pr, cfg.status_priority), False)}
+        cfg, pr, cc = self.config, zenoh.Priority, zenoh.CongestionControl
+        if cfg.control_congestion not in ("DROP", "BLOCK"):
+            raise TensorTouchError(f"publisher control_congestion: expected DROP or BLOCK, got {cfg.control_congestion!r}")
+        control = getattr(cc, cfg.control_congestion)
+        qos = {"fields": (getattr(pr, cfg.fields_priority), False, cc.DROP),
+               "contacts": (getattr(pr, cfg.control_priority), cfg.control_express, control),
+               "wrench": (getattr(pr, cfg.control_priority), cfg.control_express, control),
+               "status": (getattr(pr, cfg.status_priority), False, cc.DROP)}
         try:
             self._pubs = {kind: self.session.declare_publisher(
                 wire.key(self.sensor_id, kind), encoding=zenoh.Encoding(wire.ENCODINGS[kind]),
-                congestion_control=drop, priority=priority, express=express)
-                for kind, (priority, express) in qos.items()}
+                congestion_control=congestion, priority=priority, express=express)
+                for kind, (priority, express, congestion) in qos.items()}
             self._queryable = self.session.declare_queryable(wire.info_key(self.sensor_id),
                                                              self._on_query)
             # token last: once a sensor is seen alive, its publishers and queryable exist

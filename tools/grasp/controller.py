@@ -46,6 +46,8 @@ class ControllerConfig:
     load_power: float = 0.75                # per_load divides by (load + floor) to this power
     lost_is_change: bool = False            # True: a reference cluster with no match counts as released
     both_sensors: bool = True               # only objects felt by both fingertips compete (if ≥ 2)
+    along_only: bool = True                 # score only the change along the objects' length
+    witness: str = "max"                    # an object's change over the sensors: "sum" or "max"
     match_mm: float = 3.0
     group_mm: float = 4.0
     min_change: float = 0.08                # N per N^load_power of load (per_load), else N
@@ -159,6 +161,19 @@ class SelectiveGraspController:
         u = self.mount.gel_to_direction(p_mm)
         return T[:3, 3] + T[:3, :3] @ u * (self.mount.tip_radius_mm / 1000.0)
 
+    def _along(self, s: str, p_ref: np.ndarray, nrm: np.ndarray) -> np.ndarray | None:
+        """Unit direction along the object pinched at reference cluster p_ref on sensor s: the
+        gel normal × the direction to the nearest reference cluster of another object on the same
+        gel (the objects lie side by side). None with no other object on that gel."""
+        others = [q for q, f, _ in self._ref[s] if np.linalg.norm(f) >= self.cfg.min_ref_n
+                  and np.linalg.norm(q - p_ref) > self.cfg.group_mm]
+        if not others:
+            return None
+        q = min(others, key=lambda x: np.linalg.norm(x - p_ref))
+        e = np.cross(nrm, q - p_ref)
+        n = np.linalg.norm(e)
+        return e / n if n > 1e-9 else None
+
     def _objects(self, latest: dict[str, list]) -> list[dict]:
         pts, changes, loads, who = [], [], [], []
         for s in self.SENSORS:
@@ -177,7 +192,8 @@ class SelectiveGraspController:
                 df = f - f_ref
                 if self.cfg.shear_only:                # a pull drags the gel along its surface
                     df = df - (df @ nrm) * nrm
-                changes.append(float(np.linalg.norm(df)))
+                e = self._along(s, p_ref, nrm) if self.cfg.along_only else None
+                changes.append(float(abs(df @ e)) if e is not None else float(np.linalg.norm(df)))
                 loads.append(float(np.linalg.norm(f_ref)))
                 who.append(s)
         objects: list[dict] = []
@@ -186,17 +202,26 @@ class SelectiveGraspController:
                 if np.linalg.norm(o["point"] - p) * 1000 <= self.cfg.group_mm:
                     o["members"].append(p)
                     o["point"] = np.mean(o["members"], axis=0)
-                    o["change"] += ch
+                    o["by_sensor"][s] = o["by_sensor"].get(s, 0.0) + ch
+                    o["load_by"][s] = o["load_by"].get(s, 0.0) + load
                     o["load"] += load
                     o["sensors"].add(s)
                     break
             else:
-                objects.append({"point": p, "members": [p], "change": ch, "load": load, "sensors": {s}})
+                objects.append({"point": p, "members": [p], "by_sensor": {s: ch}, "load_by": {s: load}, "load": load,
+                                "sensors": {s}})
+        c = self.cfg
+        for o in objects:                              # the sum over both gels, or the stronger witness
+            if c.witness == "max":
+                o["change"] = max(ch / (max(o["load_by"][k] + c.load_floor_n, 1e-6) ** c.load_power if c.per_load else 1.0)
+                                  for k, ch in o["by_sensor"].items())
+            else:
+                o["change"] = sum(o["by_sensor"].values())
         if self.cfg.both_sensors:                      # a cluster only one fingertip feels is not a pinched object
             both = [o for o in objects if len(o["sensors"]) == len(self.SENSORS)]
             if len(both) >= 2:
                 objects = both
-        if self.cfg.per_load:                          # change per newton the object was held with
+        if self.cfg.per_load and self.cfg.witness != "max":   # change per newton the object was held with
             for o in objects:
                 o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
         return objects
@@ -260,13 +285,14 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
 
 
 class ControllerNode:
-    """Wires a controller to Zenoh: one Subscriber per fingertip sensor id."""
+    """Wires a controller to Zenoh: one Subscriber per fingertip sensor id. `controller` may be
+    replaced between trials; the subscriptions stay."""
 
     def __init__(self, controller: SelectiveGraspController, session, sensor_ids: dict[str, str]):
         from ...runtime.apps.subscriber import Subscriber
 
         self.controller = controller
-        self.subs = [Subscriber(sid, session=session, on_contacts=lambda fr, s=name: controller.on_contacts(s, fr))
+        self.subs = [Subscriber(sid, session=session, on_contacts=lambda fr, s=name: self.controller.on_contacts(s, fr))
                      for name, sid in sensor_ids.items()]
 
     def close(self) -> None:

@@ -36,6 +36,7 @@ class ObjectContact:
     radius: float           # object radius (mm)
     depth: float            # indentation along the dome normal (mm), ≥ 0
     shear: np.ndarray       # (3,) tangential stick displacement (mm)
+    index: int = -1         # which object of the scene it is (logs only; the render ignores it)
 
 
 @dataclass(frozen=True)

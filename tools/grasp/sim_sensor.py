@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from ...runtime.apps.loop import LoopConfig, SensorLoop
-from ...runtime.apps.publisher import Publisher
+from ...runtime.apps.publisher import Publisher, PublisherConfig
 from .dome_contact import DomeContactConfig, ObjectContact, displacement
 from .sim_camera import SimCamera
 
@@ -26,7 +26,9 @@ class SimFingertip:
         self.contact_cfg = contact_cfg or DomeContactConfig()
         self.rng = np.random.default_rng(seed)
         self.camera = SimCamera()
-        self.publisher = Publisher(sensor_id, session=session)
+        # a step-locked trial waits for every frame's contacts: BLOCK, never drop them when the
+        # machine is slow (Zenoh's DROP gives up after a short wait on a full queue)
+        self.publisher = Publisher(sensor_id, session=session, config=PublisherConfig(control_congestion="BLOCK"))
         self.loop = SensorLoop(self.camera, pipeline, self.publisher,
                                LoopConfig(publish_fields=False, status_every_s=3600.0))
         self.pushed = 0

@@ -71,5 +71,5 @@ class GelTouch:
                 s = s - excess
             out.append(ObjectContact(mount.direction_to_gel(u_tip), mount.vector_to_sensor(R.T @ e),
                                      o.radius_m * 1000.0, min(overlap_mm, cfg.cushion_mm),
-                                     mount.vector_to_sensor(s * 1000.0)))
+                                     mount.vector_to_sensor(s * 1000.0), k))
         return out

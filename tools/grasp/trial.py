@@ -27,6 +27,7 @@ from .controller import (
     ControllerNode,
     SelectiveGraspController,
 )
+from ...contracts import wire
 from ...contracts.files import atomic_write
 from .hand_model import HandSpec
 from .scene import PAIRS, Scene, SceneConfig
@@ -54,6 +55,8 @@ class TrialConfig:
     startup_frames: int = 32
     sensor_unit: str = "TWIN-DEMO"     # twin unit rendered, and its calibration in the store
     release_after_decision: bool = False
+    pull_only: bool = False            # pull for the whole decide window, no path (records the detection's inputs)
+    frame_timeout_s: float = 120.0     # wall time a frame's contacts may take over Zenoh (slow machine)
 
 
 @dataclass
@@ -67,6 +70,22 @@ class TrialResult:
     path_len: int
     seconds: float
     scores: list = field(default_factory=list)
+    cause: str = ""                       # sub-cause of a failure (see `verdict`)
+    decide_frames: int = 0                # frames scored before the decision (or the timeout)
+    score_log: list = field(default_factory=list)   # every scored frame's object scores
+
+
+def wait_matched(session, key: str, timeout_s: float) -> None:
+    """Block until `session` sees a subscriber matching `key` (Zenoh's matching status)."""
+    pub = session.declare_publisher(key)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while not pub.matching_status.matching:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"zenoh: no subscriber for {key} within {timeout_s:g} s")
+            time.sleep(0.005)
+    finally:
+        pub.undeclare()
 
 
 def free_endpoint() -> str:
@@ -105,12 +124,22 @@ class Bench:
             time.sleep(0.05)
         if not list(self.sub_session.info.peers_zid()):
             raise RuntimeError(f"zenoh: the controller session did not connect to {ep} within 10 s")
+        # one subscription for all trials (each trial hands it its own controller); no frame is
+        # rendered before the sensors' session knows it: every frame then reaches the controller,
+        # and a trial does not depend on how fast a declaration travels
+        self.node = ControllerNode(SelectiveGraspController(self.graph, self.start, self.mount, self.ctrl_cfg),
+                                   self.sub_session, SENSOR_IDS)
+        for sid in SENSOR_IDS.values():
+            wait_matched(self.pub_session, wire.key(sid, "contacts"), self.cfg.frame_timeout_s)
 
     def close(self) -> None:
+        self.node.close()
         self.sub_session.close()
         self.pub_session.close()
 
-    def trial(self, pair: str, seed: int, frames_out: list | None = None) -> TrialResult:
+    def trial(self, pair: str, seed: int, frames_out: list | None = None, log_out: list | None = None) -> TrialResult:
+        """One trial; `frames_out` collects picture frames, `log_out` every frame's simulated time,
+        joint angles and the contacts the controller received."""
         from ...runtime.pipeline import open_pipeline
         from .sim_sensor import SimFingertip
 
@@ -124,11 +153,11 @@ class Bench:
                       self.scene_cfg, jitter)
         q_open = scene.opened(g.q[s], g.normal[s], cfg.open_mm)
         scene.set_hand(q_open)
+        ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg)
+        self.node.controller = ctrl
         sensors = {name: SimFingertip(sid, self.unit, open_pipeline(self.package, self.cal, sensor_id=self.cfg.sensor_unit),
                                       self.pub_session, seed=seed * 2 + i)
                    for i, (name, sid) in enumerate(SENSOR_IDS.items())}
-        ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg)
-        node = ControllerNode(ctrl, self.sub_session, SENSOR_IDS)
         gel_touch = GelTouch(scene, self.mount)
         sim_t = 0.0
         judged, outcome, path_len = None, "other", 0
@@ -136,13 +165,23 @@ class Bench:
         def frame(record: str = ""):
             nonlocal sim_t
             felt = {name: gel_touch.contacts(i) for i, name in enumerate(sensors)}
-            for _ in range(20):   # a message dropped on the way: show the same state again
-                for name, sen in sensors.items():
-                    sen.show(felt[name], sim_t)
-                if ctrl.wait_frames({n: sen.pushed for n, sen in sensors.items()}, timeout=2.0):
-                    break
-            else:
-                raise RuntimeError("the sensors' contacts did not arrive over Zenoh within 40 s")
+            for name, sen in sensors.items():
+                sen.show(felt[name], sim_t)
+            # step-locked: exactly this frame's contacts, however long the machine takes; a lost
+            # message ends the trial rather than showing the state again (that would change the
+            # runtime's frame count and the render noise, so the result would depend on timing)
+            if not ctrl.wait_frames({n: sen.pushed for n, sen in sensors.items()}, timeout=cfg.frame_timeout_s):
+                why = "; ".join(f"{n}: received {ctrl.received[n]}, sent {sen.publisher.stats.as_dict()}"
+                                for n, sen in sensors.items())
+                why += "; subscriber errors " + ", ".join(f"{sub.errors} ({sub.last_error})" for sub in self.node.subs)
+                raise RuntimeError(f"the sensors' contacts of frame {sensors['thumb'].pushed} did not arrive "
+                                   f"over Zenoh within {cfg.frame_timeout_s:g} s ({why})")
+            if log_out is not None:
+                log_out.append({"t": round(sim_t, 6), "q": scene.data.qpos[scene.qadr].tolist(),
+                                "contacts": {n: [(p.tolist(), f.tolist()) for p, f, _ in ctrl.latest[n]]
+                                             for n in sensors},
+                                "felt": {n: [(o.index, o.point.tolist(), o.depth, o.shear.tolist()) for o in felt[n]]
+                                         for n in sensors}})
             if frames_out is not None and record:
                 frames_out.append({"label": record, "t": sim_t, "scene": scene, "felt": felt,
                                    "touching": scene.touching(), "model": scene.snapshot(),
@@ -161,14 +200,7 @@ class Bench:
                 frame(label if k == n - 1 else "")
 
         try:
-            # rest frames (the runtime's startup baseline) until the controller hears both sensors
-            for sen in sensors.values():
-                sen.show([], sim_t)
-            for _ in range(200):
-                if ctrl.wait_frames({n: 1 for n in sensors}, timeout=0.05):
-                    break
-                for sen in sensors.values():
-                    sen.show([], sim_t)
+            # rest frames (the runtime's startup baseline); the controller already hears both sensors
             for _ in range(cfg.startup_frames):
                 frame()
             advance(cfg.close_s, q_open, g.q[s], label="pinch")
@@ -187,6 +219,9 @@ class Bench:
                 sim_t += cfg.frame_dt
                 frame()
                 decision = ctrl.update()
+                if cfg.pull_only:
+                    decision = None if k < steps - 1 else decision
+                    continue
                 if decision is not None or k == steps - 1:
                     if frames_out is not None:   # the frame the decision was made on (or the last)
                         frames_out.append({"label": "pull", "t": sim_t, "scene": scene, "touching": scene.touching(),
@@ -195,9 +230,9 @@ class Bench:
                                            "contacts": {n: list(ctrl.latest[n]) for n in sensors}})
                     break
             if decision is not None:
-                own = np.linalg.norm(decision.moving_point - np.array(scene.object_axis(pulled)[0]))
-                oth = np.linalg.norm(decision.moving_point - np.array(scene.object_axis(1 - pulled)[0]))
+                own, oth = (_off_axis(decision.moving_point, *scene.object_axis(k)) for k in (pulled, 1 - pulled))
                 judged = pulled if own <= oth else 1 - pulled
+            if decision is not None and not cfg.pull_only:
                 if cfg.release_after_decision:
                     scene.release()
                 _, qs = ctrl.trajectory()
@@ -208,20 +243,35 @@ class Bench:
                     q_prev = q
                 advance(cfg.hold_s, label="final")
             touching = scene.touching()
-            if judged is None:
-                outcome = "other"
-            elif judged != pulled:
-                outcome = "false detection"
-            elif touching[:, pulled].all() and not touching[:, 1 - pulled].any():
-                outcome = "success"
-            else:
-                outcome = "other"
+            outcome, cause = verdict(judged, pulled, touching)
         finally:
-            node.close()
             for sen in sensors.values():
                 sen.close()
         return TrialResult(pair, seed, pulled, judged, outcome, touching.astype(int).tolist(), path_len,
-                           round(time.perf_counter() - t0, 2), decision.scores if decision else [])
+                           round(time.perf_counter() - t0, 2), decision.scores if decision else [], cause,
+                           len(ctrl.log), [e["scores"] for e in ctrl.log])
+
+
+def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
+    """Distance of point x from the line through centre along the unit axis."""
+    d = np.asarray(x, float) - centre
+    return float(np.linalg.norm(d - (d @ axis) * axis))
+
+
+def verdict(judged: int | None, pulled: int, touching: np.ndarray) -> tuple[str, str]:
+    """(outcome, cause) of a trial from the simulator's final touching matrix (2 tips × 2 objects)."""
+    if judged is None:
+        return "other", "no decision"
+    if judged != pulled:
+        return "false detection", "other object named"
+    keeps, other = touching[:, pulled], touching[:, 1 - pulled]
+    if keeps.all() and not other.any():
+        return "success", ""
+    if keeps.all():
+        return "other", "final pinch also touches the other object"
+    if other.any():
+        return "other", "final pinch lost the pulled object, touches the other"
+    return "other", "final pinch lost the pulled object"
 
 
 def table(results: dict[str, list[TrialResult]]) -> str:
