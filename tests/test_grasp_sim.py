@@ -80,6 +80,18 @@ def _line_graph():
     return graph_mod.ContactGraph(q, point, normal, z, z, z, z, Tt, Ti, edges, w, np.array([4.3, 0.0]))
 
 
+def _decide(ctrl, frame, frames: int = 8):
+    """Feed both sensors `frames` frames of `frame(sensor, k)` while watching; the controller's decision."""
+    ctrl.watch()
+    d = None
+    for k in range(frames):
+        for s in ("thumb", "index"):
+            ctrl.on_contacts(s, frame(s, k))
+        d = ctrl.update() or d
+    assert d is not None
+    return d
+
+
 def _frame(contacts):
     return SimpleNamespace(seq=0, contacts=[SimpleNamespace(position_mm=p, force_n=f, normal=(0, 0, 1.0))
                                             for p, f in contacts])
@@ -145,14 +157,7 @@ def test_controller_scores_shear_change_per_newton_of_load():
              (ControllerConfig(load_power=0.75, **summed), 0, [0.9 / 6 ** 0.75, 0.6 / 2 ** 0.75]),   # 0.2348, 0.3568
              (ControllerConfig(per_load=False, min_change=0.15, **summed), 1, [0.6, 0.9]))
     for cfg, named, scores in cases:
-        ctrl = SelectiveGraspController(g, start, m, cfg)
-        ctrl.watch()
-        d = None
-        for k in range(8):
-            for s in ("thumb", "index"):
-                ctrl.on_contacts(s, frame(s, k))
-            d = ctrl.update() or d
-        assert d is not None
+        d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
         assert np.linalg.norm(d.moving_point - objs[named]) < 0.0015
         np.testing.assert_allclose(sorted(d.scores), scores, atol=1e-6)
 
@@ -309,13 +314,6 @@ def test_controller_scores_the_change_along_the_objects_with_the_stronger_witnes
 
     decided = {}
     for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False)), ("new", ControllerConfig())):
-        ctrl = SelectiveGraspController(g, start, m, cfg)
-        ctrl.watch()
-        d = None
-        for k in range(8):
-            for s in ("thumb", "index"):
-                ctrl.on_contacts(s, frame(s, k))
-            d = ctrl.update() or d
-        assert d is not None
+        d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
         decided[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
     assert decided == {"sum": 0, "new": 1}
