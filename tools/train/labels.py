@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.fields import N_CHANNELS
+from .build import CHOICES
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +36,9 @@ class LabelConfig:
                                           # between FE frames) | "fe" (FE frames only) | "keypoint" (seed)
 
     def __post_init__(self):
-        if self.frames not in LABEL_FRAMES:
-            raise ValueError(f"LabelConfig.frames: expected one of {', '.join(LABEL_FRAMES)}, got {self.frames!r}")
-
-
-LABEL_FRAMES = ("interpolated", "fe", "keypoint")
+        if self.frames not in CHOICES["label_frames"]:
+            raise ValueError(f"LabelConfig.frames: expected one of {', '.join(CHOICES['label_frames'])}, "
+                             f"got {self.frames!r}")
 
 
 def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.ndarray,
