@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ...runtime.offline import match_contacts, measured_at
+from .labels import at_fe_frames
 
 log = logging.getLogger(__name__)
 
@@ -178,20 +179,6 @@ def budget_table(items: list[dict], key: str = "label") -> dict:
         out["at an FE frame"] = block(contact & at_fe)
         out["between FE frames"] = block(contact & ~at_fe)
     return out
-
-
-def at_fe_frames(frame_t: np.ndarray, frames: np.ndarray, sources: list) -> np.ndarray:
-    """(n,) bool: does each labelled camera frame (indices `frames` into `frame_t`) sit within half a camera
-    period of an FE frame of any source, or is its label interpolated between FE frames?"""
-    t = np.asarray(frame_t, float)
-    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    fe_t = np.sort(np.concatenate([np.asarray(s.times, float) for s in sources])) if sources else np.zeros(0)
-    if not len(fe_t):
-        return np.zeros(len(frames), bool)
-    ti = t[np.asarray(frames, int)]
-    j = np.clip(np.searchsorted(fe_t, ti), 1, len(fe_t) - 1) if len(fe_t) > 1 else np.zeros(len(ti), int)
-    near = np.minimum(np.abs(fe_t[j] - ti), np.abs(fe_t[np.maximum(j - 1, 0)] - ti))
-    return near <= half + 1e-9
 
 
 def session_label_samples(b, spec, stride: int = 1):

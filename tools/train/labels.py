@@ -92,6 +92,20 @@ def keypoint_frame_share(frame_t: np.ndarray, label: np.ndarray, sources: list) 
     return {"labelled_frames": n, "at_keypoint": at_key, "at_fe_frame": at_fe}
 
 
+def at_fe_frames(frame_t: np.ndarray, frames: np.ndarray, sources: list) -> np.ndarray:
+    """(n,) bool: does each labelled camera frame (indices `frames` into `frame_t`) sit within half a camera
+    period of an FE frame of any source, or is its label interpolated between FE frames?"""
+    t = np.asarray(frame_t, float)
+    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    fe_t = np.sort(np.concatenate([np.asarray(s.times, float) for s in sources])) if sources else np.zeros(0)
+    if not len(fe_t):
+        return np.zeros(len(frames), bool)
+    ti = t[np.asarray(frames, int)]
+    j = np.clip(np.searchsorted(fe_t, ti), 1, len(fe_t) - 1) if len(fe_t) > 1 else np.zeros(len(ti), int)
+    near = np.minimum(np.abs(fe_t[j] - ti), np.abs(fe_t[np.maximum(j - 1, 0)] - ti))
+    return near <= half + 1e-9
+
+
 def source_fields(view, sigma: float, ratios: np.ndarray, stress_scale: float, projector) -> np.ndarray:
     """(15, S, S) fields of one frame at FE parameter σ of a source (view = dataset.surface_view)."""
     from .fields import attribute_contacts
