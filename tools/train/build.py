@@ -73,6 +73,7 @@ class BuildConfig:
     tables: str = "gpr"                           # θ/φ tables of the targets: gpr (stage 3 pokes) | truth (twin)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
     label_frames: str = "interpolated"            # fe = "resolve": labels at every frame of an FE span | "fe" | "keypoint"
+    label_sigma: str = "pose+ft"                  # a label between FE frames is placed by mocap + F/T | "pose" alone
     # stage 1 dual threshold. The seed's 1.5 N / 1.1 N (KeypointConfig) suit its stiffer gel; the twin's gel
     # peaks at 0.2–5 N per poke, so 1.5 N dropped 15 of 35 pokes (their frames then only "busy", unlabelled).
     # 0.5 N is 25× the F/T noise (0.02 N); detach keeps the seed's ratio 1.1/1.5.
@@ -125,7 +126,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     d = cfg.to_dict()
     deps = {"sessions": ["train", "heldout", "physics", "size"],
             "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe"], "correspondence": ["tables"], "simreal": [],
-            "dataset": ["tables", "contact_stride", "label_frames", "rest_fraction", "val_fraction"],
+            "dataset": ["tables", "contact_stride", "label_frames", "label_sigma", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
                     "init_bounds"],
@@ -133,7 +134,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
-    optional = {"label_frames": "interpolated", "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
+    optional = {"label_frames": "interpolated", "label_sigma": "pose", "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
                 "detach_force_n": 1.1, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0}
     keys, acc = {}, {}
     for st in STAGES:
@@ -248,6 +249,7 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
 
 # build fields that take one of a few words
 CHOICES = {"fe": ("resolve", "twin"), "tables": ("gpr", "truth"), "label_frames": ("interpolated", "fe", "keypoint"),
+           "label_sigma": ("pose+ft", "pose"),
            "physics": ("fe", "hertz-fallback")}
 
 

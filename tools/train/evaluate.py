@@ -196,11 +196,12 @@ def session_label_samples(b, spec, stride: int = 1):
         d = session_samples(b.session(spec), cal, [s.poke for s in src], [s.result for s in src],
                             [s.slots for s in src], ratios, dcfg)
     else:
-        from .labels import session_samples_measured
+        from .labels import LabelConfig, session_samples_measured
 
         from ...contracts.session import load_session
 
-        d = session_samples_measured(b.session(spec), cal, src, ratios, dcfg)
+        d = session_samples_measured(b.session(spec), cal, src, ratios, dcfg,
+                                     LabelConfig(frames=b.cfg.label_frames, sigma=b.cfg.label_sigma))
         d["at_fe_frame"] = at_fe_frames(load_session(b.session(spec)).table("frames")[:, 0], d["frame"], src)
     return d, cal
 

@@ -34,19 +34,44 @@ class LabelConfig:
     rest_force_n: float = 0.1             # |F| above this outside a labelled span: not a rest frame
     frames: str = "interpolated"          # contact labels at: every frame of an FE span (interpolated
                                           # between FE frames) | "fe" (FE frames only) | "keypoint" (seed)
+    sigma: str = "pose+ft"                # where a frame sits between two FE frames: from the mocap pose and
+                                          # the F/T force ("pose+ft") | the pose alone ("pose")
+    pose_sd_mm: float = 0.05              # weights of that fit: the mocap's error (seed appendix 0.03–0.08 mm)
+    force_sd_n: float = 0.05              # ... and the F/T + sim-to-real error at FE frames (0.04–0.09 N)
 
     def __post_init__(self):
-        if self.frames not in CHOICES["label_frames"]:
-            raise ValueError(f"LabelConfig.frames: expected one of {', '.join(CHOICES['label_frames'])}, "
-                             f"got {self.frames!r}")
+        for name, key in (("frames", "label_frames"), ("sigma", "label_sigma")):
+            if getattr(self, name) not in CHOICES[key]:
+                raise ValueError(f"LabelConfig.{name}: expected one of {', '.join(CHOICES[key])}, "
+                                 f"got {getattr(self, name)!r}")
+
+
+def measured_forces(t: np.ndarray, slots: list, tracks: dict, wrench: np.ndarray, ft_rotation_wxyz) -> np.ndarray:
+    """(n, 3·K) force each indenter of `slots` applies to the gel (the FE reaction's sign), sensor frame, N,
+    at times t: the F/T reading interpolated at t, turned by the mocap pose nearest t."""
+    from ...runtime.offline import ft_to_sensor
+
+    t = np.asarray(t, float)
+    w = np.asarray(wrench, float)
+    out = []
+    for k in slots:
+        wk = w[w[:, 1] == k]
+        f_ft = np.stack([np.interp(t, wk[:, 0], wk[:, 2 + c]) for c in range(3)], 1)
+        tr = tracks[k]
+        near = np.clip(np.searchsorted(tr.t, t), 0, len(tr.t) - 1)
+        out.append(-ft_to_sensor(f_ft, tr.quaternion[near], ft_rotation_wxyz))
+    return np.concatenate(out, 1)
 
 
 def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.ndarray,
-                 rcfg=None, lcfg: LabelConfig = LabelConfig()) -> tuple[np.ndarray, np.ndarray]:
+                 rcfg=None, lcfg: LabelConfig = LabelConfig(), ft_rotation_wxyz=None,
+                 ratios: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per camera frame: label (source index, −1 rest, ≥ BUSY_ID busy) and σ (NaN unless labelled).
 
-    sources[p]: .times (J,), .t_init, .slots, .is_keypoint (J,); tracks: {slot: resolve.PoseTrack};
-    wrench: session wrench table (t, indenter, fx, fy, fz, ...)."""
+    sources[p]: .times (J,), .t_init, .slots, .is_keypoint (J,), .result.RF (J, K, 3); tracks: {slot:
+    resolve.PoseTrack}; wrench: session wrench table (t, indenter, fx, fy, fz, ...). With
+    `lcfg.sigma = "pose+ft"` and the F/T axes in the indenter frame (`ft_rotation_wxyz`), σ also fits the
+    measured force to the FE reactions × the stage-4 `ratios` ({slot: {"ratio": (3,)}})."""
     from .resolve import ResolveConfig, frame_sigma
 
     rcfg = rcfg or ResolveConfig()
@@ -69,7 +94,13 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
             inside = np.array(near, int)
         if len(inside):
             lab[inside] = p
-            sig[inside] = frame_sigma(t[inside], times, [tracks[s] for s in src.slots], rcfg)
+            force = None
+            if lcfg.sigma == "pose+ft" and ft_rotation_wxyz is not None:
+                r = np.array([(ratios or {}).get(int(sl), {"ratio": [1.0] * 3})["ratio"] for sl in src.slots])
+                fe = (np.asarray(src.result.RF, float)[:, :len(src.slots)] * r).reshape(len(times), -1)
+                force = (measured_forces(t[inside], src.slots, tracks, w, ft_rotation_wxyz), fe)
+            sig[inside] = frame_sigma(t[inside], times, [tracks[s] for s in src.slots], rcfg, force,
+                                      lcfg.pose_sd_mm, lcfg.force_sd_n)
     free = busy & (lab < 0)
     runs = np.cumsum(np.diff(np.concatenate([[0], free.astype(int)])) == 1)
     lab[free] = BUSY_ID + runs[free]
@@ -137,7 +168,9 @@ def session_samples_measured(session_dir: Path, calibration, sources: list, rati
     frames = ses.table("frames")
     poses = ses.table("poses")
     tracks = {int(k): PoseTrack.from_table(poses, int(k)) for k in np.unique(poses[:, 1])}
-    lab, sig = frame_labels(frames[:, 0], sources, tracks, ses.table("wrench"), rcfg, lcfg)
+    lab, sig = frame_labels(frames[:, 0], sources, tracks, ses.table("wrench"), rcfg, lcfg,
+                            ses.streams["wrench"]["ft_to_indenter"]["rotation_wxyz"],
+                            {int(k): v for k, v in ratios.items()})
     picks = [pk for pk in select_frames(lab, dcfg) if pk[2] < BUSY_ID]
     contact = [pk for pk in picks if pk[2] >= 0]
     rest = [pk for pk in picks if pk[2] < 0]

@@ -221,12 +221,21 @@ def period_scenario(tracks: list[PoseTrack], slots: list[int], names: list[str],
     return PeriodScenario(sc, t0, times, is_key, list(slots), list(names))
 
 
-def frame_sigma(t: np.ndarray, times: np.ndarray, tracks: list[PoseTrack], cfg: ResolveConfig = ResolveConfig()
-                ) -> np.ndarray:
+def frame_sigma(t: np.ndarray, times: np.ndarray, tracks: list[PoseTrack], cfg: ResolveConfig = ResolveConfig(),
+                force: tuple | None = None, pose_sd_mm: float = 0.05, force_sd_n: float = 0.05) -> np.ndarray:
     """Continuous FE frame parameter σ = j + s of session times t inside [times[0], times[-1]]:
-    segment j between FE frames j and j+1, s = projection of the measured (smoothed) pose change
-    onto the segment's pose change (translation mm + rotation·`max_step_mm/max_step_rad`), clipped to
-    [0, 1]; a segment with no motion (a hold) uses the time fraction. NaN outside the span."""
+    segment j between FE frames j and j+1, s ∈ [0, 1] the weighted least-squares position of the
+    measurement on the segment, clipped:
+
+    - the measured (smoothed) pose change against the segment's pose change (translation mm +
+      rotation·`max_step_mm/max_step_rad`), weight 1/pose_sd_mm²;
+    - with `force` = (measured (n, M), FE (J, M)) — the indenters' force vectors at t and at the FE
+      frames, same units and frame — the measured force against the segment's force change, weight
+      1/force_sd_n². The pose alone misplaces a frame when the motion between two FE frames is not a
+      straight line in pose space (a press, then a twist) or when the segment is short against the
+      mocap noise; the F/T reading fixes where on the segment the contact is;
+    - a segment with neither motion nor force change (a hold) uses the time fraction.
+    NaN outside the span."""
     t = np.atleast_1d(np.asarray(t, float))
     times = np.asarray(times, float)
     out = np.full(len(t), np.nan)
@@ -249,8 +258,20 @@ def frame_sigma(t: np.ndarray, times: np.ndarray, tracks: list[PoseTrack], cfg: 
     d = V[j + 1] - V[j]
     n2 = np.sum(d * d, 1)
     tf = (ti - times[j]) / np.maximum(times[j + 1] - times[j], 1e-12)
-    proj = np.sum((X - V[j]) * d, 1) / np.maximum(n2, 1e-12)
-    s = np.where(n2 > (0.02 * cfg.max_step_mm) ** 2, proj, tf)
+    num = np.sum((X - V[j]) * d, 1) / pose_sd_mm ** 2
+    den = n2 / pose_sd_mm ** 2
+    moved = n2 > (0.02 * cfg.max_step_mm) ** 2
+    if force is not None:
+        fm, fe = (np.asarray(a, float) for a in force)
+        if fm.shape != (len(t), fe.shape[1]) or fe.shape[0] != len(times):
+            raise ValueError(f"frame_sigma: force shapes {fm.shape} / {fe.shape} do not match t ({len(t)},) "
+                             f"and times ({len(times)},)")
+        df = fe[j + 1] - fe[j]
+        f2 = np.sum(df * df, 1)
+        num = num + np.sum((fm[inside] - fe[j]) * df, 1) / force_sd_n ** 2
+        den = den + f2 / force_sd_n ** 2
+        moved |= f2 > force_sd_n ** 2
+    s = np.where(moved, num / np.maximum(den, 1e-300), tf)
     out[inside] = j + np.clip(s, 0.0, 1.0)
     return out
 

@@ -159,7 +159,8 @@ def stage_dataset(b) -> dict:
 
                 d = session_samples_measured(b.session(spec), unit_calibration(b, spec.serial),
                                              label_sources(b, spec), rat, dcfg,
-                                             LabelConfig(frames=b.cfg.label_frames), progress=prog)
+                                             LabelConfig(frames=b.cfg.label_frames, sigma=b.cfg.label_sigma),
+                                             progress=prog)
             atomic_write(part, lambda fh: np.savez(fh, **d))
             log.info("dataset %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
         with np.load(part) as z:
