@@ -199,3 +199,13 @@ def test_tiny_recipe_with_a_lineage_ships_a_package_that_names_and_rebuilds_its_
     other = apply_set(recipe, "steps.more.lr=2e-4")                           # another recipe, same package name
     with pytest.raises(RecipeError, match="give --replace"):
         run_recipe(other, ["export"], b.root, overrides={"models_dir": str(models)})
+
+
+def test_manifest_paths_name_the_cache_as_a_checkout_has_it(tmp_path, monkeypatch):
+    from tensortouch.contracts.paths import ROOT
+    from tensortouch.tools.train.package import repo_relative
+
+    monkeypatch.setenv("TENSORTOUCH_CACHE", str(tmp_path / "elsewhere"))
+    assert repo_relative(tmp_path / "elsewhere" / "train" / "x" / "runs" / "fit-1") == "cache/train/x/runs/fit-1"
+    assert repo_relative(ROOT / "tools" / "train" / "recipes" / "a.toml") == "tools/train/recipes/a.toml"
+    assert repo_relative(tmp_path / "other") == str((tmp_path / "other").resolve())

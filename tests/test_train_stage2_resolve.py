@@ -123,3 +123,50 @@ def test_frame_labels_contact_busy_rest_and_keypoint_share():
     assert np.all(lab3[inside & (lab3 != 0)] >= BUSY_ID)   # the others in the span: neither contact nor rest
     with pytest.raises(ValueError, match="LabelConfig.frames"):
         LabelConfig(frames="between")
+
+
+def _press_then_twist():
+    """Press 0.2 mm (t 0–0.2 s), hold, twist 0.06 rad about z (t 0.7–0.9 s), hold to 1.5 s: one FE segment
+    from t = −0.1 to 1.0 s whose straight line in pose space the motion does not follow."""
+    t = np.arange(-0.5, 1.5, 1 / 120)
+    z = -0.2 * np.clip(t / 0.2, 0, 1)
+    twist = 0.06 * np.clip((t - 0.7) / 0.2, 0, 1)
+    q = Rotation.from_rotvec(np.column_stack([0 * t, 0 * t, twist])).as_quat(scalar_first=True)
+    return PoseTrack(t, np.column_stack([0 * t, 0 * t, z]), q)
+
+
+def test_frame_sigma_with_the_ft_force_places_a_hold_before_a_twist():
+    tr = _press_then_twist()
+    times, t = np.array([-0.1, 1.0]), np.array([0.5])
+    # pose alone: (X − V0)·d / |d|² with d = (0, 0, −0.2 mm, 0, 0, 0.06 rad · 6.25 mm/rad)
+    s_pose = 0.04 / (0.04 + 0.375 ** 2)
+    np.testing.assert_allclose(frame_sigma(t, times, [tr]), [s_pose], atol=2e-3)
+    # the FE force grows 0 → 0.6 N over the segment and the F/T already reads 0.6 N during the hold
+    fe, fm = np.array([[0, 0, 0.0], [0, 0, 0.6]]), np.array([[0, 0, 0.6]])
+    s = frame_sigma(t, times, [tr], force=(fm, fe), pose_sd_mm=0.05, force_sd_n=0.05)
+    want = (0.04 / 0.05 ** 2 + 0.36 / 0.05 ** 2) / ((0.04 + 0.375 ** 2) / 0.05 ** 2 + 0.36 / 0.05 ** 2)
+    np.testing.assert_allclose(s, [want], atol=2e-3)                  # 0.740
+    s_ft = frame_sigma(t, times, [tr], force=(fm, fe), pose_sd_mm=0.05, force_sd_n=1e-3)
+    np.testing.assert_allclose(s_ft, [1.0], atol=2e-3)                # a precise F/T decides
+    with pytest.raises(ValueError, match="force shapes"):
+        frame_sigma(t, times, [tr], force=(fm, fe[:1]))
+
+
+def test_label_config_checks_the_sigma_word():
+    from tensortouch.tools.train.labels import LabelConfig
+
+    with pytest.raises(ValueError, match="LabelConfig.sigma: expected one of pose\\+ft, pose"):
+        LabelConfig(sigma="force")
+
+
+def test_measured_forces_turns_the_ft_reading_into_the_force_on_the_gel():
+    from tensortouch.tools.train.labels import measured_forces
+
+    t = np.array([0.0, 1.0])
+    q = np.tile([1.0, 0, 0, 0], (2, 1))
+    tracks = {3: PoseTrack(t, np.zeros((2, 3)), q)}
+    wrench = np.array([[0.0, 3, 0, 0, -1.0, 0, 0, 0], [1.0, 3, 0, 0, -3.0, 0, 0, 0]])
+    np.testing.assert_allclose(measured_forces(np.array([0.5]), [3], tracks, wrench, [1.0, 0, 0, 0]), [[0, 0, 2.0]])
+    yaw = Rotation.from_rotvec([0, 0, np.pi / 2]).as_quat(scalar_first=True)     # F/T x axis = indenter y
+    wrench[:, 2:5] = [1.0, 0, 0]
+    np.testing.assert_allclose(measured_forces(np.array([0.5]), [3], tracks, wrench, yaw), [[0, -1.0, 0]], atol=1e-12)

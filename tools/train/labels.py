@@ -3,8 +3,9 @@
 No twin truth is read. Per session, the stage-2 sources (one re-solved FE scenario per stage-1 contact
 period: FE frame times, indenter ids, result) define:
 - **contact frames**: camera frames inside an FE frame span [first, last FE frame] of a period; their
-  FE parameter σ = j + s comes from the measured motion (`resolve.frame_sigma`: projection of the
-  smoothed mocap pose onto the segment between FE frames j and j+1) and the fields are the linear
+  FE parameter σ = j + s comes from the measurements (`resolve.frame_sigma`: the least-squares place on
+  the segment between FE frames j and j+1 of the smoothed mocap pose and, with `LabelConfig.sigma` =
+  "pose+ft", of the F/T force against the FE reactions × the stage-4 ratios) and the fields are the linear
   interpolation of the two FE frames (`resolve.interp_frames`); frames within half a camera period of
   an FE frame are (up to that half period) the FE frame itself. `LabelConfig.frames` = "fe" keeps only
   those (no interpolated label), "keypoint" only the frames nearest a stage-1 keypoint (the seed's labels);

@@ -46,14 +46,19 @@ def git_commit() -> str:
 
 
 def repo_relative(path: Path) -> str:
-    """Path relative to the repository root when inside it (manifests are committed)."""
-    from ...contracts.paths import ROOT
+    """How a committed manifest names a path: relative to the repository root when inside it; inside
+    the build cache, as `cache/…` (the cache's place in a checkout, where a rebuild puts it, also when
+    this build's cache was moved by TENSORTOUCH_CACHE); else absolute."""
+    from ...contracts.paths import ROOT, cache_dir
 
     path = Path(path).resolve()
-    try:
-        return str(path.relative_to(ROOT))
-    except ValueError:
-        return str(path)
+    for root, prefix in ((ROOT, None), (cache_dir().resolve(), "cache")):
+        try:
+            rel = path.relative_to(root)
+        except ValueError:
+            continue
+        return str(Path(prefix) / rel) if prefix else str(rel)
+    return str(path)
 
 
 def build_manifest(name: str, size: int, bounds: dict, files: dict[str, Path], command: str,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from . import stages
 from .build import STAGES, Build, BuildConfig, config_from_dict, fit_dir
-from .package import update_manifest
+from .package import repo_relative, update_manifest
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,8 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
             b = run_build(cfg, after, root, command, force, step=b.step)
             if exported:
                 update_manifest(package, lambda man: man["training"].update(
-                    recipe=recipe.record(), git_commit=commit, lineage=lineage))
+                    recipe={**recipe.record(), "source": repo_relative(Path(recipe.source))},
+                    git_commit=commit, lineage=lineage))
     return b
 
 
