@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.errors import ModelPackageError
+from .model.network_input import IN_CHANS
 from .package import (FP32, INT8, atomic_copy, build_manifest, repo_relative, verify_package,
                                  write_package)
 
@@ -77,7 +78,7 @@ def export_onnx(model, path: str | Path, image_size: int, opset: int = ExportCon
     model = model.eval()
     if rewrite:
         model, _ = reparametrize(copy.deepcopy(model), image_size)
-    dummy = torch.rand(1, 6, image_size, image_size)
+    dummy = torch.rand(1, IN_CHANS, image_size, image_size)
     torch.onnx.export(model, (dummy,), str(path), input_names=["input"], output_names=["fields"],
                       opset_version=opset, dynamo=False, do_constant_folding=True,
                       dynamic_axes={"input": {0: "N"}, "fields": {0: "N"}} if dynamic_batch else None)

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from .model.network_input import IN_CHANS
+
 log = logging.getLogger(__name__)
 
 
@@ -110,7 +112,7 @@ def _fusable_heads(m: nn.Module) -> bool:
 
 
 @torch.no_grad()
-def reparametrize(model: nn.Module, image_size: int, in_channels: int = 6,
+def reparametrize(model: nn.Module, image_size: int, in_channels: int = IN_CHANS,
                   cfg: RewriteConfig = RewriteConfig()) -> tuple[nn.Module, list[str]]:
     """Apply the rewrites in place where the structure matches; returns (model, names rewritten).
 

@@ -16,6 +16,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .layers import Block
+from .network_input import IN_CHANS, NetworkInput
 from .qupsample import Heads
 
 log = logging.getLogger(__name__)
@@ -23,7 +24,9 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class UNetConfig:
-    in_chans: int = 6
+    """Fully convolutional: any image size divisible by 2 ** len(widths)."""
+
+    in_chans: int = IN_CHANS
     widths: tuple[int, ...] = (18, 36, 72, 144)
     head_channels: int = 16
 
@@ -65,9 +68,7 @@ class UNet(nn.Module):
 
 
 @dataclass(frozen=True)
-class ViTConfig:
-    image_size: int = 128
-    in_chans: int = 6
+class ViTConfig(NetworkInput):
     patch: int = 8
     dim: int = 176
     depth: int = 6

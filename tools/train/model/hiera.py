@@ -16,16 +16,15 @@ import torch
 from torch import nn
 
 from .layers import Mlp, attention, from_units, to_units, unit_pool
+from .network_input import NetworkInput
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class HieraConfig:
+class HieraConfig(NetworkInput):
     """DESIGN §10 small CPU configuration as defaults."""
 
-    image_size: int = 128
-    in_chans: int = 6
     embed_dim: int = 32
     heads: int = 1
     stages: tuple[int, ...] = (1, 2, 3, 1)

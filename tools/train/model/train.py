@@ -30,10 +30,10 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class FitConfig:
-    """Seed §IV-C training setup as defaults (epochs/batch scaled to a 2-core CPU)."""
+class LoopConfig:
+    """The training loop both runs share (`_loop`): seed §IV-C setup as defaults (AdamW, lr 1e-3, warmup then
+    cosine decay), epochs and batch scaled to a 2-core CPU."""
 
-    arch: str = "hiera_qup"
     epochs: int = 20
     batch_size: int = 16
     lr: float = 1e-3
@@ -44,6 +44,15 @@ class FitConfig:
     seed: int = 0
     checkpoint_every_s: float = 120.0
     log_every: int = 10
+    device: str = "auto"                 # auto | cpu | cuda (tools.train.model.device); not part of config.json
+    amp: bool = True                     # mixed precision (float16 autocast + grad scaling) on CUDA only
+
+
+@dataclass
+class FitConfig(LoopConfig):
+    """Supervised fit of the fields (seed §IV-C); the loss terms beyond plain L1 are off by default."""
+
+    arch: str = "hiera_qup"
     eval_batch: int = 16
     # Extra L1 weight on pixels whose target is away from the channel's zero level (contact fields are
     # sparse: with plain L1 a short CPU run collapses to the background). 0 = plain L1 (seed).
@@ -65,27 +74,16 @@ class FitConfig:
     # default: the bounds.json a fit writes beside its best.pt. When they differ from this dataset's,
     # the heads are rescaled so the fine-tune starts at the init's physical output (remap_heads).
     init_bounds: str = ""
-    device: str = "auto"                 # auto | cpu | cuda (tools.train.model.device); not part of config.json
-    amp: bool = True                     # mixed precision (float16 autocast + grad scaling) on CUDA only
 
 
 @dataclass
-class PretrainConfig:
+class PretrainConfig(LoopConfig):
+    """MAE pretraining of the Hiera encoder (seed §III.J)."""
+
     epochs: int = 10
-    batch_size: int = 16
-    lr: float = 1e-3
-    weight_decay: float = 0.05
-    warmup_steps: int = 500
-    warmup_max_fraction: float = 0.1
     mask_ratio: float = 0.75             # seed: 75 % of the 6-channel input patches are masked
     decoder_dim: int = 64
     decoder_depth: int = 2
-    threads: int = 2
-    seed: int = 0
-    checkpoint_every_s: float = 120.0
-    log_every: int = 10
-    device: str = "auto"
-    amp: bool = True
 
 
 RUN_PLACE_KEYS = ("device", "amp")   # where a run executes: left out of config.json, a run resumes anywhere
@@ -142,7 +140,7 @@ def _batches(n: int, batch: int, seed: int, epoch: int) -> list[np.ndarray]:
     return [perm[i:i + batch] for i in range(0, n - batch + 1 if n >= batch else 1, batch)]
 
 
-def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg, what: str, on_epoch=None,
+def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, what: str, on_epoch=None,
           state_extra=None) -> dict:
     """Shared epoch/step loop with checkpoint + resume. loss_fn(model, xb, yb) -> scalar tensor."""
     torch.set_num_threads(cfg.threads)
