@@ -73,7 +73,8 @@ class BuildConfig:
     tables: str = "gpr"                           # θ/φ tables of the targets: gpr (stage 3 pokes) | truth (twin)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
     label_frames: str = "interpolated"            # fe = "resolve": labels at every frame of an FE span | "fe" | "keypoint"
-    label_sigma: str = "pose+ft"                  # a label between FE frames is placed by mocap + F/T | "pose" alone
+    label_sigma: str = "pose"                     # a label between FE frames is placed by the mocap pose | "pose+ft"
+                                                  # (pose and F/T force: labels 1.5–3× nearer the F/T, docs/train.md)
     # stage 1 dual threshold. The seed's 1.5 N / 1.1 N (KeypointConfig) suit its stiffer gel; the twin's gel
     # peaks at 0.2–5 N per poke, so 1.5 N dropped 15 of 35 pokes (their frames then only "busy", unlabelled).
     # 0.5 N is 25× the F/T noise (0.02 N); detach keeps the seed's ratio 1.1/1.5.
@@ -89,6 +90,8 @@ class BuildConfig:
     fg_weight: float = 20.0                       # foreground-weighted L1 (FitConfig.fg_weight)
     force_weight: float = 0.0                     # total-force loss term per N (FitConfig.force_weight)
     light_weight: float = 0.0                     # light-contact sample weight exponent (FitConfig.light_weight)
+    fit_seed: int = 0                             # the fit's weight init and sample order (FitConfig.seed)
+    photometric: float = 0.0                      # input jitter of LED brightness ± this (FitConfig.photometric)
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
@@ -129,12 +132,12 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
             "dataset": ["tables", "contact_stride", "label_frames", "label_sigma", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
-                    "init_bounds"],
+                    "init_bounds", "fit_seed", "photometric"],
             "export": ["name", "quantization_samples", "quantization_pick", "threshold_sessions", "support_px"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
-    optional = {"label_frames": "interpolated", "label_sigma": "pose", "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
+    optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
                 "detach_force_n": 1.1, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0}
     keys, acc = {}, {}
     for st in STAGES:

@@ -35,7 +35,7 @@ class LabelConfig:
     rest_force_n: float = 0.1             # |F| above this outside a labelled span: not a rest frame
     frames: str = "interpolated"          # contact labels at: every frame of an FE span (interpolated
                                           # between FE frames) | "fe" (FE frames only) | "keypoint" (seed)
-    sigma: str = "pose+ft"                # where a frame sits between two FE frames: from the mocap pose and
+    sigma: str = "pose"                   # where a frame sits between two FE frames: from the mocap pose and
                                           # the F/T force ("pose+ft") | the pose alone ("pose")
     pose_sd_mm: float = 0.05              # weights of that fit: the mocap's error (seed appendix 0.03–0.08 mm)
     force_sd_n: float = 0.05              # ... and the F/T + sim-to-real error at FE frames (0.04–0.09 N)

@@ -74,6 +74,10 @@ class FitConfig(LoopConfig):
     # default: the bounds.json a fit writes beside its best.pt. When they differ from this dataset's,
     # the heads are rescaled so the fine-tune starts at the init's physical output (remap_heads).
     init_bounds: str = ""
+    # Photometric jitter of the inputs: per sample, a gain per colour U(1 − p, 1 + p) and a linear brightness
+    # ramp of amplitude U(0, p) in a random direction, the same on the baseline and the current frame (units
+    # differ in LED brightness, ±10 % per LED in the twin). 0 = off.
+    photometric: float = 0.0
 
 
 @dataclass
@@ -156,8 +160,9 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, 
     config = {"what": what, **asdict(cfg), "n_train": n}
     for k in RUN_PLACE_KEYS:
         config.pop(k, None)
-    if not config.get("init_bounds", True):
-        config.pop("init_bounds")   # runs made before the option existed resume unchanged
+    for k in ("init_bounds", "photometric"):      # runs made before these options existed resume unchanged
+        if k in config and not config[k]:
+            config.pop(k)
     ckpt = _prepare_run(out, config)
     step, epoch0, batch0, extra = 0, 0, 0, dict(state_extra or {})
     if ckpt is not None:
@@ -322,6 +327,8 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         force_scale = _force_scale(data, bounds).to(device)
 
     def loss_fn(m, xb, yb):
+        if cfg.photometric > 0:
+            xb = photometric_jitter(xb, cfg.photometric)
         pred = m(xb).float()        # the loss in float32 also under CUDA autocast
         w = None if zero is None else 1.0 + cfg.fg_weight * (torch.abs(yb - zero) > cfg.fg_eps).float()
         if cfg.light_weight > 0:
@@ -365,6 +372,23 @@ def _force_scale(data: Path, bounds: dict) -> torch.Tensor:
     area = np.load(path).astype(np.float32)
     span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
     return torch.from_numpy(span[:, None, None] * area[None])
+
+
+def photometric_jitter(x: torch.Tensor, p: float) -> torch.Tensor:
+    """(B, 6, H, W) inputs in [0, 1] (baseline RGB, current RGB) → the same scenes under other LEDs: per sample a
+    gain per colour U(1 − p, 1 + p) times 1 + a·(cos β·u + sin β·v) (u, v ∈ [−1, 1] across the image, a ~ U(0, p),
+    β ~ U(0, 2π)), applied alike to both frames, clipped to [0, 1]. Draws from torch's global generator (its
+    state is in the checkpoint, so a resumed fit draws the same)."""
+    if x.ndim != 4 or x.shape[1] != 6:
+        raise ValueError(f"photometric_jitter: expected (B, 6, H, W) inputs, got {tuple(x.shape)}")
+    B, _, H, W = x.shape
+    gain = 1.0 + p * (2.0 * torch.rand(B, 3, 1, 1, device=x.device) - 1.0)
+    a = p * torch.rand(B, 1, 1, 1, device=x.device)
+    beta = 2.0 * np.pi * torch.rand(B, 1, 1, 1, device=x.device)
+    v = torch.linspace(-1.0, 1.0, H, device=x.device).view(1, 1, H, 1)
+    u = torch.linspace(-1.0, 1.0, W, device=x.device).view(1, 1, 1, W)
+    g = gain * (1.0 + a * (torch.cos(beta) * u + torch.sin(beta) * v))
+    return (x * g.repeat(1, 2, 1, 1)).clamp(0.0, 1.0)
 
 
 def light_sample_weight(target: torch.Tensor, y_zero: torch.Tensor, scale: torch.Tensor, cfg) -> torch.Tensor:
