@@ -170,3 +170,21 @@ def test_heads_start_at_the_mean_target(arch):
     with torch.no_grad():
         y = m(torch.rand(2, 6, 64, 64)).mean((0, 2, 3))
     assert (y - mean).abs().max() < 0.1
+
+
+def test_photometric_jitter_scales_both_frames_alike_within_bounds():
+    import torch
+
+    from tensortouch.tools.train.model.train import photometric_jitter
+
+    torch.manual_seed(0)
+    x = torch.rand(4, 6, 16, 20) * 0.5
+    assert torch.equal(photometric_jitter(x, 0.0), x)
+    y = photometric_jitter(x, 0.1)
+    g = y / x
+    assert torch.allclose(g[:, :3], g[:, 3:])                       # the same LEDs light baseline and current
+    assert g.min() >= (0.9 * 0.9) - 1e-6 and g.max() <= (1.1 * 1.1) + 1e-6
+    assert (g.amax(dim=(2, 3)) - g.amin(dim=(2, 3))).max() > 0      # a ramp across the image
+    assert photometric_jitter(torch.ones(1, 6, 4, 4), 0.1).max() <= 1.0
+    with pytest.raises(ValueError, match="expected \\(B, 6, H, W\\)"):
+        photometric_jitter(torch.zeros(2, 3, 4, 4), 0.1)
