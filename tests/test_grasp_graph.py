@@ -106,7 +106,7 @@ def _pinch_row(xs_mm, tilt_deg=0.0):
 
 def test_room_counts_pinches_on_either_side_across():
     g = _pinch_row([-10, -8, -7, -2, 0, 3, 6.5, 9, 12])
-    # node 4 (x = 0): across = +x; band 6–11 mm → −10, −8, −7 on the − side, 6.5, 9 on the + side
+    # node 4 (x = 0): across = +x; band 6.5–10.5 mm → −10, −8, −7 on the − side, 6.5, 9 on the + side
     assert graph.room(g, 4) == (3, 2)
     assert graph.room(g, 4, band_mm=(2.5, 7.0)) == (1, 2)      # −7 | 3, 6.5
     g.normal[0] = [1.0, 0, 0]                                   # 90° off: not a compatible pinch

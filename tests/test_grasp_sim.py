@@ -183,35 +183,87 @@ def _pinches(xs_mm, tilt_deg):
     return pts, nrm, tips
 
 
-def test_goal_keeps_the_moving_object_and_clears_the_other():
+def test_centre_line_crosses_the_objects_plane_where_a_pinch_closes():
+    from tensortouch.tools.grasp.graph import centre_line
+
+    t = np.radians(10.0)
+    # a pinch touching 2 mm above the plane z = 0, its line of centres tilted 10° about y:
+    # it crosses z = 0 at x = 3.8527 − 2·tan 10° = 3.5 mm, and z = 1 mm at 3.8527 − tan 10° = 3.6764 mm
+    pt = np.array([[0.0038527, 0.0, 0.002]])
+    nrm = np.array([[np.sin(t), 0.0, np.cos(t)]])
+    z = np.array([0, 0, 1.0])
+    np.testing.assert_allclose(centre_line(pt, nrm, np.zeros(3), z)[0] * 1000, [3.5, 0, 0], atol=1e-4)
+    np.testing.assert_allclose(centre_line(pt, nrm, np.array([0.01, 0.02, 0.001]), z)[0] * 1000,
+                               [3.6764, 0, 1.0], atol=1e-4)
+
+
+def test_goal_centres_the_moving_object_on_the_line_of_fingertip_centres_and_clears_the_other():
     from tensortouch.tools.grasp.controller import goal_scores
 
-    pts, nrm, tips = _pinches([-8, -4, 0, 4, 6, 8, 4, 6], [0, 0, 0, 0, 0, 0, 30, 10])
-    costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2, 0.3])
-    cfg = ControllerConfig(keep_mm=3.0, clear_mm=12.0, depth_mm=2.0, max_normal_deg=15.0, cost_weight_mm_per_rad=2.0,
-                           keep_weight=10.0, clear_weight=10.0)
+    pts, nrm, tips = _pinches([-8, -4, 0, 4, 6, 8, 4, 6, 3.8527], [0, 0, 0, 0, 0, 0, 30, 10, 10])
+    pts[8, 2] = 0.002                                            # touching 2 mm above the plane
+    tips[8] = [pts[8] + 0.012 * nrm[8], pts[8] - 0.012 * nrm[8]]
+    costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2, 0.3, 0.1])
+    cfg = ControllerConfig(keep_mm=3.0, lean_mm=1.5, clear_mm=12.0, depth_mm=2.0, max_normal_deg=15.0,
+                           cost_weight_mm_per_rad=2.0, keep_weight=10.0, clear_weight=10.0)
     z = np.array([0, 0, 1.0])
     mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
     sc = goal_scores(pts, nrm, tips, costs, z, mov, oth, cfg)
-    # x = 4: ρ_m 0.5, ρ_o 7.5 (4.5 short of 12) → 10·4.5 + 0.5 + 2·0.2 = 45.9
-    # x = 6: ρ_m 2.5, ρ_o 9.5 → 10·2.5 + 2.5 + 2·0.3 = 28.1 (the best goal)
-    # x = 0: ρ_m = ρ_o = 3.5 → 10·(8.5 + 0.5) + 3.5 = 93.5; x = −4: 10·(11.5 + 4.5) + 7.5 + 0.4 = 167.9
+    # untilted pinches in the plane: e = |x − 3.5|, lean 0, h 0, ρ_o = |x + 3.5|
+    # x = 4: e 0.5, ρ_o 7.5 (4.5 short of 12) → 10·4.5 + 0.5 + 2·0.2 = 45.9
+    # x = 6: e 2.5, ρ_o 9.5 → 10·2.5 + 2.5 + 0.6 = 28.1 (the best goal)
+    # x = 0: e = ρ_o = 3.5 → 10·(8.5 + 0.5) + 3.5 = 93.5; x = −4: 10·(11.5 + 4.5) + 7.5 + 0.4 = 167.9
     # x = −8: 10·(7.5 + 8.5) + 11.5 + 0.8 = 172.3; node 5: unreachable; node 6: 30° tilted
-    # node 7 (x = 6, tilted 10°): fingertips at x = 6 ± 12·sin 10° = 8.084 / 3.916, so ρ_m 4.584 and
-    # ρ_o 7.416 → 10·(4.584 + 1.584) + 4.584 + 0.6
-    t7 = 10 * (4.5838 + 1.5838) + 4.5838 + 0.6
-    np.testing.assert_allclose(sc, [172.3, 167.9, 93.5, 45.9, 28.1, np.inf, np.inf, t7], atol=2e-3)
+    # node 7 (x = 6, tilted 10°): its line crosses at 6 (e 2.5), fingertips at 6 ± 12·sin 10° = 8.084 /
+    # 3.916, lean 2.084 (0.584 over), ρ_o 7.416 → 10·(4.584 + 0.584) + 2.5 + 2.084 + 0.6
+    # node 8 (2 mm above, tilted 10°): its line crosses at 3.5 (e 0, centred), h 2; fingertips at
+    # 3.8527 ± 2.0838 = 5.9365 / 1.7689, lean 2.4365 (0.9365 over), ρ_o 5.2689 (6.7311 short)
+    t7 = 10 * (4.5838 + 0.5838) + 2.5 + 2.0838 + 0.6
+    t8 = 10 * (6.7311 + 0.9365) + 2.4365 + 2.0 + 0.2
+    np.testing.assert_allclose(sc, [172.3, 167.9, 93.5, 45.9, 28.1, np.inf, np.inf, t7, t8], atol=2e-3)
     # a fingertip pair displaced along the objects (y) scores the same: only across counts
-    tips_y = tips + np.array([0, 0.005, 0])
-    np.testing.assert_allclose(goal_scores(pts, nrm, tips_y, costs, z, mov, oth, cfg), sc, atol=2e-3)
-    # a pen-like other 10 mm away: cleared from both, only ρ_m and the path count
-    far = np.array([-0.010, 0, 0])
-    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.003, 0, 0]), far, cfg)
-    np.testing.assert_allclose(sc[[3, 4]], [1 + 0.4, 3 + 0.6])
-    # a pinch point 1.5 mm off the objects' plane along the normal adds 1.5; 2.5 mm is 0.5 beyond depth_mm
-    pts[3, 2], pts[4, 2] = 0.0015, 0.0025
-    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.003, 0, 0]), far, cfg)
-    np.testing.assert_allclose(sc[[3, 4]], [1 + 1.5 + 0.4, 3 + 2.5 + 10 * 0.5 + 0.6])
+    shift = np.array([0, 0.005, 0])
+    np.testing.assert_allclose(goal_scores(pts + shift, nrm, tips + shift, costs, z, mov, oth, cfg), sc, atol=2e-3)
+    # a pen-like other 12 mm away is cleared by all: a pinch centred on the moving object wins even
+    # though it touches 2 mm off the plane and leans (node 8: 0.9365·10 + 2.4365 + 2 + 0.2 = 14.0,
+    # x = 4: e 1 → 1 + 0.4), then the untilted x = 4
+    far = np.array([-0.012, 0, 0])
+    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.0035, 0, 0]), far, cfg)
+    np.testing.assert_allclose(sc[[3, 4, 8]], [0.5 + 0.4, 2.5 + 0.6, 9.365 + 2.4365 + 2.0 + 0.2], atol=2e-3)
+    # a pinch point 2.5 mm off the plane is 0.5 beyond depth_mm
+    pts[3, 2] = 0.0025
+    tips[3] = [pts[3] + 0.012 * nrm[3], pts[3] - 0.012 * nrm[3]]
+    sc = goal_scores(pts, nrm, tips, costs, z, np.array([0.0035, 0, 0]), far, cfg)
+    np.testing.assert_allclose(sc[3], 0.5 + 2.5 + 10 * 0.5 + 0.4, atol=2e-3)
+
+
+def test_a_contact_merging_two_objects_on_one_gel_is_not_an_object():
+    """The thumb resolves two objects 14 mm apart; the index reports one merged cluster between
+    them (the sum of both loads). The merged cluster's shear must not name a third, middle object."""
+    from tensortouch.tools.grasp.controller import between
+
+    assert between(np.zeros(3), [np.array([-0.007, 0, 0]), np.array([0.007, 0, 0])], 4.0)
+    assert not between(np.array([0.004, 0, 0]), [np.array([-0.007, 0, 0]), np.array([0.007, 0, 0])], 4.0)
+    assert not between(np.array([0, 0.005, 0]), [np.array([-0.007, 0, 0]), np.array([0.007, 0, 0])], 4.0)
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.007, 0, 0]), np.array([0.007, 0, 0])]
+    thumb = [_on_gel(m, g.tip_thumb[start], o) for o in objs]
+    merged = _on_gel(m, g.tip_index[start], np.zeros(3))
+
+    def frame(s, k):
+        pulled = k >= 4                                   # object 1 pulled along its length (gel y)
+        if s == "thumb":
+            return _frame([(thumb[0], np.array([0, 0, -2.0])),
+                           (thumb[1], np.array([0, 0.4 if pulled else 0.0, -2.0]))])
+        return _frame([(merged, np.array([0, 1.0 if pulled else 0.0, -4.0]))])
+
+    d = _decide(SelectiveGraspController(g, start, m, ControllerConfig()), frame)
+    # (a gel point 12 mm from the fingertip centre stands for an object 12 mm away: 6.05 mm across for 7)
+    assert d.moving_point[0] > 0.005 and d.other_point is not None and d.other_point[0] < -0.005
+    d = _decide(SelectiveGraspController(g, start, m, ControllerConfig(drop_between=False)), frame)
+    assert abs(d.moving_point[0]) < 0.0015                  # without the rule: the phantom middle object
 
 
 def test_controller_stays_put_without_a_clear_change():

@@ -14,16 +14,15 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    an object's score is the sum of its clusters' |ΔF| over both sensors. The object whose score
    exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
 3. Plan (`goal_scores`): for every reachable graph node with a pinch normal within
-   `max_normal_deg` of the current one, where its two fingertip centres lie across the current
-   pinch normal relative to the objects (ρ: distance in the objects' plane). Fingertips closing
-   on the moving object also touch the other one while it lies within about √((R + r)² − h²) of a
-   fingertip centre across the normal (R fingertip, r object radius, h how far the fingertip
-   centre stays from the objects' plane), so the goal keeps both fingertips within `keep_mm` of
-   the moving object and `clear_mm` from the other one, and its pinch point within `depth_mm` of
-   the moving object along the normal (a pinch centred off the objects' plane pushes the object
-   into one fingertip and away from the other) — where the graph allows, and as near as it can
-   otherwise — then prefers the fingertips near the moving object and a short joint path.
-   Dijkstra gives the path.
+   `max_normal_deg` of the current one: where its line of fingertip centres crosses the objects'
+   plane relative to the moving object (e), how far its fingertips lean off that line across the
+   objects, its pinch point's distance from the plane (h), and the other object's distance across
+   from the nearer fingertip. The graph's fingertip poses are those of touching fingertips; a pinch
+   closing on an object of any thickness closes along the same line, so e = 0 keeps the object
+   centred between the fingertips whatever its diameter. The goal keeps e within `keep_mm`, the
+   lean within `lean_mm`, h within `depth_mm` and the other object `clear_mm` from both
+   fingertips where the graph allows, as near as it can otherwise, then prefers a short joint
+   path. Dijkstra gives the path.
 """
 from __future__ import annotations
 
@@ -32,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .graph import ContactGraph
+from .graph import ContactGraph, centre_line
 from .sensor_mount import SensorMount
 
 
@@ -48,12 +47,14 @@ class ControllerConfig:
     both_sensors: bool = True               # only objects felt by both fingertips compete (if ≥ 2)
     along_only: bool = True                 # score only the change along the objects' length
     witness: str = "max"                    # an object's change over the sensors: "sum" or "max"
+    drop_between: bool = True               # without two objects felt by both: one between two others is their merged contact
     match_mm: float = 3.0
     group_mm: float = 4.0
     min_change: float = 0.08                # N per N^load_power of load (per_load), else N
     lead_ratio: float = 1.1
     confirm_frames: int = 2
-    keep_mm: float = 2.5                    # both goal fingertips this near the moving object, across
+    keep_mm: float = 2.5                    # the goal's line of fingertip centres this near the moving object
+    lean_mm: float = 1.5                    # its fingertip centres this near where that line crosses, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
     clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
     keep_weight: float = 30.0               # score per mm beyond keep_mm or depth_mm
@@ -217,10 +218,12 @@ class SelectiveGraspController:
                                   for k, ch in o["by_sensor"].items())
             else:
                 o["change"] = sum(o["by_sensor"].values())
-        if self.cfg.both_sensors:                      # a cluster only one fingertip feels is not a pinched object
-            both = [o for o in objects if len(o["sensors"]) == len(self.SENSORS)]
-            if len(both) >= 2:
-                objects = both
+        both = [o for o in objects if len(o["sensors"]) == len(self.SENSORS)]
+        if self.cfg.both_sensors and len(both) >= 2:   # a cluster only one fingertip feels is not a pinched object
+            objects = both
+        elif self.cfg.drop_between:                    # a contact spanning two objects is not a third one
+            objects = [o for o in objects if not between(o["point"], [x["point"] for x in objects if x is not o],
+                                                         self.cfg.group_mm)]
         if self.cfg.per_load and self.cfg.witness != "max":   # change per newton the object was held with
             for o in objects:
                 o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
@@ -251,35 +254,64 @@ def lateral_mm(points: np.ndarray, normals: np.ndarray, x: np.ndarray) -> np.nda
     return np.linalg.norm(d - along[:, None] * normals, axis=1) * 1000.0
 
 
+def between(p: np.ndarray, others: list[np.ndarray], gap_mm: float) -> bool:
+    """True when point p (m) lies between two of `others`: within `gap_mm` of the segment joining
+    them and at least `gap_mm` from both ends. Two objects pressed on one gel close together can
+    give one cluster whose force-weighted centroid lies between them, and a weak cluster can show
+    up between two strong ones; neither is an object of its own."""
+    g = gap_mm / 1000.0
+    for i in range(len(others)):
+        for j in range(i + 1, len(others)):
+            a, b = others[i], others[j]
+            ab = b - a
+            L = float(np.linalg.norm(ab))
+            if L < 2 * g:
+                continue
+            t = float((p - a) @ ab) / (L * L)
+            off = np.linalg.norm(p - (a + t * ab))
+            if off <= g and t * L >= g and (1 - t) * L >= g:
+                return True
+    return False
+
+
 def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs: np.ndarray,
                 normal_now: np.ndarray, moving: np.ndarray, other: np.ndarray | None,
                 cfg: ControllerConfig) -> np.ndarray:
     """Score of each graph node as the goal (lower is better, inf = not allowed). `tips` (N, 2, 3):
-    both fingertip centres of each node (m). Distances are taken across the current pinch normal
-    `normal_now` (the objects lie in the plane it spans) and across the objects (along the line
-    joining them; the objects lie side by side, so a fingertip's place along them does not count):
-    ρ_moving, the farther fingertip's distance from the moving object, and ρ_other, the nearer
-    fingertip's distance from the other. Without another object: the distance in the plane.
-    Allowed: reachable (finite path cost, rad) with a pinch normal within `max_normal_deg` of
-    `normal_now`. h: the pinch point's distance from the moving object along `normal_now`.
-    Score = clear_weight · (shortfall of ρ_other below `clear_mm`) + keep_weight · (excess of
-    ρ_moving over `keep_mm` + excess of h over `depth_mm`) + ρ_moving + h + cost_weight · path cost,
-    so the limits are met where the graph allows and approached as near as it can otherwise."""
+    both fingertip centres of each node (m). The objects lie in the plane through `moving` normal
+    to the current pinch normal `normal_now`, side by side (only distances across them count, along
+    the line joining them; a pinch's place along the objects does not). Per node:
+      e      how far its line of fingertip centres crosses that plane from the moving object: the
+             object is centred between the fingertips when e = 0, whatever its thickness;
+      lean   the larger across offset of its two fingertip centres from that crossing (a tilted
+             line leans one fingertip towards the other object and lets it slide off a thick one);
+      h      its pinch point's distance from the plane along `normal_now` (a pinch closing off the
+             plane pushes the object into one fingertip first);
+      ρ_other the nearer fingertip centre's distance across from the other object.
+    Without another object e and lean are distances in the plane. Allowed: reachable (finite path
+    cost, rad) with a pinch normal within `max_normal_deg` of `normal_now`. Score =
+    clear_weight · (shortfall of ρ_other below `clear_mm`) + keep_weight · (excess of e over
+    `keep_mm`, of lean over `lean_mm`, of h over `depth_mm`) + e + lean + h + cost_weight · path
+    cost, so the limits are met where the graph allows and approached as near as it can otherwise."""
     n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
     moving = np.asarray(moving, float)
+    cross = centre_line(points, normals, moving, n0)
     across = None if other is None else (moving - other) - ((moving - other) @ n0) * n0
     if across is not None and np.linalg.norm(across) > 1e-6:
-        # two parallel objects side by side: only the distance across them counts, not along them
         u = across / np.linalg.norm(across)
-        rho_m = np.max(np.abs((tips - moving) @ u), axis=1) * 1000.0
+        e = np.abs((cross - moving) @ u) * 1000.0
+        lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
         rho_o = np.min(np.abs((tips - np.asarray(other, float)) @ u), axis=1) * 1000.0
     else:
-        rho_m = np.max([lateral_mm(tips[:, k], n0, moving) for k in range(tips.shape[1])], axis=0)
+        e = lateral_mm(cross, n0, moving)
+        d = tips - cross[:, None, :]
+        lean = np.max(np.linalg.norm(d - (d @ n0)[..., None] * n0, axis=2), axis=1) * 1000.0
         rho_o = np.full(len(points), cfg.clear_mm)
-    h = np.abs((np.asarray(moving, float)[None, :] - points) @ n0) * 1000.0
+    h = np.abs((moving[None, :] - points) @ n0) * 1000.0
     miss = (cfg.clear_weight * np.clip(cfg.clear_mm - rho_o, 0.0, None)
-            + cfg.keep_weight * (np.clip(rho_m - cfg.keep_mm, 0.0, None) + np.clip(h - cfg.depth_mm, 0.0, None)))
-    score = miss + rho_m + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=0.0)
+            + cfg.keep_weight * (np.clip(e - cfg.keep_mm, 0.0, None) + np.clip(lean - cfg.lean_mm, 0.0, None)
+                                 + np.clip(h - cfg.depth_mm, 0.0, None)))
+    score = miss + e + lean + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=0.0)
     ok = np.isfinite(costs) & (normals @ n0 >= np.cos(np.radians(cfg.max_normal_deg)))
     return np.where(ok, score, np.inf)
 

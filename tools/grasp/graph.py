@@ -122,14 +122,30 @@ def across(g: ContactGraph, node: int) -> np.ndarray:
     return np.stack([v, np.cross(n, v), n])
 
 
-def room(g: ContactGraph, node: int, band_mm=(6.0, 11.0), lane_mm: float = 3.0, depth_mm: float = 4.0,
-         normal_deg: float = 15.0) -> tuple[int, int]:
-    """How many pinches the graph holds on either side of `node` across the pinch: nodes whose
-    pinch point lies `band_mm` away along the across axis (−, +), within `lane_mm` along the
-    objects and `depth_mm` along the normal, with a pinch normal within `normal_deg`."""
-    rel = (g.point - g.point[node]) @ across(g, node).T * 1000.0
-    ok = ((g.normal @ g.normal[node] >= np.cos(np.radians(normal_deg))) & (np.abs(rel[:, 1]) <= lane_mm)
-          & (np.abs(rel[:, 2]) <= depth_mm))
+def centre_line(points: np.ndarray, normals: np.ndarray, plane_point: np.ndarray,
+                plane_normal: np.ndarray) -> np.ndarray:
+    """Where each pinch's line of fingertip centres (through points[i] along normals[i]: for two
+    spheres the nearest points, their midpoint and both centres lie on one line) crosses the plane
+    through `plane_point` normal to `plane_normal` (m). A pinch closing on an object of any
+    thickness closes along this line, so an object there sits centred between the fingertips; the
+    touching fingertips' own positions move apart along it by the object's thickness."""
+    n0 = np.asarray(plane_normal, float) / np.linalg.norm(plane_normal)
+    cos = normals @ n0
+    t = ((np.asarray(plane_point, float)[None, :] - points) @ n0) / np.where(np.abs(cos) > 1e-6, cos, 1e-6)
+    return points + t[:, None] * normals
+
+
+def room(g: ContactGraph, node: int, band_mm=(6.5, 10.5), lane_mm: float = 10.0, depth_mm: float = 2.0,
+         normal_deg: float = 10.0) -> tuple[int, int]:
+    """How many pinches could close centred on an object lying `band_mm` away from `node`'s pinch,
+    on either side across it (−, +): nodes whose line of fingertip centres (`centre_line`) crosses
+    `node`'s objects' plane (through its pinch point, normal to its pinch normal) that far away
+    along the across axis and within `lane_mm` along the objects, with a pinch point within
+    `depth_mm` of the plane and a pinch normal within `normal_deg` (a pinch leaning less)."""
+    n = g.normal[node] / np.linalg.norm(g.normal[node])
+    rel = (centre_line(g.point, g.normal, g.point[node], n) - g.point[node]) @ across(g, node).T * 1000.0
+    h = (g.point - g.point[node]) @ n * 1000.0
+    ok = (g.normal @ n >= np.cos(np.radians(normal_deg))) & (np.abs(rel[:, 1]) <= lane_mm) & (np.abs(h) <= depth_mm)
     a = np.abs(rel[:, 0])
     band = ok & (a >= band_mm[0]) & (a <= band_mm[1])
     return int((band & (rel[:, 0] < 0)).sum()), int((band & (rel[:, 0] > 0)).sum())
