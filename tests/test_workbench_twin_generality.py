@@ -133,6 +133,8 @@ def test_rows_at_mde_multiples_count_in_the_mde_check_only_and_a_work_folder_res
     assert s["mde_targeted"] == {"0.5": {"right": "0/2", "claimed": "1/2"}, "2": {"right": "1/1", "claimed": "1/1"}}
     assert s["mde_half_claimed"] == "1/3" and s["mde_2x_found"] == "2/2"
     assert "| two_term_relaxation | 0.5× MDE | 0/2 |" in tg.markdown(rows)
+    assert ("| two_term_relaxation | 0/1 | 1/1 | 0/2 (1 claimed) | 1/1 (1 claimed) |"
+            in tg.counts(rows).splitlines())
     # a run's rows are files in work/rows; the next run reads them back instead of diagnosing again
     args = ("two_term_relaxation", 0.0, 1, str(tmp_path), (1, 2))
     f = tg._task_file(tmp_path, "case", args, 0.5)

@@ -373,6 +373,27 @@ def markdown(rows: list) -> str:
     return "\n".join(lines)
 
 
+def counts(rows: list) -> str:
+    """Markdown: right significant verdicts / draws per form and size (× the floor, then the
+    targeted multiples of the MDE)."""
+    grid = sorted({r["size_floor"] for r in rows if r.get("mde_target") is None})
+    targets = sorted({r["mde_target"] for r in rows if r.get("mde_target") is not None})
+    heads = [f"{s:g}× floor" for s in grid] + [f"{m:g}× MDE" for m in targets]
+    lines = ["| hidden form | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]
+    for form in EXPECTED:
+        cells = []
+        for s in grid:
+            rs = [r for r in rows if r["form"] == form and r.get("mde_target") is None and r["size_floor"] == s]
+            cells.append(f"{sum(r['right'] for r in rs)}/{len(rs)}" if rs else "—")
+        for m in targets:
+            rs = [r for r in rows if r["form"] == form and r.get("mde_target") == m]
+            cells.append(f"{sum(r['right'] for r in rs)}/{len(rs)} ({sum(r['verdict'] is not None for r in rs)} claimed)"
+                         if rs else "—")
+        if any(c != "—" for c in cells):
+            lines.append(f"| {form} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def read_clean(work: Path) -> list:
     """The diagnoses of the unaltered test sessions (work/rows/clean-*.json): more sessions without a
     hidden effect, from other plans than the nulls."""
@@ -386,6 +407,7 @@ def report(rows: list, nulls: list, a: argparse.Namespace, clean: list | None = 
         out["summary"]["unaltered_test_session_verdicts"] = (f"{sum(c['verdict'] is not None for c in clean)}/"
                                                             f"{len(clean)}")
     print(json.dumps(out["summary"], indent=1))
+    print(counts(rows))
     print(markdown(rows))
     if a.pictures:
         print(picture(rows, nulls, Path(a.pictures) / "generality_detection.png"))
