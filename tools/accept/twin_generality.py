@@ -283,7 +283,8 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     """Left: share of draws with the right significant verdict against size / the floor, per form and
     over all forms (rows at fixed sizes). Right: the library forms against size / the MDE the
     unaltered session reported (targeted rows at their multiple; the others at their measured ratio,
-    binned), with the share of draws that got any verdict."""
+    binned), with the share of draws that got any verdict. `nulls`: the sessions without a hidden
+    effect (the nulls and the unaltered test sessions), whose share with a verdict is drawn too."""
     import matplotlib
     import matplotlib.ticker
 
@@ -312,7 +313,7 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     if nulls:
         fa = np.mean([n["verdict"] is not None for n in nulls])
         ax.axhline(fa, color="grey", ls=":", lw=1)
-        ax.text(sizes[0] if sizes else 1.0, fa + 0.04, f"verdicts on {len(nulls)} nulls: {100 * fa:.0f} %",
+        ax.text(sizes[0] if sizes else 1.0, fa + 0.04, f"verdicts on {len(nulls)} sessions without a hidden effect: {100 * fa:.0f} %",
                 fontsize=7, color="grey")
     ax.axvline(1.0, color="grey", lw=0.6)
     ax.set_ylim(-0.08, 1.08)
@@ -410,7 +411,7 @@ def report(rows: list, nulls: list, a: argparse.Namespace, clean: list | None = 
     print(counts(rows))
     print(markdown(rows))
     if a.pictures:
-        print(picture(rows, nulls, Path(a.pictures) / "generality_detection.png"))
+        print(picture(rows, nulls + list(clean or []), Path(a.pictures) / "generality_detection.png"))
     if a.out:
         from ...contracts.files import atomic_write_json
 
