@@ -21,6 +21,7 @@ read sessions through the same code. See docs/session.md.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import struct
 from dataclasses import dataclass, field
@@ -81,6 +82,17 @@ class Session:
             table = read_table(self.path / info.get("file", STREAM_FILES[stream]), STREAM_COLUMNS[stream])
             self._cache[stream] = to_house_units(table, stream, self.manifest.get("units", {}))
         return self._cache[stream]
+
+    def with_table(self, stream: str, table: np.ndarray) -> Session:
+        """A copy in memory whose `stream` is `table` (house units, the stream's columns); the other
+        streams, the manifest and the files it points to are this session's."""
+        if stream not in self.streams:
+            raise SessionError(f"{self.path / 'session.json'}: no stream '{stream}' to replace")
+        table = np.asarray(table, dtype=np.float64)
+        if table.ndim != 2 or table.shape[1] != len(STREAM_COLUMNS[stream]):
+            raise SessionError(f"{self.path}: stream '{stream}' needs {len(STREAM_COLUMNS[stream])} columns "
+                               f"({','.join(STREAM_COLUMNS[stream])}), got shape {table.shape}")
+        return Session(self.path, self.manifest, {**self._cache, stream: table})
 
     def image_source(self) -> tuple[str, Path]:
         """('video', file) or ('images', folder) holding the camera frames."""
@@ -147,6 +159,9 @@ def to_house_units(table: np.ndarray, stream: str, units: dict) -> np.ndarray:
     return out
 
 
+CSV_FORMAT = "%.9g"           # every number of a stream file written by write_table
+
+
 def write_table(path: Path, columns: list[str], data: np.ndarray) -> None:
     """Write a CSV stream atomically (write to a temp file, then rename)."""
     path = Path(path)
@@ -154,8 +169,17 @@ def write_table(path: Path, columns: list[str], data: np.ndarray) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     with open(tmp, "w", newline="") as fh:
         fh.write(",".join(columns) + "\n")
-        np.savetxt(fh, data, delimiter=",", fmt="%.9g")
+        np.savetxt(fh, data, delimiter=",", fmt=CSV_FORMAT)
     tmp.replace(path)
+
+
+def as_written(data: np.ndarray) -> np.ndarray:
+    """`data` as write_table's file gives it back to read_table (the same text, the same parse)."""
+    data = np.asarray(data, dtype=np.float64)
+    buf = io.StringIO()
+    np.savetxt(buf, data.reshape(len(data), -1), delimiter=",", fmt=CSV_FORMAT)
+    return np.asarray([[float(v) for v in line.split(",")] for line in buf.getvalue().splitlines()],
+                      dtype=np.float64).reshape(data.shape)
 
 
 def validate_manifest(manifest: dict, where: str = "session.json") -> None:

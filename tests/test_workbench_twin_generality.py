@@ -1,6 +1,6 @@
 """The twin generality harness (tools/accept/twin_generality.py): its hidden forms act on the F/T
-stream only, scale with their amplitude, and the drag opposes the indenter's motion; one
-diagnosed case end to end (slow)."""
+stream only, scale with their amplitude, and the drag opposes the indenter's motion; altering a
+loaded session in memory gives the table of the altered copy; one diagnosed case end to end (slow)."""
 import numpy as np
 import pytest
 
@@ -133,6 +133,8 @@ def test_rows_at_mde_multiples_count_in_the_mde_check_only_and_a_work_folder_res
     assert s["mde_targeted"] == {"0.5": {"right": "0/2", "claimed": "1/2"}, "2": {"right": "1/1", "claimed": "1/1"}}
     assert s["mde_half_claimed"] == "1/3" and s["mde_2x_found"] == "2/2"
     assert "| two_term_relaxation | 0.5× MDE | 0/2 |" in tg.markdown(rows)
+    assert ("| two_term_relaxation | 0/1 | 1/1 | 0/2 (1 claimed) | 1/1 (1 claimed) |"
+            in tg.counts(rows).splitlines())
     # a run's rows are files in work/rows; the next run reads them back instead of diagnosing again
     args = ("two_term_relaxation", 0.0, 1, str(tmp_path), (1, 2))
     f = tg._task_file(tmp_path, "case", args, 0.5)
@@ -162,3 +164,43 @@ def test_rows_at_mde_multiples_count_in_the_mde_check_only_and_a_work_folder_res
     assert called == [("case", ("two_term_relaxation", 1.0, 1), None),
                       ("case", ("two_term_relaxation", 0.15, 1), None)]
     assert all(f.is_file() for f in done)
+
+
+@pytest.fixture(scope="module")
+def lab(session, tmp_path_factory):
+    """The unit's true calibration and a contact law fitted on the session (as the harness has)."""
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.tools.twin.unit import TwinUnit, write_true_calibration
+    from tensortouch.tools.workbench.compare import load_table
+    from tensortouch.tools.workbench.models import ContactLaw
+
+    root = tmp_path_factory.mktemp("store")
+    write_true_calibration(TwinUnit("TWIN-GTEST"), root, 32)
+    store = CalibrationStore(root)
+    return store, ContactLaw.fit(load_table(session, store.load("TWIN-GTEST"), cache=False)[0])
+
+
+@pytest.mark.parametrize("form", ["two_term_relaxation", "velocity_drag"])
+def test_altering_in_memory_gives_the_table_of_the_altered_copy(session, lab, tmp_path, form):
+    """The harness alters a loaded recording in memory instead of writing a copy per amplitude: its
+    sample table must be the one of alter()'s copy read back, number for number."""
+    from tensortouch.contracts.session import load_session
+    from tensortouch.runtime.stages.effects import Registry
+    from tensortouch.tools.accept.alter_forms import altered_session
+    from tensortouch.tools.workbench.compare import run_compare
+
+    store, law = lab
+    reg = Registry.default(entry_points=False)
+    clean = load_session(session, check_frames=False)
+    amp = 0.3 if form == "two_term_relaxation" else 0.01
+    copy = alter(session, tmp_path / "copy", form, amp, _gel(session))
+    want = run_compare(copy, "TWIN-GTEST", store, law, reg, cache=False).table
+    got = run_compare(session, "TWIN-GTEST", store, law, reg, session=altered_session(clean, form, amp, _gel(session))).table
+    assert set(got.cols) == set(want.cols) and set(got.vec) == set(want.vec)
+    for k in want.cols:
+        np.testing.assert_array_equal(got.cols[k], want.cols[k], err_msg=k)
+    for k in want.vec:
+        np.testing.assert_array_equal(got.vec[k], want.vec[k], err_msg=k)
+    np.testing.assert_array_equal(got.meas, want.meas)
+    np.testing.assert_array_equal(got.model, want.model)
+    assert not np.array_equal(got.meas, run_compare(session, "TWIN-GTEST", store, law, reg, cache=False).table.meas)

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from ...contracts.files import atomic_write_json
-from ...contracts.session import STREAM_COLUMNS, load_session, write_table
+from ...contracts.session import STREAM_COLUMNS, Session, as_written, load_session, write_table
 from .alter import _quat_matrix, copy_without_truth
 
 FORMS = ("saturating_stiffening", "two_term_relaxation", "rim_profile", "temperature_onset", "velocity_drag")
@@ -102,6 +102,15 @@ def contribution(session, kind: str, amp: float, gel: dict) -> np.ndarray:
             raise ValueError(f"hidden form {kind!r}: expected one of {FORMS}")
         out[m] = f
     return out
+
+
+def altered_session(session: Session, kind: str, amp: float, gel: dict) -> Session:
+    """In memory, the session `alter` writes and loading it gives back: `session` whose F/T force
+    carries the hidden form (every wrench number as its file holds it; the frames, poses and
+    temperature are the recording's own, read from `session`'s folder)."""
+    w = session.table("wrench").copy()
+    w[:, 2:5] = contribution(session, kind, amp, gel)
+    return session.with_table("wrench", as_written(w))
 
 
 def alter(src: Path, dst: Path, kind: str, amp: float, gel: dict) -> Path:

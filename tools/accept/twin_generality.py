@@ -109,23 +109,32 @@ class Lab:
             self.law = ContactLaw.fit(load_table(calib, self.store.load(unit))[0], source=str(calib))
             self.law.save(law_path)
         self.gel = _gel(unit)
+        self.sessions = {}        # recordings loaded once: every size of a draw alters the same one
 
-    def table(self, session, cache: bool = True):
+    def table(self, session, loaded=None):
+        """The sample table of the session folder `session` (cached), or of `loaded`, that session
+        changed in memory (not cached)."""
         from ..workbench.compare import run_compare
 
-        return run_compare(session, self.unit, self.store, self.law, self.reg, cache=cache).table
+        return run_compare(session, self.unit, self.store, self.law, self.reg, session=loaded).table
 
-    def altered(self, base: Path, form: str, amp: float, tag: str):
-        from .alter_forms import alter
+    def altered(self, base: Path, form: str, amp: float):
+        """The table of `base` with `form` hidden in its F/T force: the recording is loaded once and
+        altered in memory, the same numbers as a copy written by alter_forms.alter and read back."""
+        from ...contracts.session import load_session
+        from .alter_forms import altered_session
 
-        return self.table(alter(base, self.work / "altered" / tag, form, amp, self.gel), cache=False)
+        base = Path(base)
+        if base not in self.sessions:
+            self.sessions[base] = load_session(base, check_frames=False)
+        return self.table(base, altered_session(self.sessions[base], form, amp, self.gel))
 
-    def scaled(self, base: Path, form: str, size: float, tag: str):
+    def scaled(self, base: Path, form: str, size: float):
         """(table, amp, measured size N): `form` hidden in `base` at rms size `size` N of its own contribution."""
         t0 = self.table(base)
         amp = 1.0
         for _ in range(4):         # linear in amp except where contact is lost: a few secant steps
-            t = self.altered(base, form, amp, tag)
+            t = self.altered(base, form, amp)
             got = _rms(t.meas - t0.meas)
             if abs(got - size) <= 0.02 * size:
                 break
@@ -187,10 +196,7 @@ def run_case(form: str, size: float, draw: int, work: str, seeds: tuple | None =
     if mde_multiple is not None:
         size = mde_multiple * clean["mde_family"] / floor
         extra["mde_target"] = mde_multiple
-        tag = f"{form}-{draw}-mde{mde_multiple:g}"
-    else:
-        tag = f"{form}-{draw}-{size:g}"
-    t, amp, got = lab.scaled(base, form, size * floor, tag)
+    t, amp, got = lab.scaled(base, form, size * floor)
     d = diagnose(t, lab.reg)
     row = {"form": form, "unit": unit, "draw": draw, "seed": test_seed, "size_floor": size, "floor": floor, "size_n": got,
            "amp": amp, **extra, **_diag_row(d)}
@@ -208,7 +214,7 @@ def run_case(form: str, size: float, draw: int, work: str, seeds: tuple | None =
     if v is not None and v.pair is None and v.channel == "force":      # removed on a second session of the unit
         second = record(_scenario(second_seed, unit))
         c2 = lab.table(second)
-        a2 = lab.altered(second, form, amp, tag + "-second")
+        a2 = lab.altered(second, form, amp)
         pred = deployed_prediction(a2.model, a2.cov(), EffectChain([EnabledEffect(v.effect, dict(v.params))]))
         before, after, clean = _rms(a2.meas - a2.model), _rms(a2.meas - pred), _rms(c2.meas - c2.model)
         row.update({"second_before": before, "second_after": after, "second_unaltered": clean,
@@ -277,7 +283,8 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     """Left: share of draws with the right significant verdict against size / the floor, per form and
     over all forms (rows at fixed sizes). Right: the library forms against size / the MDE the
     unaltered session reported (targeted rows at their multiple; the others at their measured ratio,
-    binned), with the share of draws that got any verdict."""
+    binned), with the share of draws that got any verdict. `nulls`: the sessions without a hidden
+    effect (the nulls and the unaltered test sessions), whose share with a verdict is drawn too."""
     import matplotlib
     import matplotlib.ticker
 
@@ -306,7 +313,7 @@ def picture(rows: list, nulls: list, path: Path) -> Path:
     if nulls:
         fa = np.mean([n["verdict"] is not None for n in nulls])
         ax.axhline(fa, color="grey", ls=":", lw=1)
-        ax.text(sizes[0] if sizes else 1.0, fa + 0.04, f"verdicts on {len(nulls)} nulls: {100 * fa:.0f} %",
+        ax.text(sizes[0] if sizes else 1.0, fa + 0.04, f"verdicts on {len(nulls)} sessions without a hidden effect: {100 * fa:.0f} %",
                 fontsize=7, color="grey")
     ax.axvline(1.0, color="grey", lw=0.6)
     ax.set_ylim(-0.08, 1.08)
@@ -367,6 +374,27 @@ def markdown(rows: list) -> str:
     return "\n".join(lines)
 
 
+def counts(rows: list) -> str:
+    """Markdown: right significant verdicts / draws per form and size (× the floor, then the
+    targeted multiples of the MDE)."""
+    grid = sorted({r["size_floor"] for r in rows if r.get("mde_target") is None})
+    targets = sorted({r["mde_target"] for r in rows if r.get("mde_target") is not None})
+    heads = [f"{s:g}× floor" for s in grid] + [f"{m:g}× MDE" for m in targets]
+    lines = ["| hidden form | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]
+    for form in EXPECTED:
+        cells = []
+        for s in grid:
+            rs = [r for r in rows if r["form"] == form and r.get("mde_target") is None and r["size_floor"] == s]
+            cells.append(f"{sum(r['right'] for r in rs)}/{len(rs)}" if rs else "—")
+        for m in targets:
+            rs = [r for r in rows if r["form"] == form and r.get("mde_target") == m]
+            cells.append(f"{sum(r['right'] for r in rs)}/{len(rs)} ({sum(r['verdict'] is not None for r in rs)} claimed)"
+                         if rs else "—")
+        if any(c != "—" for c in cells):
+            lines.append(f"| {form} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def read_clean(work: Path) -> list:
     """The diagnoses of the unaltered test sessions (work/rows/clean-*.json): more sessions without a
     hidden effect, from other plans than the nulls."""
@@ -380,9 +408,10 @@ def report(rows: list, nulls: list, a: argparse.Namespace, clean: list | None = 
         out["summary"]["unaltered_test_session_verdicts"] = (f"{sum(c['verdict'] is not None for c in clean)}/"
                                                             f"{len(clean)}")
     print(json.dumps(out["summary"], indent=1))
+    print(counts(rows))
     print(markdown(rows))
     if a.pictures:
-        print(picture(rows, nulls, Path(a.pictures) / "generality_detection.png"))
+        print(picture(rows, nulls + list(clean or []), Path(a.pictures) / "generality_detection.png"))
     if a.out:
         from ...contracts.files import atomic_write_json
 
@@ -470,13 +499,15 @@ def run(a: argparse.Namespace) -> int:
         for kind, args, mult in todo:
             keep(kind, args, mult, _do(kind, args, mult))
     else:
-        for unit in UNITS:                        # fit the laws and record every session once, before the pool
+        for unit in UNITS:                        # fit the laws, then record every session once, before the rows
             Lab(unit, work)
+        scenarios = {}
         for kind, args, _ in todo:
             unit = UNITS[(args[2] if kind == "case" else args[0]) % len(UNITS)]
             for s in (args[-1] if kind == "case" else (args[-1],)):
-                record(_scenario(s, unit))
+                scenarios.setdefault(_scenario(s, unit).key(), _scenario(s, unit))
         with ProcessPoolExecutor(max_workers=a.jobs) as pool:
+            list(pool.map(record, scenarios.values()))               # each session by one worker
             futs = [(t, pool.submit(_do, *t)) for t in todo]
             for t, fut in futs:
                 keep(*t, fut.result())

@@ -23,7 +23,7 @@ from ...contracts import paths
 from ...contracts.store import CalibrationStore
 from ...runtime.stages.effects import EffectChain, Registry
 from ...contracts.errors import TensorTouchError
-from ...contracts.session import load_session
+from ...contracts.session import Session, load_session
 from .fit import deployed_prediction
 from .samples import SampleConfig, build_table
 from .table import SampleTable
@@ -61,15 +61,17 @@ def session_key(session_path: Path, cal, cfg: CompareConfig) -> str:
     return h.hexdigest()[:16]
 
 
-def load_table(session_path, cal, cfg: CompareConfig | None = None, cache: bool = True) -> tuple[SampleTable, Path]:
-    """The session's sample table (measurements + covariates), cached under cache/workbench/."""
+def load_table(session_path, cal, cfg: CompareConfig | None = None, cache: bool = True,
+               session: Session | None = None) -> tuple[SampleTable, Path]:
+    """The session's sample table (measurements + covariates), cached under cache/workbench/.
+    `session`: the session already loaded (or changed in memory: then pass cache=False)."""
     cfg = cfg or CompareConfig()
     session_path = Path(session_path)
     folder = cache_root() / session_key(session_path, cal, cfg)
     path = folder / "table.npz"
     if cache and path.is_file():
         return SampleTable.load(path), folder
-    session = load_session(session_path)
+    session = session or load_session(session_path)
     t0 = time.perf_counter()
     table = build_table(session, cal, cfg.samples, brightness=cfg.brightness)
     log.info("sample table of %s: %d rows in %.1f s", session_path, len(table), time.perf_counter() - t0)
@@ -173,16 +175,21 @@ def compare_table(table: SampleTable, chain: EffectChain, cfg: CompareConfig | N
 
 
 def run_compare(session_path, sensor: str | None, store: CalibrationStore, model, registry: Registry,
-                cfg: CompareConfig | None = None, cache: bool = True, progress=None) -> Comparison:
-    """Shell: load session/calibration, cached table and prediction, enabled effects, errors."""
+                cfg: CompareConfig | None = None, cache: bool = True, progress=None,
+                session: Session | None = None) -> Comparison:
+    """Shell: load session/calibration, cached table and prediction, enabled effects, errors.
+    `session`: a session changed in memory (its streams, not `session_path`'s files, are compared;
+    nothing is cached)."""
     cfg = cfg or CompareConfig()
+    if session is not None:
+        session_path, cache = session.path, False
     t0 = time.perf_counter()
     session_path = Path(session_path)
     if not (session_path / "session.json").is_file():
         raise TensorTouchError(f"{session_path}: not a session (no session.json)")
     sensor = sensor or json.loads((session_path / "session.json").read_text())["sensor_id"]
     cal = store.load(sensor)
-    table, folder = load_table(session_path, cal, cfg, cache)
+    table, folder = load_table(session_path, cal, cfg, cache, session)
     t1 = time.perf_counter()
     try:
         chain = EffectChain.from_calibration(cal, registry)
@@ -192,7 +199,7 @@ def run_compare(session_path, sensor: str | None, store: CalibrationStore, model
     if hasattr(model, "build_table"):   # the deployed network: frames through the runtime's code
         from .fastpost import correction_post
 
-        session = load_session(session_path)
+        session = session or load_session(session_path)
         table = model.build_table(session, cal, table, folder if cache else None,
                                   cache_root() / "net" if cache else None, progress)
         t2 = time.perf_counter()
