@@ -164,6 +164,7 @@ def session_samples(session_dir: Path, calibration, plan, fe_results, slot_of_po
     from ...runtime.stages.preprocess import Preprocessor
     from ...contracts.session import load_session, read_table
     from .fields import FieldConfig
+    from .simreal import slot_ratios
 
     ses = load_session(session_dir)
     fr = read_table(Path(session_dir) / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
@@ -191,9 +192,8 @@ def session_samples(session_dir: Path, calibration, plan, fe_results, slot_of_po
                 if key not in projectors:
                     projectors[key] = FieldProjector(v.xyz, v.area, tables, fcfg)
                 v.projector = projectors[key]
-            r = np.array([ratios.get(int(sl), {"ratio": [1.0] * 3})["ratio"] for sl in slot_of_poke[p]])
-            tgt[n] = frame_fields(views[p], plan[p], float(fr[i, 0]), r, stress_scale, tables, fcfg,
-                                  views[p].projector)
+            tgt[n] = frame_fields(views[p], plan[p], float(fr[i, 0]), slot_ratios(ratios, slot_of_poke[p]),
+                                  stress_scale, tables, fcfg, views[p].projector)
         if progress:
             progress(n + 1, len(picks))
     arr = np.array(picks, int).reshape(-1, 3)

@@ -47,33 +47,17 @@ class LabelConfig:
                                  f"got {getattr(self, name)!r}")
 
 
-def measured_forces(t: np.ndarray, slots: list, tracks: dict, wrench: np.ndarray, ft_rotation_wxyz) -> np.ndarray:
-    """(n, 3·K) force each indenter of `slots` applies to the gel (the FE reaction's sign), sensor frame, N,
-    at times t: the F/T reading interpolated at t, turned by the mocap pose nearest t."""
-    from ...runtime.offline import ft_to_sensor
-
-    t = np.asarray(t, float)
-    w = np.asarray(wrench, float)
-    out = []
-    for k in slots:
-        wk = w[w[:, 1] == k]
-        f_ft = np.stack([np.interp(t, wk[:, 0], wk[:, 2 + c]) for c in range(3)], 1)
-        tr = tracks[k]
-        near = np.clip(np.searchsorted(tr.t, t), 0, len(tr.t) - 1)
-        out.append(-ft_to_sensor(f_ft, tr.quaternion[near], ft_rotation_wxyz))
-    return np.concatenate(out, 1)
-
-
 def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.ndarray,
-                 rcfg=None, lcfg: LabelConfig = LabelConfig(), ft_rotation_wxyz=None,
+                 rcfg=None, lcfg: LabelConfig = LabelConfig(), measured: dict | None = None,
                  ratios: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per camera frame: label (source index, −1 rest, ≥ BUSY_ID busy) and σ (NaN unless labelled).
 
     sources[p]: .times (J,), .t_init, .slots, .is_keypoint (J,), .result.RF (J, K, 3); tracks: {slot:
     resolve.PoseTrack}; wrench: session wrench table (t, indenter, fx, fy, fz, ...). With
-    `lcfg.sigma = "pose+ft"` and the F/T axes in the indenter frame (`ft_rotation_wxyz`), σ also fits the
-    measured force to the FE reactions × the stage-4 `ratios` ({slot: {"ratio": (3,)}})."""
+    `lcfg.sigma = "pose+ft"` and `measured` ({slot: (len(frame_t), 3) force on the gel, sensor frame:
+    `runtime.offline.measured_at`'s "force"), σ also fits it to the FE reactions × the stage-4 `ratios`."""
     from .resolve import ResolveConfig, frame_sigma
+    from .simreal import slot_ratios
 
     rcfg = rcfg or ResolveConfig()
     t = np.asarray(frame_t, float)
@@ -96,10 +80,10 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
         if len(inside):
             lab[inside] = p
             force = None
-            if lcfg.sigma == "pose+ft" and ft_rotation_wxyz is not None:
-                r = np.array([(ratios or {}).get(int(sl), {"ratio": [1.0] * 3})["ratio"] for sl in src.slots])
-                fe = (np.asarray(src.result.RF, float)[:, :len(src.slots)] * r).reshape(len(times), -1)
-                force = (measured_forces(t[inside], src.slots, tracks, w, ft_rotation_wxyz), fe)
+            if lcfg.sigma == "pose+ft" and measured is not None:
+                fe = np.asarray(src.result.RF, float)[:, :len(src.slots)] * slot_ratios(ratios, src.slots)
+                fm = np.concatenate([np.asarray(measured[sl])[inside] for sl in src.slots], 1)
+                force = (fm, fe.reshape(len(times), -1))
             sig[inside] = frame_sigma(t[inside], times, [tracks[s] for s in src.slots], rcfg, force,
                                       lcfg.pose_sd_mm, lcfg.force_sd_n)
     free = busy & (lab < 0)
@@ -159,19 +143,22 @@ def session_samples_measured(session_dir: Path, calibration, sources: list, rati
                              lcfg: LabelConfig = LabelConfig(), rcfg=None, progress=None) -> dict:
     """All samples of one session from re-solved FE (same output as dataset.session_samples):
     {'input' (n,6,S,S) u8, 'target' (n,15,S,S) f32 physical, 'frame', 'baseline', 'poke' (n,)}."""
+    from ...runtime.offline import measured_at
     from ...runtime.stages.preprocess import Preprocessor
     from ...contracts.session import load_session
     from .dataset import FieldProjector, crops, select_frames, surface_view
     from .fields import FieldConfig
     from .resolve import PoseTrack
+    from .simreal import slot_ratios
 
     ses = load_session(session_dir)
     frames = ses.table("frames")
     poses = ses.table("poses")
     tracks = {int(k): PoseTrack.from_table(poses, int(k)) for k in np.unique(poses[:, 1])}
-    lab, sig = frame_labels(frames[:, 0], sources, tracks, ses.table("wrench"), rcfg, lcfg,
-                            ses.streams["wrench"]["ft_to_indenter"]["rotation_wxyz"],
-                            {int(k): v for k, v in ratios.items()})
+    measured = None
+    if lcfg.sigma == "pose+ft":
+        measured = {k: v["force"] for k, v in measured_at(ses, frames[:, 0]).items()}
+    lab, sig = frame_labels(frames[:, 0], sources, tracks, ses.table("wrench"), rcfg, lcfg, measured, ratios)
     picks = [pk for pk in select_frames(lab, dcfg) if pk[2] < BUSY_ID]
     contact = [pk for pk in picks if pk[2] >= 0]
     rest = [pk for pk in picks if pk[2] < 0]
@@ -199,8 +186,8 @@ def session_samples_measured(session_dir: Path, calibration, sources: list, rati
                 if key not in projectors:
                     projectors[key] = FieldProjector(v.xyz, v.area, tables, fcfg)
                 v.projector = projectors[key]
-            r = np.array([ratios.get(int(sl), {"ratio": [1.0] * 3})["ratio"] for sl in sources[p].slots])
-            tgt[n] = source_fields(views[p], float(sig[i]), r, stress_scale, views[p].projector)
+            tgt[n] = source_fields(views[p], float(sig[i]), slot_ratios(ratios, sources[p].slots), stress_scale,
+                                   views[p].projector)
         if progress:
             progress(n + 1, len(picks))
     arr = np.array(picks, int).reshape(-1, 3)

@@ -10,7 +10,7 @@ fitted by least squares over the keypoint frames in contact (Σ −F_s·F_FE / �
 the contact normal/shear force of the nodes each indenter touches. A component whose FE force is too
 small to define a ratio (e.g. x of a straight press) takes the indenter's magnitude ratio.
 
-Pure cores: `ft_to_sensor`, `fit_ratios`, `apply_ratios`. Shell: `session_ratios`.
+Pure cores: `ft_to_sensor`, `fit_ratios`, `slot_ratios`, `apply_ratios`. Shell: `session_ratios`.
 """
 from __future__ import annotations
 
@@ -57,6 +57,11 @@ def fit_ratios(f_sensor: np.ndarray, rf_fe: np.ndarray, cfg: SimRealConfig = Sim
             comp[c] = float(np.clip(np.sum(fs[:, c] * fe[:, c]) / np.sum(fe[:, c] ** 2), lo, hi))
             used[c] = True
     return {"ratio": comp.tolist(), "magnitude": mag, "component_fitted": used.tolist(), "samples": int(sel.sum())}
+
+
+def slot_ratios(ratios: dict | None, slots: list) -> np.ndarray:
+    """(K, 3) ratios of the indenters `slots` from {slot: {"ratio": (3,)}}; 1 where a slot has none."""
+    return np.array([(ratios or {}).get(int(sl), {"ratio": [1.0] * 3})["ratio"] for sl in slots], float)
 
 
 def apply_ratios(force: np.ndarray, owner: np.ndarray, ratios: np.ndarray) -> np.ndarray:
