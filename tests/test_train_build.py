@@ -86,7 +86,7 @@ def test_unknown_build_fields_and_session_entries_are_refused(tmp_path):
         config_from_dict(r.config(r.steps()[0]), r.source)
     f.write_text('name = "x"\n[build]\nlabel_frames = "between"\n')
     r = load_recipe(f)
-    with pytest.raises(RecipeError, match="label_frames = 'between'; expected one of interpolated, fe, keypoint"):
+    with pytest.raises(RecipeError, match="label_frames = 'between'; expected one of interpolated, checked, fe, keypoint"):
         config_from_dict(r.config(r.steps()[0]), r.source)
 
 

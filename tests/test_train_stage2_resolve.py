@@ -152,6 +152,51 @@ def test_frame_sigma_with_the_ft_force_places_a_hold_before_a_twist():
         frame_sigma(t, times, [tr], force=(fm, fe[:1]))
 
 
+def test_checked_frames_keeps_interpolated_labels_as_good_as_the_fe_frames():
+    from tensortouch.tools.train.labels import checked_frames
+
+    # FE-frame residuals 0.1, 0.2, 0.3, 0.4 N: their 0.5 quantile is 0.25 N (linear between 0.2 and 0.3)
+    r = np.array([0.1, 0.2, 0.3, 0.4, 0.24, 0.26, 0.9, 0.0])
+    at = np.array([1, 1, 1, 1, 0, 0, 0, 0], bool)
+    np.testing.assert_array_equal(checked_frames(r, at, 0.5), [1, 1, 1, 1, 1, 0, 0, 1])
+    np.testing.assert_array_equal(checked_frames(r, at, 1.0), [1, 1, 1, 1, 1, 1, 0, 1])   # up to the worst, 0.4
+    np.testing.assert_array_equal(checked_frames(r[4:], at[4:], 0.9), [0, 0, 0, 0])       # nothing to compare with
+    with pytest.raises(ValueError, match="same \\(n,\\) shape"):
+        checked_frames(r, at[:3], 0.5)
+    with pytest.raises(ValueError, match="quantile"):
+        checked_frames(r, at, 0.0)
+
+
+def test_frame_labels_checked_drops_interpolated_frames_the_ft_contradicts():
+    from types import SimpleNamespace
+
+    from tensortouch.tools.train.labels import LabelConfig
+
+    tr, *_ = _poke_track()
+    frame_t = np.arange(0.0, 3.2, 1 / 30)
+    times = np.array([1.2, 1.4, 1.6, 2.0, 2.2])
+    rf = np.zeros((5, 1, 3))
+    rf[:, 0, 2] = [-0.5, -1.5, -3.0, -3.0, -1.0]        # FE reactions at the FE frames
+    src = SimpleNamespace(times=times, t_init=0.97, slots=[0], is_keypoint=np.ones(5, bool),
+                          result=SimpleNamespace(RF=rf))
+    wrench = np.column_stack([frame_t, np.zeros((len(frame_t), 3)), -np.ones_like(frame_t), np.zeros((len(frame_t), 3))])
+    ratios = {0: {"ratio": [1.0, 1.0, 1.0]}}
+    lab_i, sig = frame_labels(frame_t, [src], {0: tr}, wrench)
+    fe_lab = np.array([interp_frames(rf[:, 0], s)[2] if np.isfinite(s) else 0.0 for s in sig])
+    meas = np.zeros((len(frame_t), 3))
+    meas[:, 2] = fe_lab + 0.05                        # the F/T agrees with every label to 0.05 N ...
+    bad = np.flatnonzero((frame_t > 1.7) & (frame_t < 1.9))
+    meas[bad, 2] += 0.5                               # ... except during the hold, where it reads 0.5 N more
+    lcfg = LabelConfig(frames="checked")
+    lab, sig2 = frame_labels(frame_t, [src], {0: tr}, wrench, lcfg=lcfg, measured={0: meas}, ratios=ratios)
+    assert np.all(lab[bad] >= BUSY_ID) and np.all(np.isnan(sig2[bad]))       # dropped: neither contact nor rest
+    keep = (lab_i == 0) & ~np.isin(np.arange(len(frame_t)), bad)
+    assert np.all(lab[keep] == 0)
+    np.testing.assert_allclose(sig2[keep], sig[keep])                         # σ stays the pose's
+    with pytest.raises(ValueError, match="needs the measured F/T"):
+        frame_labels(frame_t, [src], {0: tr}, wrench, lcfg=lcfg)
+
+
 def test_label_config_checks_the_sigma_word():
     from tensortouch.tools.train.labels import LabelConfig
 

@@ -72,7 +72,7 @@ class BuildConfig:
     fe: str = "resolve"                           # stage 2: resolve (FE from measured keypoints) | twin (twin's solves)
     tables: str = "gpr"                           # θ/φ tables of the targets: gpr (stage 3 pokes) | truth (twin)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
-    label_frames: str = "interpolated"            # fe = "resolve": labels at every frame of an FE span | "fe" | "keypoint"
+    label_frames: str = "interpolated"            # fe = "resolve": labels at every frame of an FE span | "checked" | "fe" | "keypoint"
     label_sigma: str = "pose"                     # a label between FE frames is placed by the mocap pose | "pose+ft"
                                                   # (pose and F/T force: labels 1.5–3× nearer the F/T, docs/train.md)
     # stage 1 dual threshold. The seed's 1.5 N / 1.1 N (KeypointConfig) suit its stiffer gel; the twin's gel
@@ -251,7 +251,7 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
 
 
 # build fields that take one of a few words
-CHOICES = {"fe": ("resolve", "twin"), "tables": ("gpr", "truth"), "label_frames": ("interpolated", "fe", "keypoint"),
+CHOICES = {"fe": ("resolve", "twin"), "tables": ("gpr", "truth"), "label_frames": ("interpolated", "checked", "fe", "keypoint"),
            "label_sigma": ("pose+ft", "pose"),
            "physics": ("fe", "hertz-fallback")}
 

@@ -8,7 +8,10 @@ period: FE frame times, indenter ids, result) define:
   "pose+ft", of the F/T force against the FE reactions × the stage-4 ratios) and the fields are the linear
   interpolation of the two FE frames (`resolve.interp_frames`); frames within half a camera period of
   an FE frame are (up to that half period) the FE frame itself. `LabelConfig.frames` = "fe" keeps only
-  those (no interpolated label), "keypoint" only the frames nearest a stage-1 keypoint (the seed's labels);
+  those (no interpolated label), "keypoint" only the frames nearest a stage-1 keypoint (the seed's labels),
+  "checked" the FE frames and those interpolated frames whose label force agrees with the F/T as well as
+  the FE frames' labels do (`checked_frames`): an interpolated label is kept only where the rig's own
+  measurement shows it is as good;
 - **busy frames**: outside those spans but with a measured |F| above `rest_force_n` on some indenter
   (light contact before 1.5 N / after 1.1 N) or between a period's initial FE pose and its first
   frame: neither contact samples nor rest samples;
@@ -39,12 +42,34 @@ class LabelConfig:
                                           # the F/T force ("pose+ft") | the pose alone ("pose")
     pose_sd_mm: float = 0.05              # weights of that fit: the mocap's error (seed appendix 0.03–0.08 mm)
     force_sd_n: float = 0.05              # ... and the F/T + sim-to-real error at FE frames (0.04–0.09 N)
+    check_quantile: float = 0.9           # "checked": an interpolated label's |label F − F/T| must be within this
+                                          # quantile of the same session's FE-frame labels' |label F − F/T|
 
     def __post_init__(self):
         for name, key in (("frames", "label_frames"), ("sigma", "label_sigma")):
             if getattr(self, name) not in CHOICES[key]:
                 raise ValueError(f"LabelConfig.{name}: expected one of {', '.join(CHOICES[key])}, "
                                  f"got {getattr(self, name)!r}")
+        if not 0.0 < self.check_quantile <= 1.0:
+            raise ValueError(f"LabelConfig.check_quantile: expected a quantile in (0, 1], got {self.check_quantile!r}")
+
+
+def checked_frames(residual_n: np.ndarray, at_fe: np.ndarray, quantile: float) -> np.ndarray:
+    """(n,) bool: which labelled frames to keep under `LabelConfig.frames = "checked"`.
+
+    residual_n (n,): |label force − measured F/T force| per frame (N); at_fe (n,) bool: the frame is an FE
+    frame. FE frames are always kept; an interpolated frame is kept when its residual is within the
+    `quantile` of the FE frames' residuals. With no FE frame to compare against, no interpolated frame is kept."""
+    r = np.asarray(residual_n, float)
+    at = np.asarray(at_fe, bool)
+    if r.ndim != 1 or at.shape != r.shape:
+        raise ValueError(f"checked_frames: residual_n {r.shape} and at_fe {at.shape} must be the same (n,) shape")
+    if not 0.0 < quantile <= 1.0:
+        raise ValueError(f"checked_frames: quantile {quantile!r} not in (0, 1]")
+    if not at.any():
+        return at.copy()
+    limit = float(np.quantile(r[at], quantile))
+    return at | (r <= limit)
 
 
 def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.ndarray,
@@ -55,11 +80,13 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
     sources[p]: .times (J,), .t_init, .slots, .is_keypoint (J,), .result.RF (J, K, 3); tracks: {slot:
     resolve.PoseTrack}; wrench: session wrench table (t, indenter, fx, fy, fz, ...). With
     `lcfg.sigma = "pose+ft"` and `measured` ({slot: (len(frame_t), 3) force on the gel, sensor frame:
-    `runtime.offline.measured_at`'s "force"), σ also fits it to the FE reactions × the stage-4 `ratios`."""
-    from .resolve import ResolveConfig, frame_sigma
+    `runtime.offline.measured_at`'s "force"), σ also fits it to the FE reactions × the stage-4 `ratios`;
+    `lcfg.frames = "checked"` (needs `measured`) drops the interpolated frames `checked_frames` rejects."""
+    from .resolve import ResolveConfig, frame_sigma, interp_frames
     from .simreal import slot_ratios
 
     rcfg = rcfg or ResolveConfig()
+    checks = []
     t = np.asarray(frame_t, float)
     lab = np.full(len(t), -1, int)
     sig = np.full(len(t), np.nan)
@@ -73,19 +100,30 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
         times = np.asarray(src.times, float)
         busy |= (t >= src.t_init) & (t <= times[-1])
         inside = np.flatnonzero((t >= times[0]) & (t <= times[-1]))
-        if lcfg.frames != "interpolated":
+        if lcfg.frames in ("fe", "keypoint"):
             kt = times[np.asarray(src.is_keypoint, bool)] if lcfg.frames == "keypoint" else times
             near = [i for i in inside if np.min(np.abs(kt - t[i])) <= half + 1e-9]
             inside = np.array(near, int)
         if len(inside):
             lab[inside] = p
             force = None
-            if lcfg.sigma == "pose+ft" and measured is not None:
+            if measured is not None and (lcfg.sigma == "pose+ft" or lcfg.frames == "checked"):
                 fe = np.asarray(src.result.RF, float)[:, :len(src.slots)] * slot_ratios(ratios, src.slots)
                 fm = np.concatenate([np.asarray(measured[sl])[inside] for sl in src.slots], 1)
                 force = (fm, fe.reshape(len(times), -1))
-            sig[inside] = frame_sigma(t[inside], times, [tracks[s] for s in src.slots], rcfg, force,
-                                      lcfg.pose_sd_mm, lcfg.force_sd_n)
+            sig[inside] = frame_sigma(t[inside], times, [tracks[s] for s in src.slots], rcfg,
+                                      force if lcfg.sigma == "pose+ft" else None, lcfg.pose_sd_mm, lcfg.force_sd_n)
+            if lcfg.frames == "checked":
+                if force is None:
+                    raise ValueError('LabelConfig.frames = "checked" needs the measured F/T forces (measured=)')
+                label_f = np.array([interp_frames(force[1], s) for s in sig[inside]])
+                near = np.array([np.min(np.abs(times - t[i])) <= half + 1e-9 for i in inside], bool)
+                checks.append((inside, np.linalg.norm(force[0] - label_f, axis=1), near))
+    if checks:
+        keep = checked_frames(np.concatenate([c[1] for c in checks]), np.concatenate([c[2] for c in checks]),
+                              lcfg.check_quantile)
+        drop = np.concatenate([c[0] for c in checks])[~keep]
+        lab[drop], sig[drop] = -1, np.nan          # inside a span: they become busy frames below
     free = busy & (lab < 0)
     runs = np.cumsum(np.diff(np.concatenate([[0], free.astype(int)])) == 1)
     lab[free] = BUSY_ID + runs[free]
@@ -156,7 +194,7 @@ def session_samples_measured(session_dir: Path, calibration, sources: list, rati
     poses = ses.table("poses")
     tracks = {int(k): PoseTrack.from_table(poses, int(k)) for k in np.unique(poses[:, 1])}
     measured = None
-    if lcfg.sigma == "pose+ft":
+    if lcfg.sigma == "pose+ft" or lcfg.frames == "checked":
         measured = {k: v["force"] for k, v in measured_at(ses, frames[:, 0]).items()}
     lab, sig = frame_labels(frames[:, 0], sources, tracks, ses.table("wrench"), rcfg, lcfg, measured, ratios)
     picks = [pk for pk in select_frames(lab, dcfg) if pk[2] < BUSY_ID]
