@@ -365,7 +365,41 @@ def test_controller_scores_the_change_along_the_objects_with_the_stronger_witnes
         return _frame([(pos[s][i], np.array([0, 0, -load[s][i]]) + (shear[s][i] if k >= 4 else 0)) for i in range(2)])
 
     decided = {}
-    for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False)), ("new", ControllerConfig())):
+    for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False)),
+                      ("new", ControllerConfig(witness="max", drift_weight=0.0))):
         d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
         decided[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
     assert decided == {"sum": 0, "new": 1}
+
+
+def test_controller_needs_both_gels_and_counts_the_pulled_clusters_drift():
+    """A light object (0) at the gel rim is pulled: the thumb shows it 0.15 N along its length and
+    its neighbour 0.05 N; the index shows it 0.10 N and puts 0.40 N on the neighbour (crosstalk),
+    and the pulled object's index cluster slides 1 mm along it. Loads are 1 N, so the changes per
+    N^0.75 are those numbers. The stronger witness names the neighbour (0.40 > 0.15); the geometric
+    mean of both gels alone too (√(0.05·0.40) = 0.141 > √(0.15·0.10) = 0.122); with 0.15 per mm of
+    drift added on each gel the pulled one leads: √(0.15·(0.10 + 0.15)) = 0.194."""
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    along = np.array([0, 1.0, 0])                  # the objects lie along world y: gel y on both sensors
+    shear = {"thumb": [0.15, 0.05], "index": [0.10, 0.40]}
+    slide = {"thumb": [0.0, 0.0], "index": [1.0, 0.0]}
+
+    def frame(s, k):
+        on = k >= 4
+        return _frame([(pos[s][i] + (slide[s][i] * along if on else 0), np.array([0, 0, -1.0]) + (shear[s][i] * along if on else 0))
+                       for i in range(2)])
+
+    named, scores = {}, {}
+    for name, cfg in (("max", ControllerConfig(witness="max", drift_weight=0.0)),
+                      ("both", ControllerConfig(drift_weight=0.0)), ("both+drift", ControllerConfig())):
+        d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
+        named[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
+        scores[name] = sorted(d.scores)
+    assert named == {"max": 1, "both": 1, "both+drift": 0}
+    np.testing.assert_allclose(scores["both"], [np.sqrt(0.015), np.sqrt(0.02)], atol=1e-6)
+    np.testing.assert_allclose(scores["both+drift"], [np.sqrt(0.02), np.sqrt(0.15 * 0.25)], atol=1e-6)
