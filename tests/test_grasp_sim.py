@@ -93,7 +93,7 @@ def _decide(ctrl, frame, frames: int = 8):
 
 
 def _frame(contacts):
-    return SimpleNamespace(seq=0, contacts=[SimpleNamespace(position_mm=p, force_n=f, normal=(0, 0, 1.0))
+    return SimpleNamespace(seq=0, contacts=[SimpleNamespace(position_mm=p, force_n=f, normal=(0, 0, 1.0), area_mm2=10.0)
                                             for p, f in contacts])
 
 
@@ -321,7 +321,7 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
             for i in range(36):
                 sen.show([] if i < 32 else objs, i * 0.04)
             assert ctrl.wait_frames({"thumb": 36}, timeout=30)
-            seen = sorted(p[0] for p, _, _ in ctrl.latest["thumb"])
+            seen = sorted(p[0] for p, *_ in ctrl.latest["thumb"])
             assert len(seen) == 2, ctrl.latest["thumb"]
             assert seen[0] == pytest.approx(-4.0, abs=1.5) and seen[1] == pytest.approx(4.0, abs=1.5)
         finally:

@@ -97,8 +97,8 @@ class SelectiveGraspController:
     def on_contacts(self, sensor: str, frame) -> None:
         """A decoded ContactsFrame from `sensor` ("thumb" or "index")."""
         with self._lock:
-            self.latest[sensor] = [(np.array(c.position_mm), np.array(c.force_n), np.array(c.normal))
-                                   for c in frame.contacts]
+            self.latest[sensor] = [(np.array(c.position_mm), np.array(c.force_n), np.array(c.normal),
+                                    float(c.area_mm2)) for c in frame.contacts]
             self.received[sensor] = max(self.received[sensor], int(frame.seq))
             self._lock.notify_all()
 
@@ -148,15 +148,15 @@ class SelectiveGraspController:
         """Clusters of the last reference frame with their force averaged over the frames."""
         last = frames[-1]
         out = []
-        for p, _, nrm in last:
+        for p, _, nrm, area in last:
             fs = []
             for fr in frames:
                 if fr:
-                    d = [np.linalg.norm(q - p) for q, _, _ in fr]
+                    d = [np.linalg.norm(q - p) for q, *_ in fr]
                     k = int(np.argmin(d))
                     if d[k] <= self.cfg.match_mm:
                         fs.append(fr[k][1])
-            out.append((p, np.mean(fs, axis=0), nrm))
+            out.append((p, np.mean(fs, axis=0), nrm, area))
         return out
 
     def _world(self, sensor: str, p_mm: np.ndarray) -> np.ndarray:
@@ -168,7 +168,7 @@ class SelectiveGraspController:
         """Unit direction along the object pinched at reference cluster p_ref on sensor s: the
         gel normal × the direction to the nearest reference cluster of another object on the same
         gel (the objects lie side by side). None with no other object on that gel."""
-        others = [q for q, f, _ in self._ref[s] if np.linalg.norm(f) >= self.cfg.min_ref_n
+        others = [q for q, f, *_ in self._ref[s] if np.linalg.norm(f) >= self.cfg.min_ref_n
                   and np.linalg.norm(q - p_ref) > self.cfg.group_mm]
         if not others:
             return None
@@ -180,11 +180,11 @@ class SelectiveGraspController:
     def _objects(self, latest: dict[str, list]) -> list[dict]:
         pts, changes, loads, who, drifts = [], [], [], [], []
         for s in self.SENSORS:
-            for p_ref, f_ref, nrm in self._ref[s]:
+            for p_ref, f_ref, nrm, _ in self._ref[s]:
                 if np.linalg.norm(f_ref) < self.cfg.min_ref_n:
                     continue
                 cur = latest[s]
-                d = [np.linalg.norm(q - p_ref) for q, _, _ in cur]
+                d = [np.linalg.norm(q - p_ref) for q, *_ in cur]
                 if d and min(d) <= self.cfg.match_mm:
                     p_now, f = cur[int(np.argmin(d))][:2]
                 elif self.cfg.lost_is_change:

@@ -182,7 +182,7 @@ class Bench:
                                    f"over Zenoh within {cfg.frame_timeout_s:g} s ({why})")
             if log_out is not None:
                 log_out.append({"t": round(sim_t, 6), "phase": phase, "q": scene.data.qpos[scene.qadr].tolist(),
-                                "contacts": {n: [(p.tolist(), f.tolist(), nr.tolist()) for p, f, nr in ctrl.latest[n]]
+                                "contacts": {n: [(p.tolist(), f.tolist(), nr.tolist(), a) for p, f, nr, a in ctrl.latest[n]]
                                              for n in sensors},
                                 "felt": {n: [(o.index, o.point.tolist(), o.depth, o.shear.tolist()) for o in felt[n]]
                                          for n in sensors}})
