@@ -403,3 +403,32 @@ def test_controller_needs_both_gels_and_counts_the_pulled_clusters_drift():
     assert named == {"max": 1, "both": 1, "both+drift": 0}
     np.testing.assert_allclose(scores["both"], [np.sqrt(0.015), np.sqrt(0.02)], atol=1e-6)
     np.testing.assert_allclose(scores["both+drift"], [np.sqrt(0.02), np.sqrt(0.15 * 0.25)], atol=1e-6)
+
+
+def test_replay_names_the_pulled_object_of_a_recorded_trial():
+    """A recorded trial (4 reference frames, then 4 with object 1 sheared 0.4 N along its length on
+    both gels) replayed through the controller names object 1, judged from where the gels felt each
+    object; with a threshold above its score (0.4 N per N^0.75 of 1 N) it names none."""
+    from tensortouch.tools.grasp import replay
+
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+
+    def entry(phase, pulled):
+        return {"phase": phase,
+                "contacts": {s: [(pos[s][k].tolist(), [0.0, 0.4 if pulled and k == 1 else 0.0, -1.0], [0, 0, 1.0], 10.0)
+                                 for k in range(2)] for s in pos},
+                "felt": {s: [(k, pos[s][k].tolist(), 1.0, [0, 0, 0]) for k in range(2)] for s in pos}}
+
+    rec = {"pair": "A+A", "seed": 0, "pulled": 1, "start": start,
+           "log": [entry("settle", False)] + [entry("reference", False)] * 4 + [entry("pull", True)] * 4}
+    assert replay.replay(rec, g) == 1
+    assert replay.replay(rec, g, ControllerConfig(min_change=0.5)) is None
+    other = dict(rec, pulled=0)
+    assert replay.tally([rec, other], g) == {"A+A": {"right": 1, "wrong": 1, "none": 0},
+                                             "object 1 pulled": {"right": 1, "wrong": 0, "none": 0},
+                                             "object 0 pulled": {"right": 0, "wrong": 1, "none": 0}}
