@@ -93,7 +93,7 @@ def _decide(ctrl, frame, frames: int = 8):
 
 
 def _frame(contacts):
-    return SimpleNamespace(seq=0, contacts=[SimpleNamespace(position_mm=p, force_n=f, normal=(0, 0, 1.0))
+    return SimpleNamespace(seq=0, contacts=[SimpleNamespace(position_mm=p, force_n=f, normal=(0, 0, 1.0), area_mm2=10.0)
                                             for p, f in contacts])
 
 
@@ -321,7 +321,7 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
             for i in range(36):
                 sen.show([] if i < 32 else objs, i * 0.04)
             assert ctrl.wait_frames({"thumb": 36}, timeout=30)
-            seen = sorted(p[0] for p, _, _ in ctrl.latest["thumb"])
+            seen = sorted(p[0] for p, *_ in ctrl.latest["thumb"])
             assert len(seen) == 2, ctrl.latest["thumb"]
             assert seen[0] == pytest.approx(-4.0, abs=1.5) and seen[1] == pytest.approx(4.0, abs=1.5)
         finally:
@@ -365,7 +365,70 @@ def test_controller_scores_the_change_along_the_objects_with_the_stronger_witnes
         return _frame([(pos[s][i], np.array([0, 0, -load[s][i]]) + (shear[s][i] if k >= 4 else 0)) for i in range(2)])
 
     decided = {}
-    for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False)), ("new", ControllerConfig())):
+    for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False)),
+                      ("new", ControllerConfig(witness="max", drift_weight=0.0))):
         d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
         decided[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
     assert decided == {"sum": 0, "new": 1}
+
+
+def test_controller_needs_both_gels_and_counts_the_pulled_clusters_drift():
+    """A light object (0) at the gel rim is pulled: the thumb shows it 0.15 N along its length and
+    its neighbour 0.05 N; the index shows it 0.10 N and puts 0.40 N on the neighbour (crosstalk),
+    and the pulled object's index cluster slides 1 mm along it. Loads are 1 N, so the changes per
+    N^0.75 are those numbers. The stronger witness names the neighbour (0.40 > 0.15); the geometric
+    mean of both gels alone too (√(0.05·0.40) = 0.141 > √(0.15·0.10) = 0.122); with 0.15 per mm of
+    drift added on each gel the pulled one leads: √(0.15·(0.10 + 0.15)) = 0.194."""
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    along = np.array([0, 1.0, 0])                  # the objects lie along world y: gel y on both sensors
+    shear = {"thumb": [0.15, 0.05], "index": [0.10, 0.40]}
+    slide = {"thumb": [0.0, 0.0], "index": [1.0, 0.0]}
+
+    def frame(s, k):
+        on = k >= 4
+        return _frame([(pos[s][i] + (slide[s][i] * along if on else 0), np.array([0, 0, -1.0]) + (shear[s][i] * along if on else 0))
+                       for i in range(2)])
+
+    named, scores = {}, {}
+    for name, cfg in (("max", ControllerConfig(witness="max", drift_weight=0.0)),
+                      ("both", ControllerConfig(drift_weight=0.0)), ("both+drift", ControllerConfig())):
+        d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
+        named[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
+        scores[name] = sorted(d.scores)
+    assert named == {"max": 1, "both": 1, "both+drift": 0}
+    np.testing.assert_allclose(scores["both"], [np.sqrt(0.015), np.sqrt(0.02)], atol=1e-6)
+    np.testing.assert_allclose(scores["both+drift"], [np.sqrt(0.02), np.sqrt(0.15 * 0.25)], atol=1e-6)
+
+
+def test_replay_names_the_pulled_object_of_a_recorded_trial():
+    """A recorded trial (4 reference frames, then 4 with object 1 sheared 0.4 N along its length on
+    both gels) replayed through the controller names object 1, judged from where the gels felt each
+    object; with a threshold above its score (0.4 N per N^0.75 of 1 N) it names none."""
+    from tensortouch.tools.grasp import replay
+
+    g = _line_graph()
+    start = 4
+    m = SensorMount()
+    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
+    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
+           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+
+    def entry(phase, pulled):
+        return {"phase": phase,
+                "contacts": {s: [(pos[s][k].tolist(), [0.0, 0.4 if pulled and k == 1 else 0.0, -1.0], [0, 0, 1.0], 10.0)
+                                 for k in range(2)] for s in pos},
+                "felt": {s: [(k, pos[s][k].tolist(), 1.0, [0, 0, 0]) for k in range(2)] for s in pos}}
+
+    rec = {"pair": "A+A", "seed": 0, "pulled": 1, "start": start,
+           "log": [entry("settle", False)] + [entry("reference", False)] * 4 + [entry("pull", True)] * 4}
+    assert replay.replay(rec, g) == 1
+    assert replay.replay(rec, g, ControllerConfig(min_change=0.5)) is None
+    other = dict(rec, pulled=0)
+    assert replay.tally([rec, other], g) == {"A+A": {"right": 1, "wrong": 1, "none": 0},
+                                             "object 1 pulled": {"right": 1, "wrong": 0, "none": 0},
+                                             "object 0 pulled": {"right": 0, "wrong": 1, "none": 0}}

@@ -43,10 +43,12 @@ class ControllerConfig:
     min_ref_n: float = 0.3                  # clusters weaker than this in the reference are ignored
     load_floor_n: float = 0.0               # added to an object's load before dividing (per_load)
     load_power: float = 0.75                # per_load divides by (load + floor) to this power
-    lost_is_change: bool = False            # True: a reference cluster with no match counts as released
+    lost_is_change: bool = True             # a reference cluster with no match counts as released
     both_sensors: bool = True               # only objects felt by both fingertips compete (if ≥ 2)
     along_only: bool = True                 # score only the change along the objects' length
-    witness: str = "max"                    # an object's change over the sensors: "sum" or "max"
+    witness: str = "both"                   # an object's change over the sensors: "both" (geometric mean), "max", "min", "sum"
+    drift_weight: float = 0.15              # added per mm its cluster's centroid moved along the object (per gel)
+    most_loaded: int = 2                    # > 0: only this many objects felt by both gels compete, the most loaded
     drop_between: bool = True               # without two objects felt by both: one between two others is their merged contact
     match_mm: float = 3.0
     group_mm: float = 4.0
@@ -95,8 +97,8 @@ class SelectiveGraspController:
     def on_contacts(self, sensor: str, frame) -> None:
         """A decoded ContactsFrame from `sensor` ("thumb" or "index")."""
         with self._lock:
-            self.latest[sensor] = [(np.array(c.position_mm), np.array(c.force_n), np.array(c.normal))
-                                   for c in frame.contacts]
+            self.latest[sensor] = [(np.array(c.position_mm), np.array(c.force_n), np.array(c.normal),
+                                    float(c.area_mm2)) for c in frame.contacts]
             self.received[sensor] = max(self.received[sensor], int(frame.seq))
             self._lock.notify_all()
 
@@ -146,15 +148,15 @@ class SelectiveGraspController:
         """Clusters of the last reference frame with their force averaged over the frames."""
         last = frames[-1]
         out = []
-        for p, _, nrm in last:
+        for p, _, nrm, area in last:
             fs = []
             for fr in frames:
                 if fr:
-                    d = [np.linalg.norm(q - p) for q, _, _ in fr]
+                    d = [np.linalg.norm(q - p) for q, *_ in fr]
                     k = int(np.argmin(d))
                     if d[k] <= self.cfg.match_mm:
                         fs.append(fr[k][1])
-            out.append((p, np.mean(fs, axis=0), nrm))
+            out.append((p, np.mean(fs, axis=0), nrm, area))
         return out
 
     def _world(self, sensor: str, p_mm: np.ndarray) -> np.ndarray:
@@ -166,7 +168,7 @@ class SelectiveGraspController:
         """Unit direction along the object pinched at reference cluster p_ref on sensor s: the
         gel normal × the direction to the nearest reference cluster of another object on the same
         gel (the objects lie side by side). None with no other object on that gel."""
-        others = [q for q, f, _ in self._ref[s] if np.linalg.norm(f) >= self.cfg.min_ref_n
+        others = [q for q, f, *_ in self._ref[s] if np.linalg.norm(f) >= self.cfg.min_ref_n
                   and np.linalg.norm(q - p_ref) > self.cfg.group_mm]
         if not others:
             return None
@@ -176,17 +178,17 @@ class SelectiveGraspController:
         return e / n if n > 1e-9 else None
 
     def _objects(self, latest: dict[str, list]) -> list[dict]:
-        pts, changes, loads, who = [], [], [], []
+        pts, changes, loads, who, drifts = [], [], [], [], []
         for s in self.SENSORS:
-            for p_ref, f_ref, nrm in self._ref[s]:
+            for p_ref, f_ref, nrm, _ in self._ref[s]:
                 if np.linalg.norm(f_ref) < self.cfg.min_ref_n:
                     continue
                 cur = latest[s]
-                d = [np.linalg.norm(q - p_ref) for q, _, _ in cur]
+                d = [np.linalg.norm(q - p_ref) for q, *_ in cur]
                 if d and min(d) <= self.cfg.match_mm:
-                    f = cur[int(np.argmin(d))][1]
+                    p_now, f = cur[int(np.argmin(d))][:2]
                 elif self.cfg.lost_is_change:
-                    f = np.zeros(3)                    # the cluster vanished: its force changed fully
+                    p_now, f = p_ref, np.zeros(3)      # the cluster vanished: its force changed fully
                 else:
                     continue                           # the cluster moved or split: no reading this frame
                 pts.append(self._world(s, p_ref))
@@ -195,36 +197,42 @@ class SelectiveGraspController:
                     df = df - (df @ nrm) * nrm
                 e = self._along(s, p_ref, nrm) if self.cfg.along_only else None
                 changes.append(float(abs(df @ e)) if e is not None else float(np.linalg.norm(df)))
+                dp = p_now - p_ref
+                drifts.append(float(abs(dp @ e)) if e is not None else float(np.linalg.norm(dp - (dp @ nrm) * nrm)))
                 loads.append(float(np.linalg.norm(f_ref)))
                 who.append(s)
         objects: list[dict] = []
-        for p, ch, load, s in zip(pts, changes, loads, who):
+        for p, ch, load, s, dr in zip(pts, changes, loads, who, drifts):
             for o in objects:
                 if np.linalg.norm(o["point"] - p) * 1000 <= self.cfg.group_mm:
                     o["members"].append(p)
                     o["point"] = np.mean(o["members"], axis=0)
                     o["by_sensor"][s] = o["by_sensor"].get(s, 0.0) + ch
+                    o["drift_by"][s] = max(o["drift_by"].get(s, 0.0), dr)
                     o["load_by"][s] = o["load_by"].get(s, 0.0) + load
                     o["load"] += load
                     o["sensors"].add(s)
                     break
             else:
                 objects.append({"point": p, "members": [p], "by_sensor": {s: ch}, "load_by": {s: load}, "load": load,
-                                "sensors": {s}})
+                                "sensors": {s}, "drift_by": {s: dr}})
         c = self.cfg
-        for o in objects:                              # the sum over both gels, or the stronger witness
-            if c.witness == "max":
-                o["change"] = max(ch / (max(o["load_by"][k] + c.load_floor_n, 1e-6) ** c.load_power if c.per_load else 1.0)
-                                  for k, ch in o["by_sensor"].items())
+        for o in objects:                              # both gels' witness, the stronger or weaker one, or the sum
+            if c.witness in ("both", "max", "min"):
+                per = [ch / (max(o["load_by"][k] + c.load_floor_n, 1e-6) ** c.load_power if c.per_load else 1.0)
+                       + c.drift_weight * o["drift_by"][k] for k, ch in o["by_sensor"].items()]
+                o["change"] = {"both": lambda v: float(np.prod(v)) ** (1.0 / len(v)), "max": max, "min": min}[c.witness](per)
             else:
                 o["change"] = sum(o["by_sensor"].values())
         both = [o for o in objects if len(o["sensors"]) == len(self.SENSORS)]
         if self.cfg.both_sensors and len(both) >= 2:   # a cluster only one fingertip feels is not a pinched object
             objects = both
+            if self.cfg.most_loaded > 0:               # a pinch holds two objects: the most loaded ones
+                objects = sorted(objects, key=lambda o: -o["load"])[:self.cfg.most_loaded]
         elif self.cfg.drop_between:                    # a contact spanning two objects is not a third one
             objects = [o for o in objects if not between(o["point"], [x["point"] for x in objects if x is not o],
                                                          self.cfg.group_mm)]
-        if self.cfg.per_load and self.cfg.witness != "max":   # change per newton the object was held with
+        if self.cfg.per_load and self.cfg.witness == "sum":   # change per newton the object was held with
             for o in objects:
                 o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
         return objects

@@ -41,7 +41,7 @@ def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
         for row, name in ((1, "thumb"), (2, "index")):
             ax = axes[row, col]
             ax.imshow(f["frames"][name])
-            for p_mm, F, _ in f["contacts"][name]:
+            for p_mm, F, *_ in f["contacts"][name]:
                 ax.text(2, 12 + 14 * len(ax.texts), f"({p_mm[0]:+.1f},{p_mm[1]:+.1f}) mm |F| {np.linalg.norm(F):.2f} N",
                         color="w", fontsize=6)
             ax.set_title(f"{name} sensor frame + published contacts", fontsize=7)

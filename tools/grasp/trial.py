@@ -137,16 +137,19 @@ class Bench:
         self.sub_session.close()
         self.pub_session.close()
 
-    def trial(self, pair: str, seed: int, frames_out: list | None = None, log_out: list | None = None) -> TrialResult:
+    def trial(self, pair: str, seed: int, frames_out: list | None = None, log_out: list | None = None,
+              pulled: int | None = None) -> TrialResult:
         """One trial; `frames_out` collects picture frames, `log_out` every frame's simulated time,
-        joint angles and the contacts the controller received."""
+        phase, joint angles and the contacts (position, force, normal) the controller received.
+        `pulled` overrides the seed's choice of the pulled object (0 or 1)."""
         from ...runtime.pipeline import open_pipeline
         from .sim_sensor import SimFingertip
 
         t0 = time.perf_counter()
         cfg, g, s = self.cfg, self.graph, self.start
         rng = np.random.default_rng(seed)
-        pulled = int(rng.integers(0, 2))
+        drawn = int(rng.integers(0, 2))
+        pulled = drawn if pulled is None else int(pulled)
         jitter = rng.uniform(-1, 1, 3) * cfg.jitter_mm / 1000.0
         jitter -= (jitter @ g.normal[s]) * g.normal[s]
         scene = Scene(self.urdf, self.joints, PAIRS[pair], g.point[s], g.normal[s], g.tip_index[s][:3, 2],
@@ -161,6 +164,7 @@ class Bench:
         gel_touch = GelTouch(scene, self.mount)
         sim_t = 0.0
         judged, outcome, path_len = None, "other", 0
+        phase = "rest"
 
         def frame(record: str = ""):
             nonlocal sim_t
@@ -177,8 +181,8 @@ class Bench:
                 raise RuntimeError(f"the sensors' contacts of frame {sensors['thumb'].pushed} did not arrive "
                                    f"over Zenoh within {cfg.frame_timeout_s:g} s ({why})")
             if log_out is not None:
-                log_out.append({"t": round(sim_t, 6), "q": scene.data.qpos[scene.qadr].tolist(),
-                                "contacts": {n: [(p.tolist(), f.tolist()) for p, f, _ in ctrl.latest[n]]
+                log_out.append({"t": round(sim_t, 6), "phase": phase, "q": scene.data.qpos[scene.qadr].tolist(),
+                                "contacts": {n: [(p.tolist(), f.tolist(), nr.tolist(), a) for p, f, nr, a in ctrl.latest[n]]
                                              for n in sensors},
                                 "felt": {n: [(o.index, o.point.tolist(), o.depth, o.shear.tolist()) for o in felt[n]]
                                          for n in sensors}})
@@ -203,16 +207,20 @@ class Bench:
             # rest frames (the runtime's startup baseline); the controller already hears both sensors
             for _ in range(cfg.startup_frames):
                 frame()
+            phase = "close"
             advance(cfg.close_s, q_open, g.q[s], label="pinch")
             gel_touch.relax()
+            phase = "settle"
             advance(cfg.settle_s)
             ctrl.watch()
+            phase = "reference"
             for _ in range(ctrl.cfg.reference_frames):   # the reference, before anything is pulled
                 advance(cfg.frame_dt)
                 ctrl.update()
             n_pull = max(1, round(cfg.pull_ramp_s / cfg.frame_dt))
             decision = None
             steps = round(cfg.decide_timeout_s / cfg.frame_dt)
+            phase = "pull"
             for k in range(steps):
                 scene.pull(pulled, cfg.pull_n * min(1.0, (k + 1) / n_pull))
                 scene.step(cfg.frame_dt)
@@ -237,10 +245,12 @@ class Bench:
                     scene.release()
                 _, qs = ctrl.trajectory()
                 path_len = len(qs)
+                phase = "path"
                 q_prev = g.q[s]
                 for q in qs:
                     advance(ctrl.cfg.step_s, q_prev, q)
                     q_prev = q
+                phase = "hold"
                 advance(cfg.hold_s, label="final")
             touching = scene.touching()
             outcome, cause = verdict(judged, pulled, touching)
