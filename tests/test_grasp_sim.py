@@ -237,6 +237,36 @@ def test_goal_centres_the_moving_object_on_the_line_of_fingertip_centres_and_cle
     np.testing.assert_allclose(sc[3], 0.5 + 2.5 + 10 * 0.5 + 0.4, atol=2e-3)
 
 
+def test_goal_aims_beyond_the_moving_object_away_from_the_other():
+    from tensortouch.tools.grasp.controller import goal_scores
+
+    pts, nrm, tips = _pinches([2.0, 3.5, 5.0, 6.5], [0, 0, 0, 0])
+    costs = np.zeros(4)
+    cfg = ControllerConfig(keep_mm=5.0, lean_mm=1.5, clear_mm=0.0, depth_mm=2.0, cost_weight_mm_per_rad=0.0)
+    z = np.array([0, 0, 1.0])
+    mov = np.array([0.0035, 0, 0])
+    # untilted pinches in the plane: lean 0, h 0, nothing to clear; score = e
+    np.testing.assert_allclose(goal_scores(pts, nrm, tips, costs, z, mov, np.array([-0.0035, 0, 0]), cfg),
+                               [1.5, 0.0, 1.5, 3.0], atol=1e-6)
+    # aimed 1.5 mm beyond, away from an other object on −x: e = |x − 5|
+    np.testing.assert_allclose(goal_scores(pts, nrm, tips, costs, z, mov, np.array([-0.0035, 0, 0]), cfg, 1.5),
+                               [3.0, 1.5, 0.0, 1.5], atol=1e-6)
+    # the other object on +x: aimed towards −x, e = |x − 2|
+    np.testing.assert_allclose(goal_scores(pts, nrm, tips, costs, z, mov, np.array([0.0105, 0, 0]), cfg, 1.5),
+                               [0.0, 1.5, 3.0, 4.5], atol=1e-6)
+
+
+def test_plan_aims_only_for_an_object_held_firmly_on_both_gels():
+    g = _line_graph()                      # pinches at x = −8 … 8 mm, 2 mm apart, joint steps 0.02 rad
+    cfg = ControllerConfig(aim_mm=2.5, aim_min_load_n=2.5, clear_mm=0.0, keep_mm=5.0)
+    ctrl = SelectiveGraspController(g, 4, SensorMount(), cfg)
+    mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
+    # not aimed: e = |x − 3.5| + 2 mm/rad · path → x = 4 mm (0.5 + 0.08) beats x = 2 (1.5 + 0.04)
+    assert g.point[ctrl._plan(mov, oth, [], held_n=2.4).goal][0] == pytest.approx(0.004)
+    # aimed 2.5 mm beyond: e = |x − 6| → x = 6 mm
+    assert g.point[ctrl._plan(mov, oth, [], held_n=2.5).goal][0] == pytest.approx(0.006)
+
+
 def test_a_contact_merging_two_objects_on_one_gel_is_not_an_object():
     """The thumb resolves two objects 14 mm apart; the index reports one merged cluster between
     them (the sum of both loads). The merged cluster's shear must not name a third, middle object."""

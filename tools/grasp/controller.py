@@ -22,7 +22,8 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    centred between the fingertips whatever its diameter. The goal keeps e within `keep_mm`, the
    lean within `lean_mm`, h within `depth_mm` and the other object `clear_mm` from both
    fingertips where the graph allows, as near as it can otherwise, then prefers a short joint
-   path. Dijkstra gives the path.
+   path. An object held firmly on both gels (≥ `aim_min_load_n`: a thick, stiff one) is aimed
+   `aim_mm` beyond, away from the other. Dijkstra gives the path.
 """
 from __future__ import annotations
 
@@ -56,6 +57,8 @@ class ControllerConfig:
     lead_ratio: float = 1.1
     confirm_frames: int = 2
     keep_mm: float = 2.5                    # the goal's line of fingertip centres this near the moving object
+    aim_mm: float = 1.5                     # a thick object's goal line crosses this far beyond it, away from the other
+    aim_min_load_n: float = 2.5             # thick: held with at least this on both gels in the reference
     lean_mm: float = 1.5                    # its fingertip centres this near where that line crosses, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
     clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
@@ -141,7 +144,8 @@ class SelectiveGraspController:
         if streak < self.cfg.confirm_frames:
             return None
         other = objects[int(order[1])]["point"] if len(order) > 1 else None
-        self.decision = self._plan(objects[best]["point"], other, [float(x) for x in scores])
+        held = min(objects[best]["load_by"].get(s, 0.0) for s in self.SENSORS)
+        self.decision = self._plan(objects[best]["point"], other, [float(x) for x in scores], held)
         return self.decision
 
     def _reference(self, frames: list[list]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -237,11 +241,17 @@ class SelectiveGraspController:
                 o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
         return objects
 
-    def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float]) -> Decision:
+    def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float],
+              held_n: float = 0.0) -> Decision:
+        """The goal and path for the moving object; `held_n`: its weaker gel's reference force (N).
+        A thick, stiff object (held with ≥ `aim_min_load_n` on both gels) is aimed `aim_mm` beyond:
+        a round pen centred between the fingertips lets one of them slide off it onto the other
+        object; a thin string (held with less) would slip out of an off-centre pinch."""
         g = self.graph
         tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
+        aim = self.cfg.aim_mm if held_n >= self.cfg.aim_min_load_n else 0.0
         score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
-                            other, self.cfg)
+                            other, self.cfg, aim)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
         return Decision(moving, other, goal, g.path(self.node, goal), scores)
 
@@ -284,7 +294,7 @@ def between(p: np.ndarray, others: list[np.ndarray], gap_mm: float) -> bool:
 
 def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs: np.ndarray,
                 normal_now: np.ndarray, moving: np.ndarray, other: np.ndarray | None,
-                cfg: ControllerConfig) -> np.ndarray:
+                cfg: ControllerConfig, aim_mm: float = 0.0) -> np.ndarray:
     """Score of each graph node as the goal (lower is better, inf = not allowed). `tips` (N, 2, 3):
     both fingertip centres of each node (m). The objects lie in the plane through `moving` normal
     to the current pinch normal `normal_now`, side by side (only distances across them count, along
@@ -296,7 +306,9 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
       h      its pinch point's distance from the plane along `normal_now` (a pinch closing off the
              plane pushes the object into one fingertip first);
       ρ_other the nearer fingertip centre's distance across from the other object.
-    Without another object e and lean are distances in the plane. Allowed: reachable (finite path
+    With `aim_mm` e is measured from the point that far beyond the moving object, away from the
+    other (the pinch then squeezes the object away from the other, not towards it). Without another
+    object e and lean are distances in the plane. Allowed: reachable (finite path
     cost, rad) with a pinch normal within `max_normal_deg` of `normal_now`. Score =
     clear_weight · (shortfall of ρ_other below `clear_mm`) + keep_weight · (excess of e over
     `keep_mm`, of lean over `lean_mm`, of h over `depth_mm`) + e + lean + h + cost_weight · path
@@ -307,7 +319,7 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
     across = None if other is None else (moving - other) - ((moving - other) @ n0) * n0
     if across is not None and np.linalg.norm(across) > 1e-6:
         u = across / np.linalg.norm(across)
-        e = np.abs((cross - moving) @ u) * 1000.0
+        e = np.abs((cross - moving) @ u * 1000.0 - aim_mm)
         lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
         rho_o = np.min(np.abs((tips - np.asarray(other, float)) @ u), axis=1) * 1000.0
     else:

@@ -56,7 +56,7 @@ def replay(rec: dict, graph: ContactGraph, cfg: ControllerConfig | None = None,
     names none within the recorded pull."""
     mount = mount or SensorMount()
     ctrl = SelectiveGraspController(graph, rec["start"], mount, cfg or ControllerConfig())
-    ctrl._plan = lambda moving, other, scores: SimpleNamespace(moving_point=moving, path=[])  # no path needed
+    ctrl._plan = lambda moving, other, scores, *_: SimpleNamespace(moving_point=moving, path=[])  # no path needed
     ctrl.watch()
     frames = [e for e in rec["log"] if e["phase"] in ("reference", "pull")]
     decision = None
