@@ -118,6 +118,7 @@ def _cmd_study(args) -> int:
     return 0
 
 
+STUDY_NAMES = ("press", "slide", "mupress", "locking", "mesh", "c3d10")  # = study.STUDIES (not imported here: light CLI)
 # export-inp and crosscheck: a scenario written as a deck, with the deck's bulk modulus
 DECK = (arg("scenario", help="scenario file, or 'standard'"),
         arg("--bulk", choices=("solver", "material"), default="solver",
@@ -148,8 +149,8 @@ COMMANDS = (
         *DECK,
         arg("--work-dir", required=True, help="folder for the deck and ccx's output"),
         arg("--threads", type=int, default=1, help="ccx solver threads (default 1)"))),
-    ("study", "convergence / CalculiX study (press, slide, mupress, locking, mesh)", _cmd_study, (
-        arg("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"), help="studies to run"),
+    ("study", "convergence / CalculiX study (" + ", ".join(STUDY_NAMES) + ")", _cmd_study, (
+        arg("names", nargs="+", choices=STUDY_NAMES, help="studies to run"),
         arg("--work-dir", required=True, help="folder for the decks and ccx's output"),
         arg("--json", help="write all rows here"))),
 )
