@@ -103,3 +103,21 @@ def test_study_reuses_a_solved_deck_without_ccx(tmp_path):
     (tmp_path / "lab.json").write_text(json.dumps({"deck_sha256": sha, "RF": [[0, 0, -2.5]], "seconds": 12.0}))
     row = _ccx(sc, tmp_path, "lab")
     assert row["reused"] and row["RF"] == [[0, 0, -2.5]] and row["seconds"] == 12.0
+
+
+def test_cli_export_inp_max_increment(tmp_path, capsys):
+    import argparse
+
+    from tensortouch.tools.fe.cli import register
+    from tensortouch.tools.fe.scenario import save_scenario
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    save_scenario(coarse_press(depth=1.0), tmp_path / "s.json")
+    args = parser.parse_args(["fe", "export-inp", str(tmp_path / "s.json"), "--out", str(tmp_path / "d.inp"),
+                              "--max-increment-mm", "0.25"])
+    assert args.func(args) == 0
+    assert "*STATIC\n0.2, 1., 2e-06, 0.2\n" in (tmp_path / "d.inp").read_text()  # 1.05 mm in 5 increments
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args(["fe", "export-inp", "standard", "--out", "x.inp", "--max-increment-mm", "0"])
+    assert exc.value.code == 2 and "expected a length in mm > 0" in capsys.readouterr().err
