@@ -65,3 +65,59 @@ def test_press_agrees_with_calculix(tmp_path):
     assert ccx[2] < -1.0  # pressing: the indenter pushes the gel down
     assert ours[2] / ccx[2] == pytest.approx(1.0, abs=0.05)
     assert abs(ccx[0]) < 0.05 and abs(ccx[1]) < 0.05
+
+
+def test_deck_increment_cap_for_c3d10(tmp_path):
+    from tensortouch.tools.fe.inp import C3D10_MAX_INCREMENT_MM
+
+    sc = coarse_press(depth=2.0)
+    assert step_increments(sc, max_increment_mm=C3D10_MAX_INCREMENT_MM) == [9]  # 2.05 mm at <= 0.25 mm
+    deck = export_inp_ccx(sc, tmp_path / "d.inp", max_increment_mm=0.25).read_text()
+    assert "*STATIC\n0.11111111, 1., 1.11e-06, 0.11111111\n" in deck
+    assert "*STATIC\n0.2, 1., 2e-06, 0.2\n" in export_inp_ccx(sc, tmp_path / "e.inp").read_text()
+    with pytest.raises(ValueError, match="max_increment_mm"):
+        export_inp_ccx(sc, tmp_path / "f.inp", max_increment_mm=0.0)
+
+
+def test_richardson_recovers_a_known_limit_and_refuses_oscillation():
+    from tensortouch.tools.fe.study import richardson
+
+    h = [1.4, 1.0, 0.7]
+    out = richardson(h, [2.0 + 0.5 * x ** 1.5 for x in h])
+    assert out["monotone"] and out["p"] == pytest.approx(1.5, abs=1e-6) and out["f0"] == pytest.approx(2.0)
+    out = richardson(h, [5.3 - 0.2 * x ** 0.7 for x in h])  # rising towards the limit, order < 1
+    assert out["p"] == pytest.approx(0.7, abs=1e-6) and out["f0"] == pytest.approx(5.3)
+    assert richardson(h, [2.5, 2.4, 2.45]) == {"f0": None, "p": None, "monotone": False}
+
+
+def test_study_reuses_a_solved_deck_without_ccx(tmp_path):
+    """The study's ccx rows come back from <label>.json when the deck is byte-identical (no ccx run)."""
+    import hashlib
+    import json
+
+    from tensortouch.tools.fe.study import _ccx
+
+    sc = coarse_press()
+    deck = export_inp_ccx(sc, tmp_path / "lab.inp")
+    sha = hashlib.sha256(deck.read_bytes()).hexdigest()
+    (tmp_path / "lab.json").write_text(json.dumps({"deck_sha256": sha, "RF": [[0, 0, -2.5]], "seconds": 12.0}))
+    row = _ccx(sc, tmp_path, "lab")
+    assert row["reused"] and row["RF"] == [[0, 0, -2.5]] and row["seconds"] == 12.0
+
+
+def test_cli_export_inp_max_increment(tmp_path, capsys):
+    import argparse
+
+    from tensortouch.tools.fe.cli import register
+    from tensortouch.tools.fe.scenario import save_scenario
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    save_scenario(coarse_press(depth=1.0), tmp_path / "s.json")
+    args = parser.parse_args(["fe", "export-inp", str(tmp_path / "s.json"), "--out", str(tmp_path / "d.inp"),
+                              "--max-increment-mm", "0.25"])
+    assert args.func(args) == 0
+    assert "*STATIC\n0.2, 1., 2e-06, 0.2\n" in (tmp_path / "d.inp").read_text()  # 1.05 mm in 5 increments
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args(["fe", "export-inp", "standard", "--out", "x.inp", "--max-increment-mm", "0"])
+    assert exc.value.code == 2 and "expected a length in mm > 0" in capsys.readouterr().err

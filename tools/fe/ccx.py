@@ -78,7 +78,8 @@ def read_reactions(dat, n_steps: int) -> dict[str, np.ndarray]:
     return out
 
 
-def crosscheck(scenario, workdir, bulk: str = "solver", threads: int = 1) -> dict:
+def crosscheck(scenario, workdir, bulk: str = "solver", threads: int = 1,
+               max_increment_mm: float | None = None) -> dict:
     """Solve `scenario` with tools.fe and with ccx from the exported deck on the same mesh.
 
     Returns {"ours", "ccx": RF (F,K,3) N; "ours_moment", "ccx_moment": (F,K,3) N·mm about the
@@ -89,7 +90,7 @@ def crosscheck(scenario, workdir, bulk: str = "solver", threads: int = 1) -> dic
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     gm = build_mesh(scenario)
-    deck = export_inp_ccx(scenario, workdir / "deck.inp", mesh=gm, bulk=bulk)
+    deck = export_inp_ccx(scenario, workdir / "deck.inp", mesh=gm, bulk=bulk, max_increment_mm=max_increment_mm)
     t0 = time.time()
     ours = solve(scenario, mesh=gm)
     seconds_ours = time.time() - t0

@@ -81,7 +81,8 @@ def _cmd_inp(args) -> int:
     from .scenario import load_scenario, standard_dome
 
     scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
-    path = export_inp(scenario, args.out, dialect=args.dialect, bulk=args.bulk)
+    path = export_inp(scenario, args.out, dialect=args.dialect, bulk=args.bulk,
+                      max_increment_mm=args.max_increment_mm)
     print(f"wrote {path}")
     return 0
 
@@ -91,7 +92,8 @@ def _cmd_crosscheck(args) -> int:
     from .scenario import load_scenario, standard_dome
 
     scenario = standard_dome() if args.scenario == "standard" else load_scenario(args.scenario)
-    out = crosscheck(scenario, args.work_dir, bulk=args.bulk, threads=args.threads)
+    out = crosscheck(scenario, args.work_dir, bulk=args.bulk, threads=args.threads,
+                     max_increment_mm=args.max_increment_mm)
     print(f"{out['nodes']} nodes; deck {out['deck']}")
     print("frame  indenter  RF tools.fe (N)               RF ccx (N)                    |RF| ratio")
     for j in range(out["ours"].shape[0]):
@@ -118,10 +120,26 @@ def _cmd_study(args) -> int:
     return 0
 
 
+STUDY_NAMES = ("press", "slide", "mupress", "locking", "mesh", "c3d10")  # = study.STUDIES (not imported here: light CLI)
 # export-inp and crosscheck: a scenario written as a deck, with the deck's bulk modulus
+def _positive_mm(text: str) -> float:
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a length in mm > 0, got {text!r}")
+    return value
+
+
 DECK = (arg("scenario", help="scenario file, or 'standard'"),
         arg("--bulk", choices=("solver", "material"), default="solver",
-            help="bulk modulus in the deck: tools.fe's (P1 cap, default) or the material's D1"))
+            help="bulk modulus in the deck: tools.fe's (P1 cap, default) or the material's D1"),
+        arg("--max-increment-mm", type=_positive_mm, default=None, metavar="MM",
+            help="ccx deck: increments of at most MM of indenter travel (default: the scenario's "
+                 "solver.max_increment_mm; 0.25 for C3D10 at the true D1, docs/fe.md)"))
 COMMANDS = (
     ("solve", "solve one scenario file (JSON/TOML) -> result .npz", _cmd_solve, (
         arg("scenario", help="scenario file, or 'standard' for the standard dome"),
@@ -148,8 +166,8 @@ COMMANDS = (
         *DECK,
         arg("--work-dir", required=True, help="folder for the deck and ccx's output"),
         arg("--threads", type=int, default=1, help="ccx solver threads (default 1)"))),
-    ("study", "convergence / CalculiX study (press, slide, mupress, locking, mesh)", _cmd_study, (
-        arg("names", nargs="+", choices=("press", "slide", "mupress", "locking", "mesh"), help="studies to run"),
+    ("study", "convergence / CalculiX study (" + ", ".join(STUDY_NAMES) + ")", _cmd_study, (
+        arg("names", nargs="+", choices=STUDY_NAMES, help="studies to run"),
         arg("--work-dir", required=True, help="folder for the decks and ccx's output"),
         arg("--json", help="write all rows here"))),
 )

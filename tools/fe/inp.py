@@ -7,7 +7,7 @@ one thin C3D4 per surface triangle whose outer face is the contact master surfac
 penalty contact with the pressure-overclosure slope, and the stick slope of *FRICTION, set to the
 values tools.fe uses (ccx's default penalty reads forces 7-10 % low); no *FRICTION when mu = 0; the
 bulk modulus is the one tools.fe uses (`bulk="solver"`: capped for P1, docs/fe.md "Volumetric
-locking") or the material's D1 (`bulk="material"`); increments per step as in tools.fe; the reaction
+locking") or the material's D1 (`bulk="material"`); increments per step as in tools.fe (or at most `max_increment_mm`); the reaction
 at each reference node printed to the .dat file (`tools.fe.ccx` reads it).
 
 `dialect="abaqus"`: gel our gmsh mesh as C3D4H (hybrid linear tets), base encastre, Yeoh/NH/MR hyperelastic with the
@@ -74,14 +74,19 @@ BULK_CHOICES = ("solver", "material")
 RIGID_THICKNESS = 0.2   # mm: depth of the thin tets under each indenter surface triangle (ccx)
 RIGID_MARGIN = 1.0      # mm: indenter triangles farther than this from the gel's box are left out
 CCX_MIN_INCREMENT = 1e-5  # fraction of a step
+# mm: increments for C3D10 (P2) decks at the true D1. At 0.5 mm, ccx's C3D10 on a top-1.0 mm P2
+# mesh diverges in the press from 1.5 to 2 mm (residual 1e8 in the first iterations of the
+# increment, then stalls); at 0.25 mm it converges in <= 8 iterations per increment (docs/fe.md).
+C3D10_MAX_INCREMENT_MM = 0.25
 
 
-def export_inp(scenario: Scenario, path, mesh=None, dialect: str = "ccx", bulk: str = "solver") -> Path:
+def export_inp(scenario: Scenario, path, mesh=None, dialect: str = "ccx", bulk: str = "solver",
+               max_increment_mm: float | None = None) -> Path:
     """Write the deck (atomic) for `dialect` ("ccx" or "abaqus") and return its path."""
     if dialect not in DIALECTS:
         raise ValueError(f"dialect {dialect!r}: expected one of {DIALECTS}")
     if dialect == "ccx":
-        return export_inp_ccx(scenario, path, mesh=mesh, bulk=bulk)
+        return export_inp_ccx(scenario, path, mesh=mesh, bulk=bulk, max_increment_mm=max_increment_mm)
     return _export_abaqus(scenario, path, mesh)
 
 
@@ -165,29 +170,35 @@ def _near_gel(ind, nodes, tets, lo, hi) -> np.ndarray:
     return tets[keep]
 
 
-def step_increments(scenario: Scenario) -> list[int]:
-    """Increments per keypoint step as tools.fe's solver takes them (max_increment_mm/_rad)."""
+def step_increments(scenario: Scenario, max_increment_mm: float | None = None) -> list[int]:
+    """Increments per keypoint step as tools.fe's solver takes them (max_increment_mm/_rad), or with
+    translations of at most `max_increment_mm` when given."""
     from .indenters import pose_at
 
     sv = scenario.solver
+    inc_mm = sv.max_increment_mm if max_increment_mm is None else float(max_increment_mm)
     out = []
     for j in range(scenario.n_keypoints):
         n = sv.min_increments
         for ind in scenario.indenters:
             (p0, r0), (p1, r1) = pose_at(ind, j - 1.0), pose_at(ind, float(j))
-            n = max(n, math.ceil(np.linalg.norm(p1 - p0) / sv.max_increment_mm - 1e-9),
+            n = max(n, math.ceil(np.linalg.norm(p1 - p0) / inc_mm - 1e-9),
                     math.ceil(np.linalg.norm(r1 - r0) / sv.max_increment_rad - 1e-9))
         out.append(max(n, 1))
     return out
 
 
-def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver") -> Path:
-    """CalculiX 2.20 deck (see the module docstring); returns its path."""
+def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver",
+                   max_increment_mm: float | None = None) -> Path:
+    """CalculiX 2.20 deck (see the module docstring); returns its path. `max_increment_mm` caps the
+    deck's increments (mm of indenter travel) below the scenario's (C3D10_MAX_INCREMENT_MM)."""
     from .materials import effective_bulk
     from .solver import build_mesh
 
     if bulk not in BULK_CHOICES:
         raise ValueError(f"bulk {bulk!r}: expected one of {BULK_CHOICES}")
+    if max_increment_mm is not None and not max_increment_mm > 0:
+        raise ValueError(f"max_increment_mm: expected > 0, got {max_increment_mm!r}")
     scenario.validate()
     gm = mesh if mesh is not None else build_mesh(scenario)
     order = 2 if gm.tets.shape[1] == 10 else 1
@@ -234,7 +245,7 @@ def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver") ->
         out += ["*FRICTION", f"{scenario.friction:.8g}, {sv.friction_stiffness_ratio * penalty:.8g}"]
     out += [f"*CONTACT PAIR, INTERACTION=GEL_CONTACT, TYPE=SURFACE TO SURFACE\nGEL_TOP, {name}_SURF"
             for name, _ in refs]
-    for j, n_inc in enumerate(step_increments(scenario)):
+    for j, n_inc in enumerate(step_increments(scenario, max_increment_mm)):
         dt = 1.0 / n_inc
         out += [f"*STEP, NLGEOM, INC=1000\n** keypoint {j + 1}", "*STATIC",
                 f"{dt:.8g}, 1., {CCX_MIN_INCREMENT * dt:.3g}, {dt:.8g}", "*BOUNDARY"]
