@@ -67,6 +67,7 @@ def test_fitted_parameters_recover_the_hidden_values(registry):
     assert p["g1"] == pytest.approx(0.3, abs=0.03) and p["tau"] == pytest.approx(1.5, rel=0.15)
 
 
+@pytest.mark.slow           # 40 s: ten null sessions (the workbench generality acceptance runs ten more)
 def test_null_sessions_say_no_significant_missing_effect(registry):
     verdicts = [diagnose(small(100 + s), registry).verdict for s in range(10)]
     assert sum(v is None for v in verdicts) >= 9, [v.effect.name for v in verdicts if v]
