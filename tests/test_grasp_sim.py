@@ -102,14 +102,19 @@ def _on_gel(mount, T, world):
     return mount.direction_to_gel(u / np.linalg.norm(u))
 
 
-def test_controller_names_the_sheared_object_and_plans_past_it():
-    g = _line_graph()
-    start = 4
-    m = SensorMount()
-    ctrl = SelectiveGraspController(g, start, m, ControllerConfig(confirm_frames=2))
-    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
+def _pinch(objs=((-0.0035, 0, 0), (0.0035, 0, 0)), start: int = 4):
+    """The line graph pinching objects (world m) at node `start`: (graph, start, mount, objects, where
+    each gel sees each object {sensor: [gel mm]})."""
+    g, m = _line_graph(), SensorMount()
+    objs = [np.array(o, float) for o in objs]
     pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
            "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    return g, start, m, objs, pos
+
+
+def test_controller_names_the_sheared_object_and_plans_past_it():
+    g, start, m, objs, pos = _pinch()
+    ctrl = SelectiveGraspController(g, start, m, ControllerConfig(confirm_frames=2))
     ctrl.watch()
 
     def send(shear_on):
@@ -134,12 +139,7 @@ def test_controller_scores_shear_change_per_newton_of_load():
     """A light cable pulled beside a heavily loaded neighbour that picks up more shear by crosstalk:
     per newton of its reference force the pulled one leads; a cluster only one fingertip feels
     (a spurious edge of a contact) does not compete."""
-    g = _line_graph()
-    start = 4
-    m = SensorMount()
-    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0]), np.array([0.009, 0, 0])]
-    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
-           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    g, start, m, objs, pos = _pinch(((-0.0035, 0, 0), (0.0035, 0, 0), (0.009, 0, 0)))
     load = [1.0, 3.0, 0.35]
     # shear per sensor once pulled: object 0 (pulled) 0.3 N, object 1 0.45 N (crosstalk), the
     # thumb-only cluster 0.3 N. Summed over both sensors 0.6 N of 2 N load vs 0.9 N of 6 N: per
@@ -379,12 +379,7 @@ def test_controller_scores_the_change_along_the_objects_with_the_stronger_witnes
     neighbour on the other gel, part of it across the objects (a squeeze change). Summed over both
     gels the neighbour leads; along the objects' length, taking each object's stronger gel, the
     pulled one does."""
-    g = _line_graph()
-    start = 4
-    m = SensorMount()
-    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
-    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
-           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    g, start, m, objs, pos = _pinch()
     along = np.array([0, 1.0, 0])                  # the objects lie along world y: gel y on both sensors
     across = np.array([1.0, 0, 0])
     load = {"thumb": [1.0, 1.0], "index": [1.0, 1.0]}
@@ -409,12 +404,7 @@ def test_controller_needs_both_gels_and_counts_the_pulled_clusters_drift():
     N^0.75 are those numbers. The stronger witness names the neighbour (0.40 > 0.15); the geometric
     mean of both gels alone too (√(0.05·0.40) = 0.141 > √(0.15·0.10) = 0.122); with 0.15 per mm of
     drift added on each gel the pulled one leads: √(0.15·(0.10 + 0.15)) = 0.194."""
-    g = _line_graph()
-    start = 4
-    m = SensorMount()
-    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
-    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
-           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    g, start, m, objs, pos = _pinch()
     along = np.array([0, 1.0, 0])                  # the objects lie along world y: gel y on both sensors
     shear = {"thumb": [0.15, 0.05], "index": [0.10, 0.40]}
     slide = {"thumb": [0.0, 0.0], "index": [1.0, 0.0]}
@@ -441,12 +431,7 @@ def test_replay_names_the_pulled_object_of_a_recorded_trial():
     object; with a threshold above its score (0.4 N per N^0.75 of 1 N) it names none."""
     from tensortouch.tools.grasp import replay
 
-    g = _line_graph()
-    start = 4
-    m = SensorMount()
-    objs = [np.array([-0.0035, 0, 0]), np.array([0.0035, 0, 0])]
-    pos = {"thumb": [_on_gel(m, g.tip_thumb[start], o) for o in objs],
-           "index": [_on_gel(m, g.tip_index[start], o) for o in objs]}
+    g, start, m, objs, pos = _pinch()
 
     def entry(phase, pulled):
         return {"phase": phase,
