@@ -118,9 +118,18 @@ class SelectiveGraspController:
 
     # ------------------------------------------------------------------ per frame
     def update(self) -> Decision | None:
-        """Call once per frame pair; returns the decision once made."""
+        """Call once per frame pair; returns the decision (the pulled object, goal and path) once made."""
         if self.decision is not None or not self._watching:
             return self.decision
+        named = self.detect()
+        if named is not None:
+            self.decision = self._plan(*named)
+        return self.decision
+
+    def detect(self) -> tuple | None:
+        """One frame of the decision rule, without planning: (moving point, other point or None,
+        scores, the moving object's weaker gel's reference force N) once an object is confirmed as
+        pulled, else None. Call once per frame pair after `watch`."""
         with self._lock:
             latest = {s: list(v) for s, v in self.latest.items()}
         if self._ref is None:
@@ -145,8 +154,7 @@ class SelectiveGraspController:
             return None
         other = objects[int(order[1])]["point"] if len(order) > 1 else None
         held = min(objects[best]["load_by"].get(s, 0.0) for s in self.SENSORS)
-        self.decision = self._plan(objects[best]["point"], other, [float(x) for x in scores], held)
-        return self.decision
+        return objects[best]["point"], other, [float(x) for x in scores], held
 
     def _reference(self, frames: list[list]) -> list[tuple[np.ndarray, np.ndarray]]:
         """Clusters of the last reference frame with their force averaged over the frames."""

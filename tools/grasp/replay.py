@@ -56,24 +56,24 @@ def replay(rec: dict, graph: ContactGraph, cfg: ControllerConfig | None = None,
     names none within the recorded pull."""
     mount = mount or SensorMount()
     ctrl = SelectiveGraspController(graph, rec["start"], mount, cfg or ControllerConfig())
-    ctrl._plan = lambda moving, other, scores, *_: SimpleNamespace(moving_point=moving, path=[])  # no path needed
     ctrl.watch()
     frames = [e for e in rec["log"] if e["phase"] in ("reference", "pull")]
-    decision = None
+    named = None
     for e in frames:
         for s in SENSORS:
             ctrl.on_contacts(s, _frame(e["contacts"][s]))
-        decision = ctrl.update()
-        if decision is not None:
+        named = ctrl.detect()
+        if named is not None:
             break
-    if decision is None:
+    if named is None:
         return None
+    moving = named[0]
     felt = [e for e in frames if e["phase"] == "reference"][-1]["felt"]
     where: dict[int, list] = {}
     for s in SENSORS:
         for k, p_gel, *_ in felt[s]:
             where.setdefault(int(k), []).append(ctrl._world(s, np.asarray(p_gel, float)))
-    return min(where, key=lambda k: np.linalg.norm(np.mean(where[k], axis=0) - decision.moving_point))
+    return min(where, key=lambda k: np.linalg.norm(np.mean(where[k], axis=0) - moving))
 
 
 def tally(recs: list[dict], graph: ContactGraph, cfg: ControllerConfig | None = None) -> dict[str, dict[str, int]]:
