@@ -12,6 +12,7 @@ import numpy as np
 
 from ..command_group import add_commands, arg, command_group
 from ..progress import stage_progress
+from .study import STUDIES
 
 log = logging.getLogger(__name__)
 
@@ -120,8 +121,6 @@ def _cmd_study(args) -> int:
     return 0
 
 
-STUDY_NAMES = ("press", "slide", "mupress", "locking", "mesh", "c3d10")  # = study.STUDIES (not imported here: light CLI)
-# export-inp and crosscheck: a scenario written as a deck, with the deck's bulk modulus
 def _positive_mm(text: str) -> float:
     import argparse
 
@@ -134,6 +133,7 @@ def _positive_mm(text: str) -> float:
     return value
 
 
+# export-inp and crosscheck: a scenario written as a deck, with the deck's bulk modulus and increments
 DECK = (arg("scenario", help="scenario file, or 'standard'"),
         arg("--bulk", choices=("solver", "material"), default="solver",
             help="bulk modulus in the deck: tools.fe's (P1 cap, default) or the material's D1"),
@@ -166,8 +166,8 @@ COMMANDS = (
         *DECK,
         arg("--work-dir", required=True, help="folder for the deck and ccx's output"),
         arg("--threads", type=int, default=1, help="ccx solver threads (default 1)"))),
-    ("study", "convergence / CalculiX study (" + ", ".join(STUDY_NAMES) + ")", _cmd_study, (
-        arg("names", nargs="+", choices=STUDY_NAMES, help="studies to run"),
+    ("study", "convergence / CalculiX study (" + ", ".join(STUDIES) + ")", _cmd_study, (
+        arg("names", nargs="+", choices=STUDIES, help="studies to run"),
         arg("--work-dir", required=True, help="folder for the decks and ccx's output"),
         arg("--json", help="write all rows here"))),
 )

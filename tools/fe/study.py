@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .inp import C3D10_MAX_INCREMENT_MM
 from .scenario import Keypoint, standard_dome
 
 STUDIES = ("press", "slide", "mupress", "locking", "mesh", "c3d10")
@@ -113,6 +112,7 @@ def richardson(h, f) -> dict:
 
 def run_study(name: str, work_dir, emit=print) -> list[dict]:
     from . import solver as fs
+    from .inp import C3D10_MAX_INCREMENT_MM
 
     if name not in STUDIES:
         raise ValueError(f"study {name!r}: expected one of {STUDIES}")
