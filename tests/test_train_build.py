@@ -25,6 +25,9 @@ def test_stage_keys_change_only_downstream():
     assert [s for s in STAGES if a[s] != d[s]] == list(STAGES[STAGES.index("keypoints"):])
     cfg = BuildConfig.from_dict(json.loads(json.dumps(BuildConfig().to_dict())))
     assert stage_keys(cfg) == a                                       # round trip through JSON
+    e = stage_keys(BuildConfig(max_bulk_ratio=6.0))                   # the label solves' locking cap: FE onwards
+    assert [s for s in STAGES if a[s] != e[s]] == list(STAGES[STAGES.index("fe"):])
+    assert stage_keys(BuildConfig(max_bulk_ratio=5)) == a             # the default stays out of older keys
 
 
 def test_set_reaches_the_build_config():
@@ -88,6 +91,11 @@ def test_unknown_build_fields_and_session_entries_are_refused(tmp_path):
     r = load_recipe(f)
     with pytest.raises(RecipeError, match="label_frames = 'between'; expected one of interpolated, checked, fe, keypoint"):
         config_from_dict(r.config(r.steps()[0]), r.source)
+    for bad in ("-1", '"six"', "true"):
+        f.write_text(f'name = "x"\n[build]\nmax_bulk_ratio = {bad}\n')
+        r = load_recipe(f)
+        with pytest.raises(RecipeError, match="max_bulk_ratio = .*expected a number ≥ 0"):
+            config_from_dict(r.config(r.steps()[0]), r.source)
 
 
 def test_set_values_are_read_as_toml():

@@ -66,6 +66,18 @@ def test_period_scenario_starts_clear_and_moves_by_the_measured_poses():
     assert sc.hash() == period_scenario([tr], [3], ["ball"], t_key, CATALOG, GEL, SURF).scenario.hash()
 
 
+def test_period_scenario_takes_the_recipes_locking_cap():
+    from tensortouch.tools.fe import SolverSettings
+
+    tr, *_ = _poke_track()
+    t_key = np.array([1.2, 1.6, 1.8, 2.1])
+    plain = period_scenario([tr], [3], ["ball"], t_key, CATALOG, GEL, SURF).scenario
+    five = period_scenario([tr], [3], ["ball"], t_key, CATALOG, GEL, SURF, solver=SolverSettings(max_bulk_ratio=5.0)).scenario
+    six = period_scenario([tr], [3], ["ball"], t_key, CATALOG, GEL, SURF, solver=SolverSettings(max_bulk_ratio=6.0)).scenario
+    assert plain.solver.max_bulk_ratio == 5.0 and five.hash() == plain.hash()     # the default cap: same cache entries
+    assert six.solver.max_bulk_ratio == 6.0 and six.hash() != plain.hash()
+
+
 def test_period_scenario_refuses_unknown_indenter_or_no_clear_pose():
     tr, *_ = _poke_track()
     with pytest.raises(ResolveError, match="catalog"):

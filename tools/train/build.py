@@ -70,6 +70,7 @@ class BuildConfig:
     heldout: list = field(default_factory=_heldout_sessions)
     physics: str = "fe"                           # twin physics (fe; hertz-fallback only for smoke tests)
     fe: str = "resolve"                           # stage 2: resolve (FE from measured keypoints) | twin (twin's solves)
+    max_bulk_ratio: float = 5.0                   # stage 2 resolve: locking cap of the label solves (tools.fe SolverSettings)
     tables: str = "gpr"                           # θ/φ tables of the targets: gpr (stage 3 pokes) | truth (twin)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
     label_frames: str = "interpolated"            # fe = "resolve": labels at every frame of an FE span | "checked" | "fe" | "keypoint"
@@ -128,7 +129,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     """Config key per stage: the fields that stage (and the stages before it) depend on."""
     d = cfg.to_dict()
     deps = {"sessions": ["train", "heldout", "physics", "size"],
-            "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe"], "correspondence": ["tables"], "simreal": [],
+            "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe", "max_bulk_ratio"], "correspondence": ["tables"], "simreal": [],
             "dataset": ["tables", "contact_stride", "label_frames", "label_sigma", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
@@ -138,7 +139,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
     optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
-                "detach_force_n": 1.1, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0}
+                "detach_force_n": 1.1, "max_bulk_ratio": 5.0, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:
@@ -247,6 +248,9 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
     for k, allowed in CHOICES.items():
         if k in d and d[k] not in allowed:
             raise RecipeError(f"{where}: {k} = {d[k]!r}; expected one of {', '.join(allowed)}")
+    if "max_bulk_ratio" in d and (isinstance(d["max_bulk_ratio"], bool) or not isinstance(d["max_bulk_ratio"], (int, float))
+                                  or not d["max_bulk_ratio"] >= 0):
+        raise RecipeError(f"{where}: max_bulk_ratio = {d['max_bulk_ratio']!r}; expected a number ≥ 0 (0: no cap)")
     return BuildConfig.from_dict(d)
 
 

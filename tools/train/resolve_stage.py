@@ -31,8 +31,10 @@ SCHEMA = "tensortouch.train_fe"
 
 
 
-def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: dict, catalog=None, cfg=None):
-    """[(period index, PeriodScenario | None, error str)] of one session."""
+def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: dict, catalog=None, cfg=None,
+                      solver=None):
+    """[(period index, PeriodScenario | None, error str)] of one session; `solver`: tools.fe SolverSettings
+    of the label solves (None: the default)."""
     from ...contracts.session import load_session
     from .resolve import PoseTrack, ResolveConfig, ResolveError, period_scenario
     from ..twin.trajectory import INDENTER_SET
@@ -53,7 +55,7 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
                 raise ResolveError(f"{session_dir}/session.json: streams.poses.indenters names no indenter {missing}")
             tracks = [PoseTrack.from_table(poses, k) for k in slots]
             ps = period_scenario(tracks, slots, [names[k] for k in slots], np.asarray(per["t"], float), catalog,
-                                 gel, surf, cfg)
+                                 gel, surf, cfg, solver=solver)
             out.append((i, ps, ""))
         except ResolveError as exc:
             log.warning("%s period %d: no FE scenario (%s)", Path(session_dir).name, i, exc)
@@ -64,16 +66,18 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
 
 def stage_fe_resolve(b, cfg=None) -> dict:
     """Stage 2 (resolve) over every session of the build; returns counts for the stamp."""
-    from ..fe import save_scenario
+    from ..fe import SolverSettings, save_scenario
     from ..fe.batch import run_batch
     from .resolve import ResolveConfig
     from ...contracts.files import atomic_write_json
 
     cfg = cfg or ResolveConfig()
     docs, jobs = {}, []
+    solver = SolverSettings(max_bulk_ratio=float(b.cfg.max_bulk_ratio))
     for spec in b.all_sessions():
         meta = unit_meta(b, spec.serial)
-        items = session_scenarios(b.session(spec), b.root / "keypoints" / f"{spec.name}.json", meta, cfg=cfg)
+        items = session_scenarios(b.session(spec), b.root / "keypoints" / f"{spec.name}.json", meta, cfg=cfg,
+                                  solver=solver)
         periods = []
         for i, ps, err in items:
             if ps is None:
