@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from ...contracts.errors import SessionError
+from ...contracts.files import finish_partial
 from ...contracts.session import STREAM_COLUMNS, STREAM_FILES, new_manifest, write_manifest, write_table
 
 log = logging.getLogger(__name__)
@@ -59,7 +60,7 @@ def encode_video(staging: Path, out: Path, fourcc: str, fps: float, count: int, 
     for i in range(count):
         writer.write(first if i == 0 else load(i))
     writer.release()
-    tmp.replace(out)
+    finish_partial(tmp, out)                   # the name keeps the extension OpenCV picks the container by
     return out.stat().st_size
 
 

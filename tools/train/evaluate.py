@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...contracts.files import atomic_write_json
 from ...runtime.offline import match_contacts, measured_at
 from .labels import at_fe_frames
 
@@ -301,10 +302,7 @@ def run_budget_command(args) -> int:
     b = recipe_build(args.recipe, args.set, args.root)
     res = run_budget(b, _predictor(args.run, args.package, args.precision, b.dataset / "bounds.json"), args.stride,
                      not args.heldout_only)
-    out = Path(args.out) if args.out else b.root / "eval" / "budget.json"
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(res, indent=1))
-    tmp.replace(out)
+    atomic_write_json(Path(args.out) if args.out else b.root / "eval" / "budget.json", res)
     print(json.dumps(res, indent=1))
     return 0
 
