@@ -138,7 +138,7 @@ class SolverSettings:
     penalty_scale: contact stiffness per unit area = penalty_scale * mu0 / size_top (N/mm^3).
     friction_stiffness_ratio: tangential (stick) penalty / normal penalty (elastic slip allowance).
     max_bulk_ratio: with linear tets the bulk modulus is capped at max_bulk_ratio * mu0 (locking
-    compensation calibrated against quadratic u/p/J tets, docs/fe.md); 0 disables the cap.
+    compensation, measured against CalculiX C3D10 in docs/fe.md); 0 disables the cap.
     Quadratic u/p/J tets (mesh.order = 2) always use the material's D1."""
 
     max_increment_mm: float = 0.5
