@@ -51,6 +51,10 @@ class ControllerConfig:
     drift_weight: float = 0.15              # added per mm its cluster's centroid moved along the object (per gel)
     most_loaded: int = 2                    # > 0: only this many objects felt by both gels compete, the most loaded
     drop_between: bool = True               # without two objects felt by both: one between two others is their merged contact
+    attribute: str = "lever"                # "lever": each gel's clusters' force split between the two reference objects by
+                                            # where each cluster lies between them (`split_forces`); "cluster": per reference
+                                            # cluster identity (the rule before, with drift_weight)
+    lever_drift_weight: float = 0.1         # lever: added per mm an object's force centroid moved along it (per gel)
     match_mm: float = 3.0
     group_mm: float = 4.0
     min_change: float = 0.08                # N per N^load_power of load (per_load), else N
@@ -93,6 +97,7 @@ class SelectiveGraspController:
         self._ref_acc: dict[str, list] = {s: [] for s in self.SENSORS}
         self._watching = False
         self._streak = (None, 0)
+        self._pair: dict | None = None
         self.decision: Decision | None = None
         self.log: list[dict] = []
 
@@ -137,8 +142,11 @@ class SelectiveGraspController:
                 self._ref_acc[s].append(latest[s])
             if len(self._ref_acc["thumb"]) >= self.cfg.reference_frames:
                 self._ref = {s: self._reference(self._ref_acc[s]) for s in self.SENSORS}
+                self._pair = self._reference_pair() if self.cfg.attribute == "lever" else None
             return None
-        objects = self._objects(latest)
+        objects = self._lever(latest) if self.cfg.attribute == "lever" else None
+        if objects is None:
+            objects = self._objects(latest)
         if len(objects) == 0:
             return None
         scores = [o["change"] for o in objects]
@@ -249,6 +257,59 @@ class SelectiveGraspController:
                 o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
         return objects
 
+    def _gel(self, sensor: str, x: np.ndarray) -> np.ndarray:
+        """World point x (m) → the gel point (mm, sensor frame) in its direction from the fingertip
+        centre (the inverse of `_world`)."""
+        T = self.graph.tip_thumb[self.node] if sensor == "thumb" else self.graph.tip_index[self.node]
+        u = T[:3, :3].T @ (np.asarray(x, float) - T[:3, 3])
+        return self.mount.direction_to_gel(u / np.linalg.norm(u))
+
+    def _reference_pair(self) -> dict | None:
+        """The two objects of the reference (those the cluster rule would let compete, the two most
+        loaded) and, per gel, where each lies on it and the across / along directions there."""
+        objs = self._objects({s: list(self._ref[s]) for s in self.SENSORS})
+        if len(objs) < 2:
+            return None
+        objs = sorted(objs, key=lambda o: -o["load"])[:2]
+        gels = {}
+        for s in self.SENSORS:
+            g = [self._gel(s, o["point"]) for o in objs]
+            nrm = np.mean([n for _, _, n, _ in self._ref[s]], axis=0) if self._ref[s] else g[0] / np.linalg.norm(g[0])
+            nrm = nrm / np.linalg.norm(nrm)
+            gels[s] = {"at": g, "normal": nrm, "along": along_direction(g[0], g[1], nrm)}
+        pair = {"objects": objs, "gels": gels}
+        pair["ref"] = {s: split_forces(self._ref[s], gels[s]["at"]) for s in self.SENSORS}
+        return pair
+
+    def _lever(self, latest: dict[str, list]) -> list[dict] | None:
+        """Per object of the reference pair: on each gel the force of all clusters split between
+        the two objects by lever (`split_forces`), its change along the objects since the reference
+        per load^`load_power`, plus `drift_weight` per mm its force centroid slid along them; the
+        geometric mean (`witness`) over the gels. None without a reference pair."""
+        if self._pair is None:
+            return None
+        c = self.cfg
+        out = []
+        per: dict[int, list] = {0: [], 1: []}
+        for s in self.SENSORS:
+            gel = self._pair["gels"][s]
+            now = split_forces(latest[s], gel["at"])
+            ref = self._pair["ref"][s]
+            e = gel["along"]
+            for k in range(2):
+                df = now["force"][k] - ref["force"][k]
+                load = float(np.linalg.norm(ref["force"][k]))
+                slide = float(abs((now["centroid"][k] - ref["centroid"][k]) @ e)) if now["weight"][k] > 0 and ref["weight"][k] > 0 else 0.0
+                per[k].append(abs(float(df @ e)) / max(load + c.load_floor_n, 1e-6) ** c.load_power
+                              + c.lever_drift_weight * slide)
+        for k, o in enumerate(self._pair["objects"]):
+            v = per[k]
+            change = {"both": lambda v: float(np.prod(v)) ** (1.0 / len(v)), "max": max, "min": min,
+                      "sum": sum}[c.witness](v)
+            out.append({"point": o["point"], "change": float(change), "load_by": o["load_by"], "load": o["load"],
+                        "sensors": o["sensors"]})
+        return out
+
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float],
               held_n: float = 0.0) -> Decision:
         """The goal and path for the moving object; `held_n`: its weaker gel's reference force (N).
@@ -269,6 +330,40 @@ class SelectiveGraspController:
             return np.zeros(0), np.zeros((0, self.graph.q.shape[1]))
         qs = self.graph.q[self.decision.path]
         return np.arange(1, len(qs) + 1) * self.cfg.step_s, qs
+
+
+def along_direction(a: np.ndarray, b: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Unit direction along two side-by-side objects lying at gel points a and b (mm) on a gel
+    with surface normal `normal`: normal × (b − a), normalised."""
+    e = np.cross(np.asarray(normal, float), np.asarray(b, float) - np.asarray(a, float))
+    n = float(np.linalg.norm(e))
+    return e / n if n > 1e-9 else np.zeros(3)
+
+
+def split_forces(clusters: list, at: list[np.ndarray]) -> dict[str, list]:
+    """Split a gel's clusters (position mm, force N, …) between two objects lying at gel points
+    at[0] and at[1] (mm). A cluster whose centroid lies a fraction t of the way from at[0] to at[1]
+    (projected on the line joining them, clipped to [0, 1]) gives (1 − t) of its force to object 0
+    and t to object 1: the force-weighted centroid of two loads F0 at a and F1 at b lies at
+    a + F1/(F0 + F1)·(b − a), so one cluster covering both objects is split as they load it, and a
+    cluster on one object goes to it whole. Returns per object the summed force (3,), the
+    force-weighted centroid of its shares (mm; `at[k]` when it has none) and the summed weight
+    (|F| · share)."""
+    a, b = np.asarray(at[0], float), np.asarray(at[1], float)
+    ab = b - a
+    L2 = max(float(ab @ ab), 1e-12)
+    force = [np.zeros(3), np.zeros(3)]
+    wsum, wpos = [0.0, 0.0], [np.zeros(3), np.zeros(3)]
+    for p, f, *_ in clusters:
+        p, f = np.asarray(p, float), np.asarray(f, float)
+        t = min(1.0, max(0.0, float((p - a) @ ab) / L2))
+        m = float(np.linalg.norm(f))
+        for k, share in ((0, 1.0 - t), (1, t)):
+            force[k] = force[k] + share * f
+            wsum[k] += share * m
+            wpos[k] = wpos[k] + share * m * p
+    centroid = [wpos[k] / wsum[k] if wsum[k] > 1e-9 else (a, b)[k].copy() for k in range(2)]
+    return {"force": force, "centroid": centroid, "weight": wsum}
 
 
 def lateral_mm(points: np.ndarray, normals: np.ndarray, x: np.ndarray) -> np.ndarray:
