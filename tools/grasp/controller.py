@@ -7,12 +7,19 @@ graph (joint angles, fingertip poses and contact points of known pinches). It ne
 simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
 
 1. Reference: when told to watch, the mean force of each contact cluster over a few frames.
-2. Detection: each frame, every reference cluster is matched to the nearest current cluster
-   (≤ `match_mm`); its change |ΔF| (by default only the part along the gel surface: a pull
-   shears the gel, a change of squeeze presses it). Clusters are placed on the hand through the current graph
-   node's fingertip poses and the sensor mount and grouped into objects (≤ `group_mm` apart);
-   an object's score is the sum of its clusters' |ΔF| over both sensors. The object whose score
-   exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
+2. Detection (`attribute="lever"`, the default): from the reference, the two objects (clusters
+   placed on the hand through the current graph node's fingertip poses and the sensor mount,
+   grouped ≤ `group_mm`; the two most loaded) and where each lies on each gel. Each frame every
+   cluster of a gel is split between the two objects by where its centroid lies on the line
+   joining them (`split_forces`: the force-weighted centroid of two loads lies between them in
+   proportion to the loads, so one cluster covering both objects is shared as they load it, and a
+   cluster that splits apart later is shared the same way). Per object and gel: the change of its
+   share along the objects' length per load^`load_power` of its reference share, plus
+   `lever_drift_weight` per mm its share's force centroid slid along them; the object's score is
+   the geometric mean over both gels. `attribute="cluster"` is the rule by reference cluster
+   identity (each reference cluster matched to the nearest current one ≤ `match_mm`). The object
+   whose score exceeds `min_change` and leads the other by `lead_ratio` for `confirm_frames`
+   frames moved.
 3. Plan (`goal_scores`): for every reachable graph node with a pinch normal within
    `max_normal_deg` of the current one: where its line of fingertip centres crosses the objects'
    plane relative to the moving object (e), how far its fingertips lean off that line across the
@@ -266,7 +273,8 @@ class SelectiveGraspController:
 
     def _reference_pair(self) -> dict | None:
         """The two objects of the reference (those the cluster rule would let compete, the two most
-        loaded) and, per gel, where each lies on it and the across / along directions there."""
+        loaded) and, per gel, where each lies on it (its world point seen from that fingertip), the
+        direction along them there and the reference clusters split between them."""
         objs = self._objects({s: list(self._ref[s]) for s in self.SENSORS})
         if len(objs) < 2:
             return None
@@ -284,7 +292,7 @@ class SelectiveGraspController:
     def _lever(self, latest: dict[str, list]) -> list[dict] | None:
         """Per object of the reference pair: on each gel the force of all clusters split between
         the two objects by lever (`split_forces`), its change along the objects since the reference
-        per load^`load_power`, plus `drift_weight` per mm its force centroid slid along them; the
+        per load^`load_power`, plus `lever_drift_weight` per mm its force centroid slid along them; the
         geometric mean (`witness`) over the gels. None without a reference pair."""
         if self._pair is None:
             return None
