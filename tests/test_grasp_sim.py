@@ -266,6 +266,11 @@ def test_plan_aims_only_for_an_object_held_firmly_on_both_gels():
     assert g.point[ctrl._plan(mov, oth, [], held_n=2.4).goal][0] == pytest.approx(0.004)
     # aimed 2.5 mm beyond: e = |x − 6| → x = 6 mm
     assert g.point[ctrl._plan(mov, oth, [], held_n=2.5).goal][0] == pytest.approx(0.006)
+    # a thin object beside a firmly held one: aimed only with aim_beside_load_n set (off by default)
+    assert g.point[ctrl._plan(mov, oth, [], held_n=0.5, other_held_n=4.0).goal][0] == pytest.approx(0.004)
+    beside = SelectiveGraspController(g, 4, SensorMount(), replace(cfg, aim_beside_load_n=3.6))
+    assert g.point[beside._plan(mov, oth, [], held_n=0.5, other_held_n=3.5).goal][0] == pytest.approx(0.004)
+    assert g.point[beside._plan(mov, oth, [], held_n=0.5, other_held_n=3.6).goal][0] == pytest.approx(0.006)
 
 
 def test_a_contact_merging_two_objects_on_one_gel_is_not_an_object():

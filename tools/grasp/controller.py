@@ -70,6 +70,8 @@ class ControllerConfig:
     keep_mm: float = 2.5                    # the goal's line of fingertip centres this near the moving object
     aim_mm: float = 1.5                     # a thick object's goal line crosses this far beyond it, away from the other
     aim_min_load_n: float = 2.5             # thick: held with at least this on both gels in the reference
+    aim_beside_load_n: float = float("inf")  # a thinner moving object is aimed too when the other is held with at least
+                                            # this on both gels (a pen beside a cable; tuning seeds only: 3.6); off
     lean_mm: float = 1.5                    # its fingertip centres this near where that line crosses, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
     clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
@@ -140,8 +142,8 @@ class SelectiveGraspController:
 
     def detect(self) -> tuple | None:
         """One frame of the decision rule, without planning: (moving point, other point or None,
-        scores, the moving object's weaker gel's reference force N) once an object is confirmed as
-        pulled, else None. Call once per frame pair after `watch`."""
+        scores, the moving object's weaker gel's reference force N, the other object's N (0 without
+        one)) once an object is confirmed as pulled, else None. Call once per frame pair after `watch`."""
         with self._lock:
             latest = {s: list(v) for s, v in self.latest.items()}
         if self._ref is None:
@@ -169,7 +171,8 @@ class SelectiveGraspController:
             return None
         other = objects[int(order[1])]["point"] if len(order) > 1 else None
         held = min(objects[best]["load_by"].get(s, 0.0) for s in self.SENSORS)
-        return objects[best]["point"], other, [float(x) for x in scores], held
+        held_other = min(objects[int(order[1])]["load_by"].get(s, 0.0) for s in self.SENSORS) if len(order) > 1 else 0.0
+        return objects[best]["point"], other, [float(x) for x in scores], held, held_other
 
     def _reference(self, frames: list[list]) -> list[tuple[np.ndarray, np.ndarray]]:
         """Clusters of the last reference frame with their force averaged over the frames."""
@@ -319,14 +322,17 @@ class SelectiveGraspController:
         return out
 
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float],
-              held_n: float = 0.0) -> Decision:
+              held_n: float = 0.0, other_held_n: float = 0.0) -> Decision:
         """The goal and path for the moving object; `held_n`: its weaker gel's reference force (N).
         A thick, stiff object (held with ≥ `aim_min_load_n` on both gels) is aimed `aim_mm` beyond:
         a round pen centred between the fingertips lets one of them slide off it onto the other
-        object; a thin string (held with less) would slip out of an off-centre pinch."""
+        object; a thin string (held with less) would slip out of an off-centre pinch. Beside an
+        object held with ≥ `aim_beside_load_n` on both gels (`other_held_n`) it is aimed as well: the
+        fingertip centred on a cable rests on the pen beside it."""
         g = self.graph
         tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
-        aim = self.cfg.aim_mm if held_n >= self.cfg.aim_min_load_n else 0.0
+        aimed = held_n >= self.cfg.aim_min_load_n or other_held_n >= self.cfg.aim_beside_load_n
+        aim = self.cfg.aim_mm if aimed else 0.0
         score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
                             other, self.cfg, aim)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
