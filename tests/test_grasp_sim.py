@@ -3,6 +3,7 @@ the controller's decision on synthetic contacts, and one simulated fingertip thr
 runtime and a real Zenoh session on loopback."""
 import ast
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -152,7 +153,7 @@ def test_controller_scores_shear_change_per_newton_of_load():
               for i in range(3) if s == "thumb" or i < 2]
         return _frame(cs)
 
-    summed = {"witness": "sum", "along_only": False}
+    summed = {"witness": "sum", "along_only": False, "attribute": "cluster"}
     cases = ((ControllerConfig(load_power=1.0, **summed), 0, [0.15, 0.3]),
              (ControllerConfig(load_power=0.75, **summed), 0, [0.9 / 6 ** 0.75, 0.6 / 2 ** 0.75]),   # 0.2348, 0.3568
              (ControllerConfig(per_load=False, min_change=0.15, **summed), 1, [0.6, 0.9]))
@@ -265,6 +266,11 @@ def test_plan_aims_only_for_an_object_held_firmly_on_both_gels():
     assert g.point[ctrl._plan(mov, oth, [], held_n=2.4).goal][0] == pytest.approx(0.004)
     # aimed 2.5 mm beyond: e = |x − 6| → x = 6 mm
     assert g.point[ctrl._plan(mov, oth, [], held_n=2.5).goal][0] == pytest.approx(0.006)
+    # a thin object beside a firmly held one: aimed only with aim_beside_load_n set (off by default)
+    assert g.point[ctrl._plan(mov, oth, [], held_n=0.5, other_held_n=4.0).goal][0] == pytest.approx(0.004)
+    beside = SelectiveGraspController(g, 4, SensorMount(), replace(cfg, aim_beside_load_n=3.6))
+    assert g.point[beside._plan(mov, oth, [], held_n=0.5, other_held_n=3.5).goal][0] == pytest.approx(0.004)
+    assert g.point[beside._plan(mov, oth, [], held_n=0.5, other_held_n=3.6).goal][0] == pytest.approx(0.006)
 
 
 def test_a_contact_merging_two_objects_on_one_gel_is_not_an_object():
@@ -289,10 +295,10 @@ def test_a_contact_merging_two_objects_on_one_gel_is_not_an_object():
                            (thumb[1], np.array([0, 0.4 if pulled else 0.0, -2.0]))])
         return _frame([(merged, np.array([0, 1.0 if pulled else 0.0, -4.0]))])
 
-    d = _decide(SelectiveGraspController(g, start, m, ControllerConfig()), frame)
+    d = _decide(SelectiveGraspController(g, start, m, ControllerConfig(attribute="cluster")), frame)
     # (a gel point 12 mm from the fingertip centre stands for an object 12 mm away: 6.05 mm across for 7)
     assert d.moving_point[0] > 0.005 and d.other_point is not None and d.other_point[0] < -0.005
-    d = _decide(SelectiveGraspController(g, start, m, ControllerConfig(drop_between=False)), frame)
+    d = _decide(SelectiveGraspController(g, start, m, ControllerConfig(drop_between=False, attribute="cluster")), frame)
     assert abs(d.moving_point[0]) < 0.0015                  # without the rule: the phantom middle object
 
 
@@ -390,8 +396,8 @@ def test_controller_scores_the_change_along_the_objects_with_the_stronger_witnes
         return _frame([(pos[s][i], np.array([0, 0, -load[s][i]]) + (shear[s][i] if k >= 4 else 0)) for i in range(2)])
 
     decided = {}
-    for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False)),
-                      ("new", ControllerConfig(witness="max", drift_weight=0.0))):
+    for name, cfg in (("sum", ControllerConfig(witness="sum", along_only=False, attribute="cluster")),
+                      ("new", ControllerConfig(witness="max", drift_weight=0.0, attribute="cluster"))):
         d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
         decided[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
     assert decided == {"sum": 0, "new": 1}
@@ -415,8 +421,9 @@ def test_controller_needs_both_gels_and_counts_the_pulled_clusters_drift():
                        for i in range(2)])
 
     named, scores = {}, {}
-    for name, cfg in (("max", ControllerConfig(witness="max", drift_weight=0.0)),
-                      ("both", ControllerConfig(drift_weight=0.0)), ("both+drift", ControllerConfig())):
+    by_cluster = ControllerConfig(attribute="cluster")
+    for name, cfg in (("max", replace(by_cluster, witness="max", drift_weight=0.0)),
+                      ("both", replace(by_cluster, drift_weight=0.0)), ("both+drift", by_cluster)):
         d = _decide(SelectiveGraspController(g, start, m, cfg), frame)
         named[name] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
         scores[name] = sorted(d.scores)
@@ -447,3 +454,62 @@ def test_replay_names_the_pulled_object_of_a_recorded_trial():
     assert replay.tally([rec, other], g) == {"A+A": {"right": 1, "wrong": 1, "none": 0},
                                              "object 1 pulled": {"right": 1, "wrong": 0, "none": 0},
                                              "object 0 pulled": {"right": 0, "wrong": 1, "none": 0}}
+
+
+def test_split_forces_shares_a_cluster_between_two_objects_by_lever():
+    """Objects at gel points a = (0,0,0) and b = (10,0,0) mm. A cluster at (2.5,0,0) with
+    F = (0,1,−4) lies a quarter of the way: 3/4 of F to object 0, 1/4 to object 1. A cluster at
+    (12,0,0), beyond b, goes to object 1 whole. Weights |F|·share: √17·0.75 = 3.0923 and
+    √17·0.25 + 2 = 3.0308; object 1's centroid (1.0308·2.5 + 2·12)/3.0308 = 8.7690 mm."""
+    from tensortouch.tools.grasp.controller import along_direction, split_forces
+
+    a, b = np.zeros(3), np.array([10.0, 0, 0])
+    out = split_forces([((2.5, 0, 0), (0, 1.0, -4.0), (0, 0, 1.0), 10.0), ((12.0, 0, 0), (0, 0, -2.0))], [a, b])
+    np.testing.assert_allclose(out["force"][0], [0, 0.75, -3.0])
+    np.testing.assert_allclose(out["force"][1], [0, 0.25, -3.0])
+    np.testing.assert_allclose(out["weight"], [3.0923, 3.0308], atol=1e-4)
+    np.testing.assert_allclose(out["centroid"][0], [2.5, 0, 0])
+    np.testing.assert_allclose(out["centroid"][1], [8.7690, 0, 0], atol=1e-4)
+    # two loads merged into one cluster at their force-weighted centroid come apart as they were
+    merged = split_forces([((2.5, 0, 0), (0, 0, -4.0))], [a, b])
+    np.testing.assert_allclose(merged["force"], [[0, 0, -3.0], [0, 0, -1.0]])
+    # no clusters: no force, each centroid at its object
+    empty = split_forces([], [a, b])
+    np.testing.assert_allclose(empty["force"], np.zeros((2, 3)))
+    np.testing.assert_allclose(empty["centroid"], [a, b])
+    # along two objects side by side on x, on a gel facing +z: z × x = +y
+    np.testing.assert_allclose(along_direction(a, b, (0, 0, 1.0)), [0, 1.0, 0])
+    np.testing.assert_allclose(along_direction(b, a, (0, 0, 1.0)), [0, -1.0, 0])
+
+
+def test_lever_names_a_pulled_cable_whose_gel_merges_it_with_a_pen():
+    """A light cable (object 0) beside a pen (object 1). The thumb resolves both (0.5 N and 3 N);
+    the index reports one cluster of 3.75 N at their force-weighted centroid (4/5 of the way to the
+    pen, 0.75 N of it the cable's). The cable is pulled along its length: the thumb shows it 0.10 N
+    along and the pen 0.18 N (crosstalk); the index cluster splits into one at the pen carrying
+    0.30 N along (crosstalk) and one at the cable with 0.08 N. By reference cluster the merged
+    cluster is the pen's: its change and its ~3 mm jump across name the pen (0.19 against the
+    cable's thumb-only 0.10/0.5^0.75 = 0.17). Split by lever the index compares the cable's 0.08 N
+    of its share with the pen's 0.30 N of ~3 N, and the thumb 0.10 N of 0.5 N with 0.18 N of 3 N:
+    the geometric means are 0.18 for the cable against 0.10 for the pen (the shares come from
+    where the objects' reference points project onto the index gel, near 0.75 N and 3 N)."""
+    g, start, m, objs, pos = _pinch(((-0.007, 0, 0), (0.007, 0, 0)))
+    along = np.array([0, 1.0, 0])
+    load = [0.5, 3.0]
+    merged = pos["index"][0] + 0.8 * (pos["index"][1] - pos["index"][0])
+
+    def frame(s, k):
+        on = k >= 4
+        if s == "thumb":
+            return _frame([(pos[s][i], np.array([0, 0, -load[i]]) + (x * along if on else 0))
+                           for i, x in enumerate((0.10, 0.18))])
+        if not on:
+            return _frame([(merged, np.array([0, 0, -3.75]))])
+        return _frame([(pos[s][0], np.array([0, 0.08, -0.5])), (pos[s][1], np.array([0, 0.30, -3.0]))])
+
+    named, scores = {}, {}
+    for rule in ("cluster", "lever"):
+        d = _decide(SelectiveGraspController(g, start, m, ControllerConfig(attribute=rule)), frame)
+        named[rule] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
+        scores[rule] = d.scores
+    assert named == {"cluster": 1, "lever": 0}, scores

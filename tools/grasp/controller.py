@@ -7,12 +7,19 @@ graph (joint angles, fingertip poses and contact points of known pinches). It ne
 simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
 
 1. Reference: when told to watch, the mean force of each contact cluster over a few frames.
-2. Detection: each frame, every reference cluster is matched to the nearest current cluster
-   (≤ `match_mm`); its change |ΔF| (by default only the part along the gel surface: a pull
-   shears the gel, a change of squeeze presses it). Clusters are placed on the hand through the current graph
-   node's fingertip poses and the sensor mount and grouped into objects (≤ `group_mm` apart);
-   an object's score is the sum of its clusters' |ΔF| over both sensors. The object whose score
-   exceeds `min_change_n` and leads the other by `lead_ratio` for `confirm_frames` frames moved.
+2. Detection (`attribute="lever"`, the default): from the reference, the two objects (clusters
+   placed on the hand through the current graph node's fingertip poses and the sensor mount,
+   grouped ≤ `group_mm`; the two most loaded) and where each lies on each gel. Each frame every
+   cluster of a gel is split between the two objects by where its centroid lies on the line
+   joining them (`split_forces`: the force-weighted centroid of two loads lies between them in
+   proportion to the loads, so one cluster covering both objects is shared as they load it, and a
+   cluster that splits apart later is shared the same way). Per object and gel: the change of its
+   share along the objects' length per load^`load_power` of its reference share, plus
+   `lever_drift_weight` per mm its share's force centroid slid along them; the object's score is
+   the geometric mean over both gels. `attribute="cluster"` is the rule by reference cluster
+   identity (each reference cluster matched to the nearest current one ≤ `match_mm`). The object
+   whose score exceeds `min_change` and leads the other by `lead_ratio` for `confirm_frames`
+   frames moved.
 3. Plan (`goal_scores`): for every reachable graph node with a pinch normal within
    `max_normal_deg` of the current one: where its line of fingertip centres crosses the objects'
    plane relative to the moving object (e), how far its fingertips lean off that line across the
@@ -51,6 +58,10 @@ class ControllerConfig:
     drift_weight: float = 0.15              # added per mm its cluster's centroid moved along the object (per gel)
     most_loaded: int = 2                    # > 0: only this many objects felt by both gels compete, the most loaded
     drop_between: bool = True               # without two objects felt by both: one between two others is their merged contact
+    attribute: str = "lever"                # "lever": each gel's clusters' force split between the two reference objects by
+                                            # where each cluster lies between them (`split_forces`); "cluster": per reference
+                                            # cluster identity (the rule before, with drift_weight)
+    lever_drift_weight: float = 0.1         # lever: added per mm an object's force centroid moved along it (per gel)
     match_mm: float = 3.0
     group_mm: float = 4.0
     min_change: float = 0.08                # N per N^load_power of load (per_load), else N
@@ -59,6 +70,8 @@ class ControllerConfig:
     keep_mm: float = 2.5                    # the goal's line of fingertip centres this near the moving object
     aim_mm: float = 1.5                     # a thick object's goal line crosses this far beyond it, away from the other
     aim_min_load_n: float = 2.5             # thick: held with at least this on both gels in the reference
+    aim_beside_load_n: float = float("inf")  # a thinner moving object is aimed too when the other is held with at least
+                                            # this on both gels (a pen beside a cable; tuning seeds only: 3.6); off
     lean_mm: float = 1.5                    # its fingertip centres this near where that line crosses, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
     clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
@@ -93,6 +106,7 @@ class SelectiveGraspController:
         self._ref_acc: dict[str, list] = {s: [] for s in self.SENSORS}
         self._watching = False
         self._streak = (None, 0)
+        self._pair: dict | None = None
         self.decision: Decision | None = None
         self.log: list[dict] = []
 
@@ -128,8 +142,8 @@ class SelectiveGraspController:
 
     def detect(self) -> tuple | None:
         """One frame of the decision rule, without planning: (moving point, other point or None,
-        scores, the moving object's weaker gel's reference force N) once an object is confirmed as
-        pulled, else None. Call once per frame pair after `watch`."""
+        scores, the moving object's weaker gel's reference force N, the other object's N (0 without
+        one)) once an object is confirmed as pulled, else None. Call once per frame pair after `watch`."""
         with self._lock:
             latest = {s: list(v) for s, v in self.latest.items()}
         if self._ref is None:
@@ -137,8 +151,11 @@ class SelectiveGraspController:
                 self._ref_acc[s].append(latest[s])
             if len(self._ref_acc["thumb"]) >= self.cfg.reference_frames:
                 self._ref = {s: self._reference(self._ref_acc[s]) for s in self.SENSORS}
+                self._pair = self._reference_pair() if self.cfg.attribute == "lever" else None
             return None
-        objects = self._objects(latest)
+        objects = self._lever(latest) if self.cfg.attribute == "lever" else None
+        if objects is None:
+            objects = self._objects(latest)
         if len(objects) == 0:
             return None
         scores = [o["change"] for o in objects]
@@ -154,7 +171,8 @@ class SelectiveGraspController:
             return None
         other = objects[int(order[1])]["point"] if len(order) > 1 else None
         held = min(objects[best]["load_by"].get(s, 0.0) for s in self.SENSORS)
-        return objects[best]["point"], other, [float(x) for x in scores], held
+        held_other = min(objects[int(order[1])]["load_by"].get(s, 0.0) for s in self.SENSORS) if len(order) > 1 else 0.0
+        return objects[best]["point"], other, [float(x) for x in scores], held, held_other
 
     def _reference(self, frames: list[list]) -> list[tuple[np.ndarray, np.ndarray]]:
         """Clusters of the last reference frame with their force averaged over the frames."""
@@ -249,15 +267,72 @@ class SelectiveGraspController:
                 o["change"] /= max(o["load"] + self.cfg.load_floor_n, 1e-6) ** self.cfg.load_power
         return objects
 
+    def _gel(self, sensor: str, x: np.ndarray) -> np.ndarray:
+        """World point x (m) → the gel point (mm, sensor frame) in its direction from the fingertip
+        centre (the inverse of `_world`)."""
+        T = self.graph.tip_thumb[self.node] if sensor == "thumb" else self.graph.tip_index[self.node]
+        u = T[:3, :3].T @ (np.asarray(x, float) - T[:3, 3])
+        return self.mount.direction_to_gel(u / np.linalg.norm(u))
+
+    def _reference_pair(self) -> dict | None:
+        """The two objects of the reference (those the cluster rule would let compete, the two most
+        loaded) and, per gel, where each lies on it (its world point seen from that fingertip), the
+        direction along them there and the reference clusters split between them."""
+        objs = self._objects({s: list(self._ref[s]) for s in self.SENSORS})
+        if len(objs) < 2:
+            return None
+        objs = sorted(objs, key=lambda o: -o["load"])[:2]
+        gels = {}
+        for s in self.SENSORS:
+            g = [self._gel(s, o["point"]) for o in objs]
+            nrm = np.mean([n for _, _, n, _ in self._ref[s]], axis=0) if self._ref[s] else g[0] / np.linalg.norm(g[0])
+            nrm = nrm / np.linalg.norm(nrm)
+            gels[s] = {"at": g, "normal": nrm, "along": along_direction(g[0], g[1], nrm)}
+        pair = {"objects": objs, "gels": gels}
+        pair["ref"] = {s: split_forces(self._ref[s], gels[s]["at"]) for s in self.SENSORS}
+        return pair
+
+    def _lever(self, latest: dict[str, list]) -> list[dict] | None:
+        """Per object of the reference pair: on each gel the force of all clusters split between
+        the two objects by lever (`split_forces`), its change along the objects since the reference
+        per load^`load_power`, plus `lever_drift_weight` per mm its force centroid slid along them; the
+        geometric mean (`witness`) over the gels. None without a reference pair."""
+        if self._pair is None:
+            return None
+        c = self.cfg
+        out = []
+        per: dict[int, list] = {0: [], 1: []}
+        for s in self.SENSORS:
+            gel = self._pair["gels"][s]
+            now = split_forces(latest[s], gel["at"])
+            ref = self._pair["ref"][s]
+            e = gel["along"]
+            for k in range(2):
+                df = now["force"][k] - ref["force"][k]
+                load = float(np.linalg.norm(ref["force"][k]))
+                slide = float(abs((now["centroid"][k] - ref["centroid"][k]) @ e)) if now["weight"][k] > 0 and ref["weight"][k] > 0 else 0.0
+                per[k].append(abs(float(df @ e)) / max(load + c.load_floor_n, 1e-6) ** c.load_power
+                              + c.lever_drift_weight * slide)
+        for k, o in enumerate(self._pair["objects"]):
+            v = per[k]
+            change = {"both": lambda v: float(np.prod(v)) ** (1.0 / len(v)), "max": max, "min": min,
+                      "sum": sum}[c.witness](v)
+            out.append({"point": o["point"], "change": float(change), "load_by": o["load_by"], "load": o["load"],
+                        "sensors": o["sensors"]})
+        return out
+
     def _plan(self, moving: np.ndarray, other: np.ndarray | None, scores: list[float],
-              held_n: float = 0.0) -> Decision:
+              held_n: float = 0.0, other_held_n: float = 0.0) -> Decision:
         """The goal and path for the moving object; `held_n`: its weaker gel's reference force (N).
         A thick, stiff object (held with ≥ `aim_min_load_n` on both gels) is aimed `aim_mm` beyond:
         a round pen centred between the fingertips lets one of them slide off it onto the other
-        object; a thin string (held with less) would slip out of an off-centre pinch."""
+        object; a thin string (held with less) would slip out of an off-centre pinch. Beside an
+        object held with ≥ `aim_beside_load_n` on both gels (`other_held_n`) it is aimed as well: the
+        fingertip centred on a cable rests on the pen beside it."""
         g = self.graph
         tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
-        aim = self.cfg.aim_mm if held_n >= self.cfg.aim_min_load_n else 0.0
+        aimed = held_n >= self.cfg.aim_min_load_n or other_held_n >= self.cfg.aim_beside_load_n
+        aim = self.cfg.aim_mm if aimed else 0.0
         score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
                             other, self.cfg, aim)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
@@ -269,6 +344,40 @@ class SelectiveGraspController:
             return np.zeros(0), np.zeros((0, self.graph.q.shape[1]))
         qs = self.graph.q[self.decision.path]
         return np.arange(1, len(qs) + 1) * self.cfg.step_s, qs
+
+
+def along_direction(a: np.ndarray, b: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Unit direction along two side-by-side objects lying at gel points a and b (mm) on a gel
+    with surface normal `normal`: normal × (b − a), normalised."""
+    e = np.cross(np.asarray(normal, float), np.asarray(b, float) - np.asarray(a, float))
+    n = float(np.linalg.norm(e))
+    return e / n if n > 1e-9 else np.zeros(3)
+
+
+def split_forces(clusters: list, at: list[np.ndarray]) -> dict[str, list]:
+    """Split a gel's clusters (position mm, force N, …) between two objects lying at gel points
+    at[0] and at[1] (mm). A cluster whose centroid lies a fraction t of the way from at[0] to at[1]
+    (projected on the line joining them, clipped to [0, 1]) gives (1 − t) of its force to object 0
+    and t to object 1: the force-weighted centroid of two loads F0 at a and F1 at b lies at
+    a + F1/(F0 + F1)·(b − a), so one cluster covering both objects is split as they load it, and a
+    cluster on one object goes to it whole. Returns per object the summed force (3,), the
+    force-weighted centroid of its shares (mm; `at[k]` when it has none) and the summed weight
+    (|F| · share)."""
+    a, b = np.asarray(at[0], float), np.asarray(at[1], float)
+    ab = b - a
+    L2 = max(float(ab @ ab), 1e-12)
+    force = [np.zeros(3), np.zeros(3)]
+    wsum, wpos = [0.0, 0.0], [np.zeros(3), np.zeros(3)]
+    for p, f, *_ in clusters:
+        p, f = np.asarray(p, float), np.asarray(f, float)
+        t = min(1.0, max(0.0, float((p - a) @ ab) / L2))
+        m = float(np.linalg.norm(f))
+        for k, share in ((0, 1.0 - t), (1, t)):
+            force[k] = force[k] + share * f
+            wsum[k] += share * m
+            wpos[k] = wpos[k] + share * m * p
+    centroid = [wpos[k] / wsum[k] if wsum[k] > 1e-9 else (a, b)[k].copy() for k in range(2)]
+    return {"force": force, "centroid": centroid, "weight": wsum}
 
 
 def lateral_mm(points: np.ndarray, normals: np.ndarray, x: np.ndarray) -> np.ndarray:
