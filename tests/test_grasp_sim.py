@@ -259,16 +259,17 @@ def test_goal_aims_beyond_the_moving_object_away_from_the_other():
 
 def test_plan_aims_only_for_an_object_held_firmly_on_both_gels():
     g = _line_graph()                      # pinches at x = −8 … 8 mm, 2 mm apart, joint steps 0.02 rad
-    cfg = ControllerConfig(aim_mm=2.5, aim_min_load_n=2.5, clear_mm=0.0, keep_mm=5.0)
+    cfg = ControllerConfig(aim_mm=2.5, aim_min_load_n=2.5, aim_beside_load_n=float("inf"), clear_mm=0.0, keep_mm=5.0)
     ctrl = SelectiveGraspController(g, 4, SensorMount(), cfg)
     mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
     # not aimed: e = |x − 3.5| + 2 mm/rad · path → x = 4 mm (0.5 + 0.08) beats x = 2 (1.5 + 0.04)
     assert g.point[ctrl._plan(mov, oth, [], held_n=2.4).goal][0] == pytest.approx(0.004)
     # aimed 2.5 mm beyond: e = |x − 6| → x = 6 mm
     assert g.point[ctrl._plan(mov, oth, [], held_n=2.5).goal][0] == pytest.approx(0.006)
-    # a thin object beside a firmly held one: aimed only with aim_beside_load_n set (off by default)
+    # a thin object beside a firmly held one: not aimed with aim_beside_load_n off (inf), aimed from it on
     assert g.point[ctrl._plan(mov, oth, [], held_n=0.5, other_held_n=4.0).goal][0] == pytest.approx(0.004)
-    beside = SelectiveGraspController(g, 4, SensorMount(), replace(cfg, aim_beside_load_n=3.6))
+    beside = SelectiveGraspController(g, 4, SensorMount(), replace(cfg, aim_beside_load_n=ControllerConfig().aim_beside_load_n))
+    assert ControllerConfig().aim_beside_load_n == 3.6                    # the default: on
     assert g.point[beside._plan(mov, oth, [], held_n=0.5, other_held_n=3.5).goal][0] == pytest.approx(0.004)
     assert g.point[beside._plan(mov, oth, [], held_n=0.5, other_held_n=3.6).goal][0] == pytest.approx(0.006)
 

@@ -70,8 +70,8 @@ class ControllerConfig:
     keep_mm: float = 2.5                    # the goal's line of fingertip centres this near the moving object
     aim_mm: float = 1.5                     # a thick object's goal line crosses this far beyond it, away from the other
     aim_min_load_n: float = 2.5             # thick: held with at least this on both gels in the reference
-    aim_beside_load_n: float = float("inf")  # a thinner moving object is aimed too when the other is held with at least
-                                            # this on both gels (a pen beside a cable; tuning seeds only: 3.6); off
+    aim_beside_load_n: float = 3.6          # a thinner moving object is aimed too when the other is held with at least
+                                            # this on both gels (a pen beside a cable); inf: off
     lean_mm: float = 1.5                    # its fingertip centres this near where that line crosses, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
     clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
