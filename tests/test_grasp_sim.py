@@ -514,3 +514,9 @@ def test_lever_names_a_pulled_cable_whose_gel_merges_it_with_a_pen():
         named[rule] = int(np.argmin([np.linalg.norm(d.moving_point - o) for o in objs]))
         scores[rule] = d.scores
     assert named == {"cluster": 1, "lever": 0}, scores
+
+
+@pytest.mark.parametrize("field, value", [("attribute", "levers"), ("witness", "mean")])
+def test_controller_config_refuses_an_unknown_rule(field, value):
+    with pytest.raises(ValueError, match=f"ControllerConfig.{field} = '{value}'; expected one of"):
+        ControllerConfig(**{field: value})

@@ -81,6 +81,11 @@ class ControllerConfig:
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
     step_s: float = 0.04                    # time per path node when executing
 
+    def __post_init__(self):
+        for name, allowed in (("attribute", ("lever", "cluster")), ("witness", ("both", "max", "min", "sum"))):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"ControllerConfig.{name} = {getattr(self, name)!r}; expected one of {', '.join(allowed)}")
+
 
 @dataclass
 class Decision:
