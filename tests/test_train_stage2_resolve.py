@@ -232,3 +232,14 @@ def test_measured_at_turns_the_ft_reading_into_the_force_on_the_gel():
     yaw = Rotation.from_rotvec([0, 0, np.pi / 2]).as_quat(scalar_first=True)     # F/T x axis = indenter y
     wrench[:, 2:5] = [1.0, 0, 0]
     np.testing.assert_allclose(measured_at(ses(yaw), np.array([0.5]))[3]["force"], [[0, -1.0, 0]], atol=1e-12)
+
+
+def test_near_times_and_half_period_by_hand():
+    from tensortouch.tools.train.labels import half_period, near_times
+
+    assert half_period(np.array([0.0, 0.1, 0.2, 0.4])) == pytest.approx(0.05) and half_period(np.array([1.0])) == 0.0
+    t = np.array([0.0, 0.1, 0.2, 0.31, 0.5])
+    np.testing.assert_array_equal(near_times(t, [0.3, 0.05], 0.02), [False, False, False, True, False])
+    np.testing.assert_array_equal(near_times(t, [0.3, 0.05], 0.05), [True, True, False, True, False])   # ties count
+    np.testing.assert_array_equal(near_times(t, [0.2], 0.1), [False, True, True, False, False])
+    assert not near_times(t, [], 1.0).any()

@@ -54,6 +54,23 @@ class LabelConfig:
             raise ValueError(f"LabelConfig.check_quantile: expected a quantile in (0, 1], got {self.check_quantile!r}")
 
 
+def half_period(frame_t: np.ndarray) -> float:
+    """Half the camera period (s) of frame times `frame_t`: how near an FE frame a camera frame counts as at it."""
+    t = np.asarray(frame_t, float)
+    return 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+
+
+def near_times(t: np.ndarray, times: np.ndarray, half: float) -> np.ndarray:
+    """(n,) bool: is each of the times `t` within `half` (s) of one of `times` (any order; none: False)?"""
+    t = np.asarray(t, float).reshape(-1)
+    ts = np.sort(np.asarray(times, float).reshape(-1))
+    if not len(ts):
+        return np.zeros(len(t), bool)
+    j = np.clip(np.searchsorted(ts, t), 1, len(ts) - 1) if len(ts) > 1 else np.zeros(len(t), int)
+    gap = np.minimum(np.abs(ts[j] - t), np.abs(ts[np.maximum(j - 1, 0)] - t))
+    return gap <= half + 1e-9
+
+
 def checked_frames(residual_n: np.ndarray, at_fe: np.ndarray, quantile: float) -> np.ndarray:
     """(n,) bool: which labelled frames to keep under `LabelConfig.frames = "checked"`.
 
@@ -95,15 +112,14 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
     for k in np.unique(w[:, 1]).astype(int):
         wk = w[w[:, 1] == k]
         busy |= np.interp(t, wk[:, 0], np.linalg.norm(wk[:, 2:5], axis=1)) > lcfg.rest_force_n
-    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    half = half_period(t)
     for p, src in enumerate(sources):
         times = np.asarray(src.times, float)
         busy |= (t >= src.t_init) & (t <= times[-1])
         inside = np.flatnonzero((t >= times[0]) & (t <= times[-1]))
         if lcfg.frames in ("fe", "keypoint"):
             kt = times[np.asarray(src.is_keypoint, bool)] if lcfg.frames == "keypoint" else times
-            near = [i for i in inside if np.min(np.abs(kt - t[i])) <= half + 1e-9]
-            inside = np.array(near, int)
+            inside = inside[near_times(t[inside], kt, half)]
         if len(inside):
             lab[inside] = p
             force = None
@@ -117,8 +133,7 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
                 if force is None:
                     raise ValueError('LabelConfig.frames = "checked" needs the measured F/T forces (measured=)')
                 label_f = np.array([interp_frames(force[1], s) for s in sig[inside]])
-                near = np.array([np.min(np.abs(times - t[i])) <= half + 1e-9 for i in inside], bool)
-                checks.append((inside, np.linalg.norm(force[0] - label_f, axis=1), near))
+                checks.append((inside, np.linalg.norm(force[0] - label_f, axis=1), near_times(t[inside], times, half)))
     if checks:
         keep = checked_frames(np.concatenate([c[1] for c in checks]), np.concatenate([c[2] for c in checks]),
                               lcfg.check_quantile)
@@ -134,15 +149,15 @@ def keypoint_frame_share(frame_t: np.ndarray, label: np.ndarray, sources: list) 
     """How many labelled frames there are and how many sit at a stage-1 keypoint / any FE frame
     (within half a camera period): the cost of labelling only keypoint frames (seed)."""
     t = np.asarray(frame_t, float)
-    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    half = half_period(t)
     n, at_key, at_fe = 0, 0, 0
     for p, src in enumerate(sources):
         idx = np.flatnonzero(label == p)
         times = np.asarray(src.times, float)
         kt = times[np.asarray(src.is_keypoint, bool)]
         n += len(idx)
-        at_key += int(sum(np.min(np.abs(kt - t[i])) <= half + 1e-9 for i in idx))
-        at_fe += int(sum(np.min(np.abs(times - t[i])) <= half + 1e-9 for i in idx))
+        at_key += int(near_times(t[idx], kt, half).sum())
+        at_fe += int(near_times(t[idx], times, half).sum())
     return {"labelled_frames": n, "at_keypoint": at_key, "at_fe_frame": at_fe}
 
 
@@ -150,14 +165,8 @@ def at_fe_frames(frame_t: np.ndarray, frames: np.ndarray, sources: list) -> np.n
     """(n,) bool: does each labelled camera frame (indices `frames` into `frame_t`) sit within half a camera
     period of an FE frame of any source, or is its label interpolated between FE frames?"""
     t = np.asarray(frame_t, float)
-    half = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    fe_t = np.sort(np.concatenate([np.asarray(s.times, float) for s in sources])) if sources else np.zeros(0)
-    if not len(fe_t):
-        return np.zeros(len(frames), bool)
-    ti = t[np.asarray(frames, int)]
-    j = np.clip(np.searchsorted(fe_t, ti), 1, len(fe_t) - 1) if len(fe_t) > 1 else np.zeros(len(ti), int)
-    near = np.minimum(np.abs(fe_t[j] - ti), np.abs(fe_t[np.maximum(j - 1, 0)] - ti))
-    return near <= half + 1e-9
+    fe_t = np.concatenate([np.asarray(src.times, float) for src in sources]) if sources else np.zeros(0)
+    return near_times(t[np.asarray(frames, int)], fe_t, half_period(t))
 
 
 def source_fields(view, sigma: float, ratios: np.ndarray, stress_scale: float, projector) -> np.ndarray:
