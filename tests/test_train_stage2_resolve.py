@@ -76,6 +76,13 @@ def test_period_scenario_takes_the_recipes_locking_cap():
     six = period_scenario([tr], [3], ["ball"], t_key, CATALOG, GEL, SURF, solver=SolverSettings(max_bulk_ratio=6.0)).scenario
     assert plain.solver.max_bulk_ratio == 5.0 and five.hash() == plain.hash()     # the default cap: same cache entries
     assert six.solver.max_bulk_ratio == 6.0 and six.hash() != plain.hash()
+    from types import SimpleNamespace
+
+    from tensortouch.tools.train.build import BuildConfig
+    from tensortouch.tools.train.sources import label_solver
+
+    assert label_solver(SimpleNamespace(cfg=BuildConfig(max_bulk_ratio=6))) == SolverSettings(max_bulk_ratio=6.0)
+    assert label_solver(SimpleNamespace(cfg=BuildConfig())) == SolverSettings()      # the recipe default: the shipped labels
 
 
 def test_period_scenario_refuses_unknown_indenter_or_no_clear_pose():

@@ -195,10 +195,10 @@ def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
     """FE displacement of each calibration poke at its deepest moment: scenario from the measured
     poses (clear initial pose → one FE frame at t_peak), solved through the tools.fe batch runner
     (shared cache); hertz-fallback builds use the analytic stand-in. None where it failed."""
-    from ..fe import GelGeometry, SolverSettings, save_scenario
+    from ..fe import GelGeometry, save_scenario
     from ..fe.batch import run_batch
     from .resolve import ResolveError, period_scenario
-    from .sources import fallback_solve, fe_cache_dir
+    from .sources import fallback_solve, fe_cache_dir, label_solver
     from ..twin.trajectory import INDENTER_SET
 
     from ..fe import load_result
@@ -208,7 +208,7 @@ def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
     for i, m in enumerate(moments):
         try:
             ps = period_scenario([m["track"]], [m["indenter"]], [m["name"]], np.array([m["t_peak"]]), INDENTER_SET,
-                                 fe_gel, gel, solver=SolverSettings(max_bulk_ratio=float(b.cfg.max_bulk_ratio)))
+                                 fe_gel, gel, solver=label_solver(b))
         except ResolveError as exc:
             log.warning("%s poke %d: no FE scenario (%s)", name, i, exc)
             items.append(None)

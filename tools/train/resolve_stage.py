@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .build import unit_meta
-from .sources import fe_cache_dir, gel_of
+from .sources import fe_cache_dir, gel_of, label_solver
 
 log = logging.getLogger(__name__)
 
@@ -66,14 +66,14 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
 
 def stage_fe_resolve(b, cfg=None) -> dict:
     """Stage 2 (resolve) over every session of the build; returns counts for the stamp."""
-    from ..fe import SolverSettings, save_scenario
+    from ..fe import save_scenario
     from ..fe.batch import run_batch
     from .resolve import ResolveConfig
     from ...contracts.files import atomic_write_json
 
     cfg = cfg or ResolveConfig()
     docs, jobs = {}, []
-    solver = SolverSettings(max_bulk_ratio=float(b.cfg.max_bulk_ratio))
+    solver = label_solver(b)
     for spec in b.all_sessions():
         meta = unit_meta(b, spec.serial)
         items = session_scenarios(b.session(spec), b.root / "keypoints" / f"{spec.name}.json", meta, cfg=cfg,

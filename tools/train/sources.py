@@ -101,6 +101,14 @@ def fe_cache_dir() -> Path:
     return default_dir()
 
 
+def label_solver(b):
+    """tools.fe SolverSettings of a build's label solves (stage 2 and the stage-3 pokes): the recipe's
+    locking cap `max_bulk_ratio`, the rest at their defaults."""
+    from ..fe import SolverSettings
+
+    return SolverSettings(max_bulk_ratio=float(b.cfg.max_bulk_ratio))
+
+
 def gel_of(calibration_meta: dict):
     """tools.fe GelGeometry + tools.twin GelSurface of the unit's gel design (calibration meta.gel)."""
     from ..fe import GelGeometry
