@@ -46,7 +46,7 @@ def _press(depths, mu=0.0, **mesh):
 
 def _ours(sc, label, work: Path | None = None, **extra):
     """tools.fe's RF for `sc`; with `work`, reused from `<work>/fe_<scenario hash>.json` when solved before."""
-    from ...contracts.files import atomic_write_text
+    from ...contracts.files import atomic_write_json
     from . import solver as fs
 
     done = None if work is None else work / f"fe_{sc.hash()}_anchor{int(fs.FIRST_TOUCH_ANCHOR)}.json"
@@ -58,12 +58,12 @@ def _ours(sc, label, work: Path | None = None, **extra):
     res = fs.solve(sc)
     rf, seconds = res.RF[:, 0].round(5).tolist(), round(time.time() - t0, 1)
     if done is not None:
-        atomic_write_text(done, json.dumps({"RF": rf, "seconds": seconds}))
+        atomic_write_json(done, {"RF": rf, "seconds": seconds}, indent=None)
     return {"solver": "tensortouch.tools.fe", "settings": label, "RF": rf, "seconds": seconds, **extra}
 
 
 def _ccx(sc, work: Path, label, bulk="solver", max_increment_mm=None, **extra):
-    from ...contracts.files import atomic_write_text
+    from ...contracts.files import atomic_write_json
     from .ccx import read_reactions, run_ccx
     from .inp import export_inp_ccx
 
@@ -77,7 +77,7 @@ def _ccx(sc, work: Path, label, bulk="solver", max_increment_mm=None, **extra):
                     "reused": True, **extra}
     seconds = run_ccx(deck, timeout=3 * 3600.0)
     rf = read_reactions(deck.with_suffix(".dat"), sc.n_keypoints)["IND1_REF"].round(5).tolist()
-    atomic_write_text(done, json.dumps({"deck_sha256": digest, "RF": rf, "seconds": round(seconds, 1)}))
+    atomic_write_json(done, {"deck_sha256": digest, "RF": rf, "seconds": round(seconds, 1)}, indent=None)
     return {"solver": "ccx", "settings": label, "RF": rf, "seconds": round(seconds, 1), **extra}
 
 

@@ -43,6 +43,10 @@ from .graph import ContactGraph, centre_line
 from .sensor_mount import SensorMount
 
 
+# an object's change from its per-gel changes
+WITNESS = {"both": lambda v: float(np.prod(v)) ** (1.0 / len(v)), "max": max, "min": min, "sum": sum}
+
+
 @dataclass(frozen=True)
 class ControllerConfig:
     reference_frames: int = 4
@@ -82,7 +86,7 @@ class ControllerConfig:
     step_s: float = 0.04                    # time per path node when executing
 
     def __post_init__(self):
-        for name, allowed in (("attribute", ("lever", "cluster")), ("witness", ("both", "max", "min", "sum"))):
+        for name, allowed in (("attribute", ("lever", "cluster")), ("witness", tuple(WITNESS))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"ControllerConfig.{name} = {getattr(self, name)!r}; expected one of {', '.join(allowed)}")
 
@@ -256,7 +260,7 @@ class SelectiveGraspController:
             if c.witness in ("both", "max", "min"):
                 per = [ch / (max(o["load_by"][k] + c.load_floor_n, 1e-6) ** c.load_power if c.per_load else 1.0)
                        + c.drift_weight * o["drift_by"][k] for k, ch in o["by_sensor"].items()]
-                o["change"] = {"both": lambda v: float(np.prod(v)) ** (1.0 / len(v)), "max": max, "min": min}[c.witness](per)
+                o["change"] = WITNESS[c.witness](per)
             else:
                 o["change"] = sum(o["by_sensor"].values())
         both = [o for o in objects if len(o["sensors"]) == len(self.SENSORS)]
@@ -320,8 +324,7 @@ class SelectiveGraspController:
                               + c.lever_drift_weight * slide)
         for k, o in enumerate(self._pair["objects"]):
             v = per[k]
-            change = {"both": lambda v: float(np.prod(v)) ** (1.0 / len(v)), "max": max, "min": min,
-                      "sum": sum}[c.witness](v)
+            change = WITNESS[c.witness](v)
             out.append({"point": o["point"], "change": float(change), "load_by": o["load_by"], "load": o["load"],
                         "sensors": o["sensors"]})
         return out

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ...contracts.files import atomic_write
+from ...contracts.files import atomic_write_json
 from .controller import ControllerConfig, SelectiveGraspController
 from .graph import ContactGraph
 from .sensor_mount import SensorMount
@@ -37,7 +37,7 @@ def record(bench, pairs: list[str], seeds: list[int], out: str | Path) -> list[P
                 r = bench.trial(pair, seed, log_out=log, pulled=pulled)
                 body = {"pair": pair, "seed": seed, "pulled": pulled, "start": bench.start,
                         "result": asdict(r), "log": log}
-                written.append(atomic_write(out / f"{pair}_{seed}_{pulled}.json", json.dumps(body).encode()))
+                written.append(atomic_write_json(out / f"{pair}_{seed}_{pulled}.json", body, indent=None))
     return written
 
 
