@@ -379,6 +379,11 @@ def test_trial_verdict_names_the_failure_cause():
     assert verdict(1, 1, t([[0, 1], [1, 1]])) == ("other", "final pinch also touches the other object")
     assert verdict(1, 1, t([[1, 1], [1, 0]])) == ("other", "final pinch lost the pulled object, touches the other")
     assert verdict(0, 0, t([[0, 0], [0, 0]])) == ("other", "final pinch lost the pulled object")
+    # the other object pressed into a gel (not its core) beyond touch_mm touches it; within, it does not
+    gel = np.array([[1.2, 0.0], [1.2, 0.6]])
+    assert verdict(0, 0, t([[1, 0], [1, 0]]), gel, 0.1) == ("other", "final pinch's gel touches the other object")
+    assert verdict(0, 0, t([[1, 0], [1, 0]]), gel, 0.7) == ("success", "")
+    assert verdict(1, 1, t([[0, 1], [0, 1]]), t([[0.05, 1.2], [0.0, 1.2]]), 0.1) == ("success", "")
 
 
 def test_controller_scores_the_change_along_the_objects_with_the_stronger_witness():

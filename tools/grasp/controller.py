@@ -80,6 +80,7 @@ class ControllerConfig:
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
     clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
     keep_weight: float = 30.0               # score per mm beyond keep_mm or depth_mm
+    clear_3d: bool = False
     clear_weight: float = 10.0              # score per mm short of clear_mm
     max_normal_deg: float = 15.0
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
@@ -446,7 +447,12 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
         u = across / np.linalg.norm(across)
         e = np.abs((cross - moving) @ u * 1000.0 - aim_mm)
         lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
-        rho_o = np.min(np.abs((tips - np.asarray(other, float)) @ u), axis=1) * 1000.0
+        if cfg.clear_3d:
+            a = np.cross(n0, u)
+            d = tips - np.asarray(other, float)
+            rho_o = np.min(np.linalg.norm(d - (d @ a)[..., None] * a, axis=2), axis=1) * 1000.0
+        else:
+            rho_o = np.min(np.abs((tips - np.asarray(other, float)) @ u), axis=1) * 1000.0
     else:
         e = lateral_mm(cross, n0, moving)
         d = tips - cross[:, None, :]

@@ -5,8 +5,10 @@ jitter), open the hand, let both simulated sensors collect their startup baselin
 pinch, tell the controller to watch, pull one object (chosen at random) along its length, run the
 controller's decision and path, hold, and judge from the simulator:
 
-    success          the controller named the pulled object, and at the end both fingertips touch
-                     it and neither touches the other;
+    success          the controller named the pulled object, and at the end both fingertips hold it
+                     (their rigid cores touch it) and neither touches the other: no core contact and
+                     no gel indentation deeper than `TrialConfig.touch_mm` (the gel is the sensor's
+                     skin: an object pressed into it is touched, whether or not the core feels it);
     false detection  the controller named the other object;
     other            no decision in time, no path, or the final pinch is wrong.
 """
@@ -57,6 +59,7 @@ class TrialConfig:
     release_after_decision: bool = False
     pull_only: bool = False            # pull for the whole decide window, no path (records the detection's inputs)
     frame_timeout_s: float = 120.0     # wall time a frame's contacts may take over Zenoh (slow machine)
+    touch_mm: float = 0.1              # the verdict: a gel indented deeper than this by an object touches it
 
 
 @dataclass
@@ -66,13 +69,14 @@ class TrialResult:
     pulled: int
     judged: int | None
     outcome: str
-    touching: list
+    touching: list                        # final (2 fingertips × 2 objects): the rigid cores touch
     path_len: int
     seconds: float
     scores: list = field(default_factory=list)
     cause: str = ""                       # sub-cause of a failure (see `verdict`)
     decide_frames: int = 0                # frames scored before the decision (or the timeout)
     score_log: list = field(default_factory=list)   # every scored frame's object scores
+    gel_mm: list = field(default_factory=list)      # final (2 fingertips × 2 objects): gel indentation, mm
 
 
 def wait_matched(session, key: str, timeout_s: float) -> None:
@@ -253,13 +257,17 @@ class Bench:
                 phase = "hold"
                 advance(cfg.hold_s, label="final")
             touching = scene.touching()
-            outcome, cause = verdict(judged, pulled, touching)
+            gel_mm = np.zeros((2, 2))
+            for i in range(2):
+                for c in gel_touch.contacts(i):
+                    gel_mm[i, c.index] = max(gel_mm[i, c.index], c.depth)
+            outcome, cause = verdict(judged, pulled, touching, gel_mm, cfg.touch_mm)
         finally:
             for sen in sensors.values():
                 sen.close()
         return TrialResult(pair, seed, pulled, judged, outcome, touching.astype(int).tolist(), path_len,
                            round(time.perf_counter() - t0, 2), decision.scores if decision else [], cause,
-                           len(ctrl.log), [e["scores"] for e in ctrl.log])
+                           len(ctrl.log), [e["scores"] for e in ctrl.log], np.round(gel_mm, 3).tolist())
 
 
 def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
@@ -268,15 +276,22 @@ def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
     return float(np.linalg.norm(d - (d @ axis) * axis))
 
 
-def verdict(judged: int | None, pulled: int, touching: np.ndarray) -> tuple[str, str]:
-    """(outcome, cause) of a trial from the simulator's final touching matrix (2 tips × 2 objects)."""
+def verdict(judged: int | None, pulled: int, touching: np.ndarray, gel_mm: np.ndarray | None = None,
+            touch_mm: float = 0.1) -> tuple[str, str]:
+    """(outcome, cause) of a trial from the simulator's final state: `touching` (2 tips × 2 objects,
+    the rigid cores touch) and `gel_mm` (the same, each object's gel indentation in mm; an
+    indentation deeper than `touch_mm` touches too)."""
     if judged is None:
         return "other", "no decision"
     if judged != pulled:
         return "false detection", "other object named"
+    touching = np.asarray(touching, bool)
     keeps, other = touching[:, pulled], touching[:, 1 - pulled]
-    if keeps.all() and not other.any():
+    gel_other = np.zeros(2) if gel_mm is None else np.asarray(gel_mm, float)[:, 1 - pulled]
+    if keeps.all() and not other.any() and not (gel_other > touch_mm).any():
         return "success", ""
+    if keeps.all() and not other.any():
+        return "other", "final pinch's gel touches the other object"
     if keeps.all():
         return "other", "final pinch also touches the other object"
     if other.any():
