@@ -205,23 +205,28 @@ def test_goal_centres_the_moving_object_on_the_line_of_fingertip_centres_and_cle
     pts[8, 2] = 0.002                                            # touching 2 mm above the plane
     tips[8] = [pts[8] + 0.012 * nrm[8], pts[8] - 0.012 * nrm[8]]
     costs = np.array([0.4, 0.2, 0.0, 0.2, 0.3, np.inf, 0.2, 0.3, 0.1])
-    cfg = ControllerConfig(keep_mm=3.0, lean_mm=1.5, clear_mm=12.0, depth_mm=2.0, max_normal_deg=15.0,
+    cfg = ControllerConfig(keep_mm=3.0, lean_mm=1.5, clear_mm=16.0, depth_mm=2.0, max_normal_deg=15.0,
                            cost_weight_mm_per_rad=2.0, keep_weight=10.0, clear_weight=10.0)
     z = np.array([0, 0, 1.0])
     mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
     sc = goal_scores(pts, nrm, tips, costs, z, mov, oth, cfg)
-    # untilted pinches in the plane: e = |x − 3.5|, lean 0, h 0, ρ_o = |x + 3.5|
-    # x = 4: e 0.5, ρ_o 7.5 (4.5 short of 12) → 10·4.5 + 0.5 + 2·0.2 = 45.9
-    # x = 6: e 2.5, ρ_o 9.5 → 10·2.5 + 2.5 + 0.6 = 28.1 (the best goal)
-    # x = 0: e = ρ_o = 3.5 → 10·(8.5 + 0.5) + 3.5 = 93.5; x = −4: 10·(11.5 + 4.5) + 7.5 + 0.4 = 167.9
-    # x = −8: 10·(7.5 + 8.5) + 11.5 + 0.8 = 172.3; node 5: unreachable; node 6: 30° tilted
-    # node 7 (x = 6, tilted 10°): its line crosses at 6 (e 2.5), fingertips at 6 ± 12·sin 10° = 8.084 /
-    # 3.916, lean 2.084 (0.584 over), ρ_o 7.416 → 10·(4.584 + 0.584) + 2.5 + 2.084 + 0.6
+    # ρ_o: the nearer fingertip centre's distance from the other object's axis (x = −3.5, z = 0, along y)
+    # untilted pinches in the plane: fingertips at (x, ±12), e = |x − 3.5|, lean 0, h 0, ρ_o = hypot(x + 3.5, 12)
+    def short(dx, dz):
+        return 16.0 - float(np.hypot(dx, dz))
+    # x = 6: e 2.5, ρ_o 15.305 → 10·0.695 + 2.5 + 2·0.3 = 10.05 (the best goal)
+    # x = 4: e 0.5, ρ_o 14.151 → 10·1.849 + 0.5 + 0.4;  x = 0: e 3.5 (0.5 over), ρ_o 12.5 → 10·(3.5 + 0.5) + 3.5
+    # x = −4: e 7.5 (4.5 over), ρ_o 12.010;  x = −8: e 11.5 (8.5 over), ρ_o 12.816; node 5: unreachable; node 6: 30°
+    untilted = [10 * (short(-4.5, 12) + 8.5) + 11.5 + 0.8, 10 * (short(-0.5, 12) + 4.5) + 7.5 + 0.4,
+                10 * (short(3.5, 12) + 0.5) + 3.5, 10 * short(7.5, 12) + 0.5 + 0.4, 10 * short(9.5, 12) + 2.5 + 0.6]
+    # node 7 (x = 6, tilted 10°): its line crosses at 6 (e 2.5); fingertips at x = 6 ± 12·sin 10° = 8.0838 /
+    # 3.9162, z = ±12·cos 10° = ±11.8177: lean 2.0838 (0.5838 over), ρ_o = hypot(7.4162, 11.8177) = 13.952
     # node 8 (2 mm above, tilted 10°): its line crosses at 3.5 (e 0, centred), h 2; fingertips at
-    # 3.8527 ± 2.0838 = 5.9365 / 1.7689, lean 2.4365 (0.9365 over), ρ_o 5.2689 (6.7311 short)
-    t7 = 10 * (4.5838 + 0.5838) + 2.5 + 2.0838 + 0.6
-    t8 = 10 * (6.7311 + 0.9365) + 2.4365 + 2.0 + 0.2
-    np.testing.assert_allclose(sc, [172.3, 167.9, 93.5, 45.9, 28.1, np.inf, np.inf, t7, t8], atol=2e-3)
+    # (5.9365, 13.8177) / (1.7689, −9.8177): lean 2.4365 (0.9365 over), ρ_o = hypot(5.2689, 9.8177) = 11.142
+    t7 = 10 * (short(7.4162, 11.8177) + 0.5838) + 2.5 + 2.0838 + 0.6
+    t8 = 10 * (short(5.2689, 9.8177) + 0.9365) + 2.4365 + 2.0 + 0.2
+    np.testing.assert_allclose(sc, untilted + [np.inf, np.inf, t7, t8], atol=2e-3)
+    assert int(np.argmin(sc)) == 4
     # a fingertip pair displaced along the objects (y) scores the same: only across counts
     shift = np.array([0, 0.005, 0])
     np.testing.assert_allclose(goal_scores(pts + shift, nrm, tips + shift, costs, z, mov, oth, cfg), sc, atol=2e-3)

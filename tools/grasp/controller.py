@@ -78,10 +78,10 @@ class ControllerConfig:
                                             # this on both gels (a pen beside a cable); inf: off
     lean_mm: float = 1.5                    # its fingertip centres this near where that line crosses, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
-    clear_mm: float = 11.0                  # wanted distance of the other object from both fingertips
+    clear_mm: float = 16.0                  # wanted distance of the other object's axis from both fingertip centres
+                                            # (gel radius 12 mm + a pen's 4 mm: its gel does not touch the other)
     keep_weight: float = 30.0               # score per mm beyond keep_mm or depth_mm
-    clear_3d: bool = False
-    clear_weight: float = 10.0              # score per mm short of clear_mm
+    clear_weight: float = 30.0              # score per mm short of clear_mm
     max_normal_deg: float = 15.0
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
     step_s: float = 0.04                    # time per path node when executing
@@ -431,7 +431,9 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
              line leans one fingertip towards the other object and lets it slide off a thick one);
       h      its pinch point's distance from the plane along `normal_now` (a pinch closing off the
              plane pushes the object into one fingertip first);
-      ρ_other the nearer fingertip centre's distance across from the other object.
+      ρ_other the nearer fingertip centre's distance from the other object's axis (the line through
+             it along the objects): the gel, a sphere about that centre, touches the other object
+             when ρ_other < gel radius + the object's radius.
     With `aim_mm` e is measured from the point that far beyond the moving object, away from the
     other (the pinch then squeezes the object away from the other, not towards it). Without another
     object e and lean are distances in the plane. Allowed: reachable (finite path
@@ -447,12 +449,9 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
         u = across / np.linalg.norm(across)
         e = np.abs((cross - moving) @ u * 1000.0 - aim_mm)
         lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
-        if cfg.clear_3d:
-            a = np.cross(n0, u)
-            d = tips - np.asarray(other, float)
-            rho_o = np.min(np.linalg.norm(d - (d @ a)[..., None] * a, axis=2), axis=1) * 1000.0
-        else:
-            rho_o = np.min(np.abs((tips - np.asarray(other, float)) @ u), axis=1) * 1000.0
+        a = np.cross(n0, u)                    # along the objects
+        d = tips - np.asarray(other, float)
+        rho_o = np.min(np.linalg.norm(d - (d @ a)[..., None] * a, axis=2), axis=1) * 1000.0
     else:
         e = lateral_mm(cross, n0, moving)
         d = tips - cross[:, None, :]
