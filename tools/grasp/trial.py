@@ -277,7 +277,7 @@ def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
 
 
 def verdict(judged: int | None, pulled: int, touching: np.ndarray, gel_mm: np.ndarray | None = None,
-            touch_mm: float = 0.1) -> tuple[str, str]:
+            touch_mm: float = TrialConfig.touch_mm) -> tuple[str, str]:
     """(outcome, cause) of a trial from the simulator's final state: `touching` (2 tips × 2 objects,
     the rigid cores touch) and `gel_mm` (the same, each object's gel indentation in mm; an
     indentation deeper than `touch_mm` touches too)."""
