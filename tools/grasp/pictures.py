@@ -35,7 +35,7 @@ def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
         ax.set_xlim(-18, 18)
         ax.set_ylim(-26, 26)
         ax.set_aspect("equal")
-        ax.set_title(f"{f['label']} (t = {f['t']:.2f} s)\ntouching {f['touching'].astype(int).tolist()}", fontsize=8)
+        ax.set_title(f"{f['label']} (t = {f['t']:.2f} s)\ncores touching {f['touching'].astype(int).tolist()}", fontsize=8)
         ax.set_xlabel("across the pinch (mm)", fontsize=7)
         ax.tick_params(labelsize=6)
         for row, name in ((1, "thumb"), (2, "index")):
@@ -46,7 +46,8 @@ def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
                         color="w", fontsize=6)
             ax.set_title(f"{name} sensor frame + published contacts", fontsize=7)
             ax.axis("off")
-    fig.suptitle(f"{result.pair}: pulled object {result.pulled} (red), judged {result.judged}: {result.outcome}",
+    gel = f"; at the end, gel indentation (mm; thumb, index × objects 0, 1) {result.gel_mm}" if result.gel_mm else ""
+    fig.suptitle(f"{result.pair}: pulled object {result.pulled} (red), judged {result.judged}: {result.outcome}{gel}",
                  fontsize=9)
     fig.tight_layout()
     return save_figure(fig, path, dpi=80)
