@@ -227,7 +227,7 @@ def test_goal_centres_the_moving_object_on_the_line_of_fingertip_centres_and_cle
     t8 = 10 * (short(5.2689, 9.8177) + 0.9365) + 2.4365 + 2.0 + 0.2
     np.testing.assert_allclose(sc, untilted + [np.inf, np.inf, t7, t8], atol=2e-3)
     assert int(np.argmin(sc)) == 4
-    # a fingertip pair displaced along the objects (y) scores the same: only across counts
+    # a fingertip pair displaced along the objects (y) scores the same: distances along them do not count
     shift = np.array([0, 0.005, 0])
     np.testing.assert_allclose(goal_scores(pts + shift, nrm, tips + shift, costs, z, mov, oth, cfg), sc, atol=2e-3)
     # a pen-like other 12 mm away is cleared by all: a pinch centred on the moving object wins even

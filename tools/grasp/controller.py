@@ -423,8 +423,8 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
                 cfg: ControllerConfig, aim_mm: float = 0.0) -> np.ndarray:
     """Score of each graph node as the goal (lower is better, inf = not allowed). `tips` (N, 2, 3):
     both fingertip centres of each node (m). The objects lie in the plane through `moving` normal
-    to the current pinch normal `normal_now`, side by side (only distances across them count, along
-    the line joining them; a pinch's place along the objects does not). Per node:
+    to the current pinch normal `normal_now`, side by side (distances along them do not count: a
+    pinch's place along the objects does not matter). Per node:
       e      how far its line of fingertip centres crosses that plane from the moving object: the
              object is centred between the fingertips when e = 0, whatever its thickness;
       lean   the larger across offset of its two fingertip centres from that crossing (a tilted
@@ -449,9 +449,8 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
         u = across / np.linalg.norm(across)
         e = np.abs((cross - moving) @ u * 1000.0 - aim_mm)
         lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
-        a = np.cross(n0, u)                    # along the objects
-        d = tips - np.asarray(other, float)
-        rho_o = np.min(np.linalg.norm(d - (d @ a)[..., None] * a, axis=2), axis=1) * 1000.0
+        along = np.cross(n0, u)
+        rho_o = lateral_mm(tips.reshape(-1, 3), along, np.asarray(other, float)).reshape(-1, 2).min(axis=1)
     else:
         e = lateral_mm(cross, n0, moving)
         d = tips - cross[:, None, :]
