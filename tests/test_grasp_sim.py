@@ -12,7 +12,7 @@ import pytest
 
 from tensortouch.tools.grasp import graph as graph_mod
 from tensortouch.tools.grasp.controller import ControllerConfig, SelectiveGraspController
-from tensortouch.tools.grasp.dome_contact import ObjectContact, displacement
+from tensortouch.tools.grasp.dome_contact import DomeContactConfig, ObjectContact, displacement
 from tensortouch.tools.grasp.sensor_mount import SensorMount
 from tensortouch.tools.twin.geometry import GelSurface
 
@@ -47,6 +47,23 @@ def test_line_contact_depth_profile_and_shear():
     along = (np.abs(pts[:, 0]) < 0.3) & (np.abs(pts[:, 1]) > 9)     # the straight object leaves the dome
     assert np.abs(u[along] @ np.array([0, 0, 1.0])).max() < 0.2
     assert np.allclose(displacement(gel, pts, nrm, []), 0)
+
+
+def test_line_contact_profile_hand_worked_values():
+    """Across a cylinder pressed at the apex: the object's shape inside the contact half-width
+    b = √(R* d), d/2 at its edge, then (d/2)·exp(−(s − b)/λ) with s the arc distance on the dome."""
+    gel = GelSurface()
+    R, zc = gel.profile.radius_mm, gel.profile.center_z_mm
+    a, d, lam = 4.0, 1.0, DomeContactConfig().tail_mm
+    Rs = 1.0 / (1.0 / a + 1.0 / R)
+    b = np.sqrt(Rs * d)
+    s = np.array([0.0, 0.5 * b, b, b + lam, b + 2 * lam])          # arc distances across the object
+    pts = np.stack([R * np.sin(s / R), np.zeros_like(s), zc + R * np.cos(s / R)], 1)
+    nrm = (pts - [0, 0, zc]) / R
+    ob = ObjectContact(np.array([0, 0, gel.top_z]), np.array([0, 1.0, 0]), a, d, np.zeros(3))
+    w = -np.einsum("ij,ij->i", displacement(gel, pts, nrm, [ob]), nrm)
+    want = [d, d - (0.5 * b) ** 2 / (2 * Rs), d / 2, d / 2 / np.e, d / 2 / np.e ** 2]
+    assert w == pytest.approx(want, abs=1e-6)
 
 
 def test_placement_lets_both_objects_touch_one_pinch():
@@ -359,7 +376,7 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
         try:
             gel = unit.gel
             objs = [ObjectContact(gel.point_at(abs(x) / gel.profile.radius_mm, 0.0 if x > 0 else np.pi), np.array([0, 1.0, 0]),
-                                  1.09, 1.0, np.zeros(3)) for x in (-4.0, 4.0)]
+                                  1.09, 1.2, np.zeros(3)) for x in (-4.0, 4.0)]   # pressed to the 1.2 mm cushion
             for i in range(36):
                 sen.show([] if i < 32 else objs, i * 0.04)
             assert ctrl.wait_frames({"thumb": 36}, timeout=30)

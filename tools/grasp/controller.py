@@ -68,7 +68,7 @@ class ControllerConfig:
     lever_drift_weight: float = 0.1         # lever: added per mm an object's force centroid moved along it (per gel)
     match_mm: float = 3.0
     group_mm: float = 4.0
-    min_change: float = 0.08                # N per N^load_power of load (per_load), else N
+    min_change: float = 0.05                # N per N^load_power of load (per_load), else N
     lead_ratio: float = 1.1
     confirm_frames: int = 2
     keep_mm: float = 2.5                    # the goal's line of fingertip centres this near the moving object
@@ -78,8 +78,9 @@ class ControllerConfig:
                                             # this on both gels (a pen beside a cable); inf: off
     lean_mm: float = 1.5                    # its fingertip centres this near where that line crosses, across
     depth_mm: float = 1.5                   # the goal's pinch point this near it along the normal
-    clear_mm: float = 16.0                  # wanted distance of the other object's axis from both fingertip centres
-                                            # (gel radius 12 mm + a pen's 4 mm: its gel does not touch the other)
+    clear_mm: float = 17.0                  # wanted distance of the other object's axis from both fingertip centres
+                                            # (gel radius 12 mm + a pen's 4 mm, + 1 mm: the fingertips end up to
+                                            # 0.6 mm nearer than the graph's poses; its gel does not touch the other)
     keep_weight: float = 30.0               # score per mm beyond keep_mm or depth_mm
     clear_weight: float = 30.0              # score per mm short of clear_mm
     max_normal_deg: float = 15.0
