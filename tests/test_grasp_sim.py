@@ -66,6 +66,32 @@ def test_line_contact_profile_hand_worked_values():
     assert w == pytest.approx(want, abs=1e-6)
 
 
+@pytest.mark.slow
+def test_line_contact_profile_matches_fe_of_the_twin_dome():
+    """The fitted profile against FE (tools.fe) of the twin's standard dome: a pen-sized cylinder
+    (radius 4 mm) pressed 0.6 and 1.2 mm across its apex; normal displacement of the surface nodes
+    within 1 mm of the cross-section and 8 mm of the contact line."""
+    from tensortouch.tools.fe import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario, solve
+
+    fe_gel = GelGeometry()
+    ind = Indenter(name="pen", shape="cylinder", params={"radius": 4.0, "length": 40.0},
+                   position=[0.0, 0.0, fe_gel.top_z], keypoints=[Keypoint([0.0, 0.0, -0.6]), Keypoint([0.0, 0.0, -1.2])])
+    res = solve(Scenario(gel=fe_gel, mesh=MeshSettings(size_top=0.6), indenters=[ind], name="pen-across-apex").validate())
+    gel = GelSurface()
+    R, zc = gel.profile.radius_mm, gel.profile.center_z_mm
+    P = res.nodes[res.surface_nodes]
+    nrm = P - [0.0, 0.0, zc]
+    rad = np.linalg.norm(nrm, axis=1)
+    nrm /= rad[:, None]
+    sel = (np.abs(rad - R) < 0.05) & (np.abs(P[:, 0]) < 1.0) & (np.abs(P[:, 1]) < 8.0)
+    assert sel.sum() > 20
+    for j, d in enumerate((0.6, 1.2)):
+        w_fe = -np.einsum("ij,ij->i", res.U[j][res.surface_nodes][sel], nrm[sel])
+        ob = ObjectContact(np.array([0.0, 0.0, gel.top_z]), np.array([1.0, 0.0, 0.0]), 4.0, d, np.zeros(3))
+        w = -np.einsum("ij,ij->i", displacement(gel, P[sel], nrm[sel], [ob]), nrm[sel])
+        assert np.sqrt(np.mean((w - w_fe) ** 2)) < 0.05, (d, np.sqrt(np.mean((w - w_fe) ** 2)))
+
+
 def test_placement_lets_both_objects_touch_one_pinch():
     pytest.importorskip("mujoco")
     from tensortouch.tools.grasp.scene import placement

@@ -9,7 +9,7 @@ stick displacement since it first touched). The field is a line-contact profile 
     t = position of a surface point along the object's axis, d(t) = a + R_dome − |A(t) − C| the
     local overlap of the object's cross-section at t with the dome sphere (centre C): the straight
     object leaves the curved dome, so the contact is a finite patch,
-    r = distance of the surface point from the object's contact line,
+    r = arc distance on the dome from the great circle through the object's contact line,
     R* = 1/(1/a + 1/R_dome); the overlap half-width √(2 R* d(t)), and the contact half-width
     b = √(R* d(t)), 1/√2 of it (the gel beside the object sinks too, as in Hertz contact),
     w = d(t) − r²/(2R*) inside r ≤ b (the object's shape; d/2 at the edge),
@@ -18,9 +18,11 @@ stick displacement since it first touched). The field is a line-contact profile 
 
 tapered to zero towards the fixed rim and along the object beyond the gel. Two objects superpose
 (the deeper profile wins per point, shear adds). λ = 1.6 mm is fitted to FE of the twin's standard
-dome (`tensortouch fe solve`: cylinders of radius 4 and 1.09 mm pressed 0.6 and 1.2 mm at its apex;
-RMS error of w 0.01–0.03 mm over the 8 mm beside the object; docs/grasp.md). The shear tail uses the
-same λ, not fitted. This is an approximation for control studies, not FE.
+dome (tools.fe: cylinders of radius 4 and 1.09 mm pressed 0.6 and 1.2 mm across its apex; RMS error
+of w 0.008–0.035 mm over the 8 mm beside the object, against 0.10–0.51 mm for the power law used
+before; docs/decisions/2026-11-26-grasp-gel-profile-fitted-to-fe.md, checked by a slow test in
+tests/test_grasp_sim.py). The shear tail uses the same λ, not fitted. This is an approximation for
+control studies, not FE.
 """
 from __future__ import annotations
 
