@@ -13,25 +13,25 @@ records the force band its baseline saw (`force_band`); when a different finish 
 baseline another band, the cached passes are not what the runtime would compute and the session is run
 again. Stored as .npz (no pickle), written atomically.
 
-`measured_at` (the rig's measured force and indenter tip at frame times) and `match_contacts`
-(clusters ↔ indenters) are what the offline users score against.
+`finish_passes` is the one finish of kept passes (the cache's, the workbench's): the pipeline's own
+`SensorPipeline.finish`, with the force-band check. What the rig measured and how clusters are matched
+to indenters belong to the tools that score (tools/scoring.py), not to the runtime.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import logging
-import os
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..drivers.camera import camera_from_uri
 from ..drivers.camera.camera import EndOfStream
+from ..contracts.files import atomic_write
 from ..contracts.store import Calibration, sha256_file
 from .stages.contacts import Cluster
 from .stages.correction import ForceCorrection
@@ -39,6 +39,7 @@ from .pipeline import (
     FrameResult,
     NetworkPass,
     PipelineConfig,
+    SensorPipeline,
     force_band,
     open_pipeline,
 )
@@ -131,13 +132,7 @@ def save_passes(path: Path, passes: list[NetworkPass]) -> None:
                   force_band=np.array([p.force_band for p in passes], dtype=np.int8),
                   flags=np.array([json.dumps(p.flags) for p in passes], dtype="U200"),
                   format=np.array(CACHE_FORMAT))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
-        fh.flush()
-        os.fsync(fh.fileno())
-    tmp.replace(path)
+    atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
 
 def load_passes(path: Path) -> list[NetworkPass] | None:
@@ -195,18 +190,12 @@ def _replay(session, package, calibration, cache, precision, threads, correction
     path = Path(cache) / f"{cache_key(session, package, calibration, precision)}.npz" if cache else None
     passes = load_passes(path) if path is not None and path.is_file() else None
     if passes is not None:
-        pipe, done = pipeline(), []
-        for p in passes:
-            if force_band(pipe._last_force, pipe.cfg.baseline) != p.force_band:
-                log.info("%s: the cached network pass saw other forces at %.3f s (another effect or correction); "
-                         "running the network again", session.path, p.t)
-                break
-            if temperature is not None:
-                pipe.set_temperature(temperature(p.t))
-            done.append((p, pipe.finish(_raw(p, False), p.t)))
-        else:
-            yield from done
+        done, stale = finish_passes(passes, pipeline(), temperature)
+        if stale is None:
+            yield from zip(passes, done)
             return
+        log.info("%s: the cached network pass saw other forces at %.3f s (another effect or correction); "
+                 "running the network again", session.path, stale)
     pipe, kept = pipeline(), []
     n, t0 = len(session.table("frames")), time.perf_counter()
     for i, (image, t) in enumerate(_frames(session)):
@@ -220,6 +209,22 @@ def _replay(session, package, calibration, cache, precision, threads, correction
             progress(i + 1, n, time.perf_counter() - t0)
     if path is not None:
         save_passes(path, kept)
+
+
+def finish_passes(passes: list[NetworkPass], pipe: SensorPipeline, temperature=None) -> tuple[list[FrameResult], float | None]:
+    """Kept network passes (in frame order, no fields needed) through `pipe.finish` (a fresh pipeline
+    from `open_pipeline`: its effects, correction and wrench), with `temperature(t)` (°C, or None) as
+    the thermistor reading. The passes are not changed. Returns the results and the time of the first
+    frame whose finish feeds the baseline another force band than the pass saw (None: every result is
+    what the runtime publishes; otherwise the runtime's baseline would have run differently from there)."""
+    done, stale = [], None
+    for p in passes:
+        if stale is None and force_band(pipe._last_force, pipe.cfg.baseline) != p.force_band:
+            stale = p.t
+        if temperature is not None:
+            pipe.set_temperature(temperature(p.t))
+        done.append(pipe.finish(_raw(p, False), p.t))
+    return done, stale
 
 
 def replay_session(session, package, calibration: Calibration, *, cache: Path | None = None,
@@ -248,60 +253,3 @@ def network_passes(session, package, calibration: Calibration, *, cache: Path | 
         passes.append(p)
         ran = ran or bool(p.timings)
     return passes, not ran
-
-
-# ----- what the rig measured --------------------------------------------------------------------
-def ft_to_sensor(force_ft: np.ndarray, pose_quat_wxyz: np.ndarray, ft_rotation_wxyz) -> np.ndarray:
-    """F/T force (T, 3) in the F/T frame → sensor frame, through F/T → indenter → sensor rotations."""
-    def rot(q):
-        q = np.asarray(q, float).reshape(-1, 4)
-        return Rotation.from_quat(q[:, [1, 2, 3, 0]])
-
-    f = np.asarray(force_ft, float).reshape(-1, 3)
-    return rot(pose_quat_wxyz).apply(rot(ft_rotation_wxyz)[0].apply(f))
-
-
-def measured_at(session, t: np.ndarray) -> dict[int, dict]:
-    """Per indenter id at times t (s): the mocap tip (T, 3) mm and the force it applies to the gel
-    (T, 3) N = −F/T reading rotated into the sensor frame (session's wrench and poses streams)."""
-    session = _session(session)
-    t = np.asarray(t, float)
-    wr, po = session.table("wrench"), session.table("poses")
-    rot = session.streams["wrench"]["ft_to_indenter"]["rotation_wxyz"]
-    out = {}
-    for k in sorted(set(wr[:, 1].astype(int))):
-        w, p = wr[wr[:, 1] == k], po[po[:, 1] == k]
-        f_ft = np.stack([np.interp(t, w[:, 0], w[:, 2 + c]) for c in range(3)], 1)
-        near = np.clip(np.searchsorted(p[:, 0], t), 0, len(p) - 1)
-        tip = np.stack([np.interp(t, p[:, 0], p[:, 2 + c]) for c in range(3)], 1)
-        out[k] = {"tip": tip, "force": -ft_to_sensor(f_ft, p[near, 5:9], rot)}
-    return out
-
-
-def match_contacts(tips: np.ndarray, centroids: np.ndarray, max_mm: float = np.inf,
-                   order: np.ndarray | None = None) -> np.ndarray:
-    """Indenter tips (K, 3) ↔ cluster centroids (N, 3), mm; each cluster used once. Returns (K,) the
-    matched cluster index or -1. Without `order`: greedy nearest pairs first, within max_mm. With
-    `order` (indenter indices, e.g. strongest first): each of those indenters in turn takes its nearest
-    free cluster within max_mm (indenters not listed stay -1)."""
-    tips = np.asarray(tips, float).reshape(-1, 3)
-    centroids = np.asarray(centroids, float).reshape(-1, 3)
-    out = np.full(len(tips), -1)
-    if len(tips) == 0 or len(centroids) == 0:
-        return out
-    d = np.linalg.norm(tips[:, None, :] - centroids[None, :, :], axis=2)
-    if order is not None:
-        free = np.ones(len(centroids), bool)
-        for k in order:
-            dk = np.where(free, d[k], np.inf)
-            c = int(np.argmin(dk))
-            if dk[c] <= max_mm:
-                out[k], free[c] = c, False
-        return out
-    for flat in np.argsort(d, axis=None, kind="stable"):
-        k, c = np.unravel_index(flat, d.shape)
-        if d[k, c] > max_mm:
-            break
-        if out[k] < 0 and c not in out:
-            out[k] = c
-    return out

@@ -100,6 +100,24 @@ def correction_inputs(clusters: list[Cluster], cal: Calibration) -> tuple[np.nda
     return uv, tp
 
 
+def contact_stage(fields: np.ndarray, cal: Calibration, cfg: ContactConfig) -> list[Cluster]:
+    """The contacts stage on one frame's (15, H, W) physical fields: per-pixel forces, then the clusters
+    of `cfg` (the package's `PipelineConfig.for_package(...).contacts` in the runtime), before tracking."""
+    fp = pixel_forces(fields, cal.pixel_area)
+    return find_clusters(fp, cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask, disp=fields[0:3], cfg=cfg)
+
+
+def apply_correction(clusters: list[Cluster], correction: ForceCorrection, cal: Calibration) -> None:
+    """The correction stage on one frame's clusters (forces changed in place): the calibration's force
+    correction of each cluster force at its centroid (`correction_inputs`); a no-op when disabled."""
+    if clusters and correction.enabled:
+        forces = np.array([c.force_n for c in clusters])
+        uv, tp = correction_inputs(clusters, cal)
+        for c, f in zip(clusters, correction(forces, uv, tp)):
+            c.force_n = tuple(map(float, f))
+            c.force_mag_n = float(np.linalg.norm(f))
+
+
 def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, correction: ForceCorrection,
                     cal: Calibration, timings: dict | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
     """The pipeline's last steps on one frame's clusters (forces changed in place): the enabled
@@ -108,12 +126,7 @@ def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, cor
     t0 = time.perf_counter()
     flags = effects.apply(clusters, t)
     t1 = time.perf_counter()
-    if clusters and correction.enabled:
-        forces = np.array([c.force_n for c in clusters])
-        uv, tp = correction_inputs(clusters, cal)
-        for c, f in zip(clusters, correction(forces, uv, tp)):
-            c.force_n = tuple(map(float, f))
-            c.force_mag_n = float(np.linalg.norm(f))
+    apply_correction(clusters, correction, cal)
     force = np.zeros(3)
     torque = np.zeros(3)
     for c in clusters:
@@ -127,12 +140,15 @@ def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, cor
 
 def open_pipeline(package, calibration: Calibration, *, precision: str = "int8", threads: int = 1,
                   sensor_id: str | None = None, correction: ForceCorrection | None = None,
-                  effects: bool = True) -> SensorPipeline:
-    """The pipeline `tensortouch run` builds for a model package and a calibration version (the
-    package's pipeline configuration). `correction` replaces the calibration's (ForceCorrection(None,
-    None): raw model force); effects=False runs without the enabled effects."""
-    pipe = SensorPipeline(sensor_id or calibration.sensor_id, FieldModel(package, precision, threads),
-                          calibration, correction=correction)
+                  effects: bool = True, model=None) -> SensorPipeline:
+    """The one constructor of a pipeline: what `tensortouch run` builds for a model package and a
+    calibration version (the package's pipeline configuration). `correction` replaces the
+    calibration's (ForceCorrection(None, None): raw model force); effects=False runs without the
+    enabled effects; `model` is a loaded network of `package` to use (e.g. one shared by the fingers
+    of a hand) instead of a new FieldModel(package, precision, threads)."""
+    if model is None:
+        model = FieldModel(package, precision, threads)
+    pipe = SensorPipeline(sensor_id or calibration.sensor_id, model, calibration, correction=correction)
     if not effects:
         pipe.effects.chain = EffectChain()
     return pipe
@@ -215,11 +231,7 @@ class SensorPipeline:
             fields = np.where(finite, fields, 0.0).astype(fields.dtype)
         t3 = time.perf_counter()
         timings["inference"] = (t3 - t2) * 1e3
-        cal = self.cal
-        fp = pixel_forces(fields, cal.pixel_area)
-        clusters = find_clusters(fp, cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask,
-                                 disp=fields[0:3], cfg=self.cfg.contacts)
-        clusters = self.tracker.update(clusters)
+        clusters = self.tracker.update(contact_stage(fields, self.cal, self.cfg.contacts))
         timings["contacts"] = (time.perf_counter() - t3) * 1e3
         return NetworkPass(self.seq, t, fields, clusters, step.state.name, flags, timings, band)
 

@@ -11,8 +11,8 @@
         for out in s.stream("usb:AB12"):
             ...
 
-It builds the same objects `tensortouch run` does (model package lookup, calibration store,
-`FieldModel`, `SensorPipeline`) and converts contacts with the same function the publisher's loop
+It builds the same objects `tensortouch run` does (model package lookup, calibration store, the
+pipeline from `runtime.pipeline.open_pipeline`) and converts contacts with the same function the publisher's loop
 uses, so a frame gives the same contacts and forces here as over Zenoh.
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import Self
 import numpy as np
 
 from .apps.loop import to_wire_contacts
-from .pipeline import FrameResult, SensorPipeline
+from .pipeline import FrameResult, SensorPipeline, open_pipeline
 
 log = logging.getLogger(__name__)
 
@@ -58,11 +58,11 @@ class Sensor:
         """Load the model package (name or path; default the newest installed) and the sensor's
         calibration (active version, or `version`) from `store` (default calibration_store/)."""
         from ..contracts.store import CalibrationStore
-        from .stages.model import FieldModel, find_package
+        from .stages.model import find_package
 
         package = find_package(None if model is None else str(model))
         cal = CalibrationStore(store).load(sensor_id, version)
-        return cls(SensorPipeline(sensor_id, FieldModel(package, precision, threads=threads), cal))
+        return cls(open_pipeline(package, cal, precision=precision, threads=threads, sensor_id=sensor_id))
 
     # -- properties -------------------------------------------------------------------------
     @property

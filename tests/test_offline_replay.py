@@ -21,7 +21,7 @@ from tensortouch.contracts import paths
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.correction import ForceCorrection
 from tensortouch.runtime.stages.model import load_package
-from tensortouch.runtime.offline import cache_key, match_contacts, network_passes, replay_session
+from tensortouch.runtime.offline import cache_key, network_passes, replay_session
 from tensortouch.contracts.session import load_session
 from tests.conftest import dome_calibration
 from tests.test_correction import gain_model
@@ -49,16 +49,6 @@ def test_no_tool_builds_the_pipeline_by_hand():
     out = subprocess.run(["grep", "-rn", "SensorPipeline(", str(ROOT / "tools"), "--include=*.py"],
                          capture_output=True, text=True, check=False)
     assert out.stdout == "", out.stdout
-
-
-def test_match_contacts_nearest_pairs_and_priority_order():
-    tips = np.array([[0.0, 0, 0], [10.0, 0, 0], [50.0, 0, 0]])
-    cents = np.array([[9.0, 0, 0], [1.0, 0, 0], [0.5, 0, 0]])
-    assert match_contacts(tips, cents, 6.0).tolist() == [2, 0, -1]
-    assert match_contacts(tips, cents).tolist() == [2, 0, 1]
-    # in priority order the far indenter goes first and takes the nearest free cluster
-    assert match_contacts(tips, cents, order=[2, 0]).tolist() == [2, -1, 0]
-    assert match_contacts(tips, cents[:0]).tolist() == [-1, -1, -1]
 
 
 def demo_store(root: Path, effects=EFFECTS, gain=1.1) -> CalibrationStore:

@@ -9,7 +9,8 @@ from tensortouch.tools.train.dataset import DatasetConfig, FieldProjector, selec
 from tensortouch.tools.train.evaluate import frame_errors, has_phantom, summarize
 from tensortouch.tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
 from tensortouch.tools.train.model.data import load_split, read_index
-from tensortouch.tools.train.simreal import SimRealError, apply_ratios, fit_ratios, ft_to_sensor
+from tensortouch.tools.scoring import ft_to_sensor
+from tensortouch.tools.train.simreal import SimRealError, apply_ratios, fit_ratios
 
 
 # ---------------------------------------------------------------- stage 4 shell: sample selection
@@ -89,7 +90,7 @@ def test_fit_ratios_recovers_per_component_scale_and_falls_back():
     rng = np.random.default_rng(3)
     fe = np.column_stack([rng.uniform(0.5, 2, 50), rng.uniform(-0.01, 0.01, 50), -rng.uniform(2, 6, 50)])
     true = np.array([1.1, 0.7, 0.9])
-    sensor = -(fe * true) + rng.normal(0, 0.01, fe.shape)                           # F/T reads −RF
+    sensor = fe * true + rng.normal(0, 0.01, fe.shape)           # the measured force on the gel: RF's sign
     r = fit_ratios(sensor, fe)
     assert abs(r["ratio"][0] - 1.1) < 0.02 and abs(r["ratio"][2] - 0.9) < 0.01
     assert r["component_fitted"] == [True, False, True] and r["ratio"][1] == r["magnitude"]

@@ -223,24 +223,6 @@ def test_label_config_checks_the_sigma_word():
         LabelConfig(sigma="force")
 
 
-def test_measured_at_turns_the_ft_reading_into_the_force_on_the_gel():
-    from types import SimpleNamespace
-
-    from tensortouch.runtime.offline import measured_at
-
-    poses = np.array([[0.0, 3, 0, 0, 0, 1.0, 0, 0, 0], [1.0, 3, 0, 0, 0, 1.0, 0, 0, 0]])
-    wrench = np.array([[0.0, 3, 0, 0, -1.0, 0, 0, 0], [1.0, 3, 0, 0, -3.0, 0, 0, 0]])
-
-    def ses(rot):
-        tables = {"poses": poses, "wrench": wrench}
-        return SimpleNamespace(table=tables.__getitem__, streams={"wrench": {"ft_to_indenter": {"rotation_wxyz": rot}}})
-
-    np.testing.assert_allclose(measured_at(ses([1.0, 0, 0, 0]), np.array([0.5]))[3]["force"], [[0, 0, 2.0]])
-    yaw = Rotation.from_rotvec([0, 0, np.pi / 2]).as_quat(scalar_first=True)     # F/T x axis = indenter y
-    wrench[:, 2:5] = [1.0, 0, 0]
-    np.testing.assert_allclose(measured_at(ses(yaw), np.array([0.5]))[3]["force"], [[0, -1.0, 0]], atol=1e-12)
-
-
 def test_near_times_and_half_period_by_hand():
     from tensortouch.tools.train.labels import half_period, near_times
 

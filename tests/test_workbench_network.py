@@ -17,12 +17,13 @@ import pytest
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.effects import Registry
 from tensortouch.contracts.errors import TensorTouchError
-from tensortouch.runtime.stages.model import FieldModel, load_package
-from tensortouch.runtime.pipeline import SensorPipeline
+from tensortouch.runtime.stages.model import load_package
+from tensortouch.runtime.pipeline import open_pipeline
 from tensortouch.contracts.session import load_session
 from tensortouch.tools.workbench import cli
 from tensortouch.tools.workbench.compare import run_compare
-from tensortouch.tools.workbench.network import NetworkModel, match, replay, temperature_of
+from tensortouch.tools.scoring import match_contacts
+from tensortouch.tools.workbench.network import NetworkModel, replay, temperature_of
 
 pytest.importorskip("tensortouch.tools.twin.record")
 SENSOR = "TWIN-WBT"
@@ -71,9 +72,9 @@ def _correction(store: CalibrationStore) -> str:
 def test_match_pairs_each_indenter_with_the_nearest_cluster_inside_the_gate():
     tips = np.array([[0.0, 0, 0], [10.0, 0, 0], [50.0, 0, 0]])
     cents = np.array([[9.0, 0, 0], [1.0, 0, 0], [0.5, 0, 0]])
-    assert match(tips, cents, 6.0).tolist() == [2, 0, -1]
-    assert match(tips, cents[:0], 6.0).tolist() == [-1, -1, -1]
-    assert match(tips[:1], cents[:1], 6.0).tolist() == [-1]       # 9 mm away: not its contact
+    assert match_contacts(tips, cents, 6.0).tolist() == [2, 0, -1]
+    assert match_contacts(tips, cents[:0], 6.0).tolist() == [-1, -1, -1]
+    assert match_contacts(tips[:1], cents[:1], 6.0).tolist() == [-1]       # 9 mm away: not its contact
 
 
 def test_replay_gives_the_numbers_the_runtime_pipeline_publishes(env):
@@ -87,7 +88,7 @@ def test_replay_gives_the_numbers_the_runtime_pipeline_publishes(env):
     session = load_session(env["session"])
     package = load_package(env["package"])
     temp = temperature_of(session)
-    pipe = SensorPipeline(SENSOR, FieldModel(package, "int8", 1), cal)
+    pipe = open_pipeline(package, cal, sensor_id=SENSOR)
     assert pipe.effects.enabled and pipe.correction.enabled
     from tensortouch.tools.sessions.writer import read_frames
 
@@ -99,7 +100,7 @@ def test_replay_gives_the_numbers_the_runtime_pipeline_publishes(env):
         published += [c.force_n for c in res.clusters]
     model = NetworkModel(package)
     passed = model.frame_pass(session, cal, None)
-    out = replay(passed, cal, temp)
+    out = replay(passed, package, cal, temp)
     assert len(published) == len(out["force"]) > 20
     raw = passed["cl_force_n"]
     assert not np.allclose(raw, published, atol=1e-3)             # effects + correction changed them

@@ -193,7 +193,7 @@ class Hand:
     def __init__(self, cfg: HandConfig, *, session=None, camera_factory=None, can_bus=None,
                  on_result=None, models_root: Path | None = None):
         from ..stages.model import FieldModel, find_package
-        from ..pipeline import SensorPipeline
+        from ..pipeline import open_pipeline
         from .publisher import open_session
 
         self.cfg = cfg
@@ -218,7 +218,7 @@ class Hand:
             model = shared or GatedModel(FieldModel(self.package, cfg.precision, cfg.threads), gate)
             if not shared:
                 self.models.append(model)
-            pipe = SensorPipeline(f.calibration_id, model, cals[f.name])
+            pipe = open_pipeline(self.package, cals[f.name], sensor_id=f.calibration_id, model=model)
             self.fingers[f.name] = Finger(self, f, pipe, slots[f.name])
         self._own_session = session is None
         self.session = session if session is not None else open_session(

@@ -32,21 +32,18 @@ def mae(m: dict) -> float:
 
 
 def corrected_frames(frames: list, cal, corr=None) -> list:
-    """The runtime's correction stage (runtime.stages.correction.ForceCorrection of `cal`, features exactly as
-    SensorPipeline computes them) applied to recorded raw-model clusters; frames are copied."""
+    """The runtime's correction stage (runtime.pipeline.apply_correction with `corr`, default the
+    ForceCorrection of `cal`) applied to recorded raw-model clusters; frames are copied."""
     from dataclasses import replace as dc_replace
 
+    from ...runtime.pipeline import apply_correction
     from ...runtime.stages.correction import ForceCorrection
-    from ...runtime.pipeline import correction_inputs
 
     corr = corr if corr is not None else ForceCorrection.from_calibration(cal)
     out = []
     for t, clusters in frames:
-        if clusters and corr.enabled:
-            forces = np.array([c.force_n for c in clusters])
-            f = corr(forces, *correction_inputs(clusters, cal))
-            clusters = [dc_replace(c, force_n=tuple(map(float, fi)), force_mag_n=float(np.linalg.norm(fi)))
-                        for c, fi in zip(clusters, f)]
+        clusters = [dc_replace(c) for c in clusters]
+        apply_correction(clusters, corr, cal)
         out.append((t, clusters))
     return out
 

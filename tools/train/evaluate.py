@@ -16,13 +16,13 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ...contracts.files import atomic_write_json
-from ...runtime.offline import match_contacts, measured_at
+from ..scoring import contact_config, find_contacts, match_contacts, measured_at
 from .labels import at_fe_frames
 
 log = logging.getLogger(__name__)
@@ -39,7 +39,7 @@ class EvalConfig:
 
 def frame_errors(clusters: list, tips: np.ndarray, forces: np.ndarray, cfg: EvalConfig = EvalConfig()) -> list[dict]:
     """Match one frame's clusters (position_mm, force_n) to the indenters in contact (tips/forces (K, 3)):
-    strongest indenter first, each takes its nearest free cluster (runtime.offline.match_contacts);
+    strongest indenter first, each takes its nearest free cluster (tools.scoring.match_contacts);
     one row per indenter in contact."""
     mags = np.linalg.norm(forces, axis=1)
     order = [k for k in np.argsort(-mags) if mags[k] >= cfg.contact_n]
@@ -131,22 +131,23 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
 # ------------------------------------------------------------------------------------ error budget
 # Where the force error comes from (docs/BENCHMARKS.md "Shipped model", error budget):
 #   label ceiling  — the ground-truth label fields of a session's frames pushed through the runtime's
-#                    contact integration (runtime.contacts, the unit's pixel area) vs the F/T;
+#                    contact stage (tools.scoring.find_contacts, the unit's pixel area) with the scored
+#                    package's own contact settings (manifest runtime.contacts) vs the F/T;
 #   network        — a model's fields vs those labels on train / validation / held-out frames, by force
 #                    level and number of indenters.
 
 FORCE_BINS = (1.5, 3.0, 5.0, 7.0, np.inf)
 
 
-def sample_forces(fields: np.ndarray, calibration, tips: np.ndarray, forces: np.ndarray,
-                  cfg: EvalConfig = EvalConfig(), contacts=None) -> dict:
+def sample_forces(fields: np.ndarray, calibration, tips: np.ndarray, forces: np.ndarray, contacts,
+                  cfg: EvalConfig = EvalConfig()) -> dict:
     """One frame's (15, S, S) physical fields → image-integral force (3,) N and the matched cluster rows
-    (`frame_errors`) against the measured tips/forces (K, 3), with the runtime's contact clustering."""
-    from ...runtime.stages.contacts import ContactConfig, find_clusters, pixel_forces
+    (`frame_errors`) against the measured tips/forces (K, 3), with the runtime's contact stage and the
+    contact settings `contacts` (the scored package's own: tools.scoring.contact_config)."""
+    from ...runtime.stages.contacts import pixel_forces
 
     fp = pixel_forces(fields, calibration.pixel_area)
-    cl = find_clusters(fp, calibration.surface_xyz, calibration.normals, calibration.pixel_area, calibration.mask,
-                       disp=fields[0:3], cfg=contacts or ContactConfig())
+    cl = find_contacts(fields, calibration, contacts)
     return {"integral": fp.reshape(3, -1).sum(1), "rows": frame_errors(cl, tips, forces, cfg)}
 
 
@@ -207,9 +208,11 @@ def session_label_samples(b, spec, stride: int = 1):
     return d, cal
 
 
-def budget_items(b, spec, d: dict, cal, predict=None, bounds: dict | None = None, cfg: EvalConfig = EvalConfig()) -> list[dict]:
+def budget_items(b, spec, d: dict, cal, contacts, predict=None, bounds: dict | None = None,
+                 cfg: EvalConfig = EvalConfig()) -> list[dict]:
     """Per sample of one session: measured force, label forces (after the bounds' clipping when given) and,
-    with `predict` ((n, 6, S, S) uint8 → (n, 15, S, S) physical), the model's forces."""
+    with `predict` ((n, 6, S, S) uint8 → (n, 15, S, S) physical), the model's forces; clusters with the
+    contact settings `contacts`."""
     from ...contracts.session import load_session
     from .fields import denormalize, normalize_global
 
@@ -224,29 +227,57 @@ def budget_items(b, spec, d: dict, cal, predict=None, bounds: dict | None = None
         lab = d["target"][n] if bounds is None else denormalize(normalize_global(d["target"][n], bounds), bounds)
         it = {"frame": int(i), "poke": int(d["poke"][n]), "meas": forces.sum(0),
               "n_contact": int((np.linalg.norm(forces, axis=1) > cfg.contact_n).sum()),
-              "label": sample_forces(lab, cal, tips, forces, cfg)}
+              "label": sample_forces(lab, cal, tips, forces, contacts, cfg)}
         if "at_fe_frame" in d:
             it["at_fe_frame"] = bool(d["at_fe_frame"][n])
         if pred is not None:
-            it["pred"] = sample_forces(pred[n], cal, tips, forces, cfg)
+            it["pred"] = sample_forces(pred[n], cal, tips, forces, contacts, cfg)
         items.append(it)
     return items
 
 
-def run_budget(b, predict=None, stride: int = 1, with_train: bool = True) -> dict:
+def scored_package(b, package: str | None = None):
+    """The model package whose contact settings the budget scores with: `package` (name or folder), else
+    the build's exported package (its export stamp), else None."""
+    from ...contracts.paths import models_dir
+    from ...runtime.stages.model import load_package
+
+    if package:
+        return load_package(Path(package) if "/" in package else models_dir() / package)
+    folder = b.read_stamp("export").get("package")
+    if folder and (Path(folder) / "manifest.json").is_file():
+        return load_package(Path(folder))
+    return None
+
+
+def budget_contacts(package):
+    """The contact stage's settings of the budget: the package's own (tools.scoring.contact_config, what
+    `tensortouch run` uses with it); the runtime defaults, said so, when no package is known."""
+    if package is not None:
+        return contact_config(package)
+    from ...runtime.stages.contacts import ContactConfig
+
+    log.warning("budget: no exported package to take the contact settings from; clustering with the "
+                "runtime defaults (ContactConfig())")
+    return ContactConfig()
+
+
+def run_budget(b, predict=None, stride: int = 1, with_train: bool = True, contacts=None) -> dict:
     """The error budget of a build: label ceiling on the held-out sessions, and (with `predict`) the
-    network's errors on train / validation / held-out samples. Returns nested tables (JSON-able)."""
+    network's errors on train / validation / held-out samples, clustered with `contacts` (default the
+    build's exported package's settings, `budget_contacts`). Returns nested tables (JSON-able)."""
     from .dataset import split_pokes
     from .fields import read_bounds
 
     bounds = read_bounds(b.dataset / "bounds.json") if (b.dataset / "bounds.json").is_file() else None
-    out = {"label_ceiling": {}, "network": {}}
+    contacts = contacts if contacts is not None else budget_contacts(scored_package(b))
+    out = {"label_ceiling": {}, "network": {}, "contacts": asdict(contacts)}
     groups: dict[str, list] = {"train": [], "val": [], "heldout": []}
     specs = [(s, "heldout") for s in b.cfg.heldout] + ([(s, "train") for s in b.cfg.train] if with_train else [])
     for spec, split in specs:
         t0 = time.monotonic()
         d, cal = session_label_samples(b, spec, stride if split == "heldout" else b.cfg.contact_stride)
-        items = budget_items(b, spec, d, cal, predict, bounds)
+        items = budget_items(b, spec, d, cal, contacts, predict, bounds)
         if split == "heldout":
             out["label_ceiling"][spec.name] = budget_table(items, "label")
             groups["heldout"] += items
@@ -301,7 +332,7 @@ def run_budget_command(args) -> int:
 
     b = recipe_build(args.recipe, args.set, args.root)
     res = run_budget(b, _predictor(args.run, args.package, args.precision, b.dataset / "bounds.json"), args.stride,
-                     not args.heldout_only)
+                     not args.heldout_only, budget_contacts(scored_package(b, args.package)))
     atomic_write_json(Path(args.out) if args.out else b.root / "eval" / "budget.json", res)
     print(json.dumps(res, indent=1))
     return 0

@@ -97,7 +97,7 @@ def frame_labels(frame_t: np.ndarray, sources: list, tracks: dict, wrench: np.nd
     sources[p]: .times (J,), .t_init, .slots, .is_keypoint (J,), .result.RF (J, K, 3); tracks: {slot:
     resolve.PoseTrack}; wrench: session wrench table (t, indenter, fx, fy, fz, ...). With
     `lcfg.sigma = "pose+ft"` and `measured` ({slot: (len(frame_t), 3) force on the gel, sensor frame:
-    `runtime.offline.measured_at`'s "force"), σ also fits it to the FE reactions × the stage-4 `ratios`;
+    `tools.scoring.measured_at`'s "force"), σ also fits it to the FE reactions × the stage-4 `ratios`;
     `lcfg.frames = "checked"` (needs `measured`) drops the interpolated frames `checked_frames` rejects."""
     from .resolve import ResolveConfig, frame_sigma, interp_frames
     from .simreal import slot_ratios
@@ -190,7 +190,7 @@ def session_samples_measured(session_dir: Path, calibration, sources: list, rati
                              lcfg: LabelConfig = LabelConfig(), rcfg=None, progress=None) -> dict:
     """All samples of one session from re-solved FE (same output as dataset.session_samples):
     {'input' (n,6,S,S) u8, 'target' (n,15,S,S) f32 physical, 'frame', 'baseline', 'poke' (n,)}."""
-    from ...runtime.offline import measured_at
+    from ..scoring import measured_at
     from ...runtime.stages.preprocess import Preprocessor
     from ...contracts.session import load_session
     from .dataset import FieldProjector, crops, select_frames, surface_view

@@ -3,14 +3,15 @@
 The FE runs the nominal gel; the real (or twin) sensor's gel is stiffer or softer, so the measured
 force differs from the FE reaction by a ratio. Per session, per indenter and per force component,
 
-    r_i = −F_sensor,i / F_FE,i          (F_sensor: F/T reading rotated into the sensor frame;
-                                          F_FE: FE reaction RF, the force the indenter applies)
+    r_i = F_meas,i / F_FE,i             (F_meas: the measured force the indenter applies to the gel,
+                                          tools.scoring.measured_at; F_FE: FE reaction RF, the
+                                          force the indenter applies)
 
-fitted by least squares over the keypoint frames in contact (Σ −F_s·F_FE / Σ F_FE²), and applied to
+fitted by least squares over the keypoint frames in contact (Σ F_m·F_FE / Σ F_FE²), and applied to
 the contact normal/shear force of the nodes each indenter touches. A component whose FE force is too
 small to define a ratio (e.g. x of a straight press) takes the indenter's magnitude ratio.
 
-Pure cores: `ft_to_sensor`, `fit_ratios`, `slot_ratios`, `apply_ratios`. Shell: `session_ratios`.
+Pure cores: `fit_ratios`, `slot_ratios`, `apply_ratios`. Shell: `session_ratios`.
 """
 from __future__ import annotations
 
@@ -19,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...contracts.errors import TensorTouchError
-from ...runtime.offline import ft_to_sensor
+from ...contracts.errors import SessionError, TensorTouchError
+from ..scoring import measured_at
 
 log = logging.getLogger(__name__)
 
@@ -36,12 +37,13 @@ class SimRealConfig:
     ratio_range: tuple[float, float] = (0.5, 2.0)   # physically plausible stiffness ratios
 
 
-def fit_ratios(f_sensor: np.ndarray, rf_fe: np.ndarray, cfg: SimRealConfig = SimRealConfig()) -> dict:
-    """Per-component ratios (3,) and the magnitude ratio from matched samples (T, 3) of one indenter."""
-    fs = -np.asarray(f_sensor, float).reshape(-1, 3)          # = the force the indenter applies (RF sign)
+def fit_ratios(measured: np.ndarray, rf_fe: np.ndarray, cfg: SimRealConfig = SimRealConfig()) -> dict:
+    """Per-component ratios (3,) and the magnitude ratio from matched samples (T, 3) of one indenter:
+    `measured` the force it applies to the gel (tools.scoring.measured_at's sign, = RF's sign)."""
+    fs = np.asarray(measured, float).reshape(-1, 3)
     fe = np.asarray(rf_fe, float).reshape(-1, 3)
     if fs.shape != fe.shape:
-        raise SimRealError(f"fit_ratios: sensor {fs.shape} and FE {fe.shape} samples differ")
+        raise SimRealError(f"fit_ratios: measured {fs.shape} and FE {fe.shape} samples differ")
     sel = np.linalg.norm(fe, axis=1) >= cfg.min_force_n
     if sel.sum() == 0:
         raise SimRealError(f"fit_ratios: no sample with FE force ≥ {cfg.min_force_n} N")
@@ -81,20 +83,15 @@ def session_ratios(session, plan, slot_of_poke, rf_fe_per_poke, cfg: SimRealConf
 
     session: contracts.session.Session; plan: list of twin Poke (keypoint times); slot_of_poke[p][k]:
     the session indenter id of the poke's k-th indenter; rf_fe_per_poke[p]: (J, K, 3) FE reactions at the
-    poke's keypoints. The F/T reading and mocap pose are interpolated at each keypoint time."""
-    wrench, poses = session.table("wrench"), session.table("poses")
-    rot = session.streams["wrench"]["ft_to_indenter"]["rotation_wxyz"]
+    poke's keypoints. The measured force at each keypoint time is tools.scoring.measured_at's."""
     per_slot: dict[int, tuple[list, list]] = {}
     for poke, slots, rf in zip(plan, slot_of_poke, rf_fe_per_poke):
         t = np.asarray(poke.times, float)
         for k, slot in enumerate(slots):
-            w = wrench[wrench[:, 1] == slot]
-            p = poses[poses[:, 1] == slot]
-            if len(w) < 2 or len(p) < 2:
+            try:
+                fs = measured_at(session, t, indenters=[slot])[int(slot)]["force"]
+            except SessionError:      # an indenter without enough wrench/pose samples
                 continue
-            f_ft = np.stack([np.interp(t, w[:, 0], w[:, 2 + c]) for c in range(3)], 1)
-            near = np.clip(np.searchsorted(p[:, 0], t), 0, len(p) - 1)
-            fs = ft_to_sensor(f_ft, p[near, 5:9], rot)
             a, b = per_slot.setdefault(int(slot), ([], []))
             a.append(fs)
             b.append(np.asarray(rf)[:, k])

@@ -99,7 +99,8 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     """Per grid value: rest frames with a cluster core, contact frames with one (counts); per weak
     threshold the largest component total on a rest frame; the light-contact frames' cores and totals."""
     from ...runtime.stages.contacts import pixel_forces
-    from ...runtime.offline import measured_at, replay_session
+    from ...runtime.offline import replay_session
+    from ..scoring import measured_at
     from ...contracts.session import load_session
 
     ses = load_session(session_dir)
@@ -273,12 +274,12 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
     rule, and the rest frames (`rest_frames`) with a core. Same frames and fields for both."""
     from ...runtime.stages.contacts import light_cores, pixel_forces
     from ...runtime.stages.model import load_package
-    from ...runtime.offline import measured_at, replay_session
-    from ...runtime.pipeline import PipelineConfig
+    from ...runtime.offline import replay_session
+    from ..scoring import contact_config, measured_at
     from ...contracts.session import load_session
 
     package = load_package(package_dir)
-    cc = PipelineConfig.for_package(package).contacts
+    cc = contact_config(package)
     fm, strong, rule, at_rest = [], [], [], []
     for path, cal in sessions:
         ses = load_session(path)

@@ -9,15 +9,16 @@ Two stages, so that changing effects or the correction never re-runs the network
    force, ...). Cached by the runtime under `cache/workbench/net/<key>.npz` with its one key (frames'
    content hash, model hash + precision, calibration geometry, pipeline configuration, runtime
    version). A new calibration version that only adds an effect or a correction keeps the key.
-2. **Replay** (cheap, every compare): the cached clusters frame by frame through the runtime's last
-   steps (`runtime.pipeline.finish_clusters`: the sensor's enabled effects with per-contact state and
-   the session's temperature as the sensor's thermistor reading, then the correction) -- the numbers
-   the runtime would publish.
+2. **Replay** (cheap, every compare): the kept passes through the runtime's own finish
+   (`runtime.offline.finish_passes`: `SensorPipeline.finish` of the pipeline `open_pipeline` builds
+   with the calibration -- the sensor's enabled effects with per-contact state and the session's
+   temperature as the sensor's thermistor reading, then the correction, with the baseline's
+   force-band check) -- the numbers the runtime would publish.
 
 Line-up (`build_table`): one row per (frame, indenter). The measurements (F/T in the sensor frame,
-mocap geometry, temperature, brightness) come from the session's mocap sample table (samples.py),
-interpolated to the frame times. Each indenter gets the cluster nearest its mocap tip (greedy,
-within `match_mm`; each cluster used once). For matched rows the *effect covariates are the
+mocap geometry, temperature, brightness) come from the session's mocap sample table (samples.py,
+measured through tools/scoring.py), interpolated to the frame times. Each indenter gets the cluster
+nearest its mocap tip (tools.scoring.match_contacts: greedy, within `match_mm`; each cluster used once). For matched rows the *effect covariates are the
 runtime's* (depth, θ, φ, normal, rim distance, max depth and track id from the cluster, as
 `EffectStage` computes them), so what diagnosis fits is what the runtime will apply. Position
 residual = cluster centroid − mocap tip (mm). Sign: the table holds the load of the gel on the
@@ -35,13 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.errors import SessionError, TensorTouchError
-from ...runtime.offline import (
-    cache_key,
-    match_contacts,
-    network_passes,
-    pack_clusters,
-    unpack_clusters,
-)
+from ...runtime.offline import cache_key, network_passes, pack_clusters, unpack_clusters
+from ..scoring import match_contacts
 from .table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
@@ -73,6 +69,7 @@ def pack_passes(passes: list) -> dict[str, np.ndarray]:
     """Network passes (runtime.pipeline.NetworkPass) -> flat arrays (runtime.offline.pack_clusters
     plus the frame index, time and state; "no_baseline" before the baseline exists)."""
     out = pack_clusters([p.clusters for p in passes])
+    out["passes"] = passes      # kept in memory for the runtime's finish (not stored)
     out.update(frame_index=np.arange(len(passes), dtype=np.int64), frame_t=np.array([p.t for p in passes], dtype=np.float64),
                frame_state=np.array(["no_baseline" if p.state == "STARTUP" else p.state for p in passes], dtype="U16"))
     n = len(passes)
@@ -102,23 +99,29 @@ def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path 
     seconds = 0.0 if cached else time.perf_counter() - t0
     if not cached:
         log.info("network pass of %s: %d frames in %.1f s", session.path, len(passes), seconds)
-    return pack_passes(passes), {"key": key, "cached": cached, "seconds": seconds}
+    return dict(pack_passes(passes), precision=cfg.precision), {"key": key, "cached": cached, "seconds": seconds}
 
 
-# ----- stage 2: replay (the runtime's effect stage + correction over cached clusters) ----------
-def replay(passed: dict, cal, temperature=None, correction=None, covariates: bool = False) -> dict:
-    """Cached clusters through the runtime's last steps (runtime.pipeline.finish_clusters: EffectStage(cal),
-    then the correction), frame by frame.
+# ----- stage 2: replay (the runtime's finish over the kept passes) --------------------------
+def replay(passed: dict, package, cal, temperature=None, correction=None, covariates: bool = False) -> dict:
+    """The kept passes through the runtime's finish (runtime.offline.finish_passes: SensorPipeline.finish
+    of the pipeline `tensortouch run` builds with `cal` — its enabled effects, then `correction` or the
+    calibration's — with `temperature(t)` as the sensor's thermistor reading), frame by frame.
 
-    Returns per cluster row: "force" (N,3) as published (force on the gel, N), "flags" per frame;
-    with covariates=True also the runtime's effect covariates per cluster row, the correction inputs
-    (uv, θ/φ) and the raw force."""
-    from ...runtime.stages.correction import ForceCorrection
+    Returns per cluster row: "force" (N,3) as published (force on the gel, N), "flags" per frame and
+    "stale_at": the time from which the finish feeds the baseline another force band than the raw pass
+    saw (None: every number is what the runtime publishes); with covariates=True also the runtime's
+    effect covariates per cluster row, the correction inputs (uv, θ/φ) and the raw force."""
+    from ...runtime.offline import finish_passes
+    from ...runtime.pipeline import correction_inputs, open_pipeline
     from ...runtime.stages.effects.stage import EffectStage
-    from ...runtime.pipeline import correction_inputs, finish_clusters
 
-    stage = EffectStage(cal)
-    corr = correction if correction is not None else ForceCorrection.from_calibration(cal)
+    pipe = open_pipeline(package, cal, precision=passed.get("precision", "int8"), correction=correction)
+    results, stale = finish_passes(passed["passes"], pipe, temperature)
+    if stale is not None:
+        log.warning("%s: with calibration %s the runtime's baseline would read other forces from %.3f s on than "
+                    "the raw network pass; the deployed numbers from there are approximate", cal.sensor_id,
+                    cal.version, stale)
     n_rows = len(passed["cl_frame"])
     force = np.zeros((n_rows, 3))
     cov_rows: dict[str, np.ndarray] = {}
@@ -127,24 +130,24 @@ def replay(passed: dict, cal, temperature=None, correction=None, covariates: boo
         cov_rows.update(normal=np.full((n_rows, 3), np.nan), uv=np.zeros((n_rows, 2)), theta_phi=np.zeros((n_rows, 2)))
         probe = EffectStage(cal)
     flags = []
-    for j, t in enumerate(passed["frame_t"]):
-        if passed["frame_state"][j] == "no_baseline":   # the runtime runs no stage before the baseline
-            flags.append([])
-            continue
-        clusters = unpack_frame(passed, j)
+    for j, (t, res) in enumerate(zip(passed["frame_t"], results)):
         rows = np.arange(passed["_starts"][j], passed["_starts"][j + 1])
-        if temperature is not None:
-            stage.temperature = float(temperature(t))
-        if covariates and clusters:
-            cov = probe.frame_covariates(clusters, float(t))
-            for k in RUNTIME_COVARIATES + ("normal",):
-                cov_rows[k][rows] = cov[k]
-            cov_rows["uv"][rows], cov_rows["theta_phi"][rows] = correction_inputs(clusters, cal)
-        elif covariates:
-            probe.frame_covariates([], float(t))
-        flags.append(finish_clusters(clusters, float(t), stage, corr, cal)[0])
-        force[rows] = [c.force_n for c in clusters] if clusters else np.zeros((0, 3))
-    return {"force": force, "flags": flags, **cov_rows}
+        flags.append(list(res.flags))
+        if passed["frame_state"][j] == "no_baseline":   # the runtime runs no stage before the baseline
+            continue
+        if covariates:
+            clusters = unpack_frame(passed, j)
+            if temperature is not None:
+                probe.temperature = float(temperature(t))
+            if clusters:
+                cov = probe.frame_covariates(clusters, float(t))
+                for k in RUNTIME_COVARIATES + ("normal",):
+                    cov_rows[k][rows] = cov[k]
+                cov_rows["uv"][rows], cov_rows["theta_phi"][rows] = correction_inputs(clusters, cal)
+            else:
+                probe.frame_covariates([], float(t))
+        force[rows] = [c.force_n for c in res.clusters] if res.clusters else np.zeros((0, 3))
+    return {"force": force, "flags": flags, "stale_at": stale, **cov_rows}
 
 
 # ----- line-up -------------------------------------------------------------------------------
@@ -153,12 +156,6 @@ def _interp_rows(t_src: np.ndarray, t_dst: np.ndarray, a: np.ndarray) -> np.ndar
     flat = a.reshape(len(a), -1)
     out = np.column_stack([np.interp(t_dst, t_src, flat[:, j]) for j in range(flat.shape[1])])
     return out.reshape((len(t_dst),) + a.shape[1:])
-
-
-def match(tips: np.ndarray, centroids: np.ndarray, max_mm: float) -> np.ndarray:
-    """Greedy nearest pairs tip k <-> cluster c within max_mm, each used once (runtime.offline.match_contacts);
-    (K,) cluster index or -1."""
-    return match_contacts(tips, centroids, max_mm)
 
 
 def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -> SampleTable:
@@ -207,7 +204,7 @@ def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -
     for j in np.unique(frame):
         rows = np.flatnonzero(frame == j)
         cl = np.arange(starts[j], starts[j + 1])
-        got = match(tip[rows], passed["cl_position_mm"][cl], cfg.match_mm)
+        got = match_contacts(tip[rows], passed["cl_position_mm"][cl], cfg.match_mm)
         cl_row[rows[got >= 0]] = cl[got[got >= 0]]
     hit = cl_row >= 0
     raw = np.zeros_like(meas)
@@ -236,11 +233,14 @@ def lineup(base: SampleTable, passed: dict, runtime: dict, cfg: NetworkConfig) -
 
 # ----- the ForceModel -----------------------------------------------------------------------
 def temperature_of(session):
-    """The session's temperature stream as a function of time (the sensor's thermistor), or None."""
-    if not session.has("temperature"):
+    """The session's temperature stream as the runtime reads it (runtime TemperatureTrack: the sensor's
+    thermistor as a function of time), or None; from the loaded session's table (it may be changed
+    in memory)."""
+    from ...runtime.stages.temperature import TemperatureTrack
+
+    if not session.has("temperature") or not len(tt := session.table("temperature")):
         return None
-    tt = session.table("temperature")
-    return lambda t: float(np.interp(t, tt[:, 0], tt[:, 1]))
+    return TemperatureTrack(tt[:, 0], tt[:, 1])
 
 
 class NetworkModel:
@@ -274,7 +274,7 @@ class NetworkModel:
         path = folder / f"net{LINEUP_VERSION}-{self.info['key']}-{self.fingerprint()}.npz" if folder else None
         if path is not None and path.is_file():
             return SampleTable.load(path)
-        runtime = replay(passed, cal, temperature_of(session), covariates=True)
+        runtime = replay(passed, self.package, cal, temperature_of(session), covariates=True)
         table = lineup(base, passed, runtime, self.cfg)
         if path is not None:
             table.save(path)
@@ -283,9 +283,9 @@ class NetworkModel:
     def deployed(self, session, table: SampleTable, cal) -> tuple[np.ndarray, dict]:
         """What the runtime publishes for each row (table sign), and the replay's status flags."""
         passed = self._passes[str(session.path)]
-        out = replay(passed, cal, temperature_of(session))
+        out = replay(passed, self.package, cal, temperature_of(session))
         rows = table.cols["cluster_row"].astype(int)
         pred = np.zeros_like(table.meas)
         pred[rows >= 0] = -out["force"][rows[rows >= 0]]
         flags = sorted({f for fl in out["flags"] for f in fl})
-        return pred, {"flags": flags}
+        return pred, {"flags": flags, "stale_at": out["stale_at"]}

@@ -4,11 +4,14 @@ Reads only the measured streams of a session (wrench, poses, temperature, frames
 sensor's calibration (gel geometry, gel circle in the image). Never reads `truth/`, the
 manifest's provenance or any effect list.
 
-Per indenter (one F/T per indentation module, docs/session.md):
+Per indenter (one F/T per indentation module, docs/session.md), measured through the tools' one
+scoring path (tools.scoring.measured_at, with its explicit filters):
   force    F/T reading averaged over `average` consecutive samples (less noise), rotated into the
            sensor frame with the indenter pose and the F/T->indenter transform of the manifest.
-  pose     mocap tip position low-pass filtered (zero-phase Butterworth) and interpolated to
-           the force samples; orientation by spherical interpolation.
+           The table's sign is the F/T's (the load of the gel on the indenter): meas = −measured_at's
+           "force" (the force the indenter applies to the gel, the sign the runtime publishes).
+  pose     mocap tip position low-pass filtered (`pose_cutoff_hz`, zero-phase Butterworth) and
+           interpolated to the force samples; orientation by spherical interpolation.
   geometry contact point = tip projected on the rest cap sphere; depth, normal, θ/φ (about the
            cap sphere centre, as the calibration tables), rim distance, slip since touch-down,
            depth rate, largest earlier depth; the tip's velocity and acceleration per axis
@@ -22,11 +25,9 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import butter, filtfilt
-from scipy.spatial.transform import Rotation, Slerp
-
 from ...contracts.errors import CalibrationError, SessionError
 from ...contracts.session import Session
+from ..scoring import measured_at
 from .table import SampleTable, nearest_index
 
 log = logging.getLogger(__name__)
@@ -79,26 +80,6 @@ class CapGeometry:
                 "point": c + self.radius * n}
 
 
-def _lowpass(x: np.ndarray, fs: float, fc: float) -> np.ndarray:
-    if len(x) < 16 or fc >= fs / 2:
-        return x
-    b, a = butter(2, fc / (fs / 2))
-    return filtfilt(b, a, x, axis=0)
-
-
-def _window_mean(a: np.ndarray, n: int) -> np.ndarray:
-    m = (len(a) // n) * n
-    return a[:m].reshape((m // n, n) + a.shape[1:]).mean(axis=1)
-
-
-def _ft_to_indenter(session: Session) -> np.ndarray:
-    info = session.streams.get("wrench", {})
-    if info.get("frame", "ft") == "sensor":
-        return None
-    q = (info.get("ft_to_indenter") or {}).get("rotation_wxyz", [1.0, 0.0, 0.0, 0.0])
-    return Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
-
-
 def _episodes_slip(t_depth: np.ndarray, tip: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Tangential travel (vector, N x 3) of the tip since the current contact began."""
     s = np.zeros_like(tip)
@@ -123,17 +104,9 @@ def indenter_series(session: Session, k: int, geom: CapGeometry, cfg: SampleConf
     p = ps[ps[:, 1] == k]
     if len(w) < cfg.average * 4 or len(p) < 4:
         raise SessionError(f"{session.path}: indenter {k} has too few wrench/pose samples")
-    t = _window_mean(w[:, 0], cfg.average)
-    f_ft = _window_mean(w[:, 2:5], cfg.average)
-    fs = 1.0 / max(float(np.median(np.diff(p[:, 0]))), 1e-9)
-    pos = _lowpass(p[:, 2:5], fs, cfg.pose_cutoff_hz)
-    t_in = np.clip(t, p[0, 0], p[-1, 0])
-    tip = np.column_stack([np.interp(t_in, p[:, 0], pos[:, j]) for j in range(3)])
-    quat = p[:, [6, 7, 8, 5]]  # x, y, z, w
-    rot = Slerp(p[:, 0], Rotation.from_quat(quat))(t_in).as_matrix()
-    R_fi = _ft_to_indenter(session)
-    R_ft = rot if R_fi is None else rot @ R_fi
-    meas = np.einsum("nij,nj->ni", R_ft, f_ft)
+    m = measured_at(session, None, indenters=[k], average=cfg.average, pose_cutoff_hz=cfg.pose_cutoff_hz)[k]
+    t, tip, R_ft = m["t"], m["tip"], m["rotation"]
+    meas = -m["force"]                  # the table's sign: what the F/T reads (load on the indenter)
     g = geom.contact(tip)
     slip_vec = _episodes_slip(g["depth"], tip, g["normal"])
     return {"t": t, "meas": meas, "tip": tip, "ft_rotation": R_ft, "slip_vec": slip_vec, **g}
