@@ -173,7 +173,7 @@ def test_budget_table_bins_label_errors_by_force_and_indenter_count():
         tips = np.array([[u * 0.3, v * 0.3, 0.0] for u, v in centres] + [[0, 0, 0]] * (2 - k))
         meas = np.array([[0, 0, -fz]] * k + [[0, 0, 0]] * (2 - k), float)
         lab = field(centres, [fz * 0.9] * k)                  # the label carries 90 % of the force
-        items.append({"meas": meas.sum(0), "n_contact": k, "label": sample_forces(lab, cal, tips, meas)})
+        items.append({"meas": meas.sum(0), "n_contact": k, "label": sample_forces(lab, cal, tips, meas, ContactConfig())})
     t = budget_table(items)
     assert t["all"]["n"] == 3 and t["all"]["detected_fraction"] == 1.0
     assert t["F 1.5-3 N"]["force_mag_bias_n"] == pytest.approx(-0.2, abs=1e-6)

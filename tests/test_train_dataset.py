@@ -1,7 +1,6 @@
 """Stages 3, 4 (dataset shell), 5 and 8 cores of `tensortouch train all` (tools/train/*)."""
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from tensortouch.contracts.fields import CHANNELS
 from tensortouch.tools.train.correspondence import image_change_centroid, project_to_cap, tables_from_theta_phi
@@ -9,7 +8,6 @@ from tensortouch.tools.train.dataset import DatasetConfig, FieldProjector, selec
 from tensortouch.tools.train.evaluate import frame_errors, has_phantom, summarize
 from tensortouch.tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
 from tensortouch.tools.train.model.data import load_split, read_index
-from tensortouch.tools.scoring import ft_to_sensor
 from tensortouch.tools.train.simreal import SimRealError, apply_ratios, fit_ratios
 
 
@@ -77,14 +75,6 @@ def test_write_dataset_contract(tmp_path):
 
 
 # ---------------------------------------------------------------- stage 5: sim-to-real ratios
-
-def test_ft_to_sensor_rotations():
-    f_ft = np.array([[1.0, 0.0, 0.0]])
-    ft_rot = Rotation.from_euler("z", 90, degrees=True).as_quat()[[3, 0, 1, 2]]   # wxyz
-    pose = Rotation.from_euler("x", 90, degrees=True).as_quat()[[3, 0, 1, 2]]
-    got = ft_to_sensor(f_ft, pose[None], ft_rot)
-    np.testing.assert_allclose(got, [[0.0, 0.0, 1.0]], atol=1e-12)                # x → y (ft→ind) → z (ind→sensor)
-
 
 def test_fit_ratios_recovers_per_component_scale_and_falls_back():
     rng = np.random.default_rng(3)
