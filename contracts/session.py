@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SessionError
+from .files import atomic_write, atomic_write_json
+
 from .units import HOUSE, accepted, to_house
 
 SCHEMA = "tensortouch.session"
@@ -166,11 +168,11 @@ def write_table(path: Path, columns: list[str], data: np.ndarray) -> None:
     """Write a CSV stream atomically (write to a temp file, then rename)."""
     path = Path(path)
     data = np.asarray(data, dtype=np.float64).reshape(-1, len(columns))
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w", newline="") as fh:
-        fh.write(",".join(columns) + "\n")
+    def write(fh):
+        fh.write((",".join(columns) + "\n").encode())
         np.savetxt(fh, data, delimiter=",", fmt=CSV_FORMAT)
-    tmp.replace(path)
+
+    atomic_write(path, write, mkdir=False)
 
 
 def as_written(data: np.ndarray) -> np.ndarray:
@@ -368,9 +370,7 @@ def write_manifest(path: str | Path, manifest: dict) -> None:
     """Validate and atomically write session.json."""
     path = Path(path)
     validate_manifest(manifest, str(path / "session.json"))
-    tmp = path / "session.json.tmp"
-    tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
-    tmp.replace(path / "session.json")
+    atomic_write_json(path / "session.json", manifest, indent=2, sort_keys=True, mkdir=False)
 
 
 def new_manifest(sensor_id: str, streams: dict, provenance: dict | None = None, clock: dict | None = None) -> dict:

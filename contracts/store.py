@@ -26,6 +26,8 @@ import numpy as np
 
 from . import paths
 from .errors import CalibrationError
+from .files import atomic_write
+
 
 log = logging.getLogger(__name__)
 
@@ -484,10 +486,4 @@ class CalibrationStore:
         """Replace CURRENT atomically (temp file fsynced, renamed, sensor folder fsynced). Call under the lock."""
         sensor_dir = self._sensor_dir(sensor_id)
         pointer = sensor_dir / "CURRENT"
-        tmp = pointer.with_name(f".CURRENT.{os.getpid()}.tmp")
-        with open(tmp, "w") as fh:
-            fh.write(version + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, pointer)
-        _fsync_dir(sensor_dir)
+        atomic_write(pointer, (version + "\n").encode(), mkdir=False)

@@ -33,7 +33,8 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
-from ...contracts.session import STREAM_COLUMNS, load_session, rewrite_in_units, write_table
+from ...contracts.session import STREAM_COLUMNS, load_session, rewrite_in_units, write_manifest, write_table
+from ...contracts.files import finish_partial
 
 
 def copy_without_truth(src: Path, dst: Path) -> Path:
@@ -63,7 +64,7 @@ def _dim_video(dst: Path, c: float) -> None:
     info = manifest["streams"]["frames"]
     times = np.loadtxt(dst / info["file"], delimiter=",", skiprows=1, ndmin=2)[:, 0]
     src = dst / info["video"]
-    tmp = src.with_name("frames.tmp.avi")
+    tmp = src.with_name(".tmp-" + src.name)      # the name keeps the extension OpenCV picks the container by
     cap = cv2.VideoCapture(str(src))
     out = None
     for t in times:
@@ -77,9 +78,9 @@ def _dim_video(dst: Path, c: float) -> None:
         out.write(np.clip(img.astype(np.float32) * (1.0 + c * (t - times[0])), 0, 255).astype(np.uint8))
     cap.release()
     out.release()
-    tmp.replace(src)
+    finish_partial(tmp, src)
     info["bytes"] = src.stat().st_size
-    (dst / "session.json").write_text(json.dumps(manifest, indent=2))
+    write_manifest(dst, manifest)
 
 
 def alter_session(src: Path, dst: Path, kind: str, params: dict) -> Path:

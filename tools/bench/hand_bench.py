@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ...contracts.files import atomic_write
+
 log = logging.getLogger(__name__)
 
 MODES = {  # name: (share_model, inference_workers or None = --workers)
@@ -280,13 +282,10 @@ def plot_soak(rows: list[dict], png: Path, title: str = "") -> Path:
     if title:
         ax[0].set_title(title, fontsize=9)
     fig.tight_layout()
-    png = Path(png)
-    png.parent.mkdir(parents=True, exist_ok=True)
-    tmp = png.with_name(".tmp-" + png.name)
-    fig.savefig(tmp, format="png")
-    plt.close(fig)
-    tmp.replace(png)
-    return png
+    try:
+        return atomic_write(png, lambda fh: fig.savefig(fh, format="png"))
+    finally:
+        plt.close(fig)
 
 
 def _print_soak(s: dict) -> None:

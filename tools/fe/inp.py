@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from pathlib import Path
 
 import numpy as np
+
+from ...contracts.files import atomic_write_text
 
 from .indenters import rotmat
 from .scenario import Indenter, Scenario
@@ -91,15 +92,7 @@ def export_inp(scenario: Scenario, path, mesh=None, dialect: str = "ccx", bulk: 
 
 
 def _write(path, lines) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name("." + path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write("\n".join(lines) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    tmp.replace(path)
-    return path
+    return atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def _gel_faces(gm) -> dict[int, list[int]]:

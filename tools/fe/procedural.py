@@ -12,12 +12,13 @@ print/Abaqus frame (base at z = 0, tip at +44 mm) is obtained by a 180 deg rotat
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
 
 import numpy as np
+
+from ...contracts.files import atomic_write, atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -215,16 +216,12 @@ def generate_set(out_dir=None, seed: int = 0, count: int = 12) -> list[Path]:
         rng = np.random.default_rng([seed, k])
         mesh, info = make_indenter(kind, rng)
         path = out / f"indenter_{k:02d}_{kind}.stl"
-        tmp = path.with_name("." + path.name + ".tmp")
-        mesh.export(tmp, file_type="stl")
-        tmp.replace(path)
+        atomic_write(path, lambda fh, mesh=mesh: mesh.export(file_obj=fh, file_type="stl"))
         paths.append(path)
         manifest.append({"file": path.name, "seed": [seed, k], **info})
         log.info("indenter %s: %s", path.name, info)
-    tmp = out / ".manifest.json.tmp"
-    tmp.write_text(json.dumps({"frame": "FE indenter frame: tip at origin, body z >= 0",
-                               "indenters": manifest}, indent=2))
-    tmp.replace(out / "manifest.json")
+    atomic_write_json(out / "manifest.json", {"frame": "FE indenter frame: tip at origin, body z >= 0",
+                                              "indenters": manifest}, indent=2)
     return paths
 
 

@@ -28,12 +28,13 @@ from __future__ import annotations
 import io
 import json
 import logging
-import os
 import zipfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+
+from ...contracts.files import atomic_write
 
 from .errors import FEResultError
 
@@ -122,16 +123,9 @@ def save_result(result: FEResult, path) -> Path:
     for f in fields(FEResult):
         value = getattr(result, f.name)
         arrays[f.name] = np.array(value) if isinstance(value, str) else np.asarray(value)
-    path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(buf.getvalue())
-        fh.flush()
-        os.fsync(fh.fileno())
-    tmp.replace(path)
-    return path
+    return atomic_write(path, buf.getvalue())
 
 
 def load_result(path) -> FEResult:

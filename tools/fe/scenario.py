@@ -24,6 +24,8 @@ import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from ...contracts.files import atomic_write_text
+
 from .errors import ScenarioError
 
 log = logging.getLogger(__name__)
@@ -332,12 +334,7 @@ def load_scenario(path) -> Scenario:
 
 def save_scenario(scenario: Scenario, path) -> Path:
     """Write a scenario as JSON (atomic: temp file + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(scenario.to_json())
-    tmp.replace(path)
-    return path
+    return atomic_write_text(path, scenario.to_json())
 
 
 def press_keypoints(depth: float, n: int = 5, slide: tuple[float, float] = (0.0, 0.0)) -> list[Keypoint]:

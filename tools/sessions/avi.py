@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 
 from ...contracts.errors import SessionError
+from ...contracts.files import atomic_write
+
 
 
 def _chunk(cid: bytes, data: bytes) -> bytes:
@@ -56,8 +58,5 @@ def write_mjpg_avi(path: Path, frames, fps: float, quality: int = 80) -> int:
         offset += len(c)
     movi = _list(b"movi", b"".join(movi_body))
     body = b"AVI " + hdrl + movi + _chunk(b"idx1", b"".join(index))
-    tmp = path.with_name(".tmp-" + path.name)
-    with open(tmp, "wb") as fh:
-        fh.write(b"RIFF" + struct.pack("<I", len(body)) + body)
-    tmp.replace(path)
+    atomic_write(path, b"RIFF" + struct.pack("<I", len(body)) + body)
     return path.stat().st_size

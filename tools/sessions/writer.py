@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from ...contracts.errors import SessionError
-from ...contracts.files import finish_partial
+from ...contracts.files import atomic_write, finish_partial
 from ...contracts.session import STREAM_COLUMNS, STREAM_FILES, new_manifest, write_manifest, write_table
 
 log = logging.getLogger(__name__)
@@ -34,9 +34,7 @@ def write_png(path: Path, image: np.ndarray, compression: int = 1) -> None:
     ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
     if not ok:
         raise SessionError(f"{path}: PNG encoding failed")
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(buf.tobytes())
-    tmp.replace(path)
+    atomic_write(path, buf.tobytes(), fsync=False, mkdir=False)   # one of many frames: the session's finish commits
 
 
 def encode_video(staging: Path, out: Path, fourcc: str, fps: float, count: int, quality: int = 90) -> int:
@@ -128,10 +126,8 @@ class SessionWriter:
         if self.frame_format == "png":
             write_png(path, image)
             return
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as fh:
-            np.save(fh, np.ascontiguousarray(image, dtype=np.uint8), allow_pickle=False)
-        tmp.replace(path)
+        atomic_write(path, lambda fh: np.save(fh, np.ascontiguousarray(image, dtype=np.uint8), allow_pickle=False),
+                     fsync=False, mkdir=False)
 
     def finish_frames(self, t: np.ndarray, fps: float, quality: int = 90, **info) -> None:
         t = np.asarray(t, dtype=np.float64)

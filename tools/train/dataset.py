@@ -23,6 +23,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ...contracts.fields import N_CHANNELS
+from ...contracts.files import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -216,9 +217,7 @@ def write_dataset(root: Path, parts: list[dict], size: int, source: str, pixel_a
     bounds = compute_bounds(t for p in parts for t in p["target"])
     write_bounds(root / "bounds.json", bounds)
     if pixel_area is not None:
-        tmp = root / "pixel_area.tmp.npy"
-        np.save(tmp, np.asarray(pixel_area, np.float32))
-        tmp.replace(root / "pixel_area.npy")
+        atomic_write(root / "pixel_area.npy", lambda fh: np.save(fh, np.asarray(pixel_area, np.float32)))
     entries, i = [], 0
     for p in parts:
         for inp, tgt, val in zip(p["input"], p["target"], p["val"]):

@@ -22,7 +22,6 @@ a fine-tune starts from there. Pure core: `dequantized`, `id_positions`, `assemb
 from __future__ import annotations
 
 import copy
-import json
 import logging
 import tempfile
 from pathlib import Path
@@ -31,6 +30,7 @@ import numpy as np
 
 from ...contracts.store import sha256_file
 from ...contracts.errors import ModelPackageError
+from ...contracts.files import atomic_write, atomic_write_json
 from .package import FP32, INT8
 
 log = logging.getLogger(__name__)
@@ -178,10 +178,8 @@ def write_init(folder: str | Path, out: str | Path, precision: str = "best") -> 
     state, info = state_dict_from_package(folder, precision)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / ".best.pt.tmp"
-    torch.save(state, tmp)
-    tmp.replace(out / "best.pt")
+    atomic_write(out / "best.pt", lambda fh: torch.save(state, fh))
     write_bounds(out / "bounds.json", load_any_bounds(Path(folder) / "manifest.json"))
-    (out / "from_package.json").write_text(json.dumps(info, indent=1))
+    atomic_write_json(out / "from_package.json", info)
     log.info("weights of %s (%s) → %s", info["package"], info["file"], out / "best.pt")
     return out / "best.pt"

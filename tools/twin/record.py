@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.errors import SessionError
+from ...contracts.files import atomic_write_json
 from ...contracts.session import write_table
 from ..sessions.writer import SessionWriter
 from .camera import NoiseConfig
@@ -284,9 +285,7 @@ class Recorder:
                             "moment about the tip; reaction_fe.csv = nominal material, no effects",
                 "hysteresis": {"fraction": self.cfg.rig.hysteresis_fraction, "tau_s": self.cfg.rig.hysteresis_tau_s},
                 "calibration": {"store_sensor_id": self.cfg.serial, "method": "twin-truth"}}
-        tmp = d / "truth.json.tmp"
-        tmp.write_text(json.dumps(info, indent=2))
-        tmp.replace(d / "truth.json")
+        atomic_write_json(d / "truth.json", info, indent=2)
 
     def _frames(self, writer, t_cam, t_wr, shear, t_tmp, temp, solves) -> int:
         cfg, rig = self.cfg, self.cfg.rig

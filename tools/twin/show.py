@@ -9,6 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ...contracts.files import atomic_write
+
 from ...contracts.session import load_session
 from ..sessions.writer import read_frames
 
@@ -103,10 +105,5 @@ def contact_sheet(session_path, out_png, n: int = 5, scale: int = 1) -> Path:
     sheet = np.vstack([row1, row2, plot])
     if scale != 1:
         sheet = cv2.resize(sheet, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
     ok, buf = cv2.imencode(".png", sheet)
-    tmp = out_png.with_name(out_png.name + ".tmp")
-    tmp.write_bytes(buf.tobytes())
-    tmp.replace(out_png)
-    return out_png
+    return atomic_write(out_png, buf.tobytes())

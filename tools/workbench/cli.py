@@ -22,6 +22,7 @@ import json
 import logging
 from pathlib import Path
 
+from ...contracts.files import atomic_write_json
 from .cli_common import compare_session, last_diagnosis_path, registry_of, session_args
 from .effects_cli import register_effects
 
@@ -129,10 +130,7 @@ def cmd_diagnose(args) -> int:
                    "seconds": round(diag.seconds, 2)})
     text = json.dumps(result, default=float)
     for path in filter(None, [last_diagnosis_path(comp.summary["sensor_id"]), args.out and Path(args.out)]):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(json.dumps(result, indent=2, default=float))
-        tmp.replace(path)
+        atomic_write_json(path, result, indent=2, default=float)
     for line in diag.words():
         print(line)
     if args.pictures:

@@ -12,13 +12,13 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ...contracts.files import atomic_write
 from ...contracts import paths
 from ...contracts.store import CalibrationStore
 from ...runtime.stages.effects import EffectChain, Registry
@@ -90,10 +90,7 @@ def predict_cached(table: SampleTable, model, folder: Path | None) -> np.ndarray
             return pred
     pred = np.asarray(model.predict(table), dtype=np.float64)
     if path is not None:
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            np.save(fh, pred, allow_pickle=False)
-        tmp.replace(path)
+        atomic_write(path, lambda fh: np.save(fh, pred, allow_pickle=False))
     return pred
 
 

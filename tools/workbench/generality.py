@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...contracts.files import atomic_write_json
 from ...runtime.stages.effects import EffectChain, EnabledEffect, Registry
 from .diagnose import DiagnoseConfig, diagnose
 from .fit import deployed_prediction
@@ -221,15 +222,11 @@ def register(sub) -> None:
 
 
 def cmd_generality(args) -> int:
-    import os
     from pathlib import Path
 
     out = run(args.draws, tuple(args.sizes), args.nulls, effects=args.effects,
               progress=lambda r: print(json.dumps(r, default=float), flush=True))
     print(json.dumps(out["summary"], indent=1))
     if args.out:
-        path = Path(args.out)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(out, indent=1, default=float))
-        tmp.replace(path)
+        atomic_write_json(Path(args.out), out, default=float)
     return 0

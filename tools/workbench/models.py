@@ -16,13 +16,13 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from ...contracts.files import atomic_write_json
 from ...contracts.errors import TensorTouchError
 from .scan import hat_basis
 from .table import SampleTable
@@ -130,12 +130,8 @@ class ContactLaw:
         return out
 
     def save(self, path: str | Path) -> None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({"schema": "tensortouch.contact_law", "mu": self.mu, "source": self.source,
-                                   "laws": self.laws}, indent=2))
-        tmp.replace(path)
+        atomic_write_json(path, {"schema": "tensortouch.contact_law", "mu": self.mu, "source": self.source,
+                                 "laws": self.laws}, indent=2)
 
     @classmethod
     def load(cls, path: str | Path) -> "ContactLaw":

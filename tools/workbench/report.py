@@ -19,10 +19,10 @@ from __future__ import annotations
 import html
 import json
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
+from ...contracts.files import atomic_write, atomic_write_json, atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -45,10 +45,8 @@ def _plt():
 def _save(fig, path: Path) -> str:
     """Lay the figure out, write it to `path` (a temporary file renamed into place) and close it; returns the file name."""
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     kw = {"pil_kwargs": {"quality": 80}} if path.suffix == ".jpg" else {}
-    fig.savefig(tmp, dpi=DPI, **kw)
-    tmp.replace(path)
+    atomic_write(path, lambda fh: fig.savefig(fh, format=path.suffix[1:], dpi=DPI, **kw))
     _plt().close(fig)
     return path.name
 
@@ -258,12 +256,8 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
                   f"<th>after</th><th>change</th></tr>{rows}</table>"]
     parts += [f'<h2>{html.escape(p.rsplit(".", 1)[0].replace("_", " "))}</h2><img src="{p}">' for p in pics]
     page = "<!doctype html><meta charset=utf-8><title>compare</title>" + "\n".join(parts)
-    tmp = out / f".report.{os.getpid()}.tmp"
-    tmp.write_text(page)
-    tmp.replace(out / "report.html")
-    tmp = out / f".summary.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(comp.summary, indent=2, default=float))
-    tmp.replace(out / "summary.json")
+    atomic_write_text(out / "report.html", page)
+    atomic_write_json(out / "summary.json", comp.summary, indent=2, default=float)
     return out / "report.html"
 
 

@@ -5,12 +5,12 @@ in tests. Stored as `.npz` (no pickle) for the cache and as `residuals.csv` for 
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ...contracts.files import atomic_write
 from ...contracts.errors import SessionError
 
 log = logging.getLogger(__name__)
@@ -75,10 +75,7 @@ class SampleTable:
         arrays.update({f"vec__{k}": v for k, v in self.vec.items()})
         arrays["meas"], arrays["model"] = self.meas, self.model
         arrays["meta_json"] = np.frombuffer(_json(self.meta).encode(), dtype=np.uint8)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-        tmp.replace(path)
+        atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
     @classmethod
     def load(cls, path: str | Path) -> "SampleTable":
@@ -106,12 +103,11 @@ def write_residuals_csv(path: str | Path, table: SampleTable, pred: np.ndarray) 
               + names)
     data = np.column_stack([table.meas, pred, res, np.linalg.norm(res, axis=1)]
                            + [np.asarray(cov[k], dtype=np.float64) for k in names])
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as fh:
-        fh.write(",".join(header) + "\n")
+    def write(fh):
+        fh.write((",".join(header) + "\n").encode())
         np.savetxt(fh, data, delimiter=",", fmt="%.6g")
-    tmp.replace(path)
+
+    atomic_write(path, write)
 
 
 def nearest_index(sorted_t: np.ndarray, q: np.ndarray) -> np.ndarray:
