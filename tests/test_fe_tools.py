@@ -168,6 +168,12 @@ def test_bench_quick_json_last_line(capsys):
     for key in ("seconds_per_frame", "seconds_per_trajectory", "nodes"):
         assert data[key] > 0
     assert data["equilibrium_error_max"] < 0.01 and data["final_force_N"][2] < 0
+    # the reference engine and the default one side by side: both timed, same forces
+    assert [r["engine"] for r in data["runs"]] == ["superlu", "pardiso"] and data["engine"] == "pardiso"
+    assert data["speedup_cpu"] > 0 and data["final_force_rel_diff"] < 5e-3
+    new = data["runs"][1]
+    assert new["symbolic_analyses"] == 1 and new["factorizations"] == new["newton_iterations"]
+    assert "faster" in "".join(out)
 
 
 def test_meshing_leaves_sigpipe_ignored():

@@ -3,7 +3,14 @@
 The standard gel (tools.fe.scenario.standard_dome) at the shipped mesh size (0.7 mm top / 2 mm
 inside), rigid sphere R 5 mm pressed 2 mm then slid 1 mm (5 keypoints, mu = 2.2). `--quick` uses
 a coarser mesh (1.2 mm top) and says so in its output; `--order 2` times the locking-free quadratic
-u/p/J tets (top 1.4 mm / inside 3 mm, similar node count).
+u/p/J tets (top 1.4 mm / inside 3 mm, similar node count); `--frictionless` sets mu = 0 (the
+symmetric solver path).
+
+By default the solver's engines run side by side on the same mesh in one process, alternating
+(reference "superlu" = felupe assembly + scipy SuperLU, then the default "pardiso", `--repeat` times),
+so the ratio holds on a shared machine; the output gives both wall and process-CPU times, the
+ratio of their medians, and how far the final forces of the two engines are apart.
+`--engine NAME` times one engine only.
 """
 from __future__ import annotations
 
@@ -11,7 +18,10 @@ import json
 import logging
 import os
 import platform
+import statistics
 import time
+
+from .linsolve import ENGINES
 
 log = logging.getLogger(__name__)
 
@@ -32,57 +42,103 @@ def add_arguments(parser) -> None:
     parser.add_argument("--keypoints", type=int, default=5, help="keypoints in the trajectory (default 5)")
     parser.add_argument("--order", type=int, choices=(1, 2), default=1,
                         help="1 = linear tets (shipped default), 2 = quadratic u/p/J tets (locking-free, slower)")
+    parser.add_argument("--frictionless", action="store_true", help="mu = 0 (symmetric tangent) instead of 2.2")
+    parser.add_argument("--engine", choices=ENGINES, default=None,
+                        help="time one engine only (default: the reference superlu and pardiso side by side)")
+    parser.add_argument("--repeat", type=int, default=1, help="alternating runs per engine (default 1)")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
 
-def run(args) -> int:
-    from .scenario import standard_dome
-    from .solver import build_mesh, solve
+REFERENCE_ENGINE = "superlu"
 
+
+def _time_one(scenario, mesh, engine: str, quiet: bool) -> dict:
+    from .solver import solve
+
+    t1, c1 = time.perf_counter(), time.process_time()
+    result = solve(scenario, mesh=mesh, engine=engine,
+                   progress=None if quiet else lambda j, n, msg: print(f"  [{engine}] {msg}", flush=True))
+    wall, cpu = time.perf_counter() - t1, time.process_time() - c1
+    info = json.loads(result.solver_info)
+    per = 5 / result.n_frames
+    return {"engine": engine, "seconds_per_trajectory": round(wall * per, 3),
+            "cpu_seconds_per_trajectory": round(cpu * per, 3), "seconds_per_frame": round(wall / result.n_frames, 3),
+            "increments": info["increments"], "newton_iterations": info["iterations"],
+            "factorizations": info.get("factorizations"), "symbolic_analyses": info.get("symbolic_analyses"),
+            "final_force_N": [round(float(v), 5) for v in result.RF[-1, 0]],
+            "equilibrium_error_max": float(f"{_equilibrium_error(result):.2e}"),
+            "load_average_1min": round(os.getloadavg()[0], 2), "_rf": result.RF}
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from .scenario import standard_dome
+    from .solver import DEFAULT_ENGINE, build_mesh
+
+    if args.repeat < 1:
+        print(f"--repeat: expected >= 1, got {args.repeat}")
+        return 2
     mesh_kw = {"size_top": QUICK_SIZE_TOP} if args.quick else {}
     if args.order == 2:
         mesh_kw.update(order=2, size_top=max(mesh_kw.get("size_top", 0.7), 1.4), size_inside=3.0)
     scenario = standard_dome(n_keypoints=args.keypoints, **mesh_kw)
+    if args.frictionless:
+        scenario.friction = 0.0
     t0 = time.perf_counter()
     mesh = build_mesh(scenario)
     t_mesh = time.perf_counter() - t0
-    t1, c1 = time.perf_counter(), time.process_time()
-    result = solve(scenario, mesh=mesh,
-                   progress=lambda j, n, msg: None if args.json else print(f"  {msg}", flush=True))
-    t_solve = time.perf_counter() - t1
-    cpu_solve = time.process_time() - c1
-    info = json.loads(result.solver_info)
-    n_frames = result.n_frames
+    engines = [args.engine] if args.engine else [REFERENCE_ENGINE, DEFAULT_ENGINE]
+    runs = {e: [] for e in engines}
+    for _ in range(args.repeat):
+        for e in engines:
+            runs[e].append(_time_one(scenario, mesh, e, args.json))
+    med = {e: {k: statistics.median(r[k] for r in rs) for k in ("seconds_per_trajectory", "cpu_seconds_per_trajectory")}
+           for e, rs in runs.items()}
+    new = engines[-1]
+    last = runs[new][-1]
     out = {
         "bench": "fe",
-        "scenario": "standard_dome" + (" (quick: coarser mesh)" if args.quick else ""),
-        "quick": bool(args.quick),
-        "order": args.order,
-        "nodes": result.n_nodes,
-        "tets": int(result.tets.shape[0]),
-        "keypoints": n_frames,
-        "seconds_mesh": round(t_mesh, 3),
-        "seconds_per_frame": round(t_solve / n_frames, 3),
-        "seconds_per_trajectory": round(t_solve * 5 / n_frames, 3),
-        "seconds_per_trajectory_with_mesh": round((t_solve + t_mesh) * 5 / n_frames, 3),
-        "cpu_seconds_per_trajectory": round(cpu_solve * 5 / n_frames, 3),
+        "scenario": "standard_dome" + (" (quick: coarser mesh)" if args.quick else "")
+                    + (" (frictionless)" if args.frictionless else ""),
+        "quick": bool(args.quick), "order": args.order, "friction": scenario.friction,
+        "nodes": len(mesh.nodes), "tets": int(mesh.tets.shape[0]), "keypoints": args.keypoints,
+        "seconds_mesh": round(t_mesh, 3), "engine": new, "repeat": args.repeat,
+        "seconds_per_frame": last["seconds_per_frame"],
+        "seconds_per_trajectory": med[new]["seconds_per_trajectory"],
+        "cpu_seconds_per_trajectory": med[new]["cpu_seconds_per_trajectory"],
+        "seconds_per_trajectory_with_mesh": round(med[new]["seconds_per_trajectory"] + t_mesh * 5 / args.keypoints, 3),
+        "increments": last["increments"], "newton_iterations": last["newton_iterations"],
+        "final_force_N": last["final_force_N"], "equilibrium_error_max": last["equilibrium_error_max"],
+        "runs": [{k: v for k, v in r.items() if k != "_rf"} for e in engines for r in runs[e]],
         "load_average_1min": round(os.getloadavg()[0], 2),
-        "increments": info["increments"], "newton_iterations": info["iterations"],
-        "final_force_N": [round(float(v), 4) for v in result.RF[-1, 0]],
-        "equilibrium_error_max": float(f"{_equilibrium_error(result):.2e}"),
         "cpu_count": os.cpu_count(), "machine": platform.machine(),
     }
+    if len(engines) == 2:
+        ref = runs[engines[0]][-1]["_rf"]
+        d = np.linalg.norm(last["_rf"] - ref, axis=2) / np.maximum(np.linalg.norm(ref, axis=2), 1e-12)
+        out["reference_engine"] = engines[0]
+        out["speedup_wall"] = round(med[engines[0]]["seconds_per_trajectory"] / med[new]["seconds_per_trajectory"], 2)
+        out["speedup_cpu"] = round(med[engines[0]]["cpu_seconds_per_trajectory"] / med[new]["cpu_seconds_per_trajectory"], 2)
+        out["final_force_rel_diff"] = float(f"{d[-1].max():.2e}")
+        out["force_rel_diff_max_all_frames"] = float(f"{d.max():.2e}")
     label = " (QUICK: coarser mesh than shipped)" if args.quick else ""
     if args.order == 2:
         label += " (order 2: quadratic u/p/J tets, top 1.4 mm)"
     print(f"FE bench{label}: standard dome, {out['nodes']} nodes, {out['tets']} tets, "
-          f"{n_frames} keypoints, mu = 2.2")
-    print(f"  mesh {t_mesh:.2f} s | {out['seconds_per_frame']:.2f} s per keypoint frame | "
-          f"{out['seconds_per_trajectory']:.2f} s per 5-keypoint trajectory "
-          f"({info['increments']} increments, {info['iterations']} Newton iterations)")
-    print(f"  process CPU time {out['cpu_seconds_per_trajectory']:.2f} s per trajectory; load average "
-          f"{out['load_average_1min']} on {os.cpu_count()} cores (wall time grows when the machine is shared)")
-    print(f"  final reaction RF = {out['final_force_N']} N; max |sum RF + base reaction| / |sum RF| = "
+          f"{args.keypoints} keypoints, mu = {scenario.friction}; mesh {t_mesh:.2f} s")
+    for e in engines:
+        r = runs[e][-1]
+        print(f"  {e:8s}: {med[e]['seconds_per_trajectory']:.2f} s wall, {med[e]['cpu_seconds_per_trajectory']:.2f} s CPU "
+              f"per 5-keypoint trajectory (median of {len(runs[e])}; {r['increments']} increments, "
+              f"{r['newton_iterations']} Newton iterations, {r['factorizations']} factorisations, "
+              f"{r['symbolic_analyses']} symbolic analyses); RF = {r['final_force_N']} N")
+    if len(engines) == 2:
+        print(f"  {new} / {engines[0]}: {out['speedup_wall']:.2f}x faster (wall), {out['speedup_cpu']:.2f}x (CPU); "
+              f"final forces differ by {out['final_force_rel_diff']:.1e} (relative), at most "
+              f"{out['force_rel_diff_max_all_frames']:.1e} over all frames")
+    print(f"  load average {out['load_average_1min']} on {os.cpu_count()} cores (wall time grows when the "
+          f"machine is shared; the ratio is measured side by side); max |sum RF + base reaction| / |sum RF| = "
           f"{out['equilibrium_error_max']:.1e}")
     if args.json:
         print(json.dumps(out))

@@ -1,8 +1,13 @@
 """Quasi-static Newton-Raphson solver: felupe hyperelastic gel + rigid penalty contact with friction.
 
-felupe assembles the internal force vector and tangent of the gel (linear tets with the closed-form
-Yeoh user material, or quadratic tets with the mixed u/p/J formulation for mesh.order = 2); tools.fe.contact adds the node-to-rigid-indenter forces and their exact 3x3
-tangents; scipy's SuperLU solves. Each keypoint step is split into increments (cutback on failure).
+Linear tets with the Yeoh / neo-Hookean material (the shipped default) are assembled by
+tools.fe.assembly straight onto a fixed free-DOF pattern; quadratic tets (mixed u/p/J, mesh.order = 2)
+and Mooney-Rivlin go through felupe's assembly. tools.fe.contact adds the node-to-rigid-indenter
+forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine: "pardiso"
+(default: MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
+symmetric) or "superlu" (the original path: felupe assembly and scipy's SuperLU, kept as the
+reference `tensortouch bench fe` compares against). Each keypoint step is split into increments
+(cutback on failure).
 """
 from __future__ import annotations
 
@@ -13,12 +18,13 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as sla
 
 from . import contact as fc
+from .assembly import P1Assembly
+from .linsolve import ENGINES, make_factor
 from .errors import FEConvergenceError, ScenarioError
 from .indenters import make_shape, pose_at, rotmat
-from .materials import effective_bulk, make_umat
+from .materials import YeohUmat, effective_bulk, make_umat
 from .mesh import GelMesh, mesh_gel
 from .result import FEResult
 from .scenario import Scenario
@@ -35,6 +41,10 @@ SOLVER_REVISION = 2
 # docs/decisions/2026-11-25-fe-increments-and-locking.md). Module switch, not a scenario field, so
 # the scenario hashes (the FE cache keys) stay as they are; solver_info records it.
 FIRST_TOUCH_ANCHOR = True
+# Linear solver engine when solve() is not told (tools.fe.linsolve). Not a scenario field: both
+# engines solve the same equations (final forces agree to < 0.5 %, `tensortouch bench fe`), so the
+# scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
+DEFAULT_ENGINE = "pardiso"
 
 
 def build_mesh(scenario: Scenario) -> GelMesh:
@@ -45,8 +55,12 @@ def build_mesh(scenario: Scenario) -> GelMesh:
 class GelModel:
     """felupe objects + contact bookkeeping for one scenario and mesh."""
 
-    def __init__(self, scenario: Scenario, gm: GelMesh):
+    def __init__(self, scenario: Scenario, gm: GelMesh, engine: str = DEFAULT_ENGINE):
         import felupe as fem
+
+        if engine not in ENGINES:
+            raise ValueError(f"FE engine {engine!r}: expected one of {ENGINES}")
+        self.engine = engine
 
         self.sc, self.gm = scenario, gm
         self.order = 2 if gm.tets.shape[1] == 10 else 1
@@ -81,6 +95,12 @@ class GelModel:
         rows = np.repeat(self.surf_dofs.reshape(-1, 3), 3, axis=1).ravel()
         cols = np.tile(self.surf_dofs.reshape(-1, 3), (1, 3)).ravel()
         self._crow, self._ccol = rows, cols
+        self.fast = None  # own P1 assembly on a fixed pattern (engine "pardiso", Yeoh on linear tets)
+        if engine == "pardiso" and self.order == 1 and isinstance(self.umat, YeohUmat):
+            B = np.asarray(self.region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
+            self.fast = P1Assembly(gm.tets, n, self.free, self.surf_dofs, B, np.asarray(self.region.dV)[0])
+        self.symmetric = scenario.friction == 0.0
+        self.factor = make_factor(engine, self.symmetric)
 
     def poses(self, s: float):
         out = []
@@ -93,15 +113,27 @@ class GelModel:
         self.u.values[:] = U
 
     def residual(self, U, poses, state, tangent=True, hold=None, slip_tangent="exact"):
-        self.set_u(U)
-        r = np.asarray(self.solid.assemble.vector(self.field).todense()).ravel()
+        self._U = U
+        r = self.internal_forces(U)
         x = self.gm.nodes[self.surf] + U[self.surf]
         ce = fc.evaluate(x, self.area, self.shapes, poses, state, self.penalty, self.sc.friction, tangent,
                          self.sc.solver.friction_stiffness_ratio, hold, slip_tangent)
         r[self.surf_dofs] -= (ce.fn + ce.ft).ravel()
         return r, ce
 
+    def internal_forces(self, U) -> np.ndarray:
+        """Internal force vector of the gel (3N,) at displacement U (N,3)."""
+        if self.fast is not None:
+            return self.fast.forces(U, self.umat)
+        self.set_u(U)
+        return np.asarray(self.solid.assemble.vector(self.field).todense()).ravel()
+
     def tangent(self, ce):
+        """Free-DOF tangent at the displacement of the last residual() call."""
+        if self.fast is not None:
+            _, data = self.fast.forces_and_tangent(self._U, self.umat, ce.K)
+            return self.fast.matrix(data)
+        self.set_u(self._U)
         K = self.solid.assemble.matrix(self.field).tocsr()
         Kc = sp.csr_matrix((-ce.K.ravel(), (self._crow, self._ccol)), shape=K.shape)
         return (K + Kc)[self.free][:, self.free].tocsc()
@@ -151,16 +183,8 @@ def newton(model: GelModel, U0, poses, state, sv):
                 r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode)
         rf = r[model.free]
         fscale = max(np.abs(ce.fn).sum(), 1e-12)
-        K = model.tangent(ce)
-        try:  # fast symmetric-mode ordering first, partial pivoting as the fallback
-            lu = sla.splu(K, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                          options=dict(SymmetricMode=True))
-        except RuntimeError:
-            try:
-                lu = sla.splu(K, permc_spec="COLAMD")
-            except RuntimeError as exc:  # singular factor
-                raise FloatingPointError(f"singular tangent ({exc})") from exc
-        du = -lu.solve(rf)
+        model.factor.factor(model.tangent(ce))  # SingularTangent is a FloatingPointError
+        du = -model.factor.solve(rf)
         if not np.all(np.isfinite(du)):
             raise FloatingPointError("non-finite Newton update")
         norm0 = np.linalg.norm(rf)
@@ -225,12 +249,13 @@ def check_initial(model: GelModel) -> None:
                                 f"the gel by {-d.min():.3f} mm; start the indenter above the surface")
 
 
-def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None) -> FEResult:
-    """Solve all keypoint frames of `scenario`; see docs/fe.md for the contract."""
+def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None, engine: str | None = None) -> FEResult:
+    """Solve all keypoint frames of `scenario`; see docs/fe.md for the contract. `engine`: the
+    linear solver path (tools.fe.linsolve.ENGINES; None = DEFAULT_ENGINE)."""
     scenario.validate()
     t_start = time.time()
     gm = mesh if mesh is not None else build_mesh(scenario)
-    model = GelModel(scenario, gm)
+    model = GelModel(scenario, gm, engine or DEFAULT_ENGINE)
     check_initial(model)
     sv = scenario.solver
     N, K, F = len(gm.nodes), len(scenario.indenters), scenario.n_keypoints
@@ -305,8 +330,7 @@ def _record(out, j, model: GelModel, U, ce, seconds):
         out["CAREA"][j, k] = model.area[ce.gap[k] < 0].sum()
         out["RF"][j, k] = ce.force_k[k].sum(axis=0)
         out["RM"][j, k] = np.cross(x - p, ce.force_k[k]).sum(axis=0)
-    model.set_u(U)
-    r = np.asarray(model.solid.assemble.vector(model.field).todense()).ravel()
+    r = model.internal_forces(U)
     out["base_reaction"][j] = r[model.fixed].reshape(-1, 3).sum(axis=0)
     out["converged"][j] = True
     out["seconds"][j] = seconds
@@ -318,7 +342,10 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
     elem = "P1 tets" if model.order == 1 else "P2/P0 u-p-J tets"
     info = {"solver": f"tools.fe (felupe {felupe.__version__}, {elem}, penalty contact)", "order": model.order,
             "bulk_modulus_used": model.bulk, "penalty_N_per_mm3": model.penalty,
-            "first_touch_anchor": FIRST_TOUCH_ANCHOR,
+            "first_touch_anchor": FIRST_TOUCH_ANCHOR, "engine": model.engine,
+            "assembly": "tools.fe.assembly (P1 Yeoh)" if model.fast is not None else "felupe",
+            "symmetric_tangent": model.symmetric, "factorizations": model.factor.factorizations,
+            "symbolic_analyses": model.factor.analyses,
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
     return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,

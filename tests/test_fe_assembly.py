@@ -1,0 +1,126 @@
+"""tools.fe.assembly (P1 Yeoh forces and tangent on a fixed pattern) against felupe's assembly of the
+same closed-form material, and tools.fe.linsolve (PARDISO with the symbolic analysis kept) against
+scipy on small matrices built here."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+fem = pytest.importorskip("felupe")
+
+from tensortouch.tools.fe.assembly import P1Assembly    # noqa: E402
+from tensortouch.tools.fe.errors import FEError    # noqa: E402
+from tensortouch.tools.fe.linsolve import PardisoFactor, SuperLUFactor, mkl_rt    # noqa: E402
+from tensortouch.tools.fe.materials import YeohUmat    # noqa: E402
+
+try:
+    mkl_rt()
+except FEError:
+    pytest.skip("the train extra's mkl is not installed", allow_module_level=True)
+
+
+def _tet_mesh(n=4, seed=0):
+    """Jittered grid of a unit-ish block, Delaunay tets oriented to positive volume."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    g = np.stack(np.meshgrid(*[np.linspace(0, 3, n)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    g[:, :2] += rng.normal(0, 0.08, (len(g), 2)) * ((g[:, :2] > 0) & (g[:, :2] < 3))
+    tets = Delaunay(g).simplices.copy()
+    x = g[tets]
+    vol = np.einsum("ci,ci->c", np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), x[:, 3] - x[:, 0])
+    tets = tets[np.abs(vol) > 0.05]  # no slivers
+    flip = np.einsum("ci,ci->c", np.cross(g[tets[:, 1]] - g[tets[:, 0]], g[tets[:, 2]] - g[tets[:, 0]]),
+                     g[tets[:, 3]] - g[tets[:, 0]]) < 0
+    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
+    return g, tets
+
+
+def _felupe_and_fast(nodes, tets, umat):
+    mesh = fem.Mesh(nodes, tets, "tetra")
+    region = fem.RegionTetra(mesh)
+    u = fem.Field(region, dim=3)
+    field = fem.FieldContainer([u])
+    solid = fem.SolidBody(umat, field)
+    fixed_nodes = np.flatnonzero(nodes[:, 2] < 1e-9)
+    fixed = (3 * fixed_nodes[:, None] + np.arange(3)).ravel()
+    free = np.setdiff1d(np.arange(3 * len(nodes)), fixed)
+    top = np.flatnonzero(nodes[:, 2] > 3 - 1e-9)
+    surf_dofs = (3 * top[:, None] + np.arange(3)).ravel()
+    B = np.asarray(region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
+    fast = P1Assembly(tets, len(nodes), free, surf_dofs, B, np.asarray(region.dV)[0])
+    return u, field, solid, free, top, surf_dofs, fast
+
+
+@pytest.mark.parametrize("bulk", [0.0, 0.5])
+def test_p1_forces_and_tangent_match_felupe(bulk):
+    nodes, tets = _tet_mesh()
+    umat = YeohUmat(0.03, 0.002, 0.0002, bulk)
+    u, field, solid, free, top, surf_dofs, fast = _felupe_and_fast(nodes, tets, umat)
+    rng = np.random.default_rng(1)
+    x, y, z = nodes.T / 3
+    U = np.stack([0.3 * z * np.sin(2 * x), 0.2 * z * y, -0.4 * z ** 2], 1)  # tens of % strain, base fixed
+    U += rng.normal(0, 0.01, nodes.shape) * z[:, None]
+    u.values[:] = U
+    f_ref = np.asarray(solid.assemble.vector(field).todense()).ravel()
+    K_ref = solid.assemble.matrix(field).tocsr()
+    Kc = rng.normal(0, 0.01, (len(top), 3, 3))
+    rows = np.repeat(surf_dofs.reshape(-1, 3), 3, axis=1).ravel()
+    cols = np.tile(surf_dofs.reshape(-1, 3), (1, 3)).ravel()
+    K_ref = (K_ref - sp.csr_matrix((Kc.ravel(), (rows, cols)), shape=K_ref.shape))[free][:, free].toarray()
+    f, data = fast.forces_and_tangent(U, umat, Kc)
+    K = fast.matrix(data).toarray()
+    assert np.abs(f - f_ref).max() <= 1e-12 * np.abs(f_ref).max() * 10
+    assert np.abs(fast.forces(U, umat) - f).max() == 0.0
+    assert np.abs(K - K_ref).max() <= 1e-11 * np.abs(K_ref).max()
+    # the fixed pattern holds every element and contact entry, and a second call gives the same bits
+    assert fast.matrix(data).nnz == fast.nnz
+    assert np.array_equal(fast.forces_and_tangent(U, umat, Kc)[1], data)
+
+
+def _spd_like(n=400, seed=0, unsym=0.0):
+    rng = np.random.default_rng(seed)
+    A = sp.random(n, n, density=0.01, random_state=seed, format="csr")
+    A = A + A.T + sp.diags(rng.uniform(5, 6, n))
+    if unsym:
+        A = A + unsym * sp.random(n, n, density=0.005, random_state=seed + 1)
+    A = A.tocsr()
+    A.sort_indices()
+    return A
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_pardiso_keeps_the_symbolic_analysis_while_the_pattern_stays(symmetric):
+    A = _spd_like(unsym=0.0 if symmetric else 0.3)
+    b = np.random.default_rng(2).normal(size=A.shape[0])
+    fac = PardisoFactor(symmetric)
+    fac.factor(A)
+    x = fac.solve(b)
+    assert np.allclose(x, sla.spsolve(A.tocsc(), b), rtol=1e-10, atol=1e-12)
+    A2 = A.copy()
+    A2.data = A2.data * np.linspace(0.9, 1.1, A2.nnz) if not symmetric else A2.data * 1.3
+    fac.factor(A2)
+    x2 = fac.solve(b)
+    assert np.allclose(x2, sla.spsolve(A2.tocsc(), b), rtol=1e-10, atol=1e-12)
+    assert (fac.analyses, fac.factorizations) == (1, 2)
+    fac.factor(_spd_like(seed=5, unsym=0.0 if symmetric else 0.3))  # another pattern: a new analysis
+    assert fac.analyses == 2
+    # deterministic: the same sequence of matrices gives the same bits (the analysis of the first
+    # matrix, with its scaling and matching, is what the later factorisations reuse)
+    f2 = PardisoFactor(symmetric)
+    f2.factor(A)
+    f2.factor(A2)
+    assert np.array_equal(f2.solve(b), x2)
+
+
+def test_singular_matrix_is_a_floating_point_error():
+    A = _spd_like(n=50)
+    A = A.tolil()
+    A[:, 3] = 0.0
+    A[3, :] = 0.0
+    A[3, 3] = 0.0
+    A = A.tocsr()
+    A.sort_indices()
+    for fac in (SuperLUFactor(), ):
+        with pytest.raises(FloatingPointError):
+            fac.factor(A)

@@ -1,0 +1,196 @@
+"""Sparse direct solves of the FE Newton iterations.
+
+`PardisoFactor` (engine "pardiso", the default): Intel MKL PARDISO, called through ctypes from the
+`mkl` wheel's mkl_rt library (the train extra). The tangent's pattern is fixed for a whole solve (tools.fe.assembly), so the symbolic
+analysis (METIS ordering, supernode structure: phase 11) runs once and every later Newton iteration
+and keypoint only refactorises the numbers (phase 22) and solves (phase 33). Symmetric tangents
+(frictionless contact) use the real symmetric indefinite type on the upper triangle (Bunch-Kaufman
+pivoting), general ones the real unsymmetric type with scaling and matching. MKL runs single-threaded
+(sequential layer): one thread gives the same bits on every machine, the FE batch runner
+parallelises over scenarios, and it stays out of torch's OpenMP runtime. `SuperLUFactor`
+(engine "superlu") is the reference: scipy's splu, refactorised from scratch each time.
+docs/decisions/2026-11-28-fe-linear-solver.md has the measurements behind the choice.
+"""
+from __future__ import annotations
+
+import ctypes
+import glob
+import os
+import site
+import sys
+from ctypes.util import find_library
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from .errors import FEError
+
+ENGINES = ("pardiso", "superlu")
+_MKL_THREADING_SEQUENTIAL = 1
+
+
+class SingularTangent(FloatingPointError):
+    """The factorisation met a zero pivot or another numerical failure."""
+
+
+_LIB = None
+
+
+def mkl_rt() -> ctypes.CDLL:
+    """The mkl_rt library (loaded once per process, sequential threading layer)."""
+    global _LIB
+    if _LIB is None:
+        names = [find_library("mkl_rt")]
+        for root in (sys.prefix, site.USER_BASE):
+            for sub in ("lib", "Library/bin"):
+                names += sorted(glob.glob(os.path.join(root, sub, "*mkl_rt*")), key=len)
+        for name in filter(None, names):
+            try:
+                lib = ctypes.CDLL(name)
+                break
+            except OSError:
+                continue
+        else:
+            raise FEError("MKL's mkl_rt library not found: the FE's sparse solver needs the `mkl` package "
+                          "(pip install -e '.[train]')")
+        lib.MKL_Set_Threading_Layer.argtypes = [ctypes.c_int]
+        lib.MKL_Set_Threading_Layer(_MKL_THREADING_SEQUENTIAL)
+        p_i32 = ctypes.POINTER(ctypes.c_int32)
+        lib.pardiso.argtypes = [ctypes.POINTER(ctypes.c_int64)] + [p_i32] * 5 + [ctypes.c_void_p, p_i32, p_i32, p_i32,
+                                                                                  p_i32, p_i32, p_i32,
+                                                                                  ctypes.c_void_p, ctypes.c_void_p, p_i32]
+        lib.pardiso.restype = None
+        _LIB = lib
+    return _LIB
+
+
+class _Csr:
+    """The three CSR arrays PARDISO reads (no scipy checks or copies)."""
+
+    def __init__(self, data, indptr, indices, n):
+        self.data, self.indptr, self.indices, self.shape = data, indptr, indices, (n, n)
+
+
+class PardisoFactor:
+    """Factorise-and-solve with the symbolic analysis kept while indptr/indices stay the same.
+
+    `factor(A)` with A a CSR matrix with sorted indices (the full matrix also when symmetric: the
+    upper triangle is taken here); `solve(b)`. Counters: `analyses`, `factorizations`."""
+
+    def __init__(self, symmetric: bool):
+        self._lib = mkl_rt()
+        self.symmetric = symmetric
+        self.mtype = -2 if symmetric else 11
+        self.pt = np.zeros(64, np.int64)      # PARDISO's internal handle
+        self.iparm = it = np.zeros(64, np.int32)
+        it[0] = 1            # iparm given here, no defaults
+        it[1] = 2            # METIS nested dissection ordering
+        it[7] = 2            # up to 2 steps of iterative refinement (after perturbed pivots)
+        it[9] = 8 if symmetric else 13   # pivot perturbation 1e-8 / 1e-13
+        it[10] = 1           # scaling
+        it[12] = 1           # weighted matching
+        it[17] = -1          # report nnz(L+U) in iparm[17]
+        it[20] = 1           # Bunch-Kaufman pivoting (symmetric indefinite)
+        it[34] = 1           # zero-based indexing
+        self._pattern = None
+        self._upper = None
+        self._A = self._take = None
+        self.analyses = self.factorizations = 0
+
+    def _call(self, phase: int, A, b: np.ndarray) -> np.ndarray:
+        x = np.zeros_like(b)
+        err = ctypes.c_int32(0)
+        i32 = ctypes.POINTER(ctypes.c_int32)
+
+        def ref(v):
+            return ctypes.byref(ctypes.c_int32(v))
+
+        self._lib.pardiso(self.pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), ref(1), ref(1), ref(self.mtype),
+                          ref(phase), ref(A.shape[0]), A.data.ctypes.data, A.indptr.ctypes.data_as(i32),
+                          A.indices.ctypes.data_as(i32), None, ref(1), self.iparm.ctypes.data_as(i32), ref(0),
+                          b.ctypes.data, x.ctypes.data, ctypes.byref(err))
+        if err.value != 0:
+            raise SingularTangent(f"PARDISO phase {phase} failed with error {err.value}")
+        return x
+
+    def factor(self, A: sp.csr_matrix) -> None:
+        A = A.tocsr()
+        if not A.has_sorted_indices:
+            A.sort_indices()
+        p = self._pattern
+        same = p is not None and ((A.indptr is p[0] and A.indices is p[1]) or
+                                  (np.array_equal(A.indptr, p[0]) and np.array_equal(A.indices, p[1])))
+        if not same:
+            if self.symmetric:  # PARDISO's symmetric types read the upper triangle only
+                rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+                self._take = np.flatnonzero(A.indices >= rows)
+                indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[self._take], minlength=A.shape[0]))])
+                indices = A.indices[self._take]
+            else:
+                self._take, indptr, indices = None, A.indptr, A.indices
+            self._struct = (np.ascontiguousarray(indptr, np.int32), np.ascontiguousarray(indices, np.int32))
+        data = A.data if self._take is None else A.data[self._take]
+        M = _Csr(np.ascontiguousarray(data, dtype=float), *self._struct, A.shape[0])
+        b = np.zeros(A.shape[0])
+        if not same:
+            if self._A is not None:
+                self._call(-1, self._A, b)  # release the old factors
+            self._call(11, M, b)
+            self.analyses += 1
+            self._pattern = (A.indptr, A.indices)
+        self._call(22, M, b)
+        self.factorizations += 1
+        self._A = M
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return self._call(33, self._A, np.ascontiguousarray(b, dtype=float))
+
+    def free(self) -> None:
+        if self._A is not None:
+            self._call(-1, self._A, np.zeros(self._A.shape[0]))
+            self._A = self._pattern = None
+
+    def __del__(self):
+        try:
+            self.free()
+        except Exception:
+            pass
+
+
+class SuperLUFactor:
+    """scipy SuperLU, symmetric-mode ordering first and partial pivoting as the fallback (the solver's
+    original path; every factorisation starts from scratch)."""
+
+    symmetric = False
+
+    def __init__(self, symmetric: bool = False):
+        self._lu = None
+        self.analyses = self.factorizations = 0
+
+    def factor(self, A) -> None:
+        K = A.tocsc()
+        try:
+            self._lu = sla.splu(K, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                options=dict(SymmetricMode=True))
+        except RuntimeError:
+            try:
+                self._lu = sla.splu(K, permc_spec="COLAMD")
+            except RuntimeError as exc:
+                raise SingularTangent(f"singular tangent ({exc})") from exc
+        self.analyses += 1
+        self.factorizations += 1
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return self._lu.solve(b)
+
+    def free(self) -> None:
+        self._lu = None
+
+
+def make_factor(engine: str, symmetric: bool):
+    if engine == "pardiso":
+        return PardisoFactor(symmetric)
+    if engine == "superlu":
+        return SuperLUFactor(symmetric)
+    raise ValueError(f"FE linear solver engine {engine!r}: expected one of {ENGINES}")
