@@ -5,7 +5,9 @@
         frame = sub.wait_for("fields", timeout=5.0)     # wire.FieldsFrame, float32 (15, H, W)
 
 Callbacks run on a zenoh thread: keep them short (copy / enqueue, do not compute there).
-Malformed messages are counted in `errors` and logged, never raised into zenoh.
+Malformed messages are counted in `errors` and logged, never raised into zenoh nor handed to a
+callback; those dropped because they hold NaN, an infinity or a number beyond the float range are
+also counted in `non_finite`.
 """
 from __future__ import annotations
 
@@ -74,7 +76,8 @@ class Subscriber:
         self._cond = threading.Condition()
         self.latest: dict[str, Any] = {}
         self.counts = {kind: 0 for kind in wire.KINDS}
-        self.errors = 0
+        self.errors = 0                  # messages dropped because they did not decode (all reasons)
+        self.non_finite = 0              # ... of which because they held NaN / infinity
         self.last_error: str | None = None
         self._closed = False
         self._owns_session = session is None
@@ -93,6 +96,7 @@ class Subscriber:
         except Exception as exc:  # noqa: BLE001 - never raise into zenoh's thread
             with self._cond:
                 self.errors += 1
+                self.non_finite += isinstance(exc, wire.NonFiniteError)
                 self.last_error = str(exc)
                 n = self.errors
             if n == 1 or n % 1000 == 0:
@@ -126,7 +130,8 @@ class Subscriber:
                 if left <= 0:
                     raise TimeoutError(
                         f"no {kind} message on {wire.key(self.sensor_id, kind)} within {timeout} s "
-                        f"(received so far: {self.counts}, decode errors: {self.errors})")
+                        f"(received so far: {self.counts}, decode errors: {self.errors}, of which "
+                        f"non-finite: {self.non_finite})")
                 self._cond.wait(left)
             return self.latest[kind]
 
