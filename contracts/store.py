@@ -1,6 +1,8 @@
 """Calibration store: one folder per sensor, versioned, atomic, hash-verified (docs/calibration_store.md).
 
-Writers of one sensor queue on a lock file (flock). A new version goes to a temporary folder inside
+Writers of one sensor queue on a lock file (flock). Every operation that derives a version from the
+current one (derive, rollback, a caller's read-modify-write inside `locked()`) reads the current
+version under that lock, so two processes never lose each other's change. A new version goes to a temporary folder inside
 `versions/`; every file is fsynced and hashed, the folder fsynced, renamed into place and `versions/`
 fsynced; the `CURRENT` pointer is replaced last with an atomic rename and the sensor folder fsynced.
 A crash or a full disk at any point leaves the previous version active and intact. Loads check
@@ -18,9 +20,11 @@ import math
 import os
 import re
 import shutil
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -38,6 +42,7 @@ _FILE_RE = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*$")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
 _STALE_TMP_RE = re.compile(r"^\.tmp-v\d{4,}-")
 LOCK_NAME = ".lock"
+ANY = object()     # write(base_version=ANY): store on top of whatever version is active
 
 
 def sha256_file(path: Path) -> str:
@@ -205,14 +210,27 @@ def _fsync_file(path: Path) -> None:
         os.close(fd)
 
 
+_held = threading.local()     # the sensor folders this thread holds the lock of (re-entry is free)
+
+
 @contextlib.contextmanager
 def _locked(sensor_dir: Path):
-    """Exclusive lock of one sensor's folder (flock on LOCK_NAME): writers queue, one at a time."""
+    """Exclusive lock of one sensor's folder (flock on LOCK_NAME): writers queue, one at a time.
+    Re-entrant within a thread, so a read-modify-write can hold it around write/derive/rollback."""
+    key = os.path.abspath(sensor_dir)
+    held = _held.__dict__.setdefault("dirs", set())
+    if key in held:
+        yield
+        return
     sensor_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(sensor_dir / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
+        held.add(key)
+        try:
+            yield
+        finally:
+            held.discard(key)
     finally:
         os.close(fd)   # closing releases the lock
 
@@ -336,14 +354,22 @@ class CalibrationStore:
         return rows
 
     # ----- writing -------------------------------------------------------------------------
+    def locked(self, sensor_id: str):
+        """Context manager holding `sensor_id`'s writer lock: read the current version, compute, then
+        write/derive/rollback inside it, and no other writer (thread or process) comes in between."""
+        return _locked(self._sensor_dir(sensor_id))
+
     def write(self, sensor_id: str, tables: dict[str, np.ndarray], meta: dict,
-              files: dict[str, bytes | Path] | None = None, activate: bool = True) -> str:
+              files: dict[str, bytes | Path] | None = None, activate: bool = True,
+              base_version=ANY) -> str:
         """Store a new version atomically and (by default) make it current. Returns its name.
 
         `tables` maps every name of TABLES to an array; `meta` holds at least gel_center_px,
         gel_radius_px and model_size (schema, sensor_id, version, tables, files are filled in);
         `files` adds extra files (e.g. correction.onnx) as bytes or paths to copy.
-        Concurrent writers (threads or processes) queue on the sensor's lock file.
+        Concurrent writers (threads or processes) queue on the sensor's lock file. With `base_version`
+        (a version name, or None for "no version yet") the write is refused unless that is still the
+        active version once the lock is held: a caller that read version N stores N+1 only on top of N.
         """
         sensor_dir = self._sensor_dir(sensor_id)
         missing = [k for k in TABLES if k not in tables]
@@ -365,6 +391,11 @@ class CalibrationStore:
                                    f"stored") from exc
         with _locked(sensor_dir):
             active = self._active_or_none(sensor_id)
+            if base_version is not ANY and active != base_version:
+                raise CalibrationError(
+                    f"sensor {sensor_id}: the active calibration is {active or 'none'}, not "
+                    f"{base_version or 'none'} as when this change was computed (another writer came first); "
+                    f"nothing was stored, run it again")
             self._clean_stale(sensor_dir)
             existing = [int(_VERSION_RE.match(v).group(1)) for v in self.versions(sensor_id)]
             version = f"v{(max(existing) + 1) if existing else 1:04d}"
@@ -448,21 +479,33 @@ class CalibrationStore:
             except OSError as exc:
                 log.warning("cannot remove %s left by an interrupted write: %s", p, exc)
 
-    def derive(self, sensor_id: str, changes: dict, files: dict[str, bytes | Path] | None = None,
-               provenance: dict | None = None) -> str:
-        """New version = current version with `changes` merged into its metadata (tables kept)."""
-        cal = self.load(sensor_id)
-        meta = {k: v for k, v in cal.meta.items() if k not in ("files", "tables", "version", "created")}
-        meta.update(changes)
-        if provenance is not None:
-            meta["provenance"] = provenance
-        keep = {}
-        corr = meta.get("correction")
-        if corr and corr.get("file") and not (files and corr["file"] in files):
-            keep[corr["file"]] = cal.folder / corr["file"]
-        keep.update(files or {})
-        tables = {k: getattr(cal, k) for k in TABLES}
-        return self.write(sensor_id, tables, meta, files=keep)
+    def derive(self, sensor_id: str, changes: dict | Callable[[Calibration], dict],
+               files: dict[str, bytes | Path] | None = None, provenance: dict | None = None,
+               base_version: str | None = None) -> str:
+        """New version = current version with `changes` merged into its metadata (tables kept).
+
+        The current version is read under the sensor's lock and the new one written before it is
+        released. `changes` may be a function of the current Calibration (e.g. its effects list plus
+        one), evaluated under the lock. With `base_version`, refused unless that is the current one."""
+        with self.locked(sensor_id):
+            cal = self.load(sensor_id)
+            if base_version is not None and cal.version != base_version:
+                raise CalibrationError(
+                    f"sensor {sensor_id}: the active calibration is {cal.version}, not {base_version} as when "
+                    f"this change was computed (another writer came first); nothing was stored, run it again")
+            if callable(changes):
+                changes = changes(cal)
+            meta = {k: v for k, v in cal.meta.items() if k not in ("files", "tables", "version", "created")}
+            meta.update(changes)
+            if provenance is not None:
+                meta["provenance"] = provenance
+            keep = {}
+            corr = meta.get("correction")
+            if corr and corr.get("file") and not (files and corr["file"] in files):
+                keep[corr["file"]] = cal.folder / corr["file"]
+            keep.update(files or {})
+            tables = {k: getattr(cal, k) for k in TABLES}
+            return self.write(sensor_id, tables, meta, files=keep, base_version=cal.version)
 
     def rollback(self, sensor_id: str, version: str | None = None) -> str:
         """Make `version` (default: the one before the active one) current again."""
