@@ -30,6 +30,7 @@ import numpy as np
 
 from . import paths
 from .errors import CalibrationError
+from .names import confined, is_name
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +38,6 @@ SCHEMA = "tensortouch.calibration"
 SCHEMA_VERSION = 1
 TABLES = ("theta", "phi", "surface_xyz", "normals", "pixel_area", "mask")
 _VERSION_RE = re.compile(r"^v(\d{4,})$")
-_SENSOR_RE = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*$")
 _FILE_RE = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*$")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
 _STALE_TMP_RE = re.compile(r"^\.tmp-v\d{4,}-")
@@ -242,16 +242,13 @@ class CalibrationStore:
         self.root = Path(root) if root is not None else paths.calibration_dir()
 
     def _sensor_dir(self, sensor_id: str) -> Path:
-        if not isinstance(sensor_id, str) or not _SENSOR_RE.match(sensor_id):
-            raise CalibrationError(f"sensor id {sensor_id!r}: use letters, digits, '.', '_' or '-' "
-                                   f"(not starting with '.')")
-        return self.root / sensor_id
+        return confined(self.root, sensor_id, "sensor id", CalibrationError)
 
     # ----- reading -------------------------------------------------------------------------
     def sensors(self) -> list[str]:
         if not self.root.is_dir():
             return []
-        return sorted(p.name for p in self.root.iterdir() if (p / "CURRENT").is_file() and _SENSOR_RE.match(p.name))
+        return sorted(p.name for p in self.root.iterdir() if (p / "CURRENT").is_file() and is_name(p.name))
 
     def versions(self, sensor_id: str) -> list[str]:
         folder = self._sensor_dir(sensor_id) / "versions"
