@@ -236,28 +236,48 @@ def _locked(sensor_dir: Path):
 
 
 class CalibrationStore:
-    """The folder holding every sensor's calibration versions."""
+    """The folder holding every sensor's calibration versions.
 
-    def __init__(self, root: str | Path | None = None):
+    `root` is where versions are written (default contracts.paths.calibration_dir()). `shipped` is an
+    optional read-only store underneath it (default: the calibrations inside an installed package,
+    contracts.paths.shipped_calibration_dir()): a sensor or version missing from `root` is read from
+    there, and a new version of a shipped sensor is written to `root`, numbered after the shipped ones."""
+
+    def __init__(self, root: str | Path | None = None, shipped: str | Path | None = None):
         self.root = Path(root) if root is not None else paths.calibration_dir()
+        if shipped is None and root is None:
+            shipped = paths.shipped_calibration_dir()
+        self.shipped = Path(shipped) if shipped is not None and Path(shipped).resolve() != self.root.resolve() else None
 
     def _sensor_dir(self, sensor_id: str) -> Path:
+        """The sensor's folder in the writable store (where its lock, CURRENT and new versions go)."""
         return confined(self.root, sensor_id, "sensor id", CalibrationError)
+
+    def _bases(self, sensor_id: str) -> list[Path]:
+        """The sensor's folders to read from: the writable store's first, then the shipped one's."""
+        bases = [self._sensor_dir(sensor_id)]
+        if self.shipped is not None:
+            bases.append(confined(self.shipped, sensor_id, "sensor id", CalibrationError))
+        return bases
 
     # ----- reading -------------------------------------------------------------------------
     def sensors(self) -> list[str]:
-        if not self.root.is_dir():
-            return []
-        return sorted(p.name for p in self.root.iterdir() if (p / "CURRENT").is_file() and is_name(p.name))
+        found = set()
+        for root in (self.root, self.shipped):
+            if root is not None and root.is_dir():
+                found.update(p.name for p in root.iterdir() if (p / "CURRENT").is_file() and is_name(p.name))
+        return sorted(found)
 
     def versions(self, sensor_id: str) -> list[str]:
-        folder = self._sensor_dir(sensor_id) / "versions"
-        if not folder.is_dir():
-            return []
-        return sorted(p.name for p in folder.iterdir() if _VERSION_RE.match(p.name))
+        found = set()
+        for base in self._bases(sensor_id):
+            if (base / "versions").is_dir():
+                found.update(p.name for p in (base / "versions").iterdir() if _VERSION_RE.match(p.name))
+        return sorted(found)
 
     def current(self, sensor_id: str) -> str:
-        pointer = self._sensor_dir(sensor_id) / "CURRENT"
+        pointer = next((b / "CURRENT" for b in self._bases(sensor_id) if (b / "CURRENT").is_file()),
+                       self._sensor_dir(sensor_id) / "CURRENT")
         if not pointer.is_file():
             known = ", ".join(self.sensors()) or "none"
             raise CalibrationError(f"{pointer}: no calibration for sensor '{sensor_id}' "
@@ -272,14 +292,18 @@ class CalibrationStore:
         return text
 
     def _version_dir(self, sensor_id: str, version: str) -> Path:
-        """The folder of `version`, which must be a real folder directly inside versions/ (no symlink out)."""
+        """The folder of `version`, which must be a real folder directly inside versions/ (no symlink out);
+        the writable store's if it has it, else the shipped store's."""
         if not isinstance(version, str) or not _VERSION_RE.match(version):
             raise CalibrationError(f"sensor {sensor_id}: version {version!r} is not a version name like v0001")
-        versions_dir = self._sensor_dir(sensor_id) / "versions"
-        folder = versions_dir / version
-        if folder.is_symlink() or (folder.exists() and folder.resolve().parent != versions_dir.resolve()):
-            raise CalibrationError(f"{folder}: is a link out of the store; refusing it")
-        return folder
+        for base in self._bases(sensor_id):
+            versions_dir = base / "versions"
+            folder = versions_dir / version
+            if folder.is_symlink() or (folder.exists() and folder.resolve().parent != versions_dir.resolve()):
+                raise CalibrationError(f"{folder}: is a link out of the store; refusing it")
+            if folder.exists():
+                return folder
+        return self._sensor_dir(sensor_id) / "versions" / version
 
     @staticmethod
     def _inside(folder: Path, name: str) -> Path:
@@ -342,8 +366,8 @@ class CalibrationStore:
         active = self.current(sensor_id)
         for v in self.versions(sensor_id):
             try:
-                meta = json.loads((self.root / sensor_id / "versions" / v / "calibration.json").read_text())
-            except (OSError, ValueError, RecursionError):
+                meta = json.loads((self._version_dir(sensor_id, v) / "calibration.json").read_text())
+            except (OSError, ValueError, RecursionError, CalibrationError):
                 meta = {}
             meta = meta if isinstance(meta, dict) else {}
             rows.append({"version": v, "active": v == active, "created": meta.get("created"),
