@@ -146,8 +146,9 @@ def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
 
 
 def decode_fields(payload: bytes | bytearray, attachment: bytes | bytearray | str | None,
-                  encoding: Any = None) -> FieldsFrame:
-    """Payload + attachment (+ optional Encoding) -> FieldsFrame with float32 data."""
+                  encoding: Any = None, max_shape: tuple[int, int, int] | None = None) -> FieldsFrame:
+    """Payload + attachment (+ optional Encoding) -> FieldsFrame with float32 data. With `max_shape`
+    (C, H, W), a larger frame is refused before its data is converted (a receiver's memory bound)."""
     _check_encoding("fields", encoding)
     if attachment is None:
         raise WireError("fields: missing attachment (the JSON header with seq, t, shape, channels)")
@@ -160,9 +161,11 @@ def decode_fields(payload: bytes | bytearray, attachment: bytes | bytearray | st
     units = _strings("fields", "units", _need("fields", head, "units"))
     if head.get("dtype", FIELDS_DTYPE) != FIELDS_DTYPE:
         raise WireError(f"fields: dtype {head.get('dtype')!r}, expected {FIELDS_DTYPE!r}")
-    if len(shape) != 3 or shape[0] != len(channels) or len(units) != len(channels):
+    if len(shape) != 3 or shape[0] != len(channels) or len(units) != len(channels) or min(shape) < 1:
         raise WireError(f"fields: shape {shape} does not match {len(channels)} channels / "
-                        f"{len(units)} units")
+                        f"{len(units)} units (every size >= 1)")
+    if max_shape is not None and any(n > m for n, m in zip(shape, max_shape)):
+        raise WireError(f"fields: shape {shape} exceeds this receiver's limit {tuple(max_shape)}")
     expected = 2 * shape[0] * shape[1] * shape[2]
     if len(payload) != expected:
         raise WireError(f"fields: payload is {len(payload)} bytes, expected {expected} "

@@ -28,12 +28,13 @@ log = logging.getLogger(__name__)
 Callback = Callable[[Any], None]
 
 
-def _decode(kind: str, sample: "zenoh.Sample") -> Any:
+def _decode(kind: str, sample: "zenoh.Sample", fields_max_shape=None) -> Any:
     payload = sample.payload.to_bytes()
     encoding = sample.encoding
     if kind == "fields":
         att = sample.attachment
-        return wire.decode_fields(payload, att.to_bytes() if att is not None else None, encoding)
+        return wire.decode_fields(payload, att.to_bytes() if att is not None else None, encoding,
+                                  max_shape=fields_max_shape)
     if kind == "contacts":
         return wire.decode_contacts(payload, encoding)
     if kind == "wrench":
@@ -41,12 +42,12 @@ def _decode(kind: str, sample: "zenoh.Sample") -> Any:
     return wire.decode_status(payload, encoding)
 
 
-def decode_sample(sample: "zenoh.Sample") -> tuple[str, Any]:
+def decode_sample(sample: "zenoh.Sample", fields_max_shape=None) -> tuple[str, Any]:
     """A zenoh Sample on `tensortouch/<id>/<kind>` -> (kind, decoded object). Raises WireError."""
     sensor_id, kind = wire.parse_key(str(sample.key_expr))
     if kind not in wire.KINDS:
         raise wire.WireError(f"key {sample.key_expr}: unknown stream {kind!r}")
-    msg = _decode(kind, sample)
+    msg = _decode(kind, sample, fields_max_shape)
     found = msg["sensor_id"] if isinstance(msg, dict) else msg.sensor_id
     if found != sensor_id:
         raise wire.WireError(f"{sample.key_expr}: payload names sensor {found!r}, key says {sensor_id!r}")
@@ -60,17 +61,19 @@ class Subscriber:
     or a `zenoh_config` (a zenoh.Config, or the path of Zenoh's JSON5 config file). With neither,
     it connects to the meeting point (runtime.apps.zenoh_session.default_endpoint(), loopback) and
     listens nowhere. `on_fields(FieldsFrame)`, `on_contacts(ContactsFrame)`,
-    `on_wrench(Wrench)`, `on_status(dict)` are called for each decoded message.
+    `on_wrench(Wrench)`, `on_status(dict)` are called for each decoded message. `fields_max_shape`
+    (C, H, W) drops (and counts) larger field images before their data is converted.
     """
 
     def __init__(self, sensor_id: str = "*", *, session: zenoh.Session | None = None,
                  zenoh_config: zenoh.Config | str | None = None, connect: Sequence[str] = (),
                  listen: Sequence[str] = (), on_fields: Callback | None = None,
                  on_contacts: Callback | None = None, on_wrench: Callback | None = None,
-                 on_status: Callback | None = None):
+                 on_status: Callback | None = None, fields_max_shape: tuple[int, int, int] | None = None):
         if sensor_id not in ("*",):
             wire.check_sensor_id(sensor_id)
         self.sensor_id = sensor_id
+        self.fields_max_shape = fields_max_shape
         self._callbacks = {"fields": on_fields, "contacts": on_contacts, "wrench": on_wrench,
                            "status": on_status}
         self._cond = threading.Condition()
@@ -92,7 +95,7 @@ class Subscriber:
         if str(sample.key_expr).rsplit("/", 1)[-1] not in wire.KINDS:
             return  # a stream added by a newer wire version: not ours to decode
         try:
-            kind, msg = decode_sample(sample)
+            kind, msg = decode_sample(sample, self.fields_max_shape)
         except Exception as exc:  # noqa: BLE001 - never raise into zenoh's thread
             with self._cond:
                 self.errors += 1
@@ -156,17 +159,22 @@ def _session_of(obj: Any) -> zenoh.Session:
     return getattr(obj, "session", obj)
 
 
-def query_info(session: Any, sensor_id: str, timeout: float = 2.0) -> dict:
+def query_info(session: Any, sensor_id: str, timeout: float = 2.0, max_bytes: int | None = None) -> dict:
     """Ask sensor `sensor_id`'s queryable for its info (model hash, calibration version, bounds...).
 
     `session` is a zenoh.Session, a Subscriber or a Publisher. Raises TensorTouchError when the
-    sensor does not answer within `timeout` s or answers with an error.
+    sensor does not answer within `timeout` s, answers with an error, or (with `max_bytes`) with a
+    larger reply.
     """
     wire.check_sensor_id(sensor_id)
     problems = []
     for reply in _session_of(session).get(wire.info_key(sensor_id), timeout=timeout):
         if reply.ok is not None:
-            return wire.decode_info(reply.ok.payload.to_bytes(), reply.ok.encoding)
+            payload = reply.ok.payload
+            if max_bytes is not None and len(payload) > max_bytes:
+                problems.append(f"info reply of {len(payload)} bytes, more than the {max_bytes} accepted")
+                continue
+            return wire.decode_info(payload.to_bytes(), reply.ok.encoding)
         problems.append(reply.err.payload.to_string())
     detail = f": {'; '.join(problems)}" if problems else f" within {timeout} s"
     raise TensorTouchError(f"sensor {sensor_id!r} did not answer on {wire.info_key(sensor_id)}{detail}")
