@@ -29,6 +29,11 @@ Callback = Callable[[Any], None]
 
 
 def _decode(kind: str, sample: "zenoh.Sample", fields_max_shape=None) -> Any:
+    if kind == "fields" and fields_max_shape is not None:
+        limit = 2 * fields_max_shape[0] * fields_max_shape[1] * fields_max_shape[2]     # float16 bytes
+        if len(sample.payload) > limit:           # refused before the payload is copied out of zenoh
+            raise wire.WireError(f"fields: payload of {len(sample.payload)} bytes exceeds this receiver's "
+                                 f"limit {tuple(fields_max_shape)} ({limit} bytes)")
     payload = sample.payload.to_bytes()
     encoding = sample.encoding
     if kind == "fields":
