@@ -31,8 +31,17 @@ def _xdg(name: str, fallback: str) -> Path:
 
 
 def models_dir() -> Path:
-    """Folder of model packages (`exported_models/<name>/`)."""
-    return _env_path("TENSORTOUCH_MODELS", ROOT / "exported_models")
+    """The writable folder of model packages (`<dir>/<name>/`, where `train export` writes):
+    $TENSORTOUCH_MODELS, else exported_models/ of a checkout, else $XDG_DATA_HOME/tensortouch/exported_models
+    of a wheel install."""
+    default = _xdg("DATA", ".local/share") / "exported_models" if INSTALLED else ROOT / "exported_models"
+    return _env_path("TENSORTOUCH_MODELS", default)
+
+
+def shipped_models_dir() -> Path | None:
+    """The read-only model packages inside an installed package; None in a checkout."""
+    shipped = ROOT / "exported_models"
+    return shipped if INSTALLED and shipped.is_dir() else None
 
 
 def calibration_dir() -> Path:

@@ -176,7 +176,9 @@ class Build:
         return self.root / "dataset"
 
     def session(self, spec: SessionSpec) -> Path:
-        return self.root / "sessions" / spec.name
+        from ...contracts.names import confined
+
+        return confined(self.root / "sessions", spec.name, "session (serial-seed)")
 
     def all_sessions(self) -> list[SessionSpec]:
         return list(self.cfg.train) + list(self.cfg.heldout)
