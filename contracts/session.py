@@ -31,7 +31,7 @@ import numpy as np
 
 from .errors import SessionError
 from .files import atomic_write, atomic_write_json
-
+from .names import check_name
 from .units import HOUSE, accepted, to_house
 
 SCHEMA = "tensortouch.session"
@@ -193,8 +193,7 @@ def validate_manifest(manifest: dict, where: str = "session.json") -> None:
     version = manifest.get("schema_version")
     if not isinstance(version, int) or version > SCHEMA_VERSION:
         raise SessionError(f"{where}: schema_version {version!r} not supported (this runtime reads <= {SCHEMA_VERSION})")
-    if not isinstance(manifest.get("sensor_id"), str) or not manifest["sensor_id"]:
-        raise SessionError(f"{where}: sensor_id must be a non-empty string")
+    check_name(manifest.get("sensor_id"), f"{where}: sensor_id", SessionError)   # it names folders and keys
     units = manifest.get("units", {})
     if not isinstance(units, dict):
         raise SessionError(f"{where}: units must be an object such as {UNITS}")

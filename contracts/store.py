@@ -1,6 +1,8 @@
 """Calibration store: one folder per sensor, versioned, atomic, hash-verified (docs/calibration_store.md).
 
-Writers of one sensor queue on a lock file (flock). A new version goes to a temporary folder inside
+Writers of one sensor queue on a lock file (flock). Every operation that derives a version from the
+current one (derive, rollback, a caller's read-modify-write inside `locked()`) reads the current
+version under that lock, so two processes never lose each other's change. A new version goes to a temporary folder inside
 `versions/`; every file is fsynced and hashed, the folder fsynced, renamed into place and `versions/`
 fsynced; the `CURRENT` pointer is replaced last with an atomic rename and the sensor folder fsynced.
 A crash or a full disk at any point leaves the previous version active and intact. Loads check
@@ -18,16 +20,18 @@ import math
 import os
 import re
 import shutil
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from . import paths
 from .errors import CalibrationError
 from .files import atomic_write
-
+from .names import confined, is_name
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +39,11 @@ SCHEMA = "tensortouch.calibration"
 SCHEMA_VERSION = 1
 TABLES = ("theta", "phi", "surface_xyz", "normals", "pixel_area", "mask")
 _VERSION_RE = re.compile(r"^v(\d{4,})$")
-_SENSOR_RE = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*$")
 _FILE_RE = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*$")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
 _STALE_TMP_RE = re.compile(r"^\.tmp-v\d{4,}-")
 LOCK_NAME = ".lock"
+ANY = object()     # write(base_version=ANY): store on top of whatever version is active
 
 
 def sha256_file(path: Path) -> str:
@@ -207,44 +211,74 @@ def _fsync_file(path: Path) -> None:
         os.close(fd)
 
 
+_held = threading.local()     # the sensor folders this thread holds the lock of (re-entry is free)
+
+
 @contextlib.contextmanager
 def _locked(sensor_dir: Path):
-    """Exclusive lock of one sensor's folder (flock on LOCK_NAME): writers queue, one at a time."""
+    """Exclusive lock of one sensor's folder (flock on LOCK_NAME): writers queue, one at a time.
+    Re-entrant within a thread, so a read-modify-write can hold it around write/derive/rollback."""
+    key = os.path.abspath(sensor_dir)
+    held = _held.__dict__.setdefault("dirs", set())
+    if key in held:
+        yield
+        return
     sensor_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(sensor_dir / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
+        held.add(key)
+        try:
+            yield
+        finally:
+            held.discard(key)
     finally:
         os.close(fd)   # closing releases the lock
 
 
 class CalibrationStore:
-    """The folder holding every sensor's calibration versions."""
+    """The folder holding every sensor's calibration versions.
 
-    def __init__(self, root: str | Path | None = None):
+    `root` is where versions are written (default contracts.paths.calibration_dir()). `shipped` is an
+    optional read-only store underneath it (default: the calibrations inside an installed package,
+    contracts.paths.shipped_calibration_dir()): a sensor or version missing from `root` is read from
+    there, and a new version of a shipped sensor is written to `root`, numbered after the shipped ones."""
+
+    def __init__(self, root: str | Path | None = None, shipped: str | Path | None = None):
         self.root = Path(root) if root is not None else paths.calibration_dir()
+        if shipped is None and root is None:
+            shipped = paths.shipped_calibration_dir()
+        self.shipped = Path(shipped) if shipped is not None and Path(shipped).resolve() != self.root.resolve() else None
 
     def _sensor_dir(self, sensor_id: str) -> Path:
-        if not isinstance(sensor_id, str) or not _SENSOR_RE.match(sensor_id):
-            raise CalibrationError(f"sensor id {sensor_id!r}: use letters, digits, '.', '_' or '-' "
-                                   f"(not starting with '.')")
-        return self.root / sensor_id
+        """The sensor's folder in the writable store (where its lock, CURRENT and new versions go)."""
+        return confined(self.root, sensor_id, "sensor id", CalibrationError)
+
+    def _bases(self, sensor_id: str) -> list[Path]:
+        """The sensor's folders to read from: the writable store's first, then the shipped one's."""
+        bases = [self._sensor_dir(sensor_id)]
+        if self.shipped is not None:
+            bases.append(confined(self.shipped, sensor_id, "sensor id", CalibrationError))
+        return bases
 
     # ----- reading -------------------------------------------------------------------------
     def sensors(self) -> list[str]:
-        if not self.root.is_dir():
-            return []
-        return sorted(p.name for p in self.root.iterdir() if (p / "CURRENT").is_file() and _SENSOR_RE.match(p.name))
+        found = set()
+        for root in (self.root, self.shipped):
+            if root is not None and root.is_dir():
+                found.update(p.name for p in root.iterdir() if (p / "CURRENT").is_file() and is_name(p.name))
+        return sorted(found)
 
     def versions(self, sensor_id: str) -> list[str]:
-        folder = self._sensor_dir(sensor_id) / "versions"
-        if not folder.is_dir():
-            return []
-        return sorted(p.name for p in folder.iterdir() if _VERSION_RE.match(p.name))
+        found = set()
+        for base in self._bases(sensor_id):
+            if (base / "versions").is_dir():
+                found.update(p.name for p in (base / "versions").iterdir() if _VERSION_RE.match(p.name))
+        return sorted(found)
 
     def current(self, sensor_id: str) -> str:
-        pointer = self._sensor_dir(sensor_id) / "CURRENT"
+        pointer = next((b / "CURRENT" for b in self._bases(sensor_id) if (b / "CURRENT").is_file()),
+                       self._sensor_dir(sensor_id) / "CURRENT")
         if not pointer.is_file():
             known = ", ".join(self.sensors()) or "none"
             raise CalibrationError(f"{pointer}: no calibration for sensor '{sensor_id}' "
@@ -259,14 +293,18 @@ class CalibrationStore:
         return text
 
     def _version_dir(self, sensor_id: str, version: str) -> Path:
-        """The folder of `version`, which must be a real folder directly inside versions/ (no symlink out)."""
+        """The folder of `version`, which must be a real folder directly inside versions/ (no symlink out);
+        the writable store's if it has it, else the shipped store's."""
         if not isinstance(version, str) or not _VERSION_RE.match(version):
             raise CalibrationError(f"sensor {sensor_id}: version {version!r} is not a version name like v0001")
-        versions_dir = self._sensor_dir(sensor_id) / "versions"
-        folder = versions_dir / version
-        if folder.is_symlink() or (folder.exists() and folder.resolve().parent != versions_dir.resolve()):
-            raise CalibrationError(f"{folder}: is a link out of the store; refusing it")
-        return folder
+        for base in self._bases(sensor_id):
+            versions_dir = base / "versions"
+            folder = versions_dir / version
+            if folder.is_symlink() or (folder.exists() and folder.resolve().parent != versions_dir.resolve()):
+                raise CalibrationError(f"{folder}: is a link out of the store; refusing it")
+            if folder.exists():
+                return folder
+        return self._sensor_dir(sensor_id) / "versions" / version
 
     @staticmethod
     def _inside(folder: Path, name: str) -> Path:
@@ -329,8 +367,8 @@ class CalibrationStore:
         active = self.current(sensor_id)
         for v in self.versions(sensor_id):
             try:
-                meta = json.loads((self.root / sensor_id / "versions" / v / "calibration.json").read_text())
-            except (OSError, ValueError, RecursionError):
+                meta = json.loads((self._version_dir(sensor_id, v) / "calibration.json").read_text())
+            except (OSError, ValueError, RecursionError, CalibrationError):
                 meta = {}
             meta = meta if isinstance(meta, dict) else {}
             rows.append({"version": v, "active": v == active, "created": meta.get("created"),
@@ -338,14 +376,22 @@ class CalibrationStore:
         return rows
 
     # ----- writing -------------------------------------------------------------------------
+    def locked(self, sensor_id: str):
+        """Context manager holding `sensor_id`'s writer lock: read the current version, compute, then
+        write/derive/rollback inside it, and no other writer (thread or process) comes in between."""
+        return _locked(self._sensor_dir(sensor_id))
+
     def write(self, sensor_id: str, tables: dict[str, np.ndarray], meta: dict,
-              files: dict[str, bytes | Path] | None = None, activate: bool = True) -> str:
+              files: dict[str, bytes | Path] | None = None, activate: bool = True,
+              base_version=ANY) -> str:
         """Store a new version atomically and (by default) make it current. Returns its name.
 
         `tables` maps every name of TABLES to an array; `meta` holds at least gel_center_px,
         gel_radius_px and model_size (schema, sensor_id, version, tables, files are filled in);
         `files` adds extra files (e.g. correction.onnx) as bytes or paths to copy.
-        Concurrent writers (threads or processes) queue on the sensor's lock file.
+        Concurrent writers (threads or processes) queue on the sensor's lock file. With `base_version`
+        (a version name, or None for "no version yet") the write is refused unless that is still the
+        active version once the lock is held: a caller that read version N stores N+1 only on top of N.
         """
         sensor_dir = self._sensor_dir(sensor_id)
         missing = [k for k in TABLES if k not in tables]
@@ -367,6 +413,11 @@ class CalibrationStore:
                                    f"stored") from exc
         with _locked(sensor_dir):
             active = self._active_or_none(sensor_id)
+            if base_version is not ANY and active != base_version:
+                raise CalibrationError(
+                    f"sensor {sensor_id}: the active calibration is {active or 'none'}, not "
+                    f"{base_version or 'none'} as when this change was computed (another writer came first); "
+                    f"nothing was stored, run it again")
             self._clean_stale(sensor_dir)
             existing = [int(_VERSION_RE.match(v).group(1)) for v in self.versions(sensor_id)]
             version = f"v{(max(existing) + 1) if existing else 1:04d}"
@@ -450,21 +501,33 @@ class CalibrationStore:
             except OSError as exc:
                 log.warning("cannot remove %s left by an interrupted write: %s", p, exc)
 
-    def derive(self, sensor_id: str, changes: dict, files: dict[str, bytes | Path] | None = None,
-               provenance: dict | None = None) -> str:
-        """New version = current version with `changes` merged into its metadata (tables kept)."""
-        cal = self.load(sensor_id)
-        meta = {k: v for k, v in cal.meta.items() if k not in ("files", "tables", "version", "created")}
-        meta.update(changes)
-        if provenance is not None:
-            meta["provenance"] = provenance
-        keep = {}
-        corr = meta.get("correction")
-        if corr and corr.get("file") and not (files and corr["file"] in files):
-            keep[corr["file"]] = cal.folder / corr["file"]
-        keep.update(files or {})
-        tables = {k: getattr(cal, k) for k in TABLES}
-        return self.write(sensor_id, tables, meta, files=keep)
+    def derive(self, sensor_id: str, changes: dict | Callable[[Calibration], dict],
+               files: dict[str, bytes | Path] | None = None, provenance: dict | None = None,
+               base_version: str | None = None) -> str:
+        """New version = current version with `changes` merged into its metadata (tables kept).
+
+        The current version is read under the sensor's lock and the new one written before it is
+        released. `changes` may be a function of the current Calibration (e.g. its effects list plus
+        one), evaluated under the lock. With `base_version`, refused unless that is the current one."""
+        with self.locked(sensor_id):
+            cal = self.load(sensor_id)
+            if base_version is not None and cal.version != base_version:
+                raise CalibrationError(
+                    f"sensor {sensor_id}: the active calibration is {cal.version}, not {base_version} as when "
+                    f"this change was computed (another writer came first); nothing was stored, run it again")
+            if callable(changes):
+                changes = changes(cal)
+            meta = {k: v for k, v in cal.meta.items() if k not in ("files", "tables", "version", "created")}
+            meta.update(changes)
+            if provenance is not None:
+                meta["provenance"] = provenance
+            keep = {}
+            corr = meta.get("correction")
+            if corr and corr.get("file") and not (files and corr["file"] in files):
+                keep[corr["file"]] = cal.folder / corr["file"]
+            keep.update(files or {})
+            tables = {k: getattr(cal, k) for k in TABLES}
+            return self.write(sensor_id, tables, meta, files=keep, base_version=cal.version)
 
     def rollback(self, sensor_id: str, version: str | None = None) -> str:
         """Make `version` (default: the one before the active one) current again."""

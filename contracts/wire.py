@@ -20,8 +20,8 @@ import numpy as np
 
 from .fields import CHANNEL_UNITS, CHANNELS
 from .wire_keys import (ALIVE, ENCODINGS, INFO, KEY_PREFIX, KINDS, MIME, SCHEMAS,  # noqa: F401 (the wire API)
-                               WIRE_VERSION, WireError, alive_key, check_sensor_id, info_key, key, parse_key,
-                               schema_of)
+                               WIRE_VERSION, NonFiniteError, WireError, alive_key, check_sensor_id, info_key,
+                               key, parse_key, schema_of)
 from .wire_keys import check_encoding as _check_encoding
 from .wire_keys import dumps as _dumps
 from .wire_keys import loads as _loads
@@ -34,6 +34,36 @@ FLOAT16_MAX = float(np.finfo(np.float16).max)  # 65504: larger magnitudes are cl
 
 _HALF = np.dtype(FIELDS_DTYPE)
 _HALF_SIGN, _HALF_ABS, _HALF_INF, _HALF_MAX_BITS = 0x8000, 0x7FFF, 0x7C00, 0x7BFF
+SEQ_MAX = 2**63 - 1                   # seq, id and age_frames are non-negative 64-bit integers on the wire
+
+
+# --------------------------------------------------------------------------- received numbers
+
+def _number(kind: str, name: str, value: Any) -> float:
+    """A received JSON number as a finite float: a string, bool or list is a WireError; NaN, infinity
+    or an integer beyond the float range is a NonFiniteError (the message is dropped and counted)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise WireError(f"{kind} field {name!r}: expected a number, got {str(value)[:40]!r}")
+    try:
+        out = float(value)
+    except OverflowError:
+        raise NonFiniteError(f"{kind} field {name!r}: integer beyond the float range") from None
+    if not math.isfinite(out):
+        raise NonFiniteError(f"{kind} field {name!r}: non-finite number {out}")
+    return out
+
+
+def _integer(kind: str, name: str, value: Any) -> int:
+    """A received JSON integer in 0..SEQ_MAX (seq, ids, ages)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= SEQ_MAX:
+        raise WireError(f"{kind} field {name!r}: expected an integer 0..2^63-1, got {str(value)[:40]!r}")
+    return value
+
+
+def _strings(kind: str, name: str, value: Any) -> tuple[str, ...]:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise WireError(f"{kind} field {name!r}: expected a list of strings")
+    return tuple(value)
 
 
 # --------------------------------------------------------------------------- fields
@@ -89,7 +119,8 @@ def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
 
     Payload: C*H*W little-endian float16, C-order. Attachment: compact JSON header (schema, sensor id,
     seq, t, shape, dtype, channels, units, clipped). |x| > 65504 (and +-inf) is clipped to +-65504
-    and the channel is listed in `clipped`; NaN passes through as NaN.
+    and the channel is listed in `clipped`; NaN is refused with a WireError naming the channels
+    (receivers drop a frame holding NaN).
     """
     arr = np.asarray(fields)
     if arr.ndim != 3 or arr.shape[0] != len(channels) or len(units) != len(channels):
@@ -98,6 +129,10 @@ def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
     half = to_float16(arr)
     # overflow test on the bit pattern (float16 arithmetic in numpy is slow): |x| bits == inf
     bits = half.view(np.uint16)
+    nan = (bits & _HALF_ABS) > _HALF_INF
+    if nan.any():
+        bad = nan.reshape(nan.shape[0], -1).any(axis=1)
+        raise WireError(f"fields: NaN in channel(s) {[n for n, b in zip(channels, bad) if b]} cannot be sent")
     over = (bits & _HALF_ABS) == _HALF_INF
     clipped: tuple[str, ...] = ()
     if over.any():
@@ -111,40 +146,61 @@ def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
 
 
 def decode_fields(payload: bytes | bytearray, attachment: bytes | bytearray | str | None,
-                  encoding: Any = None) -> FieldsFrame:
-    """Payload + attachment (+ optional Encoding) -> FieldsFrame with float32 data."""
+                  encoding: Any = None, max_shape: tuple[int, int, int] | None = None) -> FieldsFrame:
+    """Payload + attachment (+ optional Encoding) -> FieldsFrame with float32 data. With `max_shape`
+    (C, H, W), a larger frame is refused before its data is converted (a receiver's memory bound)."""
     _check_encoding("fields", encoding)
     if attachment is None:
         raise WireError("fields: missing attachment (the JSON header with seq, t, shape, channels)")
     head = _loads("fields", attachment)
-    shape = tuple(int(n) for n in _need("fields", head, "shape"))
-    channels = tuple(_need("fields", head, "channels"))
-    units = tuple(_need("fields", head, "units"))
+    shape = _need("fields", head, "shape")
+    if not isinstance(shape, list):
+        raise WireError(f"fields: shape must be a list of integers, got {str(shape)[:40]!r}")
+    shape = tuple(_integer("fields", "shape", n) for n in shape)
+    channels = _strings("fields", "channels", _need("fields", head, "channels"))
+    units = _strings("fields", "units", _need("fields", head, "units"))
     if head.get("dtype", FIELDS_DTYPE) != FIELDS_DTYPE:
         raise WireError(f"fields: dtype {head.get('dtype')!r}, expected {FIELDS_DTYPE!r}")
-    if len(shape) != 3 or shape[0] != len(channels) or len(units) != len(channels):
+    if len(shape) != 3 or shape[0] != len(channels) or len(units) != len(channels) or min(shape) < 1:
         raise WireError(f"fields: shape {shape} does not match {len(channels)} channels / "
-                        f"{len(units)} units")
+                        f"{len(units)} units (every size >= 1)")
+    if max_shape is not None and any(n > m for n, m in zip(shape, max_shape)):
+        raise WireError(f"fields: shape {shape} exceeds this receiver's limit {tuple(max_shape)}")
     expected = 2 * shape[0] * shape[1] * shape[2]
     if len(payload) != expected:
         raise WireError(f"fields: payload is {len(payload)} bytes, expected {expected} "
                         f"(float16 x {shape})")
-    data = np.frombuffer(payload, dtype=_HALF).reshape(shape).astype(np.float32)
-    return FieldsFrame(sensor_id=_received_id("fields", head),
-                       seq=int(_need("fields", head, "seq")), t=float(_need("fields", head, "t")),
-                       data=data, channels=channels, units=units,
-                       clipped=tuple(head.get("clipped", ())))
+    sensor_id = _received_id("fields", head)
+    seq = _integer("fields", "seq", _need("fields", head, "seq"))
+    t = _number("fields", "t", _need("fields", head, "t"))
+    clipped = _strings("fields", "clipped", head.get("clipped", []))
+    half = np.frombuffer(payload, dtype=_HALF)
+    # NaN and +-inf are the float16 patterns with all exponent bits set
+    bad = int(np.count_nonzero((half.view(np.uint16) & _HALF_INF) == _HALF_INF))
+    if bad:
+        raise NonFiniteError(f"fields: {bad} non-finite value(s) (NaN/inf) in the payload")
+    data = half.reshape(shape).astype(np.float32)
+    return FieldsFrame(sensor_id=sensor_id, seq=seq, t=t, data=data, channels=channels, units=units,
+                       clipped=clipped)
 
 
 # --------------------------------------------------------------------------- contacts
 
-def _vec(value: Any, n: int, name: str) -> tuple[float, ...]:
+def _vec(value: Any, n: int, name: str, kind: str = "contact") -> tuple[float, ...]:
+    """`n` finite numbers from a received list (see _number)."""
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise WireError(f"{kind} field {name!r}: expected {n} numbers, got {str(value)[:60]!r}")
+    return tuple(_number(kind, name, v) for v in value)
+
+
+def _local_vec(value: Any, n: int, name: str) -> tuple[float, ...]:
+    """`n` numbers from the sending side (numpy arrays and scalars welcome)."""
     try:
         out = tuple(float(v) for v in value)
     except (TypeError, ValueError):
-        raise WireError(f"contact field {name!r}: expected {n} numbers, got {value!r}") from None
+        raise WireError(f"field {name!r}: expected {n} numbers, got {value!r}") from None
     if len(out) != n:
-        raise WireError(f"contact field {name!r}: expected {n} numbers, got {len(out)}")
+        raise WireError(f"field {name!r}: expected {n} numbers, got {len(out)}")
     return out
 
 
@@ -192,15 +248,12 @@ class Contact:
         kw: dict[str, Any] = {}
         for name in names:
             value = obj[name]
-            try:
-                if name in cls._VECTORS:
-                    kw[name] = _vec(value, cls._VECTORS[name], name)
-                elif name in ("id", "age_frames"):
-                    kw[name] = int(value)
-                else:
-                    kw[name] = float(value)
-            except (TypeError, ValueError):
-                raise WireError(f"contact field {name!r}: expected a number, got {value!r}") from None
+            if name in cls._VECTORS:
+                kw[name] = _vec(value, cls._VECTORS[name], name)
+            elif name in ("id", "age_frames"):
+                kw[name] = _integer("contact", name, value)
+            else:
+                kw[name] = _number("contact", name, value)
         return cls(**kw)
 
 
@@ -216,9 +269,18 @@ class ContactsFrame:
     contacts: list[Contact] = field(default_factory=list)
 
 
+def _local_contact(obj: Any) -> Contact:
+    """A Contact from a dict on the sending side (numpy numbers welcome; to_dict checks finiteness)."""
+    if not isinstance(obj, dict):
+        raise WireError(f"contact: expected a Contact or a dict, got {type(obj).__name__}")
+    missing = [n for n in CONTACT_FIELDS if n not in obj]
+    if missing:
+        raise WireError(f"contact: missing field(s) {missing}")
+    return Contact(**{n: obj[n] for n in CONTACT_FIELDS})
+
+
 def encode_contacts(contacts: Iterable[Contact | dict], seq: int, t: float, sensor_id: str) -> bytes:
-    items = [c.to_dict() if isinstance(c, Contact) else Contact.from_dict(c).to_dict()
-             for c in contacts]
+    items = [(c if isinstance(c, Contact) else _local_contact(c)).to_dict() for c in contacts]
     body = {"schema": SCHEMAS["contacts"], "sensor_id": check_sensor_id(sensor_id),
             "seq": int(seq), "t": float(t), "contacts": items}
     return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()  # items are plain
@@ -231,7 +293,8 @@ def decode_contacts(payload: bytes | bytearray | str, encoding: Any = None) -> C
     if not isinstance(items, list):
         raise WireError("contacts payload: field 'contacts' must be a list")
     return ContactsFrame(sensor_id=_received_id("contacts", obj),
-                         seq=int(_need("contacts", obj, "seq")), t=float(_need("contacts", obj, "t")),
+                         seq=_integer("contacts", "seq", _need("contacts", obj, "seq")),
+                         t=_number("contacts", "t", _need("contacts", obj, "t")),
                          contacts=[Contact.from_dict(c) for c in items])
 
 
@@ -261,17 +324,17 @@ def encode_wrench(force_n: Sequence[float], torque_nmm: Sequence[float], seq: in
                   sensor_id: str) -> bytes:
     return _dumps({"schema": SCHEMAS["wrench"], "sensor_id": check_sensor_id(sensor_id),
                    "seq": int(seq), "t": float(t), "frame": "gel",
-                   "force_n": list(_vec(force_n, 3, "force_n")),
-                   "torque_nmm": list(_vec(torque_nmm, 3, "torque_nmm"))})
+                   "force_n": list(_local_vec(force_n, 3, "force_n")),
+                   "torque_nmm": list(_local_vec(torque_nmm, 3, "torque_nmm"))})
 
 
 def decode_wrench(payload: bytes | bytearray | str, encoding: Any = None) -> Wrench:
     _check_encoding("wrench", encoding)
     obj = _loads("wrench", payload)
-    return Wrench(sensor_id=_received_id("wrench", obj), seq=int(_need("wrench", obj, "seq")),
-                  t=float(_need("wrench", obj, "t")),
-                  force_n=_vec(_need("wrench", obj, "force_n"), 3, "force_n"),
-                  torque_nmm=_vec(_need("wrench", obj, "torque_nmm"), 3, "torque_nmm"))
+    return Wrench(sensor_id=_received_id("wrench", obj), seq=_integer("wrench", "seq", _need("wrench", obj, "seq")),
+                  t=_number("wrench", "t", _need("wrench", obj, "t")),
+                  force_n=_vec(_need("wrench", obj, "force_n"), 3, "force_n", "wrench"),
+                  torque_nmm=_vec(_need("wrench", obj, "torque_nmm"), 3, "torque_nmm", "wrench"))
 
 
 # --------------------------------------------------------------------------- status and info
@@ -300,6 +363,8 @@ def decode_status(payload: bytes | bytearray | str, encoding: Any = None) -> dic
     for name in ("sensor_id", "seq", "t", "state", "flags", "timings_ms"):
         _need("status", obj, name)
     _received_id("status", obj)
+    _integer("status", "seq", obj["seq"])
+    _number("status", "t", obj["t"])
     if not isinstance(obj["flags"], list) or not isinstance(obj["timings_ms"], dict):
         raise WireError("status payload: 'flags' must be a list and 'timings_ms' an object")
     return obj

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from typing import Any
 
 import numpy as np
 
 from .errors import TensorTouchError
+from .names import NAME_PATTERN, is_name
 
 WIRE_VERSION = 1
 KEY_PREFIX = "tensortouch"
@@ -25,20 +25,24 @@ MIME = {"fields": "application/octet-stream", "contacts": "application/json",
 # Zenoh Encoding strings ("<mime>;<schema>") for each payload kind.
 ENCODINGS = {kind: f"{MIME[kind]};{schema}" for kind, schema in SCHEMAS.items()}
 
-# The one pattern for sensor ids, the key chunks and the file names made from them (docs/wire.md Keys).
-SENSOR_ID_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}"
-_SENSOR_ID = re.compile(rf"\A{SENSOR_ID_PATTERN}\Z")
+# The one pattern for sensor ids, the key chunks and the file names made from them (contracts/names.py).
+SENSOR_ID_PATTERN = NAME_PATTERN
 
 
 class WireError(TensorTouchError):
     """A Zenoh payload does not match the wire format (schema, shape, byte length, fields)."""
 
 
+class NonFiniteError(WireError):
+    """A received payload holds NaN or an infinity (or a number too large for a float): such a message
+    is dropped and counted by its receiver, never delivered."""
+
+
 # --------------------------------------------------------------------------- key expressions
 
 def check_sensor_id(sensor_id: str) -> str:
     """Return `sensor_id` if it is one valid key chunk (letters, digits, `_.-`, 1-64 chars)."""
-    if not isinstance(sensor_id, str) or not _SENSOR_ID.match(sensor_id):
+    if not is_name(sensor_id):
         raise WireError(f"sensor id {str(sensor_id)[:80]!r}: expected {SENSOR_ID_PATTERN} (1-64 characters of "
                         "[A-Za-z0-9_.-] starting with a letter or digit; it becomes a Zenoh key chunk and a "
                         "folder name)")
@@ -118,9 +122,30 @@ def dumps(obj: dict, strict: bool = True) -> bytes:
     return json.dumps(plain(obj, strict), separators=(",", ":"), allow_nan=False).encode()
 
 
+def _no_constant(kind: str):
+    def refuse(token: str):
+        raise NonFiniteError(f"{kind} payload: non-finite number {token} (NaN and infinities are not sent)")
+    return refuse
+
+
+def _finite_float(kind: str):
+    def parse(text: str) -> float:
+        value = float(text)
+        if not math.isfinite(value):
+            raise NonFiniteError(f"{kind} payload: number {text[:40]} is beyond the float range")
+        return value
+    return parse
+
+
 def loads(kind: str, payload: bytes | bytearray | str) -> dict:
+    """A JSON payload as a dict with its schema checked. NaN, Infinity and numbers beyond the float range
+    raise NonFiniteError while parsing, so no decoded JSON message ever holds a non-finite number."""
     try:
-        obj = json.loads(payload)
+        obj = json.loads(payload, parse_constant=_no_constant(kind), parse_float=_finite_float(kind))
+    except WireError:
+        raise
+    except RecursionError:
+        raise WireError(f"{kind} payload: nested too deeply") from None
     except (ValueError, UnicodeDecodeError) as exc:
         raise WireError(f"{kind} payload: not valid UTF-8 JSON ({exc})") from None
     if not isinstance(obj, dict):

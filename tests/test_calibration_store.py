@@ -41,6 +41,75 @@ def store(tmp_path):
     return CalibrationStore(tmp_path / "calib")
 
 
+EFFECTS_ADDER = textwrap.dedent("""
+    import argparse, io, re, sys
+    from contextlib import redirect_stdout
+    from tensortouch.tools.workbench import cli
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    cli.register(parser.add_subparsers(dest="command", required=True))
+    store, effect, param = sys.argv[1:4]
+    sys.stdin.readline()                      # start together
+    for i in range(25):
+        value = f"{0.1 + 0.01 * i:.2f}"            # inside both parameters' ranges
+        args = parser.parse_args(["effects", "add", effect, "--param", f"{param}={value}",
+                                  "--sensor", "TT-STORE", "--store", store])
+        out = io.StringIO()
+        with redirect_stdout(out):
+            assert args.func(args) == 0
+        version = re.search(r"-> calibration (v\\d+)", out.getvalue()).group(1)
+        print(version, value, flush=True)     # a confirmed change: this value is in this version
+""")
+
+
+def test_two_processes_25_effects_add_each_every_confirmed_change_is_kept(store, tmp_path):
+    """Two real processes each run `tensortouch effects add` 25 times on one sensor, each on its own
+    effect with a new parameter value every time. Every version must be its predecessor with exactly
+    the one confirmed change, so no change is lost and the final version holds each writer's last."""
+    script = tmp_path / "adder.py"
+    script.write_text(EFFECTS_ADDER)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    writers = {"strain_stiffening": "k", "friction_mismatch": "mu"}
+    procs = {eff: subprocess.Popen([sys.executable, str(script), str(store.root), eff, param], stdin=subprocess.PIPE,
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+             for eff, param in writers.items()}
+    for p in procs.values():
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    outs = {eff: p.communicate(timeout=300) for eff, p in procs.items()}
+    assert [p.returncode for p in procs.values()] == [0, 0], [o[1][-2000:] for o in outs.values()]
+    confirmed = {}                                          # version -> (effect, value)
+    for eff, (out, _) in outs.items():
+        for version, value in (line.split() for line in out.splitlines()):
+            assert version not in confirmed
+            confirmed[version] = (eff, float(value))
+    assert len(confirmed) == 50
+    assert store.versions(SENSOR) == [f"v{i:04d}" for i in range(1, 52)] and store.current(SENSOR) == "v0051"
+    previous = {e["name"]: e["params"] for e in store.load(SENSOR, "v0001").effects}
+    for i in range(2, 52):
+        version = f"v{i:04d}"
+        now = {e["name"]: e["params"] for e in store.load(SENSOR, version).effects}
+        eff, value = confirmed[version]
+        param = writers[eff]
+        assert now[eff][param] == pytest.approx(value), (version, now)
+        assert {n: p for n, p in now.items() if n != eff} == {n: p for n, p in previous.items() if n != eff}, \
+            f"{version} lost a change of {previous} (has {now})"
+        previous = now
+    last = {eff: max(v for v, (e, _) in confirmed.items() if e == eff) for eff in writers}
+    assert previous == {eff: {**previous[eff], writers[eff]: confirmed[last[eff]][1]} for eff in writers}
+
+
+def test_a_change_computed_on_an_old_version_is_refused_and_the_lock_is_reentrant(store):
+    base = store.current(SENSOR)
+    with store.locked(SENSOR):                         # re-entrant: derive takes the same lock inside
+        v2 = store.derive(SENSOR, lambda cal: {"effects": cal.effects + [{"name": "a", "params": {}}]})
+    with pytest.raises(CalibrationError, match=f"active calibration is {v2}, not {base}.*nothing was stored"):
+        store.derive(SENSOR, {"effects": []}, base_version=base)
+    cal = store.load(SENSOR)
+    with pytest.raises(CalibrationError, match="nothing was stored"):
+        store.write(SENSOR, {k: getattr(cal, k) for k in rc.TABLES}, dict(cal.meta), base_version=None)
+    assert store.versions(SENSOR) == [base, v2] and store.current(SENSOR) == v2
+
+
 def test_two_processes_25_writes_each_lose_nothing(store, tmp_path):
     script = tmp_path / "writer.py"
     script.write_text(WRITER)

@@ -107,6 +107,48 @@ def test_listen_json_in_separate_process(running_sensor):
     assert s["timings_ms"] == {"infer": 9.0}
 
 
+def test_listen_json_never_prints_a_message_holding_nan(running_sensor):
+    """A forger (a client session of the sensor's peer) puts contacts and wrenches with NaN/Infinity: `listen --json`
+    in another process prints only strict JSON (no NaN token) and says on stderr how many it dropped."""
+    import zenoh
+
+    from tensortouch.runtime.apps.publisher import zenoh_config
+
+    forger = zenoh.open(zenoh_config(mode="client", connect=[running_sensor]))  # peers route for clients
+    stop = threading.Event()
+
+    def forge():
+        c = CONTACT.to_dict()
+        while not stop.is_set():
+            body = {"schema": "tensortouch.contacts.v1", "sensor_id": "dome01", "seq": 1, "t": 1.0,
+                    "contacts": [{**c, "force_n": [float("nan"), 0.0, 0.0]}]}
+            forger.put("tensortouch/dome01/contacts", json.dumps(body), encoding=wire.ENCODINGS["contacts"])
+            forger.put("tensortouch/dome01/wrench",
+                       '{"schema":"tensortouch.wrench.v1","sensor_id":"dome01","seq":1,"t":1.0,"frame":"gel",'
+                       '"force_n":[NaN,0,0],"torque_nmm":[0,0,-Infinity]}', encoding=wire.ENCODINGS["wrench"])
+            time.sleep(0.01)
+
+    th = threading.Thread(target=forge, daemon=True)
+    th.start()
+    try:
+        proc = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "listen", "dome01",
+                               "--connect", running_sensor, "--count", "40", "--timeout", "30", "--json",
+                               "--kinds", "contacts,wrench"], capture_output=True, text=True, timeout=60)
+    finally:
+        stop.set()
+        th.join(5)
+        forger.close()
+    assert proc.returncode == 0, proc.stderr
+
+    def refuse(token):
+        raise AssertionError(f"listen printed {token}")
+    objs = [json.loads(line, parse_constant=refuse) for line in proc.stdout.splitlines()]
+    assert len(objs) == 40
+    assert all(o["force_n"] == [0.0, 0.1, -1.0] for o in objs if o["kind"] == "wrench")
+    assert all(c["force_n"] == [0.0, 0.1, -1.0] for o in objs if o["kind"] == "contacts" for c in o["contacts"])
+    assert "held NaN or infinite numbers and were dropped" in proc.stderr, proc.stderr
+
+
 def test_listen_nothing_running_exits_1_with_hint(capsys):
     args = parse(["listen", "--connect", free_endpoint(), "--timeout", "1"])
     assert args.func(args) == 1

@@ -1,4 +1,6 @@
 """Publisher + Subscriber over a REAL zenoh session pair on loopback (peer mode, tcp, no multicast)."""
+import json
+import math
 import subprocess
 import sys
 import textwrap
@@ -120,6 +122,45 @@ def test_subscriber_counts_malformed_and_skips_unknown_streams(pair):
     pub.publish_status({"state": "stable"}, 5, 0.5)       # the stream keeps working
     assert sub.wait_for("status", timeout=5.0, since=n)["seq"] == 5
     assert sub.errors == 1
+
+
+def test_non_finite_messages_are_dropped_and_counted_never_handed_to_a_callback():
+    """A forger on the real session puts contacts, wrenches and fields holding NaN/Infinity between
+    genuine ones: the callbacks see only the genuine messages, `non_finite` counts every forged one."""
+    ep = free_endpoint()
+    pub = Publisher("dome01", listen=[ep])
+    got = {"contacts": [], "wrench": [], "fields": []}
+    sub = Subscriber("dome01", connect=[ep], on_contacts=got["contacts"].append,
+                     on_wrench=got["wrench"].append, on_fields=got["fields"].append)
+    try:
+        assert wait_until(lambda: "dome01" in alive_sensors(sub, timeout=0.5), 5.0)
+        publish_until(lambda: pub.publish_status({"state": "warmup"}, 0, 0.0), sub, "status")
+        c = make_contact(1, (0.0, 0.1, -1.2), (1.0, -2.0, 14.5)).to_dict()
+        head = json.loads(wire.encode_fields(np.zeros((15, 4, 4), np.float32), 1, 0.0, "dome01")[1])
+        nan_fields = np.zeros((15, 4, 4), np.float16)
+        nan_fields[12, 2, 2] = np.nan
+        for i in range(20):
+            body = {"schema": "tensortouch.contacts.v1", "sensor_id": "dome01", "seq": i, "t": 1.0,
+                    "contacts": [{**c, "force_n": [float("nan"), 0.0, -1.0], "force_mag_n": float("nan")}]}
+            pub.session.put(wire.key("dome01", "contacts"), json.dumps(body).encode(),
+                            encoding=wire.ENCODINGS["contacts"])
+            pub.session.put(wire.key("dome01", "wrench"),
+                            ('{"schema":"tensortouch.wrench.v1","sensor_id":"dome01","seq":%d,"t":1.0,'
+                             '"frame":"gel","force_n":[Infinity,0,0],"torque_nmm":[0,0,0]}' % i).encode(),
+                            encoding=wire.ENCODINGS["wrench"])
+            if i < 5:
+                pub.session.put(wire.key("dome01", "fields"), nan_fields.tobytes(), encoding=wire.ENCODINGS["fields"],
+                                attachment=json.dumps(head).encode())
+        assert wait_until(lambda: sub.non_finite == 45, 10.0), (sub.non_finite, sub.last_error)
+        assert sub.errors == 45 and got == {"contacts": [], "wrench": [], "fields": []}
+        pub.publish_contacts([make_contact(2, (0.0, 0.0, -0.5), (0.0, 0.0, 14.0))], 30, 2.0)
+        pub.publish_wrench((0.0, 0.0, -0.5), (0.0, 0.0, 0.0), 30, 2.0)
+        assert wait_until(lambda: got["contacts"] and got["wrench"], 5.0)
+        assert got["contacts"][0].seq == 30 and got["wrench"][0].force_n == (0.0, 0.0, -0.5)
+        assert all(math.isfinite(v) for f in got["contacts"] for ct in f.contacts for v in ct.force_n)
+    finally:
+        sub.close()
+        pub.close()
 
 
 def test_queryable_answers_and_errors(pair):

@@ -82,3 +82,44 @@ def test_the_installed_wheel_runs_the_demo_and_listen_receives_it(installed):
             listen.kill()
             listen.wait(10)
         stop(run)
+
+
+def test_the_installed_wheel_writes_calibrations_to_the_users_data_folder(installed):
+    """From a wheel, `calib init` and `effects add` on the shipped TWIN-DEMO write into
+    $XDG_DATA_HOME/tensortouch/calibration_store (default ~/.local/share/...), never into site-packages;
+    the shipped TWIN-DEMO stays readable and untouched; rollback leaves no file in the package."""
+    _, venv, tmp = installed
+    py = str(venv / "bin" / "python")
+    site = subprocess.run([py, "-c", "import tensortouch, pathlib; print(pathlib.Path(tensortouch.__file__).parent)"],
+                          check=True, capture_output=True, text=True, cwd=tmp).stdout.strip()
+    shipped = os.path.join(site, "calibration_store")
+    before = sorted(os.path.relpath(os.path.join(d, f), shipped) for d, _, fs in os.walk(shipped) for f in fs)
+    home = tmp / "home"
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("TENSORTOUCH_", "XDG_")) and k != "PYTHONPATH"}
+    env.update(HOME=str(home))
+    tt = str(venv / "bin" / "tensortouch")
+
+    def cli(*argv, extra=None):
+        proc = subprocess.run([tt, *argv], env={**env, **(extra or {})}, cwd=tmp, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return proc.stdout
+
+    demo = os.path.join(site, "runtime", "demo")
+    out = cli("calib", "init", "--source", f"replay:{demo}?realtime=0", "--sensor", "WHEEL-1")
+    data = home / ".local" / "share" / "tensortouch" / "calibration_store"
+    assert str(data) in out and (data / "WHEEL-1" / "versions" / "v0001" / "calibration.json").is_file()
+    out = cli("effects", "add", "strain_stiffening", "--param", "k=5", "--sensor", "TWIN-DEMO")
+    assert "calibration v0002" in out                      # numbered after the shipped v0001
+    assert (data / "TWIN-DEMO" / "CURRENT").read_text().strip() == "v0002"
+    assert '"strain_stiffening"' in cli("calib", "show", "TWIN-DEMO")
+    cli("calib", "rollback", "TWIN-DEMO")                  # back to the shipped v0001, read from the package
+    assert '"strain_stiffening"' not in cli("calib", "show", "TWIN-DEMO")
+    listed = cli("calib", "list")
+    assert "* TWIN-DEMO v0001" in listed and "* WHEEL-1 v0001" in listed
+    xdg = tmp / "xdg-data"
+    cli("calib", "init", "--source", f"replay:{demo}?realtime=0", "--sensor", "WHEEL-2", extra={"XDG_DATA_HOME": str(xdg)})
+    assert (xdg / "tensortouch" / "calibration_store" / "WHEEL-2" / "CURRENT").is_file()
+    after = sorted(os.path.relpath(os.path.join(d, f), shipped) for d, _, fs in os.walk(shipped) for f in fs)
+    assert after == before, sorted(set(after) ^ set(before))        # nothing written inside the package

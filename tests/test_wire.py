@@ -61,15 +61,16 @@ def test_fields_overflow_clipped_and_flagged():
     f[4, 0, 0] = 1e6
     f[10, 1, 1] = -np.inf
     f[12, 2, 2] = 65000.0          # representable: not clipped
-    f[0, 3, 3] = np.nan            # NaN passes through, not flagged as overflow
     payload, att, clipped = wire.encode_fields(f, 1, 0.0, "s")
     assert clipped == ("sigma_yy", "fn_y")
     fr = wire.decode_fields(payload, att)
     assert fr.clipped == ("sigma_yy", "fn_y")
     assert fr.data[4, 0, 0] == 65504.0 and fr.data[10, 1, 1] == -65504.0
     assert fr.data[12, 2, 2] == np.float32(np.float16(65000.0))
-    assert np.isnan(fr.data[0, 3, 3])
-    assert np.isfinite(np.delete(fr.data.ravel(), 3 * 4 + 3)).all()
+    assert np.isfinite(fr.data).all()
+    f[0, 3, 3] = np.nan            # NaN is not sent: the encoder names the channel
+    with pytest.raises(wire.WireError, match="NaN in channel.*disp_x"):
+        wire.encode_fields(f, 1, 0.0, "s")
 
 
 def test_fields_bad_inputs():
@@ -171,3 +172,69 @@ def test_info_round_trip():
     assert d["channels"] == list(CHANNELS) and d["units"] == list(CHANNEL_UNITS)
     assert d["keys"]["fields"] == "tensortouch/dome01/fields" and d["wire_version"] == 1
     assert d["runtime_version"] == "0.1.0"
+
+
+# ---------------------------------------------------------------------------- non-finite numbers received
+
+def _forged_fields(value):
+    """A fields message a hostile or broken sender built by hand, with `value` at one pixel."""
+    data = np.zeros((15, 4, 4), np.float16)
+    data[7, 1, 2] = value
+    head = {"schema": "tensortouch.fields.v1", "sensor_id": "s", "seq": 1, "t": 0.5, "shape": [15, 4, 4],
+            "dtype": "<f2", "channels": list(CHANNELS), "units": list(CHANNEL_UNITS), "clipped": []}
+    return data.tobytes(), json.dumps(head).encode()
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_fields_with_a_non_finite_value_are_refused_by_the_decoder(value):
+    with pytest.raises(wire.NonFiniteError, match="1 non-finite"):
+        wire.decode_fields(*_forged_fields(value))
+    assert np.isfinite(wire.decode_fields(*_forged_fields(65504.0)).data).all()
+
+
+CONTACT = make_contact(1).to_dict()
+TEXT_CONTACT = json.dumps({"schema": "tensortouch.contacts.v1", "sensor_id": "s", "seq": 3, "t": 1.0,
+                           "contacts": [CONTACT]})
+TEXT_WRENCH = ('{"schema":"tensortouch.wrench.v1","sensor_id":"s","seq":3,"t":1.0,"frame":"gel",'
+               '"force_n":[0.1,0.2,-0.3],"torque_nmm":[1.0,2.0,3.0]}')
+
+
+@pytest.mark.parametrize("token", ["NaN", "Infinity", "-Infinity", "1e999", "-1e400", "1" + "0" * 400])
+@pytest.mark.parametrize("where", ["force_n", "t", "area_mm2"])
+def test_contacts_and_wrench_with_a_non_finite_number_are_refused(token, where):
+    """Python's json reads NaN, Infinity and 1e999 as floats; the decoders refuse each of them, wherever
+    it stands, with NonFiniteError (the subscriber drops and counts such a message)."""
+    num = json.dumps(CONTACT["force_n"][0])
+    if where == "force_n":
+        contacts = TEXT_CONTACT.replace(f'"force_n": [{num}', f'"force_n": [{token}')
+        wrench = TEXT_WRENCH.replace('"force_n":[0.1', f'"force_n":[{token}')
+    elif where == "t":
+        contacts = TEXT_CONTACT.replace('"t": 1.0', f'"t": {token}')
+        wrench = TEXT_WRENCH.replace('"t":1.0', f'"t":{token}')
+    else:
+        contacts = TEXT_CONTACT.replace(f'"area_mm2": {json.dumps(CONTACT["area_mm2"])}', f'"area_mm2": {token}')
+        wrench = TEXT_WRENCH.replace('"torque_nmm":[1.0', f'"torque_nmm":[{token}')
+    assert contacts != TEXT_CONTACT and wrench != TEXT_WRENCH
+    with pytest.raises(wire.NonFiniteError):
+        wire.decode_contacts(contacts)
+    with pytest.raises(wire.NonFiniteError):
+        wire.decode_wrench(wrench)
+    assert wire.decode_contacts(TEXT_CONTACT).contacts[0].force_n == pytest.approx(CONTACT["force_n"])
+
+
+def test_status_and_info_with_a_non_finite_number_are_refused():
+    status = wire.encode_status({"state": "idle", "fps": 30.0}, 1, 0.0, "s").decode()
+    with pytest.raises(wire.NonFiniteError):
+        wire.decode_status(status.replace("30.0", "NaN"))
+    info = wire.encode_info({"bounds": {"disp_x": [-1.0, 1.0]}}, "s", "0").decode()
+    with pytest.raises(wire.NonFiniteError):
+        wire.decode_info(info.replace("-1.0", "-Infinity"))
+
+
+@pytest.mark.parametrize("field, value", [("force_n", ["1", 2, 3]), ("force_n", [True, 2, 3]),
+                                          ("area_mm2", "nan"), ("id", 1.5), ("id", -1), ("age_frames", "7"),
+                                          ("force_mag_n", None)])
+def test_contact_numbers_must_be_json_numbers(field, value):
+    """float("nan") and float("1") accept strings; the decoder wants JSON numbers of the right kind."""
+    with pytest.raises(wire.WireError, match=field):
+        wire.Contact.from_dict({**CONTACT, field: value})

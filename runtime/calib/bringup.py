@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ...contracts.errors import CalibrationError
+from ...contracts.store import ANY
 from ..stages.geometry import DomeProfile, surface_tables
 from ..stages.preprocess import Preprocessor
 from .rim import RimConfig, RimFit, fit_rim
@@ -131,9 +132,11 @@ def nominal_tables(center: tuple[float, float], radius_px: float, size: tuple[in
 
 def init_calibration(store, sensor_id: str, frames: list[np.ndarray], size: tuple[int, int],
                      lens: LensModel = LensModel(), gel: GelShape = GelShape(),
-                     provenance: dict | None = None, search: GelSearch = GelSearch()) -> tuple[str, RimFit]:
+                     provenance: dict | None = None, search: GelSearch = GelSearch(),
+                     base_version=ANY) -> tuple[str, RimFit]:
     """Find the gel in rest `frames` (RGB or grey), write nominal tables as a new version of
-    `sensor_id` in `store` (a contracts.store.CalibrationStore); returns (version, rim fit)."""
+    `sensor_id` in `store` (a contracts.store.CalibrationStore); returns (version, rim fit).
+    `base_version` as in CalibrationStore.write (None: only if the sensor has no version yet)."""
     from .rim import rest_image
 
     fit = find_gel(rest_image(frames), search, where=f"{sensor_id}: {len(frames)} rest frames")
@@ -147,7 +150,7 @@ def init_calibration(store, sensor_id: str, frames: list[np.ndarray], size: tupl
                            "rim": fit.to_dict(), "rest_frames": len(frames),
                            "notes": "nominal θ/φ; refine with tensortouch recalibrate --geometry",
                            **(provenance or {})}}
-    version = store.write(sensor_id, tables, meta)
+    version = store.write(sensor_id, tables, meta, base_version=base_version)
     log.info("%s: nominal calibration %s (gel centre %.1f, %.1f px, radius %.1f px)",
              sensor_id, version, fit.center[0], fit.center[1], fit.radius)
     return version, fit

@@ -226,6 +226,7 @@ def cmd_calib_init(args) -> int:
     from ..calib.bringup import GelShape, init_calibration
     from ...contracts.errors import CalibrationError, TensorTouchError
     from ..stages.model import find_package
+    from ...contracts.store import ANY
 
     store = _store(args)
     if args.sensor in store.sensors() and not args.force:
@@ -257,7 +258,8 @@ def cmd_calib_init(args) -> int:
         raise TensorTouchError(f"--source {args.source}: no frames")
     version, fit = init_calibration(store, args.sensor, frames, tuple(package.size), lens, gel,
                                     provenance={"source": args.source, "model": package.name,
-                                                "gel_shape": {f.name: getattr(gel, f.name) for f in fields(gel)}})
+                                                "gel_shape": {f.name: getattr(gel, f.name) for f in fields(gel)}},
+                                    base_version=ANY if args.force else None)  # no second first version
     print(f"{args.sensor}: gel centre ({fit.center[0]:.1f}, {fit.center[1]:.1f}) px, radius {fit.radius:.1f} px "
           f"(rim rms {fit.rms_px:.2f} px on {fit.points} rays); nominal calibration {version} stored in {store.root}")
     print(f"next: poke it with `tensortouch recalibrate --sensor {args.sensor} --geometry ...` (docs/bringup.md)")

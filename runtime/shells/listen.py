@@ -291,7 +291,8 @@ def run_listen(args) -> int:
             if saver is not None:
                 saver.close()
         if sub.errors:
-            print(f"note: {sub.errors} message(s) could not be decoded; last: {sub.last_error}",
+            nf = f" ({sub.non_finite} of them held NaN or infinite numbers and were dropped)" if sub.non_finite else ""
+            print(f"note: {sub.errors} message(s) could not be decoded{nf}; last: {sub.last_error}",
                   file=sys.stderr)
     if n == 0:
         print(f"tensortouch listen: no messages from {args.sensor!r} ({where}); is a sensor running?",

@@ -104,7 +104,10 @@ def sample_bilinear(table: np.ndarray, u: float, v: float) -> np.ndarray:
             + (1 - a) * b * table[v1, u0] + a * b * table[v1, u1])
 
 
-def surface_grid(cal, max_side: int = 32) -> dict:
+SURFACE_GRID_MAX_SIDE = 32      # the `gel_surface` a sensor's info carries has at most this many points per side
+
+
+def surface_grid(cal, max_side: int = SURFACE_GRID_MAX_SIDE) -> dict:
     """The calibrated gel surface (mm) block-averaged to <= max_side per side, for viewers."""
     h, w = cal.model_size
     step = max(1, -(-max(h, w) // max_side))

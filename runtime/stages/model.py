@@ -71,11 +71,19 @@ class ModelPackage:
         return lo, hi
 
 
+def _model_roots(root: Path | None) -> list[Path]:
+    """`root`, or the writable models folder then the packages shipped inside an installed wheel."""
+    if root is not None:
+        return [Path(root)]
+    return [r for r in (paths.models_dir(), paths.shipped_models_dir()) if r is not None]
+
+
 def installed_packages(root: Path | None = None) -> list[Path]:
-    root = root or paths.models_dir()
-    if not root.is_dir():
-        return []
-    return sorted(p for p in root.iterdir() if (p / "manifest.json").is_file())
+    found: dict[str, Path] = {}
+    for r in reversed(_model_roots(root)):           # a writable package shadows a shipped one of its name
+        if r.is_dir():
+            found.update({p.name: p for p in r.iterdir() if (p / "manifest.json").is_file()})
+    return sorted(found.values())
 
 
 def _fail(where, msg):
@@ -172,12 +180,14 @@ def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage
 
 def find_package(name: str | None = None, root: Path | None = None) -> ModelPackage:
     """The named package, or the only/newest installed one; a clear message when none exists."""
-    root = root or paths.models_dir()
+    roots = _model_roots(root)
     if name:
         candidate = Path(name)
-        folder = candidate if candidate.is_dir() else root / name
+        folder = candidate if candidate.is_dir() else next(
+            (r / name for r in roots if (r / name).is_dir()), roots[0] / name)
         return load_package(folder)
     found = installed_packages(root)
+    root = roots[0]
     if not found:
         raise ModelPackageError(
             f"no trained model is installed in {root}. Build one with `tensortouch train all` "

@@ -42,15 +42,24 @@ def store_recalibration(store: CalibrationStore, cal: Calibration, provenance: d
     """Write a new version of `cal.sensor_id` with a new correction (spec, onnx bytes), a new crop
     (`crop`: {"gel_center_px", "gel_radius_px"} from tools.recalib.rim.crop_changes; tables kept) and/or
     new geometry ({"gel_center_px", "theta", "phi"}); everything else is kept from `cal`. Returns the
-    new version name; the previous version stays on disk for `tensortouch calib rollback`."""
+    new version name; the previous version stays on disk for `tensortouch calib rollback`. Refused
+    (CalibrationError, nothing stored) when the active version is no longer `cal.version`."""
+    with store.locked(cal.sensor_id):   # the store, verify and any re-activation: no writer in between
+        return _store_locked(store, cal, provenance, correction, geometry, crop)
+
+
+def _store_locked(store: CalibrationStore, cal: Calibration, provenance: dict, correction, geometry, crop) -> str:
     sid, active = cal.sensor_id, store.current(cal.sensor_id)
+    if active != cal.version:
+        raise CalibrationError(f"sensor {sid}: the active calibration is {active}, not {cal.version} this "
+                               f"recalibration started from (another writer came first); nothing was stored")
     prov = {"method": "recalibrate-pokes", "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "base_version": cal.version, **provenance}
     try:
         if geometry is None:
             files = {correction[0]["file"]: correction[1]} if correction else None
             changes = {**(crop or {}), **({"correction": correction[0]} if correction else {})}
-            version = store.derive(sid, changes, files=files, provenance=prov)
+            version = store.derive(sid, changes, files=files, provenance=prov, base_version=active)
         else:
             meta = {k: v for k, v in cal.meta.items() if k not in ("files", "tables", "version", "created")}
             meta.update(crop or {})
@@ -63,7 +72,7 @@ def store_recalibration(store: CalibrationStore, cal: Calibration, provenance: d
                 files[correction[0]["file"]] = correction[1]
             elif cal.meta.get("correction"):
                 files[cal.meta["correction"]["file"]] = cal.correction_path
-            version = store.write(sid, {k: tables[k] for k in TABLES}, meta, files=files)
+            version = store.write(sid, {k: tables[k] for k in TABLES}, meta, files=files, base_version=active)
     except OSError as exc:
         raise _explain(exc, store, sid, active) from None
     except CalibrationError as exc:  # the store wraps I/O errors; explain them the same way

@@ -42,6 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ...contracts.errors import SessionError
+from ...contracts.names import NAME_PATTERN, is_name
 from ...contracts.session import load_session
 from ...contracts.units import accepted, to_house
 from .writer import SessionWriter
@@ -127,8 +128,8 @@ def _check_map_types(data: dict, where: str) -> None:
         if "base_topic" in entry and entry["base_topic"] is not None and not isinstance(entry["base_topic"], str):
             fail(f"{name}.base_topic", "a topic name string")
 
-    if not isinstance(data["sensor_id"], str) or not data["sensor_id"]:
-        fail("sensor_id", "a non-empty string")
+    if not is_name(data["sensor_id"]):      # it becomes a store folder and a Zenoh key chunk
+        fail("sensor_id", f"a sensor id matching {NAME_PATTERN}, not {str(data['sensor_id'])[:80]!r}")
     topic_entry(data["frames"], "frames", False)
     for kind in ("poses", "wrench"):
         entries = data.get(kind, [])

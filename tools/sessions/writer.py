@@ -18,6 +18,7 @@ import numpy as np
 
 from ...contracts.errors import SessionError
 from ...contracts.files import atomic_write, finish_partial
+from ...contracts.names import check_name
 from ...contracts.session import STREAM_COLUMNS, STREAM_FILES, new_manifest, write_manifest, write_table
 
 log = logging.getLogger(__name__)
@@ -95,6 +96,7 @@ class SessionWriter:
     def __init__(self, out: str | Path, sensor_id: str, frame_format: str = "ffv1"):
         if frame_format not in FRAME_FORMATS:
             raise SessionError(f"frame format {frame_format!r}: expected one of {sorted(FRAME_FORMATS)}")
+        check_name(sensor_id, "sensor id", SessionError)     # before anything is recorded
         self.out = Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
         self.sensor_id = sensor_id

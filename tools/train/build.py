@@ -154,10 +154,11 @@ class Build:
     """Paths and stamps of one build folder."""
 
     def __init__(self, cfg: BuildConfig, root: Path | None = None, command: str = "", step: str = ""):
+        from ...contracts.names import confined
         from ...contracts.paths import cache_dir
 
         self.cfg = cfg
-        self.root = Path(root) if root else cache_dir() / "train" / cfg.build
+        self.root = Path(root) if root else confined(cache_dir() / "train", cfg.build, "build name")
         self.command = command
         self.step = step          # a recipe step: the stages from pretrain on keep one stamp per step
         self.keys = stage_keys(cfg)
@@ -175,7 +176,9 @@ class Build:
         return self.root / "dataset"
 
     def session(self, spec: SessionSpec) -> Path:
-        return self.root / "sessions" / spec.name
+        from ...contracts.names import confined
+
+        return confined(self.root / "sessions", spec.name, "session (serial-seed)")
 
     def all_sessions(self) -> list[SessionSpec]:
         return list(self.cfg.train) + list(self.cfg.heldout)

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.errors import ModelPackageError
+from ...contracts.names import confined
 from .model.network_input import IN_CHANS
 from .package import (FP32, INT8, atomic_copy, build_manifest, repo_relative, verify_package,
                                  write_package)
@@ -264,7 +265,7 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
     except Exception:  # noqa: BLE001 — a dataset without a val split evaluates on training samples
         x_va, y_va = load_split(data, "train", limit=16)
     dhash = data_hash(data)
-    previous = _previous_build(Path(models_root) / name, dhash)
+    previous = _previous_build(confined(models_root, name, "package name", ModelPackageError), dhash)
     with tempfile.TemporaryDirectory() as tmp:
         fp32, int8 = Path(tmp) / FP32, Path(tmp) / INT8
         export_onnx(model, fp32, size, cfg.opset, rewrite=cfg.rewrite)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.errors import ModelPackageError
+from ...contracts.names import confined
 from ...contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
 from ...contracts.files import atomic_write, atomic_write_json
 
@@ -101,8 +102,8 @@ def write_package(root: str | Path, name: str, models: dict[str, Path], manifest
     """Atomically create/replace <root>/<name>/ with manifest.json and the `models` {file name: path}
     to ship (a subset of manifest.files: optional files may be left out)."""
     root = Path(root)
+    final = confined(root, name, "package name", ModelPackageError)     # before anything is created
     root.mkdir(parents=True, exist_ok=True)
-    final = root / name
     tmp = Path(tempfile.mkdtemp(dir=root, prefix=f".{name}.tmp"))
     os.chmod(tmp, 0o755)
     try:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...contracts.errors import TensorTouchError
+from ...contracts.names import check_name
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 TOP_KEYS = {"name", "about", "sessions", "build", "steps"}
@@ -118,8 +119,7 @@ def validate(doc: dict, where: str) -> None:
     unknown = set(doc) - TOP_KEYS
     if unknown:
         raise RecipeError(f"{where}: unknown top-level key(s) {sorted(unknown)}; expected some of {sorted(TOP_KEYS)}")
-    if not isinstance(doc.get("name"), str) or not doc["name"]:
-        raise RecipeError(f"{where}: 'name' (the package name) must be a non-empty string")
+    check_name(doc.get("name"), f"{where}: name (the package name)", RecipeError)   # it names folders
     sessions = doc.get("sessions", {})
     if not isinstance(sessions, dict) or set(sessions) - SESSION_KEYS:
         raise RecipeError(f"{where}: [sessions] takes only {sorted(SESSION_KEYS)}")

@@ -91,9 +91,11 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
     All steps share one build folder (`<cache>/train/<recipe name>/`): the stages before the fit are
     run once when the steps agree on them; each step's pretrain/fit/export/evaluate stamps are its own.
     A step with `after = "<step>"` starts its fit from that step's best weights."""
+    from ...contracts.names import confined
     from ...contracts.paths import cache_dir
+    from .recipe import RecipeError
 
-    root = Path(root) if root else cache_dir() / "train" / recipe.name
+    root = Path(root) if root else confined(cache_dir() / "train", recipe.name, f"{recipe.source}: name", RecipeError)
     commit = git_commit()          # the code that runs the build (the export then rewrites the package's own files)
     steps = recipe.steps()
     fits: dict[str, Path] = {}
@@ -115,7 +117,7 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
                         "fit_key": b.keys["fit"]})
         after = [s for s in wanted if s not in before_export] if last else []
         if "export" in after:
-            package = (Path(cfg.models_dir) if cfg.models_dir else _models_dir()) / cfg.name
+            package = confined(Path(cfg.models_dir) if cfg.models_dir else _models_dir(), cfg.name, "package name")
             check_replace(package, recipe.hash, b.read_stamp("dataset").get("data_hash"), replace)
         if after:
             exported = "export" in after and not (b.done("export") and "export" not in (force or []))

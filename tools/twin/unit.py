@@ -158,10 +158,16 @@ def write_true_calibration(unit: TwinUnit, root=None, model_size: int = 128, for
     """Store the unit's true calibration as a new version under calibration_store/<serial>/;
     when the current version already holds exactly these tables, keep it (unless `force`)."""
     from ...contracts.store import CalibrationStore
-    from ...contracts.errors import CalibrationError
 
     store = CalibrationStore(root)
     tables = true_tables(unit, model_size)
+    with store.locked(unit.serial):      # compare with the current version and write in one step
+        return _write_truth(store, unit, tables, model_size, force)
+
+
+def _write_truth(store, unit: TwinUnit, tables: dict, model_size: int, force: bool) -> str:
+    from ...contracts.errors import CalibrationError
+
     if not force and unit.serial in store.sensors():
         try:
             cur = store.load(unit.serial)

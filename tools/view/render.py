@@ -12,9 +12,6 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-DERIVED = {"disp_mag": ("mm", (0, 1, 2)), "traction_mag": ("MPa", "traction")}
-
-
 def _lut(stops: list[tuple[float, tuple[int, int, int]]], n: int = 256) -> np.ndarray:
     x = np.linspace(0.0, 1.0, n)
     pos = np.array([s[0] for s in stops])
@@ -28,17 +25,42 @@ SEQUENTIAL = _lut([(0.0, (12, 7, 40)), (0.3, (90, 20, 110)), (0.6, (210, 70, 60)
                    (0.85, (250, 170, 40)), (1.0, (252, 250, 190))])
 
 
-def channel_data(data: np.ndarray, channels, units, name: str) -> tuple[np.ndarray, str, bool]:
-    """(H, W) values, unit, signed? for a wire channel name or a derived one."""
+# the wire channels each derived channel is computed from (looked up by name, in any order)
+DERIVED_FROM = {"disp_mag": ("disp_x", "disp_y", "disp_z"),
+                "traction_mag": ("fn_x", "fn_y", "fn_z", "fs_x", "fs_y", "fs_z")}
+
+
+class ChannelAbsent(KeyError):
+    """The chosen channel is not in what the sensor publishes (or a derived one lacks a component)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+def available(channels) -> list[str]:
+    """The wire channels a frame carries plus the derived ones it has every component of."""
     channels = list(channels)
-    if name == "disp_mag":
-        return np.linalg.norm(data[0:3], axis=0), "mm", False
-    if name == "traction_mag":
-        fn = data[channels.index("fn_x"):channels.index("fn_x") + 3]
-        fs = data[channels.index("fs_x"):channels.index("fs_x") + 3]
-        return np.linalg.norm(fn + fs, axis=0), "MPa", False
+    return channels + [d for d, need in DERIVED_FROM.items() if all(c in channels for c in need)]
+
+
+def _pick(data: np.ndarray, channels: list, names) -> np.ndarray:
+    return np.stack([data[channels.index(n)] for n in names])
+
+
+def channel_data(data: np.ndarray, channels, units, name: str) -> tuple[np.ndarray, str, bool]:
+    """(H, W) values, unit, signed? for a wire channel name or a derived one; ChannelAbsent when the
+    frame does not carry it (or a component of it)."""
+    channels = list(channels)
+    if name in DERIVED_FROM:
+        missing = [c for c in DERIVED_FROM[name] if c not in channels]
+        if missing:
+            raise ChannelAbsent(f"channel {name!r} is absent: this sensor does not publish {', '.join(missing)}")
+        if name == "disp_mag":
+            return np.linalg.norm(_pick(data, channels, DERIVED_FROM[name]), axis=0), "mm", False
+        parts = _pick(data, channels, DERIVED_FROM[name])
+        return np.linalg.norm(parts[:3] + parts[3:], axis=0), "MPa", False
     if name not in channels:
-        raise KeyError(f"channel {name!r}: expected one of {channels + list(DERIVED)}")
+        raise ChannelAbsent(f"channel {str(name)[:40]!r} is absent: this sensor publishes {', '.join(available(channels))}")
     k = channels.index(name)
     return data[k], units[k], True
 
@@ -91,7 +113,7 @@ def frame_view(fields, contacts, channel: str, grid: tuple[int, int] | None = No
     out = {"sensor_id": fields.sensor_id, "seq": fields.seq, "t": fields.t, "channel": channel, "unit": unit,
            "signed": signed, "vmin": vmin, "vmax": vmax, "width": w, "height": h,
            "png": png_base64(colorize(values, vmin, vmax, signed)), "clipped": list(fields.clipped),
-           "contacts": [], "channels": list(fields.channels) + list(DERIVED)}
+           "contacts": [], "channels": available(fields.channels)}
     if contacts is not None:
         out["contacts"] = [{"id": c.id, "uv_px": list(c.uv_px), "position_mm": list(c.position_mm),
                             "normal": list(c.normal), "force_n": list(c.force_n), "force_mag_n": c.force_mag_n,
@@ -99,9 +121,32 @@ def frame_view(fields, contacts, channel: str, grid: tuple[int, int] | None = No
         out["contacts_seq"] = contacts.seq
     if grid is not None:
         out["grid_values"] = np.round(downsample(values, grid), 6).ravel().tolist()
-        disp = np.moveaxis(fields.data[0:3], 0, -1)
+        names = DERIVED_FROM["disp_mag"]
+        disp = (np.moveaxis(_pick(fields.data, list(fields.channels), names), 0, -1)
+                if all(n in fields.channels for n in names) else np.zeros((h, w, 3), np.float32))
         out["grid_disp_mm"] = np.round(downsample(disp, grid), 5).reshape(-1).tolist()
     return out
+
+
+def checked_surface(geo, max_side: int) -> dict:
+    """A sensor's info `gel_surface` as the page draws it, or ValueError naming what is wrong: `grid`
+    [gh, gw] integers in 2..max_side, `xyz_mm` gh*gw*3 numbers within +-1000 mm (null off the gel),
+    `mask` gh*gw booleans. Only these members are kept."""
+    if not isinstance(geo, dict):
+        raise ValueError(f"gel_surface is a {type(geo).__name__}, expected an object")
+    grid = geo.get("grid")
+    if not (isinstance(grid, list) and len(grid) == 2
+            and all(isinstance(n, int) and not isinstance(n, bool) and 2 <= n <= max_side for n in grid)):
+        raise ValueError(f"gel_surface grid {str(grid)[:40]}: expected [rows, cols], each 2..{max_side}")
+    n = grid[0] * grid[1]
+    xyz, mask = geo.get("xyz_mm"), geo.get("mask")
+    if not (isinstance(xyz, list) and len(xyz) == 3 * n
+            and all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= 1000.0)
+                    for v in xyz)):
+        raise ValueError(f"gel_surface xyz_mm: expected {3 * n} numbers in mm for grid {grid}")
+    if not (isinstance(mask, list) and len(mask) == n and all(isinstance(v, bool) for v in mask)):
+        raise ValueError(f"gel_surface mask: expected {n} booleans for grid {grid}")
+    return {"grid": list(grid), "xyz_mm": xyz, "mask": mask, "nominal": False}
 
 
 def lut_json() -> dict:

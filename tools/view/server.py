@@ -11,8 +11,14 @@ Routes: `/` page, `/api/sensors`, `/api/frame?sensor=ID&channel=NAME`, `/api/geo
 
 What sensors send is untrusted: the page puts every string into the DOM as text (never markup) and
 is served with a Content-Security-Policy that lets only its own script run. The view keeps at most
-`max_sensors` sensors and forgets one not heard from for `forget_after_s`; idle HTTP connections
-are closed after `HTTP_IDLE_S`.
+`max_sensors` sensors and forgets one not heard from for `forget_after_s`. It bounds what it holds by
+what a real sensor publishes: field images of at most FIELDS_MAX_SHAPE (larger ones are dropped before
+they are converted), an info reply of at most INFO_MAX_BYTES, a gel surface grid of at most
+SURFACE_GRID_MAX_SIDE per side (else the nominal dome is drawn and the page says why), so one kept
+frame is at most 15*256*256*4 B = 3.9 MB and the kept frames of all sensors at most `max_sensors` times
+that. A channel a sensor does not publish is answered with what it does publish. HTTP: at most
+MAX_CONNECTIONS at once, idle connections closed after HTTP_IDLE_S, and each request must arrive and
+be answered within REQUEST_DEADLINE_S, however slowly the client sends or reads.
 """
 from __future__ import annotations
 
@@ -21,6 +27,7 @@ import hashlib
 import json
 import logging
 import re
+import socket
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -29,7 +36,9 @@ from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 
-from .render import frame_view, lut_json
+from ...contracts.fields import CHANNELS
+from ...runtime.stages.geometry import SURFACE_GRID_MAX_SIDE
+from .render import ChannelAbsent, available, checked_surface, frame_view, lut_json
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +46,12 @@ PAGE = Path(__file__).with_name("page.html")
 NOMINAL_GRID = 24
 NOMINAL_THETA_EDGE_RAD = np.deg2rad(100.0)
 HTTP_IDLE_S = 10.0                # an HTTP connection that sends nothing for this long is closed
+REQUEST_DEADLINE_S = 10.0         # from waiting for a request to having sent its answer, whatever the pace
+MAX_CONNECTIONS = 32              # HTTP connections served at once; more are closed on arrival
+# What a real sensor publishes: the 15 wire channels at its model's size (128x128 for the shipped model);
+# the view accepts up to twice that side, and an info reply (gel surface <= 32x32, model, finger) of 1 MB.
+FIELDS_MAX_SHAPE = (len(CHANNELS), 256, 256)
+INFO_MAX_BYTES = 1 << 20
 STATUS_KEYS = ("state", "flags", "fps", "calibration_version", "model", "finger", "hand")
 
 
@@ -85,7 +100,8 @@ class ViewState:
         self.received: dict = {}
         self._geometry: dict = {}
         self.sub = Subscriber(sensor, session=session, on_fields=self._put("fields"),
-                              on_contacts=self._put("contacts"), on_status=self._put("status"))
+                              on_contacts=self._put("contacts"), on_status=self._put("status"),
+                              fields_max_shape=FIELDS_MAX_SHAPE)
 
     def _put(self, kind):
         store = getattr(self, kind)
@@ -132,12 +148,19 @@ class ViewState:
         from ...runtime.apps.subscriber import query_info
 
         try:
-            info = query_info(self.session, sensor, timeout=1.0)
+            info = query_info(self.session, sensor, timeout=1.0, max_bytes=INFO_MAX_BYTES)
         except TensorTouchError as exc:
             log.info("no info from %s (%s): nominal dome", sensor, exc)
             return nominal_surface()
-        geo = info.get("gel_surface") or nominal_surface()
-        geo = {**geo, "finger": info.get("finger"), "model": info.get("model")}
+        if info.get("gel_surface") is None:
+            geo = nominal_surface()
+        else:
+            try:
+                geo = checked_surface(info["gel_surface"], SURFACE_GRID_MAX_SIDE)
+            except ValueError as exc:
+                log.warning("sensor %s: %s; drawing the nominal dome", sensor, exc)
+                geo = {**nominal_surface(), "refused": str(exc)}
+        geo = {**geo, "finger": _short(info.get("finger")), "model": _short(info.get("model"))}
         with self.lock:
             if sensor in self.received:
                 self._geometry[sensor] = geo
@@ -151,7 +174,11 @@ class ViewState:
         if fields is None:
             return None
         grid = tuple(self.geometry(sensor)["grid"])
-        out = frame_view(fields, contacts, channel, grid)
+        try:
+            out = frame_view(fields, contacts, channel, grid)
+        except ChannelAbsent as exc:
+            return {"error": str(exc), "absent": channel, "channels": available(fields.channels),
+                    "sensor_id": sensor}
         out["status"] = _status_view(status)
         return out
 
@@ -159,11 +186,27 @@ class ViewState:
         self.sub.close()
 
 
+def _short(value, depth: int = 0):
+    """A sender's free-form info member cut to a size the page can show (strings 80 characters, at most
+    8 members, 2 levels); anything else is dropped."""
+    if isinstance(value, str):
+        return value[:80]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return value
+    if isinstance(value, dict) and depth < 2:
+        return {str(k)[:40]: _short(v, depth + 1) for k, v in list(value.items())[:8]}
+    return None
+
+
 def make_handler(state: ViewState):
     page, policy = page_and_policy()
 
     class Handler(BaseHTTPRequestHandler):
         timeout = HTTP_IDLE_S                       # socket timeout: idle keep-alive connections end
+
+        def handle_one_request(self):
+            self.server.arm(self.connection, REQUEST_DEADLINE_S)     # a slow sender is cut at the deadline
+            super().handle_one_request()
 
         def log_message(self, fmt, *args):          # quiet: one line per request is too much at 15 Hz
             log.debug(fmt, *args)
@@ -195,14 +238,19 @@ def make_handler(state: ViewState):
                     self._json(state.geometry(q["sensor"]))
                 elif url.path == "/api/frame":
                     out = state.frame(q["sensor"], q.get("channel", "fn_z"))
-                    self._json(out if out is not None else {"error": f"no fields from {q['sensor']} yet"},
-                               200 if out is not None else 404)
+                    if out is None:
+                        self._json({"error": f"no fields from {q['sensor'][:80]} yet"}, 404)
+                    else:
+                        self._json(out, 400 if "absent" in out else 200)     # 400: a channel it lacks
                 else:
-                    self._json({"error": f"no route {url.path}"}, 404)
+                    self._json({"error": f"no route {url.path[:80]}"}, 404)
             except KeyError as exc:
-                self._json({"error": f"missing or unknown parameter: {exc}"}, 400)
-            except BrokenPipeError:
-                pass
+                self._json({"error": f"missing or unknown parameter: {str(exc)[:80]}"}, 400)
+            except OSError:
+                pass                                 # the client went away (or was cut at the deadline)
+            except Exception as exc:  # noqa: BLE001 - one bad request must not end the connection's page
+                log.exception("view: %s failed", url.path)
+                self._json({"error": f"{type(exc).__name__} while answering {url.path[:80]}"}, 500)
 
     return Handler
 
@@ -213,9 +261,68 @@ def _plain(obj):
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
-def serve(state: ViewState, host: str = "127.0.0.1", port: int = 8765) -> ThreadingHTTPServer:
+class ViewHTTPServer(ThreadingHTTPServer):
+    """ThreadingHTTPServer with at most MAX_CONNECTIONS connections and a per-request deadline: a watchdog
+    thread shuts down the socket of a request not answered by its deadline (a client trickling bytes, or
+    not reading the answer), which ends that connection's thread."""
+
+    daemon_threads = True
+
+    def __init__(self, address, handler):
+        super().__init__(address, handler)
+        self._deadlines: dict = {}               # open connection -> monotonic deadline
+        self._guard = threading.Lock()
+        self._stop = threading.Event()
+        threading.Thread(target=self._watchdog, name="view-http-deadlines", daemon=True).start()
+
+    def process_request(self, request, client_address):
+        with self._guard:
+            full = len(self._deadlines) >= MAX_CONNECTIONS
+            if not full:
+                self._deadlines[request] = time.monotonic() + REQUEST_DEADLINE_S
+        if full:
+            log.warning("view: %d HTTP connections open; closing a new one from %s", MAX_CONNECTIONS, client_address)
+            super().shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def shutdown_request(self, request):
+        with self._guard:
+            self._deadlines.pop(request, None)
+        super().shutdown_request(request)
+
+    def arm(self, request, seconds: float) -> None:
+        with self._guard:
+            if request in self._deadlines:
+                self._deadlines[request] = time.monotonic() + seconds
+
+    def open_connections(self) -> int:
+        with self._guard:
+            return len(self._deadlines)
+
+    def _watchdog(self) -> None:
+        while not self._stop.wait(0.2):
+            now = time.monotonic()
+            with self._guard:
+                late = [r for r, t in self._deadlines.items() if t < now]
+                for r in late:
+                    self._deadlines[r] = float("inf")        # shut down once
+            for r in late:
+                try:
+                    r.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+
+    def handle_error(self, request, client_address):
+        log.debug("view: connection from %s ended with an error", client_address, exc_info=True)
+
+    def shutdown(self):
+        self._stop.set()
+        super().shutdown()
+
+
+def serve(state: ViewState, host: str = "127.0.0.1", port: int = 8765) -> ViewHTTPServer:
     """Start the HTTP server in a daemon thread; returns it (`.server_address`, `.shutdown()`)."""
-    httpd = ThreadingHTTPServer((host, port), make_handler(state))
-    httpd.daemon_threads = True
+    httpd = ViewHTTPServer((host, port), make_handler(state))
     threading.Thread(target=httpd.serve_forever, name="view-http", daemon=True).start()
     return httpd

@@ -33,10 +33,14 @@ def registry_of(args):
 
 
 def sensor_of(args) -> str:
+    """The sensor id of --sensor or of the session, checked: it names store folders and cache files."""
+    from ...contracts.names import check_name
+
     if args.sensor:
-        return args.sensor
+        return check_name(args.sensor, "--sensor")
     if getattr(args, "session", None):
-        return json.loads((Path(args.session) / "session.json").read_text())["sensor_id"]
+        return check_name(json.loads((Path(args.session) / "session.json").read_text())["sensor_id"],
+                          f"{Path(args.session) / 'session.json'}: sensor_id")
     from ...contracts.errors import TensorTouchError
 
     raise TensorTouchError("--sensor is required")
@@ -45,13 +49,17 @@ def sensor_of(args) -> str:
 def default_model_path(sensor: str) -> Path:
     from .compare import cache_root
 
-    return cache_root() / "models" / f"{sensor}.json"
+    from ...contracts.names import check_name
+
+    return cache_root() / "models" / f"{check_name(sensor, 'sensor id')}.json"
 
 
 def last_diagnosis_path(sensor: str) -> Path:
     from .compare import cache_root
 
-    return cache_root() / f"diagnosis-{sensor}.json"
+    from ...contracts.names import check_name
+
+    return cache_root() / f"diagnosis-{check_name(sensor, 'sensor id')}.json"
 
 
 def contact_law(args, sensor: str, store, path=None):

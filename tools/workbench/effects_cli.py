@@ -73,12 +73,14 @@ def cmd_effects_add(args) -> int:
     except ValueError as exc:
         raise TensorTouchError(str(exc)) from None
     store = store_of(args)
-    current = [e for e in store.load(sensor).effects if e.get("name") != args.name]
-    entry = EnabledEffect(eff, params).to_dict(source)
-    if args.from_diagnosis is not None and not args.no_refit and current:
-        current, entry = _refit(args, sensor, store, reg, current, entry, diag.get("session"))
-    version = store.derive(sensor, {"effects": current + [entry]},
-                           provenance={"method": "workbench effects add", "effect": args.name, "source": source})
+    with store.locked(sensor):      # read, (refit,) write: no other writer of this sensor in between
+        base = store.load(sensor)
+        current = [e for e in base.effects if e.get("name") != args.name]
+        entry = EnabledEffect(eff, params).to_dict(source)
+        if args.from_diagnosis is not None and not args.no_refit and current:
+            current, entry = _refit(args, sensor, store, reg, current, entry, diag.get("session"))
+        version = store.derive(sensor, {"effects": current + [entry]}, base_version=base.version,
+                               provenance={"method": "workbench effects add", "effect": args.name, "source": source})
     params = entry["params"]
     words = eff.describe(params)
     print(f"{sensor}: {words} -> calibration {version}")
@@ -123,13 +125,14 @@ def cmd_effects_remove(args) -> int:
 
     store = store_of(args)
     sensor = sensor_of(args)
-    effects = store.load(sensor).effects
-    kept = [e for e in effects if e.get("name") != args.name]
-    if len(kept) == len(effects):
-        raise TensorTouchError(f"sensor {sensor}: effect {args.name} is not enabled "
-                               f"(enabled: {', '.join(e['name'] for e in effects) or 'none'})")
-    version = store.derive(sensor, {"effects": kept}, provenance={"method": "workbench effects remove",
-                                                                 "effect": args.name})
+    def without(cal) -> dict:       # evaluated on the current version, under the sensor's lock
+        kept = [e for e in cal.effects if e.get("name") != args.name]
+        if len(kept) == len(cal.effects):
+            raise TensorTouchError(f"sensor {sensor}: effect {args.name} is not enabled "
+                                   f"(enabled: {', '.join(e['name'] for e in cal.effects) or 'none'})")
+        return {"effects": kept}
+
+    version = store.derive(sensor, without, provenance={"method": "workbench effects remove", "effect": args.name})
     print(f"{sensor}: {args.name} removed -> calibration {version}")
     return 0
 
