@@ -99,9 +99,11 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
     fits: dict[str, Path] = {}
     lineage: list[dict] = []
     b = None
-    for i, step in enumerate(steps):
+    # every step's fields are checked (type, range) before the first stage of any step runs
+    cfgs = [config_from_dict({**recipe.config(step), **(overrides or {})}, f"{recipe.source} (step {step.name})")
+            for step in steps]
+    for i, (step, cfg) in enumerate(zip(steps, cfgs)):
         last = i == len(steps) - 1
-        cfg = config_from_dict({**recipe.config(step), **(overrides or {})}, f"{recipe.source} (step {step.name})")
         cfg.build = recipe.name
         if step.after:
             cfg.init_from = str(fits[step.after] / "best.pt")
