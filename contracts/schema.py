@@ -48,8 +48,11 @@ class Range:
         return self.hi is None or v <= self.hi
 
     def __str__(self) -> str:
-        lo = "-inf" if self.lo is None else f"{self.lo:g}"
-        hi = "inf" if self.hi is None else f"{self.hi:g}"
+        def show(v):
+            return str(v) if isinstance(v, int) else f"{v:g}"
+
+        lo = "-inf" if self.lo is None else show(self.lo)
+        hi = "inf" if self.hi is None else show(self.hi)
         return f"{'(' if self.lo_open or self.lo is None else '['}{lo}, {hi}{')' if self.hi is None else ']'}"
 
 
