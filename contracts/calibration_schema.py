@@ -13,7 +13,8 @@ table values) and then calls `check_calibration` for what ties the numbers to th
 - `gel` (the gel's design geometry, mm): each length of GEL_MM a finite number in its range (> 0
   where a length cannot be 0), `shape` one of GEL_SHAPES; other keys are notes.
 - anywhere in the document: no NaN or infinity (JSON's NaN/Infinity extensions), no nesting deeper
-  than schema.MAX_DEPTH, `effects` a list of objects, `created` and `version` strings.
+  than schema.MAX_DEPTH, `effects` a list of objects, `created` and `version` strings,
+  `schema_version` >= 0.
 
 Every problem is one CalibrationError naming the file and the field.
 """
@@ -58,6 +59,8 @@ def _finite_everywhere(obj, path: str) -> None:
 def _check(meta: dict) -> None:
     check_depth(meta, "calibration.json", MAX_DEPTH)
     _finite_everywhere(meta, "")
+    if "schema_version" in meta:
+        integer(meta["schema_version"], "schema_version", Range(0, None), what="a version number >= 0")
     for key in ("created", "version"):
         if meta.get(key) is not None:
             text(meta[key], key, max_len=64)

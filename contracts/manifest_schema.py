@@ -3,7 +3,7 @@
 runtime/stages/model.py `load_package` calls `check_manifest` before it looks at any file, then
 checks `runtime.contacts` against the runtime's ContactConfig and the files' hashes. Checked here:
 
-- `name` (when present) and `created` strings; no NaN or infinity anywhere, nesting at most
+- `schema_version` >= 1 (load_package refuses newer ones), `name` (when present) and `created` strings; no NaN or infinity anywhere, nesting at most
   schema.MAX_DEPTH deep;
 - `input`: `size` [H, W] integers in INPUT_PX; `channels` the six names of contracts.fields
   INPUT_CHANNELS in order; `dtype` "float32"; `layout` "NCHW"; `range` two finite numbers lo < hi;
@@ -56,6 +56,7 @@ def _exact_list(v, path: str, names: tuple) -> None:
 def _check(m: dict) -> None:
     check_depth(m, "manifest", MAX_DEPTH)
     _finite_everywhere(m)
+    integer(m.get("schema_version"), "schema_version", Range(1, None), what="a version number >= 1")
     if "name" in m:
         text(m["name"], "name", max_len=200)
     if m.get("created") is not None:

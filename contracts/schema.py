@@ -115,19 +115,21 @@ def _in(rng) -> str:
 
 
 def check_depth(obj, path: str, limit: int = MAX_DEPTH) -> None:
-    """Nesting of lists/tuples/dicts at most `limit` deep (iterative: no recursion to exhaust)."""
-    stack = [(obj, 0)]
+    """Nesting of lists/tuples/dicts at most `limit` deep (iterative: no recursion to exhaust); the
+    error names the field where the nesting goes too deep."""
+    stack = [(obj, 0, "")]
     while stack:
-        o, d = stack.pop()
+        o, d, at = stack.pop()
         if isinstance(o, dict):
-            children = o.values()
+            children = [(v, f"{at}.{k}" if at else str(k)) for k, v in o.items()]
         elif isinstance(o, (list, tuple)):
-            children = o
+            children = [(v, f"{at}[{i}]") for i, v in enumerate(o)]
         else:
             continue
         if d >= limit:
-            raise SchemaError(f"{path}: nested more than {limit} levels deep")
-        stack.extend((c, d + 1) for c in children)
+            head = at if len(at) <= 60 else at[:57] + "..."
+            raise SchemaError(f"{path}: {head or 'the document'} is nested more than {limit} levels deep")
+        stack.extend((c, d + 1, p) for c, p in children)
 
 
 def _union_args(tp) -> tuple | None:

@@ -117,10 +117,14 @@ LIMITS = {
     CanConfig: {"bitrate": Range(1, 10_000_000), "id_base": Range(0, 0x1FFFFFFF), "rate_hz": Range(0, 10_000, lo_open=True),
                 "send_timeout_s": Range(0, 60), "reopen_after_errors": Range(1, 1_000_000),
                 "reopen_wait_s": Range(0, 60), "stale_after_s": Range(0, 60, lo_open=True)},
-    Ros2Config: {"domain_id": Range(0, 232), "depth": Range(1, 100_000), "surface_every": Range(0, 1_000_000),
+    Ros2Config: {"domain_id": Range(0, 232), "depth": Range(1, 10_000), "surface_every": Range(0, 1_000_000),
                  "surface_step": Range(1, 4096), "mount_xyz_m": Range(-100, 100), "mount_xyzw": Range(-1, 1)},
 }
-# [camera] options for every finger's camera (drivers.camera configs): numbers in CAMERA_RANGE
+# [camera] options for every finger's camera (drivers.camera configs): each number in its range here,
+# others in CAMERA_RANGE
+CAMERA_LIMITS = {"speed": Range(0, 1000, lo_open=True), "fps": Range(0, 10_000, lo_open=True),
+                 "width": Range(1, 16384), "height": Range(1, 16384), "exposure_s": Range(0, 10, lo_open=True),
+                 "read_timeout_s": Range(0, 3600, lo_open=True), "connect_timeout_s": Range(0, 3600, lo_open=True)}
 CAMERA_RANGE = Range(0, 1_000_000)
 
 
@@ -147,7 +151,7 @@ def _show(v) -> str:
 
 
 def _camera_options(table, where: str) -> dict:
-    """[camera]: fields of the replay or the live camera config, by their types, numbers in CAMERA_RANGE."""
+    """[camera]: fields of the replay or the live camera config, by their types and CAMERA_LIMITS."""
     import typing
 
     from ...drivers.camera.opencv import OpenCVCameraConfig
@@ -163,7 +167,7 @@ def _camera_options(table, where: str) -> dict:
                            - {"path", "device", "serial"})
             raise HandConfigError(f"{where}: unknown camera option {key!r} (known: {', '.join(known)})")
         try:
-            check_value(value, typing.get_type_hints(cls)[key], key, CAMERA_RANGE)
+            check_value(value, typing.get_type_hints(cls)[key], key, CAMERA_LIMITS.get(key, CAMERA_RANGE))
         except SchemaError as exc:
             raise HandConfigError(f"{where}: {exc}") from None
     return dict(table)

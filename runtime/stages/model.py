@@ -85,6 +85,7 @@ def _fail(where, msg):
 
 
 CONTACT_LIMIT = 1e6      # no contact setting (N, px, mm, frames) is larger
+POSITIVE = ("threshold_n", "stable_frames")     # contact settings that must be > 0 (a threshold, a divisor)
 
 
 def _number(v) -> bool:
@@ -98,7 +99,8 @@ def _number(v) -> bool:
 
 def _check_runtime(rt, mpath) -> None:
     """The manifest's optional `runtime` section: `runtime.contacts` holds ContactConfig fields by their
-    own names, each null or a finite number >= 0 (the threshold > 0)."""
+    own names, each null or a finite number in [0, CONTACT_LIMIT] (> 0 for POSITIVE; integers for the
+    int fields)."""
     from dataclasses import fields
 
     from .contacts import ContactConfig
@@ -119,9 +121,9 @@ def _check_runtime(rt, mpath) -> None:
             _fail(mpath, f"runtime.contacts.{key}: not a contact setting (expected some of {sorted(known)})")
         if v is None:
             continue
-        if not _number(v) or v < 0 or (key == "threshold_n" and v == 0) or v > CONTACT_LIMIT \
+        if not _number(v) or v < 0 or (key in POSITIVE and v == 0) or v > CONTACT_LIMIT \
                 or (key in ints and not isinstance(v, int)):
-            need = "> 0" if key == "threshold_n" else ">= 0"
+            need = "> 0" if key in POSITIVE else ">= 0"
             kind = "an integer" if key in ints else "a finite number"
             _fail(mpath, f"runtime.contacts.{key} is {v!r}, expected null or {kind} {need} and <= {CONTACT_LIMIT:g}")
 
