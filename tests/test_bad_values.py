@@ -11,12 +11,10 @@ for each format in real subprocesses).
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -453,3 +451,150 @@ def session_slots_with_csv_oracle():
         if slot.kind == "csv":
             slot.expect = (lambda sl: (lambda v: _csv_expect(sl, v)))(slot)
     return slots
+
+
+# ------------------------------------------------------------------------------------------ the issue's cases
+@pytest.mark.parametrize("item,want", [
+    ("size=1e9", "size is 1000000000.0"), ("size=64.5", "size is 64.5"), ("epochs=nan", "epochs is nan"),
+    ("batch=0", "batch is 0"), ("batch=1e308", "batch is 1e+308"), ('epochs="many"', "epochs is 'many'"),
+    ("lr=inf", "lr is inf"), ("contact_stride=0", "contact_stride is 0"),
+    ("quantization_samples=-1", "quantization_samples is -1"), ("fit_seed=18446744073709551616", "fit_seed is"),
+    ("size=" + "[" * 3000 + "]" * 3000, "nested too deeply"), ("size=" + "[" * 40 + "1" + "]" * 40, "nested more than"),
+])
+def test_named_recipe_sets(item, want):
+    from tensortouch.tools.train.recipe import load_recipe
+    from tensortouch.tools.train.runner import step_configs
+
+    rc, lines = loader_outcome(lambda: step_configs(load_recipe("tiny", [item])))
+    assert rc == 2 and len(lines) == 1 and want in lines[0], lines
+
+
+def test_named_recipe_files(tmp_path):
+    from tensortouch.tools.train.recipe import load_recipe
+    from tensortouch.tools.train.runner import step_configs
+
+    base = 'name = "n"\n[sessions]\ntrain = [{serial = "TWIN-T01", seed = %s, pokes = 5}]\n[build]\nepochs = 2\n'
+    for text, want in ((base % "18446744073709551616", "seed is 18446744073709551616"),
+                       (base % "-1", "seed is -1"), (base % "1.5", "seed is 1.5"),
+                       ("x = " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
+                       ('name = "n"\n[[steps]]\nname = "a"\nbuild = {epochs = 2}\n[[steps]]\nname = "b"\n'
+                        'after = "a"\nbuild = {lr = inf}\n', "(step b): lr is inf")):
+        path = tmp_path / "r.toml"
+        path.write_text(text)
+        rc, lines = loader_outcome(lambda: step_configs(load_recipe(path)))
+        assert rc == 2 and len(lines) == 1 and want in lines[0], (text[:60], lines)
+
+
+def test_named_manifest_cases(tmp_path):
+    from tensortouch.runtime.stages.model import load_package
+
+    pkg = make_package(tmp_path / "pkg")
+    good = json.loads((pkg / "manifest.json").read_text())
+    cases = [(("output", "bounds", "disp_x", 1), 10 ** 400, "output.bounds.disp_x[1]"),
+             (("output", "bounds", "fn_z", 0), -(10 ** 30), "output.bounds.fn_z[0]"),
+             (("input", "dtype"), "float64", "input.dtype"), (("input", "dtype"), 32, "input.dtype"),
+             (("input", "channels"), [1, 2, 3, 4, 5, 6], "input.channels"),
+             (("input", "channels"), "baseline_rgb,current_rgb", "input.channels"),
+             (("input", "size", 0), 32.0, "input.size[0]"), (("input", "size", 1), 10 ** 12, "input.size[1]"),
+             (("runtime",), {"contacts": {"stable_frames": 0}}, "stable_frames"),
+             (("runtime",), {"contacts": {"min_pixels": 1e300}}, "min_pixels")]
+    for path, v, want in cases:
+        doc = json.loads(json.dumps(good))
+        put(doc, path, v)
+        (pkg / "manifest.json").write_text(json.dumps(doc))
+        rc, lines = loader_outcome(load_package, pkg)
+        assert rc == 2 and len(lines) == 1 and want in lines[0], (path, v, lines)
+
+
+def test_named_calibration_cases(tmp_path, cli, capsys):
+    root = tmp_path / "store"
+    dome_calibration(root, "TT-N", size=8, image=(160, 120), radius_px=50.0)
+    path = root / "TT-N" / "versions" / "v0001" / "calibration.json"
+    good = json.loads(path.read_text())
+    cases = [({"gel_radius_px": 1e9}, "gel_radius_px is 1000000000.0"), ({"gel_radius_px": 1e308}, "gel_radius_px"),
+             ({"gel_radius_px": 2.0}, "gel_radius_px is 2.0"), ({"gel_center_px": [1e308, 60.0]}, "gel_center_px"),
+             ({"gel_center_px": [-5.0, 60.0]}, "gel_center_px"),
+             ({"gel": {"radius_mm": math.nan}}, "gel.radius_mm is nan"), ({"gel": {"radius_mm": math.inf}}, "gel.radius_mm"),
+             ({"gel": {"center_z_mm": -math.inf}}, "gel.center_z_mm"), ({"gel": {"radius_mm": 0.0}}, "gel.radius_mm"),
+             ({"gel": {"shape": "cube"}}, "gel.shape"), ({"camera": {"width": 40, "height": 120}}, "gel_center_px"),
+             ({"camera": {"width": "160", "height": 120}}, "camera.width"),
+             ({"provenance": {"pokes": math.nan}}, "provenance.pokes is nan")]
+    for change, want in cases:
+        path.write_text(json.dumps({**good, **change}))
+        rc, lines = cli(["calib", "show", "TT-N", "--store", root], capsys)
+        assert rc == 2 and len(lines) == 1 and want in lines[0], (change, lines)
+    path.write_text(json.dumps({**good, "camera": None}))          # no camera block: radius bounded by CAMERA_PX
+    assert cli(["calib", "show", "TT-N", "--store", root], capsys)[0] == 0
+
+
+def test_named_hand_config_cases(tmp_path):
+    from tensortouch.runtime.apps.hand_config import load_hand_config
+
+    finger = '[[finger]]\nname = "f0"\nserial = "TT-1"\n'
+    for text, want in (('[hand]\nthreads = "x"\n', "threads is 'x'"), ("[hand]\nthreads = 1e9\n", "threads is"),
+                       ("[hand]\nreconnect_s = nan\n", "reconnect_s is nan"), ("[camera]\nspeed = 0\n", "speed is 0"),
+                       ("[can]\nrate_hz = inf\n", "rate_hz is inf"), ('hand = 3\n', "[hand]"),
+                       ("[hand]\nmodel_poll_s = -1\n", "model_poll_s is -1")):
+        path = tmp_path / "h.toml"
+        path.write_text(text + finger)
+        rc, lines = loader_outcome(load_hand_config, path)
+        assert rc == 2 and len(lines) == 1 and want in lines[0], (text, lines)
+
+
+def test_named_session_cases(tmp_path, cli, capsys):
+    from tests.test_bad_inputs import tiny_session
+
+    poses = np.array([[0.0, 0, 1, 2, 3, 1, 0, 0, 0], [0.1, 0, 1, 2, -1e308, 1, 0, 0, 0]])
+    s = tiny_session(tmp_path / "p", poses=poses)
+    rc, lines = cli(["session", "check", s], capsys)
+    assert rc == 2 and len(lines) == 1 and "poses.csv:3: z = -1e+308" in lines[0], lines
+    wrench = np.array([[0.0, 0, 1, 2, 3, 0, 0, 0], [0.1, 0, 1, 2, 3, 0, 0, 0]])
+    s = tiny_session(tmp_path / "w", wrench=wrench)
+    good = json.loads((s / "session.json").read_text())
+    tf = ("streams", "wrench", "ft_to_indenter")
+    for path, v, want in ((tf + ("rotation_wxyz",), ["1", "0", "0", "0"], "rotation_wxyz[0] is '1'"),
+                          (tf + ("rotation_wxyz",), [2, 0, 0, 0], "rotation_wxyz"),
+                          (tf + ("rotation_wxyz", 1), math.nan, "rotation_wxyz[1] is nan"),
+                          (tf + ("translation_mm", 2), math.inf, "translation_mm[2] is inf"),
+                          (("clock", "t0"), math.nan, "clock.t0 is nan"),
+                          (("provenance",), {"notes": -math.inf}, "provenance.notes is -inf")):
+        doc = json.loads(json.dumps(good))
+        put(doc, path, v)
+        (s / "session.json").write_text(json.dumps(doc))
+        rc, lines = cli(["session", "check", s], capsys)
+        assert rc == 2 and len(lines) == 1 and want in lines[0], (path, v, lines)
+
+
+@pytest.mark.parametrize("stretch", ["0", "-1", "1e300", "1e-300"])
+def test_named_fit_material_stretches(tmp_path, cli, capsys, stretch):
+    csv = tmp_path / "m.csv"
+    csv.write_text(f"mode,stretch,stress_MPa\nuniaxial,1.1,0.01\nuniaxial,{stretch},0.02\nbiaxial,1.2,0.03\n")
+    t0 = time.monotonic()
+    rc, lines = cli(["fe", "fit-material", csv, "--models", "yeoh"], capsys)
+    assert rc == 2 and len(lines) == 1 and "m.csv:3: column stretch" in lines[0], lines
+    assert time.monotonic() - t0 < MAX_S
+
+
+def test_cli_subprocess_shape(tmp_path):
+    """One implausible value per format through real `tensortouch` processes: exit 2, one stderr line."""
+    from tests.test_bad_inputs import cli_many, tiny_session
+
+    store = tmp_path / "store"
+    dome_calibration(store, "TT-SUB", size=8, image=(160, 120), radius_px=50.0)
+    cal = store / "TT-SUB" / "versions" / "v0001" / "calibration.json"
+    cal.write_text(json.dumps({**json.loads(cal.read_text()), "gel_radius_px": 1e9}))
+    pkg = make_package(tmp_path / "pkg")
+    man = json.loads((pkg / "manifest.json").read_text())
+    man["output"]["bounds"]["disp_x"][1] = 10 ** 400
+    (pkg / "manifest.json").write_text(json.dumps(man))
+    hand = tmp_path / "hand.toml"
+    hand.write_text('[hand]\nthreads = "x"\n[[finger]]\nname = "f0"\nserial = "TT-1"\n')
+    s = tiny_session(tmp_path / "s", poses=np.array([[0.0, 0, 1, 2, -1e308, 1, 0, 0, 0]]))
+    cases = [(["calib", "show", "TT-SUB", "--store", store], "gel_radius_px is 1000000000.0"),
+             (["run", "--model", pkg, "--sensor", "TT-SUB"], "output.bounds.disp_x[1]"),
+             (["hand", hand], "threads is 'x'"),
+             (["train", "all", "--recipe", "tiny", "--set", "batch=0", "--root", tmp_path / "b"], "batch is 0"),
+             (["session", "check", s], "z = -1e+308")]
+    for (argv, want), (rc, lines) in zip(cases, cli_many([argv for argv, _ in cases])):
+        assert rc == 2 and len(lines) == 1 and want in lines[0], (argv, rc, lines)
+    assert not (tmp_path / "b").exists()          # refused before the build folder was made
