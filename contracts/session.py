@@ -14,7 +14,7 @@
 Only `frames` is required; the other streams are listed in the manifest when present; `wrench`
 needs `streams.wrench.ft_to_indenter` {rotation_wxyz, translation_mm}: p_indenter = R p_ft + t.
 Validation names the problem: missing stream, unit mismatch, non-monotonic clock, truncated rows
-or frames (video frames are counted from the AVI's RIFF headers, PNGs checked for their end). This module
+or frames, a value no recording holds (contracts/session_schema.py: ranges, unit quaternions) (video frames are counted from the AVI's RIFF headers, PNGs checked for their end). This module
 is pure (json + numpy + csv) so both the runtime (replay) and `tools/` (twin, training, workbench)
 read sessions through the same code. See docs/session.md.
 """
@@ -32,6 +32,7 @@ import numpy as np
 from .errors import SessionError
 from .files import atomic_write, atomic_write_json
 from .names import check_name
+from .session_schema import check_manifest_values, check_rows
 from .units import HOUSE, accepted, to_house
 
 SCHEMA = "tensortouch.session"
@@ -218,6 +219,7 @@ def validate_manifest(manifest: dict, where: str = "session.json") -> None:
             if info.get(key) is not None and (not isinstance(info[key], int) or isinstance(info[key], bool)
                                               or info[key] < 0):
                 raise SessionError(f"{where}: streams.{name}.{key} is {info[key]!r}, expected a count >= 0")
+    check_manifest_values(manifest, where)     # numbers: finite, unit quaternion, ranges (session_schema.py)
 
 
 def _plain_name(name: str) -> bool:
@@ -292,7 +294,8 @@ def _check_pngs(src: Path, indices: np.ndarray) -> None:
 def _check_wrench(session: "Session", where: Path) -> None:
     info = session.streams["wrench"]
     tf = info.get("ft_to_indenter")
-    if not isinstance(tf, dict) or len(tf.get("rotation_wxyz", [])) != 4 or len(tf.get("translation_mm", [])) != 3:
+    if not isinstance(tf, dict) or not isinstance(tf.get("rotation_wxyz"), list) or len(tf["rotation_wxyz"]) != 4 \
+            or not isinstance(tf.get("translation_mm"), list) or len(tf["translation_mm"]) != 3:
         raise SessionError(f"{where}: streams.wrench.ft_to_indenter must give rotation_wxyz (4 numbers) and "
                            "translation_mm (3 numbers): p_indenter = R p_ft + t")
     if session.has("poses"):
@@ -322,6 +325,7 @@ def load_session(path: str | Path, check_frames: bool = True) -> Session:
         if not np.all(np.isfinite(table)):
             row = int(np.argmax(~np.all(np.isfinite(table), axis=1))) + 2
             raise SessionError(f"{where}:{row}: non-finite value in stream '{name}'")
+        check_rows(name, table, STREAM_COLUMNS[name], where)
         rows = session.streams[name].get("rows")
         if isinstance(rows, int) and len(table) != rows:
             raise SessionError(f"{where}: {len(table)} rows but the manifest recorded {rows} (truncated stream)")

@@ -6,8 +6,8 @@ version under that lock, so two processes never lose each other's change. A new 
 `versions/`; every file is fsynced and hashed, the folder fsynced, renamed into place and `versions/`
 fsynced; the `CURRENT` pointer is replaced last with an atomic rename and the sensor folder fsynced.
 A crash or a full disk at any point leaves the previous version active and intact. Loads check
-calibration.json by type, confine every path to the version folder, verify hashes and check that
-every table is finite and in range. Arrays load with `allow_pickle=False`.
+calibration.json by type and by plausibility (contracts/calibration_schema.py), confine every path
+to the version folder, verify hashes and check that every table is finite and in range. Arrays load with `allow_pickle=False`.
 """
 from __future__ import annotations
 
@@ -29,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from . import paths
+from .calibration_schema import check_calibration
 from .errors import CalibrationError
 from .files import atomic_write
 from .names import confined, is_name
@@ -159,6 +160,7 @@ def _check_meta(meta, where: str) -> None:
         raise CalibrationError(f"{where}: effects must be a list")
     if not isinstance(meta.get("provenance") if meta.get("provenance") is not None else {}, dict):
         raise CalibrationError(f"{where}: provenance must be an object")
+    check_calibration(meta, where)      # plausibility: rim inside the image, gel lengths, ... (calibration_schema.py)
 
 
 # Physical range of each table: θ is a polar angle, φ an azimuth, mm and mm² bounded by any plausible

@@ -187,14 +187,20 @@ class SensorPipeline:
         # build everything that can fail before swapping anything: a refused version leaves the old one whole
         correction = correction if correction is not None else ForceCorrection.from_calibration(calibration)
         effects = EffectStage(calibration)
+        same = previous is not None and _same_geometry(previous, calibration)
+        if not same:
+            cx, cy = calibration.gel_center_px
+            pre = Preprocessor(cx, cy, calibration.gel_radius_px, calibration.model_size)
+            shape = self.pre.frame_shape if previous is not None else None
+            if shape is not None:
+                pre.prepare(shape)       # the circle must fit the frames this camera delivers
         temperature = self.effects.temperature if previous is not None else None
         max_depth = self.effects.max_depth if previous is not None else 0.0   # the gel's memory stays
         self.cal, self.correction, self.effects = calibration, correction, effects
         self.effects.temperature, self.effects.max_depth = temperature, max_depth
-        if previous is not None and _same_geometry(previous, calibration):
+        if same:
             return  # only correction/effects changed: keep the baseline and the contact ids
-        cx, cy = calibration.gel_center_px
-        self.pre = Preprocessor(cx, cy, calibration.gel_radius_px, calibration.model_size)
+        self.pre = pre
         self.baseline = BaselineTracker(self.cfg.baseline)
         self.tracker = ContactTracker(self.cfg.contacts)
         self._last_force = None

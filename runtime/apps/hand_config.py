@@ -32,7 +32,8 @@
     calibration = "TT-0001"           # calibration store folder (default: serial)
     can_slot = 0                      # default: position in the list
 
-Unknown keys are errors (a typo must not silently fall back to a default).
+Unknown keys are errors (a typo must not silently fall back to a default). Every value is checked by
+the type of its dataclass field and its range in LIMITS before anything starts: one line, exit 2.
 """
 from __future__ import annotations
 
@@ -46,6 +47,7 @@ from pathlib import Path
 from ...drivers.can_bus import CanConfig
 from ...contracts import wire
 from ...contracts.errors import TensorTouchError
+from ...contracts.schema import Range, SchemaError, check_depth, check_fields, check_value
 from .ros2_publisher import Ros2Config
 from ...contracts.ros2_wire import name_token as rw_name_token
 
@@ -104,7 +106,32 @@ class HandConfig:
         return {f.name: (f.can_slot if f.can_slot >= 0 else i) for i, f in enumerate(self.fingers)}
 
 
-def _take(table: dict, cls, where: str, renames: dict | None = None) -> dict:
+# The declared range of every numeric field of each table (contracts/schema.py Range, inclusive); the
+# field types come from the dataclasses themselves (FingerConfig, HandConfig, CanConfig, Ros2Config).
+LIMITS = {
+    FingerConfig: {"can_slot": Range(-1, 255)},
+    HandConfig: {"threads": Range(1, 256), "inference_workers": Range(0, 256),
+                 "max_camera_failures": Range(1, 1_000_000), "reconnect_s": Range(0, 3600, lo_open=True),
+                 "offline_after_s": Range(0, 86_400), "status_every_s": Range(0, 3600, lo_open=True),
+                 "model_poll_s": Range(0, 3600, lo_open=True), "precision": ("int8", "fp32")},
+    CanConfig: {"bitrate": Range(1, 10_000_000), "id_base": Range(0, 0x1FFFFFFF), "rate_hz": Range(0, 10_000, lo_open=True),
+                "send_timeout_s": Range(0, 60), "reopen_after_errors": Range(1, 1_000_000),
+                "reopen_wait_s": Range(0, 60), "stale_after_s": Range(0, 60, lo_open=True)},
+    Ros2Config: {"domain_id": Range(0, 232), "depth": Range(1, 10_000), "surface_every": Range(0, 1_000_000),
+                 "surface_step": Range(1, 4096), "mount_xyz_m": Range(-100, 100), "mount_xyzw": Range(-1, 1)},
+}
+# [camera] options for every finger's camera (drivers.camera configs): each number in its range here,
+# others in CAMERA_RANGE
+CAMERA_LIMITS = {"speed": Range(0, 1000, lo_open=True), "fps": Range(0, 10_000, lo_open=True),
+                 "width": Range(1, 16384), "height": Range(1, 16384), "exposure_s": Range(0, 10, lo_open=True),
+                 "read_timeout_s": Range(0, 3600, lo_open=True), "connect_timeout_s": Range(0, 3600, lo_open=True)}
+CAMERA_RANGE = Range(0, 1_000_000)
+
+
+def _take(table, cls, where: str, renames: dict | None = None) -> dict:
+    """The keys of one table as fields of `cls`, each checked by its type and declared range."""
+    if not isinstance(table, dict):
+        raise HandConfigError(f"{where}: expected a table of {cls.__name__} fields, got {_show(table)}")
     names = {f.name for f in dataclasses.fields(cls)}
     out = {}
     for key, value in table.items():
@@ -112,7 +139,38 @@ def _take(table: dict, cls, where: str, renames: dict | None = None) -> dict:
         if k not in names:
             raise HandConfigError(f"{where}: unknown key {key!r} (known: {', '.join(sorted(names))})")
         out[k] = value
+    try:
+        check_fields(cls, out, "", LIMITS.get(cls))
+    except SchemaError as exc:
+        raise HandConfigError(f"{where}: {exc}") from None
     return out
+
+
+def _show(v) -> str:
+    return f"{type(v).__name__} {v!r}"[:80]
+
+
+def _camera_options(table, where: str) -> dict:
+    """[camera]: fields of the replay or the live camera config, by their types and CAMERA_LIMITS."""
+    import typing
+
+    from ...drivers.camera.opencv import OpenCVCameraConfig
+    from ...drivers.camera.replay import ReplayCameraConfig
+
+    if not isinstance(table, dict):
+        raise HandConfigError(f"{where}: expected a table of camera options, got {_show(table)}")
+    for key, value in table.items():
+        cls = next((c for c in (ReplayCameraConfig, OpenCVCameraConfig)
+                    if key in {f.name for f in dataclasses.fields(c)} and key not in ("path", "device", "serial")), None)
+        if cls is None:
+            known = sorted({f.name for c in (ReplayCameraConfig, OpenCVCameraConfig) for f in dataclasses.fields(c)}
+                           - {"path", "device", "serial"})
+            raise HandConfigError(f"{where}: unknown camera option {key!r} (known: {', '.join(known)})")
+        try:
+            check_value(value, typing.get_type_hints(cls)[key], key, CAMERA_LIMITS.get(key, CAMERA_RANGE))
+        except SchemaError as exc:
+            raise HandConfigError(f"{where}: {exc}") from None
+    return dict(table)
 
 
 def _check(cfg: HandConfig, where: str) -> None:
@@ -151,6 +209,10 @@ def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | N
     if unknown:
         raise HandConfigError(f"{where}: unknown table(s) {sorted(unknown)} "
                               "(expected [hand], [zenoh], [can], [camera], [ros2], [[finger]])")
+    try:
+        check_depth(data, where)
+    except SchemaError as exc:
+        raise HandConfigError(str(exc)) from None
     fingers_raw = data.get("finger", [])
     if not isinstance(fingers_raw, list):
         raise HandConfigError(f"{where}: 'finger' must be an array of tables ([[finger]])")
@@ -166,11 +228,19 @@ def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | N
         if bad in data.get("hand", {}):
             raise HandConfigError(f"{where}: [hand] {bad} belongs in its own table")
     zen = data.get("zenoh", {})
+    if not isinstance(zen, dict):
+        raise HandConfigError(f"{where}: [zenoh] expected a table, got {_show(zen)}")
     extra = set(zen) - {"listen", "connect", "config", "multicast"}
     if extra:
         raise HandConfigError(f"{where}: [zenoh] unknown key(s) {sorted(extra)} "
                               "(known: listen, connect, config, multicast)")
+    for key in ("listen", "connect"):
+        if key in zen and not (isinstance(zen[key], list) and all(isinstance(e, str) for e in zen[key])):
+            raise HandConfigError(f"{where}: [zenoh] {key} is {_show(zen[key])}, expected a list of endpoints "
+                                  "such as [\"tcp/127.0.0.1:7447\"]")
     if "config" in zen:
+        if not isinstance(zen["config"], str):
+            raise HandConfigError(f"{where}: [zenoh] config is {_show(zen['config'])}, expected a file path")
         zpath = Path(str(zen["config"]))
         if base_dir is not None and not zpath.is_absolute():
             zpath = base_dir / zpath
@@ -189,7 +259,7 @@ def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | N
         except (TypeError, ValueError) as exc:
             raise HandConfigError(f"{where}: [can] {exc}") from None
     if "camera" in data:
-        hand["camera_options"] = dict(data["camera"])
+        hand["camera_options"] = _camera_options(data["camera"], f"{where}: [camera]")
     if "ros2" in data:
         kw = _take(data["ros2"], Ros2Config, f"{where}: [ros2]")
         kw.setdefault("node", rw_name_token(f"tensortouch_{hand.get('name', 'hand')}"))

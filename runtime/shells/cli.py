@@ -68,16 +68,22 @@ def main(argv: list[str] | None = None) -> int:
         for line in problems:
             print("note:", line, file=sys.stderr)
         return 0 if args.command is None else 2
+    code = dispatch(args)
+    if getattr(args, "exit_without_finalizing", False):
+        _exit_now(code)
+    return code
+
+
+def dispatch(args) -> int:
+    """Run a parsed command: its exit code, or 2 with one line on stderr for a TensorTouchError (bad
+    input), 130 on Ctrl-C. `main` calls it; tests call it with `build_parser()`'s parser built once."""
     try:
-        code = int(args.func(args) or 0)
+        return int(args.func(args) or 0)
     except TensorTouchError as exc:
         print(f"tensortouch {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
-    if getattr(args, "exit_without_finalizing", False):
-        _exit_now(code)
-    return code
 
 
 class _SignalHold:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from ...contracts import paths
 from ...contracts.store import sha256_file
 from ...contracts.errors import ModelPackageError
 from ...contracts.fields import CHANNELS, N_CHANNELS
+from ...contracts.manifest_schema import check_manifest
 
 log = logging.getLogger(__name__)
 
@@ -90,13 +92,23 @@ def _fail(where, msg):
     raise ModelPackageError(f"{where}: {msg}")
 
 
+CONTACT_LIMIT = 1e6      # no contact setting (N, px, mm, frames) is larger
+POSITIVE = ("threshold_n", "stable_frames")     # contact settings that must be > 0 (a threshold, a divisor)
+
+
 def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:          # an integer beyond any float
+        return False
 
 
 def _check_runtime(rt, mpath) -> None:
     """The manifest's optional `runtime` section: `runtime.contacts` holds ContactConfig fields by their
-    own names, each null or a finite number >= 0 (the threshold > 0)."""
+    own names, each null or a finite number in [0, CONTACT_LIMIT] (> 0 for POSITIVE; integers for the
+    int fields)."""
     from dataclasses import fields
 
     from .contacts import ContactConfig
@@ -111,14 +123,17 @@ def _check_runtime(rt, mpath) -> None:
     if not isinstance(contacts, dict):
         _fail(mpath, f"runtime.contacts must be an object, got {type(contacts).__name__}")
     known = {f.name for f in fields(ContactConfig)}
+    ints = {f.name for f in fields(ContactConfig) if f.type in (int, "int")}
     for key, v in contacts.items():
         if key not in known:
             _fail(mpath, f"runtime.contacts.{key}: not a contact setting (expected some of {sorted(known)})")
         if v is None:
             continue
-        if not _number(v) or v < 0 or (key == "threshold_n" and v == 0):
-            need = "> 0" if key == "threshold_n" else ">= 0"
-            _fail(mpath, f"runtime.contacts.{key} is {v!r}, expected null or a finite number {need}")
+        if not _number(v) or v < 0 or (key in POSITIVE and v == 0) or v > CONTACT_LIMIT \
+                or (key in ints and not isinstance(v, int)):
+            need = "> 0" if key in POSITIVE else ">= 0"
+            kind = "an integer" if key in ints else "a finite number"
+            _fail(mpath, f"runtime.contacts.{key} is {v!r}, expected null or {kind} {need} and <= {CONTACT_LIMIT:g}")
 
 
 def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage:
@@ -144,22 +159,7 @@ def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage
     for key in ("input", "output", "files"):
         if not isinstance(m.get(key), dict):
             _fail(mpath, f"field '{key}' missing or not an object")
-    size = m["input"].get("size")
-    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
-        _fail(mpath, f"input.size is {size!r}, expected [H, W] positive integers")
-    channels = m["input"].get("channels", [])
-    if not isinstance(channels, list) or len(channels) != 6:
-        _fail(mpath, "input.channels must list 6 channels (baseline RGB + current RGB)")
-    out = m["output"]
-    if not isinstance(out.get("channels"), list) or tuple(out["channels"]) != CHANNELS:
-        _fail(mpath, f"output.channels must be the 15 channels of docs/fields.md in order {list(CHANNELS)}")
-    bounds = out.get("bounds")
-    if not isinstance(bounds, dict):
-        _fail(mpath, "output.bounds must be an object {channel: [lo, hi]}")
-    for c in CHANNELS:
-        b = bounds.get(c)
-        if not (isinstance(b, list) and len(b) == 2 and all(_number(v) for v in b) and b[0] <= b[1]):
-            _fail(mpath, f"output.bounds.{c} is {b!r}, expected [lo, hi] finite with lo <= hi")
+    check_manifest(m, mpath)          # input, output, bounds: types and plausible ranges (contracts/manifest_schema.py)
     _check_runtime(m.get("runtime"), mpath)
     if not m["files"]:
         _fail(mpath, "files is empty: every model file must be listed with its sha256")

@@ -34,6 +34,7 @@ from ...contracts.errors import CalibrationError, CaptureError
 log = logging.getLogger(__name__)
 
 INV_255 = np.float32(1.0 / 255.0)
+MAX_PX = 65536.0          # no camera image is larger: a centre or radius beyond it is never a gel circle
 
 
 def to_chw_float(image: np.ndarray) -> np.ndarray:
@@ -60,9 +61,9 @@ class Preprocessor:
     def __init__(self, cx: float, cy: float, radius: float, size: int | tuple[int, int],
                  exact: bool = False):
         self.cx, self.cy, self.radius = float(cx), float(cy), float(radius)
-        if not (math.isfinite(self.cx) and math.isfinite(self.cy)) or not self.radius > 0:
-            raise CalibrationError(f"gel circle center ({cx}, {cy}) radius {radius} px: "
-                                   "expected finite center and radius > 0")
+        if not (abs(self.cx) <= MAX_PX and abs(self.cy) <= MAX_PX and 0 < self.radius <= MAX_PX):
+            raise CalibrationError(f"gel circle center ({cx}, {cy}) radius {radius} px: expected a finite "
+                                   f"center and a radius in (0, {MAX_PX:g}] px")
         self.out_h, self.out_w = (size, size) if isinstance(size, (int, np.integer)) else map(int, size)
         if self.out_h <= 0 or self.out_w <= 0:
             raise CalibrationError(f"model size {size}: expected positive")
@@ -78,6 +79,11 @@ class Preprocessor:
         self.scale_x = self.out_w / self.window  # output px per raw px
         self.scale_y = self.out_h / self.window
         self._frame_shape: tuple | None = None
+
+    @property
+    def frame_shape(self) -> tuple | None:
+        """The frame shape prepared for (None before the first frame)."""
+        return self._frame_shape
 
     # -- geometry --------------------------------------------------------------------------
     @property
@@ -96,8 +102,15 @@ class Preprocessor:
                 (np.asarray(v) + 0.5) / self.scale_y - 0.5 + self.y0)
 
     # -- precomputation --------------------------------------------------------------------
-    def _prepare(self, shape: tuple) -> None:
+    def prepare(self, shape: tuple) -> None:
+        """Precompute for frames of `shape` (H, W, 3). CalibrationError, before anything is allocated, when
+        the gel circle cannot belong to such a frame: its centre outside the frame or its radius longer
+        than the frame's long side (the window would be larger than the image it crops)."""
         h, w = shape[:2]
+        if not (0 <= self.cx <= w and 0 <= self.cy <= h and self.radius <= max(w, h)):
+            raise CalibrationError(f"gel circle at ({self.cx:.6g}, {self.cy:.6g}) radius {self.radius:.6g} px does "
+                                   f"not fit the {w}x{h} camera frame (expected the centre inside the frame and "
+                                   f"a radius <= {max(w, h)} px; wrong calibration for this camera?)")
         n = self.window
         sx0, sy0 = max(self.x0, 0), max(self.y0, 0)
         sx1, sy1 = min(self.x0 + n, w), min(self.y0 + n, h)
@@ -122,7 +135,7 @@ class Preprocessor:
         if frame.shape != self._frame_shape or frame.dtype != np.uint8:
             if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
                 raise CaptureError(f"frame {frame.shape} {frame.dtype}: expected (H, W, 3) uint8 RGB")
-            self._prepare(frame.shape)
+            self.prepare(frame.shape)
         src = frame[self._src]
         cv2.bitwise_and(src, src, dst=self._buf[self._dst], mask=self._mask)
         image = self._buf

@@ -9,7 +9,8 @@ Incompressible closed forms (nominal stress P, stretch l):
 Load and unload branches are fitted together (the elastic fit passes through the hysteresis loop);
 the report gives R^2, RMSE (MPa), the loop width the model cannot represent, and a stability check
 (positive tangent of both curves for stretches 0.5..3). Data CSV columns: mode (uniaxial|biaxial),
-stretch, stress_MPa [, cycle, branch].
+stretch, stress_MPa [, cycle, branch]; every value finite and in DATA_RANGES (stretch 0.1..10, |stress|
+<= 1000 MPa, branch +1/-1), else one FEError line naming the row.
 """
 from __future__ import annotations
 
@@ -32,6 +33,9 @@ MODELS = {  # name -> (parameter names, initial guess, lower bounds)
     "ogden": (("mu1", "alpha1", "mu2", "alpha2"), (0.05, 2.0, -0.01, -2.0), (-5, -20, -5, -20)),
 }
 
+# plausible test data: a stretch of a rubber test (1 = unstretched; compression or tension up to 10x) and a
+# nominal stress in MPa (a silicone gel is far below 1000 MPa); outside these no model is fitted
+DATA_RANGES = {"stretch": (0.1, 10.0), "stress_MPa": (-1000.0, 1000.0), "branch": (-1.0, 1.0)}
 
 # spellings people write for each model and test mode (compared case-insensitively, '-'/' ' read as '_')
 MODEL_ALIASES = {"yeoh": "yeoh", "neo_hookean": "neo_hookean", "neohookean": "neo_hookean", "nh": "neo_hookean",
@@ -207,6 +211,14 @@ def load_test_data(path) -> TestData:
             raise FEError(f"{path}: column {col}: expected numbers") from None
         if not np.isfinite(values[col]).all():
             raise FEError(f"{path}: column {col}: expected finite numbers")
+        lo, hi = DATA_RANGES[col]
+        bad = (values[col] < lo) | (values[col] > hi)
+        if col == "branch":
+            bad = (values[col] != 1) & (values[col] != -1)
+        if bad.any():
+            row = int(np.argmax(bad))
+            want = "+1 (loading) or -1 (unloading)" if col == "branch" else f"a value in [{lo:g}, {hi:g}]"
+            raise FEError(f"{path}:{row + 2}: column {col} is {values[col][row]:.6g}, expected {want}")
     return TestData(np.array(modes), values["stretch"], values["stress_MPa"], values["branch"])
 
 

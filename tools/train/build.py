@@ -233,34 +233,90 @@ def tiny_config(name: str = "tiny-smoke", build: str = "tiny") -> BuildConfig:
 
 
 def config_from_dict(d: dict, where: str) -> BuildConfig:
-    """BuildConfig from a recipe step's fields; an unknown field or a bad session entry is one line."""
+    """BuildConfig from a recipe step's fields, checked before anything runs: unknown fields, every
+    field by its type in BuildConfig / SessionSpec and its range in BUILD_LIMITS / SESSION_LIMITS,
+    the words of CHOICES, each session's trajectory ranges. Any problem is one RecipeError line."""
     from dataclasses import fields
 
+    from ...contracts.schema import SchemaError, check_depth, check_fields
     from .recipe import RecipeError
 
+    if not isinstance(d, dict):
+        raise RecipeError(f"{where}: the build fields must be a table, got {type(d).__name__}")
     known = {f.name for f in fields(BuildConfig)}
     unknown = sorted(set(d) - known)
     if unknown:
         raise RecipeError(f"{where}: unknown build field(s) {unknown}; expected some of {sorted(known)}")
     spec_keys = {f.name for f in fields(SessionSpec)}
-    for k in ("train", "heldout"):
-        for i, spec in enumerate(d.get(k) or []):
-            if not {"serial", "seed", "pokes"} <= set(spec) or set(spec) - spec_keys:
-                raise RecipeError(f"{where}: sessions.{k}[{i}] needs serial, seed, pokes (and optionally "
-                                  f"{sorted(spec_keys - {'serial', 'seed', 'pokes'})}), got {sorted(spec)}")
-    for k, allowed in CHOICES.items():
-        if k in d and d[k] not in allowed:
-            raise RecipeError(f"{where}: {k} = {d[k]!r}; expected one of {', '.join(allowed)}")
-    if "max_bulk_ratio" in d and (isinstance(d["max_bulk_ratio"], bool) or not isinstance(d["max_bulk_ratio"], (int, float))
-                                  or not d["max_bulk_ratio"] >= 0):
-        raise RecipeError(f"{where}: max_bulk_ratio = {d['max_bulk_ratio']!r}; expected a number ≥ 0 (0: no cap)")
+    try:
+        check_depth(d, where)
+        for k, allowed in CHOICES.items():
+            if k in d and d[k] not in allowed:
+                raise SchemaError(f"{k} = {d[k]!r}; expected one of {', '.join(allowed)}")
+        check_fields(BuildConfig, {k: v for k, v in d.items() if k not in ("train", "heldout")}, "", BUILD_LIMITS)
+        for k in ("train", "heldout"):
+            specs = d.get(k) or []
+            if not isinstance(specs, list):
+                raise SchemaError(f"sessions.{k} is {specs!r}, expected a list of tables")
+            for i, spec in enumerate(specs):
+                if isinstance(spec, SessionSpec):
+                    continue
+                if not isinstance(spec, dict) or not {"serial", "seed", "pokes"} <= set(spec) or set(spec) - spec_keys:
+                    got = sorted(spec) if isinstance(spec, dict) else repr(spec)
+                    raise SchemaError(f"sessions.{k}[{i}] needs serial, seed, pokes (and optionally "
+                                      f"{sorted(spec_keys - {'serial', 'seed', 'pokes'})}), got {got}")
+                check_fields(SessionSpec, spec, f"sessions.{k}[{i}]", SESSION_LIMITS)
+                if spec.get("trajectory"):
+                    _check_trajectory(spec["trajectory"], f"sessions.{k}[{i}].trajectory")
+    except SchemaError as exc:
+        raise RecipeError(f"{where}: {exc}") from None
     return BuildConfig.from_dict(d)
+
+
+def _check_trajectory(ranges: dict, path: str) -> None:
+    """A session's plan ranges: TrajectoryConfig fields (tools/twin/trajectory.py), finite numbers."""
+    from ...contracts.schema import Range, SchemaError, number
+    from ..twin.trajectory import TrajectoryConfig, with_ranges
+
+    try:
+        with_ranges(TrajectoryConfig(), ranges, path)
+    except ValueError as exc:
+        raise SchemaError(str(exc)) from None
+    for k, v in ranges.items():
+        for i, x in enumerate(v if isinstance(v, (list, tuple)) else [v]):
+            if not isinstance(x, str):
+                number(x, f"{path}.{k}" + (f"[{i}]" if isinstance(v, (list, tuple)) else ""), Range(0, 1000),
+                       what="a plan range (mm, s, rad or a probability)")
 
 
 # build fields that take one of a few words
 CHOICES = {"fe": ("resolve", "twin"), "tables": ("gpr", "truth"), "label_frames": ("interpolated", "checked", "fe", "keypoint"),
            "label_sigma": ("pose+ft", "pose"),
-           "physics": ("fe", "hertz-fallback")}
+           "physics": ("fe", "hertz-fallback"), "arch": ("hiera_qup", "unet", "vit"),
+           "device": ("auto", "cpu", "cuda"), "quantization_pick": ("spread", "first")}
+
+
+def _ranges():
+    from ...contracts.schema import SEED_RANGE, Range
+
+    def above0(hi):
+        return Range(0, hi, lo_open=True)
+
+    build = {"size": Range(16, 1024), "max_bulk_ratio": Range(0, 1000), "contact_stride": Range(1, 10_000),
+             "contact_force_n": above0(1000), "detach_force_n": above0(1000), "rest_fraction": Range(0, 100),
+             "val_fraction": Range(0, 0.9), "pretrain_epochs": Range(0, 100_000), "epochs": Range(1, 100_000),
+             "batch": Range(1, 65_536), "lr": above0(10), "fg_weight": Range(0, 1e6), "force_weight": Range(0, 1e6),
+             "light_weight": Range(0, 10), "fit_seed": Range(*SEED_RANGE), "photometric": Range(0, 1),
+             "threads": Range(1, 1024), "quantization_samples": Range(1, 1_000_000),
+             "threshold_sessions": Range(1, 10_000), "support_px": Range(0, 4096), "latency_runs": Range(1, 1_000_000),
+             "eval_contact_n": above0(1000)}
+    session = {"seed": Range(*SEED_RANGE), "pokes": Range(1, 10_000), "quality": Range(1, 100),
+               "frames": ("ffv1", "mjpg", "png")}
+    return build, session
+
+
+# the declared range of every numeric build and session field (contracts/schema.py Range, inclusive)
+BUILD_LIMITS, SESSION_LIMITS = _ranges()
 
 
 

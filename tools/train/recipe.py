@@ -21,7 +21,7 @@ A package's manifest records the resolved recipe (its text as parsed, its hash),
 not in the recipe are given as `--set key=value` (a `build` field, or `steps.<step>.<field>`); a set
 value changes the recipe and so its hash.
 
-This module reads and resolves recipes only: of the project it imports only the error contract.
+This module reads and resolves recipes only: of the project it imports only contracts (errors, schema).
 """
 from __future__ import annotations
 
@@ -106,7 +106,9 @@ def load_recipe(ref: str | Path, sets: list[str] | tuple = ()) -> Recipe:
     except (KeyError, TypeError):
         raise RecipeError(f"{path}: a package manifest without training.recipe (it was not built from a recipe)")
     except (ValueError, UnicodeDecodeError) as exc:
-        raise RecipeError(f"{path}: not a readable recipe ({exc})") from None
+        raise RecipeError(f"{path}: not a readable recipe ({str(exc)[:200]})") from None
+    except RecursionError:
+        raise RecipeError(f"{path}: not a readable recipe (nested too deeply)") from None
     validate(doc, str(path))
     recipe = Recipe(doc["name"], str(path), doc)
     for s in sets:
@@ -115,7 +117,16 @@ def load_recipe(ref: str | Path, sets: list[str] | tuple = ()) -> Recipe:
 
 
 def validate(doc: dict, where: str) -> None:
-    """Shape of a recipe (the BuildConfig field names are checked where BuildConfig lives)."""
+    """Shape of a recipe (the BuildConfig fields, by name, type and range, are checked where BuildConfig
+    lives: tools/train/build.py config_from_dict)."""
+    from ...contracts.schema import SchemaError, check_depth
+
+    if not isinstance(doc, dict):
+        raise RecipeError(f"{where}: expected a table of recipe fields, got {type(doc).__name__}")
+    try:
+        check_depth(doc, where)
+    except SchemaError as exc:
+        raise RecipeError(str(exc)) from None
     unknown = set(doc) - TOP_KEYS
     if unknown:
         raise RecipeError(f"{where}: unknown top-level key(s) {sorted(unknown)}; expected some of {sorted(TOP_KEYS)}")
@@ -151,6 +162,8 @@ def parse_value(text: str):
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except RecursionError:
+        raise RecipeError(f"--set value {text[:40]!r}...: nested too deeply") from None
 
 
 def apply_set(recipe: Recipe, item: str) -> Recipe:

@@ -101,9 +101,9 @@ def run_recipe(recipe, stages: list[str] | None = None, root: Path | None = None
     fits: dict[str, Path] = {}
     lineage: list[dict] = []
     b = None
-    for i, step in enumerate(steps):
+    cfgs = step_configs(recipe, overrides)    # every step checked before the first stage of any step runs
+    for i, (step, cfg) in enumerate(zip(steps, cfgs)):
         last = i == len(steps) - 1
-        cfg = config_from_dict({**recipe.config(step), **(overrides or {})}, f"{recipe.source} (step {step.name})")
         cfg.build = recipe.name
         if step.after:
             cfg.init_from = str(fits[step.after] / "best.pt")
@@ -133,3 +133,10 @@ def _models_dir() -> Path:
     from ...contracts.paths import models_dir
 
     return models_dir()
+
+
+def step_configs(recipe, overrides: dict | None = None) -> list:
+    """The BuildConfig of every step of `recipe` (with `overrides`), each field checked by its type and
+    declared range (build.config_from_dict); a RecipeError names the first bad field."""
+    return [config_from_dict({**recipe.config(step), **(overrides or {})}, f"{recipe.source} (step {step.name})")
+            for step in recipe.steps()]
