@@ -26,15 +26,17 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Self
+from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
-import zenoh
 
 from ...contracts import ros2_cdr as cdr
 from ...contracts import ros2_wire as rw
 from ...contracts.fields import CHANNEL_UNITS, CHANNELS
 from .zenoh_session import release
+
+if TYPE_CHECKING:
+    import zenoh
 
 log = logging.getLogger(__name__)
 
@@ -143,6 +145,8 @@ class _Topic:
     """One ROS 2 publisher: a Zenoh publisher on the data key and its MP liveliness token."""
 
     def __init__(self, node: Ros2Node, topic: str, ros_type: str, priority, express: bool):
+        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+
         cfg = node.config
         self.node, self.topic, self.ros_type = node, topic, ros_type
         self.token_key = rw.publisher_token(cfg.domain_id, node.zid, node.node_id, node.next_id(),
@@ -172,6 +176,8 @@ class Ros2Node:
     per-sensor publishers made by `sensor()`. Not the owner of the session."""
 
     def __init__(self, session: zenoh.Session, config: Ros2Config | None = None):
+        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+
         self.session = session
         self.config = config or Ros2Config()
         self.zid = str(session.info.zid())
@@ -220,6 +226,8 @@ class Ros2Sensor:
     (mm, N, N·mm, MPa), SI out. `calibration()` returns the active Calibration (for the surface)."""
 
     def __init__(self, node: Ros2Node, sensor_id: str, calibration: Callable[[], Any] | None = None):
+        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+
         cfg = node.config
         self.node, self.sensor_id, self.calibration = node, sensor_id, calibration
         self.name = rw.name_token(sensor_id)

@@ -8,7 +8,6 @@ import signal
 import sys
 from pathlib import Path
 
-from ..calib.bringup import LensModel
 from ..apps.zenoh_session import add_zenoh_options, config_from_args, describe
 
 log = logging.getLogger(__name__)
@@ -62,8 +61,8 @@ def register(sub) -> None:
     ci.add_argument("--sensor", required=True, help="sensor id = calibration store folder (e.g. the USB serial)")
     ci.add_argument("--rest-frames", type=int, default=10, help="frames averaged to find the rim (default 10)")
     ci.add_argument("--model", help="model package whose input size the tables use (default: newest installed)")
-    ci.add_argument("--fov-deg", type=float, default=LensModel.fov_deg, help="lens field of view (default 220)")
-    ci.add_argument("--camera-z-mm", type=float, default=LensModel.camera_z_mm,
+    ci.add_argument("--fov-deg", type=float, help="lens field of view (default 220)")
+    ci.add_argument("--camera-z-mm", type=float,
                     help="optical centre below the gel base, mm (default -1)")
     ci.add_argument("--gel", default=None, metavar="BASE,CAP,SKIRT",
                     help="gel base radius, cap height, skirt height in mm (default 12,6,2)")
@@ -223,7 +222,7 @@ def cmd_calib_init(args) -> int:
 
     from ...drivers.camera import camera_from_uri
     from ...drivers.camera.camera import EndOfStream
-    from ..calib.bringup import GelShape, init_calibration
+    from ..calib.bringup import GelShape, LensModel, init_calibration
     from ...contracts.errors import CalibrationError, TensorTouchError
     from ..stages.model import find_package
 
@@ -240,6 +239,10 @@ def cmd_calib_init(args) -> int:
         if len(values) != 3 or min(values) < 0 or values[0] <= 0 or values[1] <= 0:
             raise TensorTouchError(f"--gel {args.gel!r}: expected BASE,CAP,SKIRT in mm (e.g. 12,6,2)")
         gel = GelShape(*values)
+    if args.fov_deg is None:
+        args.fov_deg = LensModel.fov_deg
+    if args.camera_z_mm is None:
+        args.camera_z_mm = LensModel.camera_z_mm
     if not 0 < args.fov_deg <= 360:
         raise TensorTouchError(f"--fov-deg {args.fov_deg}: expected a field of view in (0, 360]")
     if args.rest_frames < 1:

@@ -200,19 +200,21 @@ def open_saver(path: Path):
 
     from ...contracts.errors import CommandError
 
+    from ...contracts.extras import hint, missing
+
     suffix = Path(path).suffix.lower().lstrip(".")
     eps = [ep for ep in metadata.entry_points(group=SAVER_GROUP) if suffix and ep.name == suffix]
+    if suffix in FILE_SAVERS and (not eps or missing("viewers")):
+        gone = missing("viewers")
+        raise CommandError(f"--save {path}: writing a {FILE_SAVERS[suffix]} "
+                           + hint("viewers", gone[0] if gone else None))
     if not eps:
-        if suffix in FILE_SAVERS:
-            raise CommandError(f"--save {path}: writing a {FILE_SAVERS[suffix]} needs the viewers extra "
-                               "(pip install 'tensortouch[viewers]')")
         return Saver(path)
     try:
         factory = eps[0].load()
-    except Exception as exc:  # noqa: BLE001 - the extra is missing or broken
-        raise CommandError(f"--save {path}: the .{suffix} recorder is unavailable ({exc}); "
-                           "pip install 'tensortouch[viewers]'") from None
-    return factory(path)
+        return factory(path)
+    except ImportError as exc:  # a recorder plugin whose own packages are missing
+        raise CommandError(f"--save {path}: the .{suffix} recorder is unavailable ({exc})") from None
 
 
 # --------------------------------------------------------------------------- shell

@@ -179,9 +179,11 @@ def find_package(name: str | None = None, root: Path | None = None) -> ModelPack
         return load_package(folder)
     found = installed_packages(root)
     if not found:
+        from ...contracts.extras import install_command
+
         raise ModelPackageError(
             f"no trained model is installed in {root}. Build one with `tensortouch train all` "
-            "(needs the train extra: pip install -e '.[train]'), or pass --model PATH to a model package.")
+            f"(needs the train extra: {install_command('train')}), or pass --model PATH to a model package.")
     return load_package(max(found, key=lambda p: (p / "manifest.json").stat().st_mtime))
 
 
