@@ -26,4 +26,4 @@ AREAS = {
 def register(sub) -> None:
     p = sub.add_parser("bench", help="benchmarks (" + ", ".join(AREAS) + ")",
                        description="Benchmarks that print side-by-side figures measured in one run (docs/BENCHMARKS.md).")
-    lazy_group(p, "bench_area", "AREA", [(name, module, text, extra) for name, (module, text, extra) in AREAS.items()])
+    lazy_group(p, "bench_area", "AREA", [(name, *row) for name, row in AREAS.items()])
