@@ -9,7 +9,8 @@ second); a command declares the optional extra it needs (`set_defaults(extra="tr
 without it prints one line naming the extra and how to install it (contracts/extras.py), exit 2.
 
 Exit codes: 0 done; 1 the command ran but found nothing (`find` with no camera, `listen` with no
-message); 2 bad input or a missing extra (one line, no traceback); 130 interrupted (Ctrl-C).
+message); 2 bad input, a missing file or a missing extra (one line, no traceback); 130 interrupted
+(Ctrl-C; a command that resumes says how).
 """
 from __future__ import annotations
 
@@ -105,6 +106,11 @@ def main(argv: list[str] | None = None) -> int:
         code = int(args.func(args) or 0)
     except TensorTouchError as exc:
         print(f"tensortouch {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as exc:
+        if not exc.filename:                  # not about a path the command was given: a real bug
+            raise
+        print(f"tensortouch {args.command}: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as exc:
         line = _missing_extra_line(exc, args, args.command)

@@ -295,7 +295,7 @@ def cmd_find(args, backend=None, sysfs_root=None, dev_root=None, query=None) -> 
     if args.json:
         for cam in cams:
             print(json.dumps(cam.to_dict(), sort_keys=True))
-        return 0
+        return 0 if cams else 1          # the same rule as the text form: 1 = found nothing
     if not cams:
         print("no USB cameras found (is the sensor plugged in? in a container, are /dev and /sys mapped?)")
         return 1

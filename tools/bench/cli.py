@@ -9,7 +9,8 @@ from ..command_group import lazy_group
 
 # area -> (module, what it measures, the extra it needs beyond the base install)
 AREAS = {
-    "runtime": ("tensortouch.tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32", None),
+    "runtime": ("tensortouch.tools.bench.runtime_bench", "deploy frame loop: per-stage latency, int8 vs fp32",
+                "train"),   # the fp32 graph is exported from the package's weights when it ships int8 only
     "contacts": ("tensortouch.tools.bench.contacts_bench", "contact clustering with vs without the light-touch rule", None),
     "hand": ("tensortouch.tools.bench.hand_bench", "N sensors in one process: frames/s per sensor, p99, soak drift", None),
     "fe": ("tensortouch.tools.fe.bench", "FE solver: seconds per keypoint frame / 5-keypoint trajectory", "train"),
