@@ -1,7 +1,7 @@
 """Optional extras: which one a command or a missing module needs, and the one line that says how to
 install it in the form that fits this installation.
 
-An editable checkout (`pip install -e .`) is told `pip install -e '.[train]'` (the checkout's path when
+An editable checkout (`pip install -e .`: this file's folder's parent holds pyproject.toml) is told `pip install -e '.[train]'` (the checkout's path when
 the shell is elsewhere); an installed wheel `pip install 'tensortouch[train]'`. The extras and their
 distributions are read from the installed package's own metadata (pyproject's
 `[project.optional-dependencies]`), never from a list kept here; only import names that differ from
@@ -13,7 +13,6 @@ turns a `ModuleNotFoundError` of a module some extra provides into the same line
 """
 from __future__ import annotations
 
-import json
 import os
 import re
 from functools import lru_cache
@@ -75,21 +74,14 @@ def missing(extra: str) -> list[str]:
 
 
 def _editable_checkout() -> Path | None:
-    """The checkout folder of an editable install (PEP 610 direct_url.json), else None."""
+    """The checkout this code runs from (an editable install: pyproject.toml beside contracts/), else None
+    (an installed wheel: contracts/ lies under site-packages/tensortouch/)."""
+    root = Path(__file__).resolve().parents[1]
     try:
-        text = metadata.distribution(DIST).read_text("direct_url.json")
-    except metadata.PackageNotFoundError:
+        text = (root / "pyproject.toml").read_text(encoding="utf-8")
+    except OSError:
         return None
-    try:
-        info = json.loads(text or "{}")
-    except ValueError:
-        return None
-    url = info.get("url", "")
-    if not (info.get("dir_info") or {}).get("editable") or not url.startswith("file://"):
-        return None
-    from urllib.parse import unquote, urlparse
-
-    return Path(unquote(urlparse(url).path))
+    return root if re.search(r'(?m)^name\s*=\s*"tensortouch"', text) else None
 
 
 def install_command(extra: str) -> str:

@@ -62,7 +62,26 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _register_deploy_commands(sub)
     problems = _register_plugins(sub)
+    describe_commands(parser)
     return parser, problems
+
+
+def subcommands(parser: argparse.ArgumentParser):
+    """(name, parser, help) of each subcommand directly under `parser`."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {a.dest: a.help for a in action._choices_actions}
+            for name, child in action.choices.items():
+                yield name, child, helps.get(name)
+
+
+def describe_commands(parser: argparse.ArgumentParser) -> None:
+    """Every command's `--help` opens with a description: its one-line help where it has no longer one."""
+    for _, child, text in subcommands(parser):
+        if not child.description and text:
+            text = text.replace("%%", "%")
+            child.description = text[0].upper() + text[1:] + ("" if text.endswith(".") else ".")
+        describe_commands(child)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -119,8 +138,9 @@ def main(argv: list[str] | None = None) -> int:
         print(line, file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        hint = getattr(args, "resume_hint", None)
-        print(f"tensortouch {args.command}: interrupted" + (f"; {hint}" if hint else ""), file=sys.stderr)
+        hint = getattr(args, "resume_hint", None)       # set by commands that pick up where they stopped
+        print(f"tensortouch {args.command}: interrupted"
+              + (f"; rerun `{args.command_line}` to resume ({hint})" if hint else ""), file=sys.stderr)
         return 130
     if getattr(args, "exit_without_finalizing", False):
         _exit_now(code)
@@ -129,8 +149,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _commands(parser: argparse.ArgumentParser) -> set[str]:
     """The names the top-level parser takes as COMMAND."""
-    return {name for action in parser._actions if isinstance(action, argparse._SubParsersAction)
-            for name in action.choices}
+    return {name for name, _, _ in subcommands(parser)}
 
 
 class _SignalHold:

@@ -163,7 +163,7 @@ def register(sub) -> None:
     common(f, 20, 16)
     f.add_argument("--arch", default="hiera_qup", choices=("hiera_qup", "unet", "vit"), help="network architecture")
     f.add_argument("--encoder", help="encoder.pt from `train pretrain` (hiera_qup only)")
-    f.set_defaults(func=cmd_fit)
+    f.set_defaults(func=cmd_fit, resume_hint="it continues from the run's last checkpoint")
 
     e = ts.add_parser("export", help="stage 7: ONNX + static int8 + parity → exported_models/<name>/")
     e.add_argument("--run", required=True, help="fit run directory")
@@ -230,6 +230,9 @@ def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force:
     return 0
 
 
+RESUME = "stamped stages are skipped; recording, FE and fitting continue from what they wrote"
+
+
 def register_build(ts) -> None:
     """`train all`, `train dataset`, `train evaluate` under the `train` subparsers."""
     from .build import STAGES
@@ -255,11 +258,11 @@ def register_build(ts) -> None:
                                   "train → export → eval (resumes)")
     common(a)
     a.add_argument("--stages", nargs="+", choices=STAGES, metavar="STAGE", help="run only these stages")
-    a.set_defaults(func=cmd_all)
+    a.set_defaults(func=cmd_all, resume_hint=RESUME)
     d = ts.add_parser("dataset", help="a recipe's stages up to the dataset (twin sessions, keypoints, FE, "
                                       "correspondence, sim-to-real, field images)")
     common(d)
-    d.set_defaults(func=lambda args: cmd_all(args, upto="dataset"), stages=None)
+    d.set_defaults(func=lambda args: cmd_all(args, upto="dataset"), stages=None, resume_hint=RESUME)
     e = ts.add_parser("evaluate", help="held-out twin sessions of a recipe through the runtime (reruns it)")
     common(e)
     e.set_defaults(func=lambda args: cmd_all(args, only=["evaluate"], force=["evaluate"]), stages=None)

@@ -86,7 +86,7 @@ def register(sub) -> None:
                    help="JPEG round trip of every frame inside the camera (0 = off), as a USB MJPG camera")
     r.add_argument("--calibration", action="store_true", help="also write the unit's true calibration")
     r.add_argument("--store", help="calibration store root (default: contracts.paths.calibration_dir())")
-    r.set_defaults(func=_record)
+    r.set_defaults(func=_record, resume_hint="an unfinished session folder is resumed")
     s = tsub.add_parser("show", help="contact sheet of a session: frames, deformation, force trace")
     s.add_argument("session", help="session folder")
     s.add_argument("--out", required=True, help="PNG file to write")
