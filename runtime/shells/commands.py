@@ -137,7 +137,7 @@ def cmd_run(args) -> int:
     from ..stages.model import find_package
     from ..pipeline import open_pipeline
     from ..apps.publisher import Publisher
-    from ..apps.ros2_publisher import Ros2Node, ros2_config_from_args
+    from ..apps.ros2_publisher import Ros2Node, resolve_router, ros2_config_from_args
     from ...contracts.wire import check_sensor_id
 
     cv2.setNumThreads(1)                        # leave the cores to onnxruntime and other sensors
@@ -152,9 +152,11 @@ def cmd_run(args) -> int:
     cal = store.load(sensor)
     pipeline = open_pipeline(package, cal, precision=args.precision, threads=args.threads, sensor_id=sensor)
     ros2 = ros2_config_from_args(args, node=f"tensortouch_{sensor}")
-    if ros2 is not None and ros2.router:
-        # with a ROS 2 router (rmw_zenohd listens on 7447), connect to it instead of listening
-        args.connect = list(args.connect) + [ros2.router]
+    if ros2 is not None:
+        router, note = resolve_router(ros2.router, bool(args.listen or args.connect or args.zenoh_config))
+        print(f"tensortouch run: {note}", file=sys.stderr)
+        if router:      # a router (rmw_zenohd) holds the port: connect to it instead of listening
+            args.connect = list(args.connect) + [router]
     loop = None
     with contextlib.ExitStack() as stack:
         pub = stack.enter_context(Publisher(sensor, zenoh_config=config_from_args(args, "sensor"),
