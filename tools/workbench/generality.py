@@ -23,7 +23,6 @@ same unit after adding the verdict: (before − after) / (before − unaltered).
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 
