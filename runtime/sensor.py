@@ -1,6 +1,6 @@
 """In-process Python API: a camera frame in, fields, contacts and the wrench out. No Zenoh, no threads.
 
-    from .sensor import Sensor
+    from tensortouch.runtime.sensor import Sensor
 
     sensor = Sensor.open(sensor_id="TWIN-DEMO")            # newest installed model, active calibration
     out = sensor.process(frame_rgb, t)                     # (H, W, 3) uint8 RGB, time in s

@@ -8,6 +8,8 @@ and decodes every payload with rosbags' CDR deserializer. It also records the ru
 
     python tests/ros2_fake_subscriber.py ENDPOINT DOMAIN TIMEOUT_S TOPICS MIN_MSGS BUSIEST_MSGS
 
+ENDPOINT `connect:tcp/HOST:PORT` connects there instead (an rmw_zenoh node's default, with no router).
+
 It stops once TOPICS publishers were found, each delivered MIN_MSGS messages and the busiest one
 BUSIEST_MSGS, or after TIMEOUT_S seconds.
 """
@@ -66,7 +68,10 @@ def main() -> int:
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("scouting/multicast/enabled", "false")
-    cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    if endpoint.startswith("connect:"):      # as an rmw_zenoh node without a router: connect out
+        cfg.insert_json5("connect/endpoints", json.dumps([endpoint.removeprefix("connect:")]))
+    else:                                    # in the place of rmw_zenohd: listen
+        cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
     session = zenoh.open(cfg)
     lock = threading.Lock()
     report = {"nodes": [], "publishers": {}, "own": {"wrench": [], "contacts": []}, "bad": []}

@@ -1,4 +1,7 @@
-"""Every `tensortouch bench` area registers its arguments (one broken area must not hide the others)."""
+"""Every `tensortouch bench` area registers its arguments when chosen; listing the areas imports none."""
+import subprocess
+import sys
+
 import argparse
 
 import pytest
@@ -16,8 +19,18 @@ def test_every_bench_area_registers():
         assert callable(args.func)
 
 
-def test_area_without_run_is_a_clear_error(monkeypatch):
-    monkeypatch.setitem(cli.AREAS, "broken", ("argparse", "not a bench module"))
-    sub = argparse.ArgumentParser().add_subparsers()
+def test_area_without_run_is_a_clear_error_when_chosen(monkeypatch):
+    monkeypatch.setitem(cli.AREAS, "broken", ("argparse", "not a bench module", None))
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    cli.register(parser.add_subparsers(dest="cmd"))
+    assert parser.parse_args(["bench", "runtime"]).bench_area == "runtime"      # the others still work
     with pytest.raises(TypeError, match="broken"):
-        cli.register(sub)
+        parser.parse_args(["bench", "broken"])
+
+
+def test_listing_the_areas_imports_no_area_module():
+    probe = ("import argparse, sys\nfrom tensortouch.tools.bench import cli\n"
+             "p = argparse.ArgumentParser(); cli.register(p.add_subparsers())\n"
+             "print(sorted(m for m, _ in [r[:2] for r in cli.AREAS.values()] if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

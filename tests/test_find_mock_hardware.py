@@ -147,3 +147,9 @@ def test_find_says_when_nothing_is_attached_mocked_hardware(tmp_path, capsys):
 @pytest.mark.hardware
 def test_querycap_on_a_real_node():
     assert v4l2.query_caps("/dev/video0") is not None
+
+
+def test_find_json_exits_1_when_nothing_is_attached_like_the_text_form_mocked_hardware(tmp_path, capsys):
+    backend = FakeBackend([])
+    assert commands.cmd_find(parse(["find", "--json"]), backend=backend, sysfs_root=tmp_path, dev_root=tmp_path) == 1
+    assert capsys.readouterr().out == ""

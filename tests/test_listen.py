@@ -171,3 +171,53 @@ def test_format_line_status_and_wrench():
                                          "flags=camera_stalled timings_ms: capture=33.30")
     w = wire.decode_wrench(wire.encode_wrench((0, 0, -2), (0.5, 0, 0), 4, 1.0, "s1"))
     assert "F=(0.000,0.000,-2.000) N tau=(0.50,0.00,0.00) N*mm" in format_line("wrench", w)
+
+
+def _fields(sensor="dome01", seq=0):
+    data = np.arange(15 * 4 * 4, dtype=np.float32).reshape(15, 4, 4)
+    return wire.FieldsFrame(sensor_id=sensor, seq=seq, t=float(seq), data=data)
+
+
+def test_thinning_keeps_every_nth_fields_frame_per_sensor_and_a_channel_subset():
+    from tensortouch.runtime.shells.listen import Thinning, parse_channels
+
+    chans = parse_channels("fn_z,displacement")
+    assert chans == ("disp_x", "disp_y", "disp_z", "fn_z")            # model order, modality expanded
+    thin = Thinning(3, chans)
+    kept = [thin("fields", _fields(s, i)) for i in range(7) for s in ("a", "b")]
+    assert [(m.sensor_id, m.seq) for m in kept if m is not None] == [("a", 0), ("b", 0), ("a", 3), ("b", 3),
+                                                                      ("a", 6), ("b", 6)]
+    m = next(m for m in kept if m is not None)
+    assert m.channels == chans and m.units == ("mm", "mm", "mm", "MPa") and m.data.shape == (4, 4, 4)
+    np.testing.assert_array_equal(m.data[3], _fields().data[CHANNELS.index("fn_z")])
+    assert thin("wrench", "w") == "w"                                  # the other streams pass
+    for bad in ("fn_q", ",", ""):
+        with pytest.raises(Exception, match="--channels"):
+            parse_channels(bad)
+
+
+def test_rate_meter_warns_once_with_the_rate():
+    from tensortouch.runtime.shells.listen import RateMeter
+
+    meter = RateMeter(warn_mb_s=1.0, after_s=2.0)
+    big = wire.FieldsFrame(sensor_id="d", seq=0, t=0.0, data=np.zeros((15, 128, 128), np.float32))   # 983 kB
+    lines = [meter.add("fields", big, t / 30) for t in range(121)]     # 30 frames/s for 4 s
+    warned = [x for x in lines if x]
+    # at 2 s: 60 frames after the first x 0.983 MB / 2 s = 29.5 MB/s, 106 GB per hour
+    assert len(warned) == 1 and "29.5 MB/s (106.2 GB per hour)" in warned[0] and "--fields-every" in warned[0]
+    quiet = RateMeter(warn_mb_s=1.0, after_s=2.0)
+    assert not any(quiet.add("fields", big, t) for t in range(10))     # 1 frame/s: 0.98 MB/s
+
+
+def test_listen_saves_thinned_fields_from_a_running_sensor(running_sensor, tmp_path, capsys):
+    args = parse(["listen", "dome01", "--connect", running_sensor, "--kinds", "fields", "--count", "4",
+                  "--timeout", "20", "--fields-every", "3", "--channels", "disp_z,fn_z", "--save", str(tmp_path)])
+    assert args.func(args) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 4 and all("2x16x16 float32" in x for x in lines)
+    npys = sorted((tmp_path / "dome01" / "fields").glob("*.npy"))
+    seqs = [int(p.stem) for p in npys]
+    assert len(seqs) == 4 and all(b - a == 3 for a, b in zip(seqs, seqs[1:])), seqs   # every 3rd of a steady stream
+    assert np.load(npys[0]).shape == (2, 16, 16)
+    meta = json.loads((tmp_path / "dome01" / "fields" / "meta.json").read_text())
+    assert meta["channels"] == ["disp_z", "fn_z"] and meta["units"] == ["mm", "MPa"]

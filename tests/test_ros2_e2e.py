@@ -120,3 +120,60 @@ def test_run_ros2_to_a_separate_rmw_zenoh_style_subscriber(tmp_path):
     assert diag["values"]["sensor_id"] == SENSOR and "fps" in diag["values"]
     tf = pubs["/tf"]["msgs"][0]["transforms"][0]
     assert (tf["parent"], tf["child"], tf["w"]) == ("tensortouch_mount", "TT_E2E_gel", 1.0)
+
+
+def _demo_like_env(tmp_path):
+    session = write_poke_session(tmp_path / "session")
+    write_difference_package(tmp_path / "models" / "difference-32", SIZE)
+    dome_calibration(tmp_path / "calib", SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    meet = f"tcp/127.0.0.1:{free_port()}"      # the meeting point, moved off 7447 as docs/wire.md says
+    env = dict(os.environ, TENSORTOUCH_CALIBRATION=str(tmp_path / "calib"), TENSORTOUCH_MODELS=str(tmp_path / "models"),
+               PYTHONUNBUFFERED="1", TENSORTOUCH_ENDPOINT=meet)
+    return session, meet, env
+
+
+def _cli(*args):
+    return [sys.executable, "-m", "tensortouch.runtime.shells.cli", *args]
+
+
+def test_run_ros2_with_defaults_reaches_listen_and_a_plain_ros2_subscriber(tmp_path):
+    """`run --ros2` with no router running: it listens at the meeting point itself (and says so in one
+    line), so `listen` with its defaults and an rmw_zenoh-style subscriber connecting there both receive."""
+    session, meet, env = _demo_like_env(tmp_path)
+    run = subprocess.Popen(_cli("run", "--source", f"replay:{session}", "--loop", "--fast", "--ros2", "--ros2-domain", DOMAIN),
+                           env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        listen = subprocess.run(_cli("listen", SENSOR, "--count", "5", "--kinds", "wrench", "--timeout", "60"),
+                                env=env, capture_output=True, text=True, timeout=90)
+        sub = subprocess.run([sys.executable, str(ROOT / "tests" / "ros2_fake_subscriber.py"), f"connect:{meet}", DOMAIN,
+                              "60", "7", "2", "20"], env=env, capture_output=True, text=True, timeout=90)
+    finally:
+        err_run = stop(run)
+    assert listen.returncode == 0, (listen.stderr, err_run[-1500:])
+    assert listen.stdout.count(f"tensortouch/{SENSOR}/wrench") == 5
+    assert f"no Zenoh router at {meet}: this sensor listens there itself" in err_run
+    assert sub.returncode == 0, sub.stderr
+    rep = json.loads(sub.stdout.strip().splitlines()[-1])
+    assert not rep["bad"], rep["bad"][:5]
+    wrench = rep["publishers"]["/tensortouch/TT_E2E/wrench"]
+    assert wrench["type"] == "geometry_msgs/msg/WrenchStamped" and len(wrench["msgs"]) >= 2
+
+
+def test_run_ros2_with_defaults_connects_to_a_router_already_at_the_meeting_point(tmp_path):
+    """A router (here the rmw_zenohd stand-in, listening) holds the meeting point: `run --ros2` with its
+    defaults connects to it, and the ROS 2 messages arrive there."""
+    session, meet, env = _demo_like_env(tmp_path)
+    sub = subprocess.Popen([sys.executable, str(ROOT / "tests" / "ros2_fake_subscriber.py"), meet, DOMAIN,
+                            "60", "7", "2", "20"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert sub.stdout.readline().strip() == "ready"
+    run = subprocess.Popen(_cli("run", "--source", f"replay:{session}", "--loop", "--fast", "--ros2", "--ros2-domain", DOMAIN),
+                           env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err_sub = sub.communicate(timeout=90)
+    finally:
+        err_run = stop(run)
+    assert sub.returncode == 0, (err_sub, err_run[-1500:])
+    assert f"a Zenoh router listens at {meet}" in err_run
+    rep = json.loads(out.strip().splitlines()[-1])
+    assert not rep["bad"], rep["bad"][:5]
+    assert len(rep["publishers"]["/tensortouch/TT_E2E/wrench"]["msgs"]) >= 2

@@ -75,7 +75,7 @@ def test_wall_stamps_and_closed_publisher_never_raises():
     assert isinstance(s_pub, zenoh.Session)
 
 
-def test_hand_config_ros2_table_and_two_fingers_on_ros2(tmp_path):
+def test_hand_config_ros2_table_and_two_fingers_on_ros2(tmp_path, monkeypatch):
     from rosbags.typesys import Stores, get_typestore
 
     from tensortouch.runtime.apps.hand import Hand
@@ -92,9 +92,15 @@ def test_hand_config_ros2_table_and_two_fingers_on_ros2(tmp_path):
         parse_hand_config({"ros2": {"distr": "jazzy"}, "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
     with pytest.raises(HandConfigError, match=r"\[ros2\].*distro"):
         parse_hand_config({"ros2": {"distro": "iron"}, "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
+    monkeypatch.setenv("TENSORTOUCH_ENDPOINT", f"tcp/127.0.0.1:{free_port()}")    # no router runs there
     cfg = parse_hand_config({"hand": {"name": "left"}, "ros2": {"domain_id": 4, "images": []},
                              "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
-    assert cfg.listen == () and cfg.connect == ("tcp/127.0.0.1:7447",)      # connect to rmw_zenohd
+    assert cfg.listen == () and cfg.connect == ()           # router "auto", none there: the hand listens there
+    cfg = parse_hand_config({"hand": {"name": "left"}, "ros2": {"router": "tcp/127.0.0.1:7447"},
+                             "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
+    assert cfg.listen == () and cfg.connect == ("tcp/127.0.0.1:7447",)      # a named router: connect to it
+    cfg = parse_hand_config({"hand": {"name": "left"}, "ros2": {"domain_id": 4, "images": []},
+                             "finger": [{"name": "a", "serial": "S1"}]}, "h.toml")
     assert cfg.ros2.node == "tensortouch_left" and cfg.ros2.images == ()
 
     pkg = make_package(tmp_path / "models" / "difference-32")

@@ -10,9 +10,6 @@ from __future__ import annotations
 
 import sys
 
-from tqdm import tqdm
-from tqdm.contrib.logging import logging_redirect_tqdm
-
 
 class StageProgress:
     """A callback `(stage, i, n)` that draws one bar per stage (a new stage or total starts a new bar)."""
@@ -23,6 +20,9 @@ class StageProgress:
     def __call__(self, stage: str, i: int, n: int) -> None:
         key = (stage, n)
         if key != self._key:
+            from tqdm import tqdm          # imported when a bar opens: registering a command needs none
+            from tqdm.contrib.logging import logging_redirect_tqdm
+
             self.close()
             label = f"{self.desc} {stage}".strip()
             self._redirect = logging_redirect_tqdm()      # log lines go above the bar, not into it

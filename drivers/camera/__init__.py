@@ -1,6 +1,6 @@
 """Camera layer: one small interface (`Camera`), a config dataclass per backend, a factory.
 
-    from . import camera_from_uri
+    from tensortouch.drivers.camera import camera_from_uri
     with camera_from_uri("replay:runtime/demo?loop=1") as cam:
         frame = cam.read()          # Frame(image=(H, W, 3) uint8 RGB, t=s, index)
 

@@ -16,8 +16,9 @@
     [ros2]                            # optional: ROS 2 topics in rmw_zenoh's format (docs/wire.md)
     distro = "jazzy"                  # jazzy | kilted | rolling | humble
     domain_id = 0                     # default: $ROS_DOMAIN_ID or 0
-    router = "tcp/127.0.0.1:7447"     # rmw_zenohd; "" = none. With a router and no [zenoh] listen,
-                                      # the hand connects to it instead of listening on 7447
+    router = "auto"                   # default: connect to a router (rmw_zenohd) at the meeting point when
+                                      # one runs there, else listen there; an endpoint: connect to it
+                                      # (instead of listening, with no [zenoh] listen); "" = none
 
     [can]                             # optional: compact summary on CAN (python-can)
     interface = "socketcan"
@@ -49,6 +50,7 @@ from ...contracts import wire
 from ...contracts.errors import TensorTouchError
 from ...contracts.schema import Range, SchemaError, check_depth, check_fields, check_value
 from .ros2_publisher import Ros2Config
+from .ros2_publisher import resolve_router
 from ...contracts.ros2_wire import name_token as rw_name_token
 
 log = logging.getLogger(__name__)
@@ -270,9 +272,11 @@ def parse_hand_config(data: dict, where: str = "hand config", base_dir: Path | N
             hand["ros2"] = Ros2Config(**kw)
         except (TypeError, ValueError, TensorTouchError) as exc:
             raise HandConfigError(f"{where}: [ros2] {exc}") from None
-        if hand["ros2"].router:
-            hand["connect"] = tuple(hand.get("connect", ())) + (hand["ros2"].router,)
-            if "listen" not in zen:           # the router (rmw_zenohd) holds 7447: connect, not listen
+        router, note = resolve_router(hand["ros2"].router, bool(set(zen) & {"listen", "connect", "config"}))
+        log.info("hand %s: %s", hand.get("name", "hand"), note)
+        if router:
+            hand["connect"] = tuple(hand.get("connect", ())) + (router,)
+            if "listen" not in zen:           # the router (rmw_zenohd) holds the port: connect, not listen
                 hand["listen"] = ()
     store = hand.get("calibration_store")
     if store and base_dir is not None and not Path(store).is_absolute():

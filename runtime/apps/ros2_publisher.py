@@ -26,19 +26,22 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Self
+from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
-import zenoh
 
 from ...contracts import ros2_cdr as cdr
 from ...contracts import ros2_wire as rw
 from ...contracts.fields import CHANNEL_UNITS, CHANNELS
 from .zenoh_session import release
 
+if TYPE_CHECKING:
+    import zenoh
+
 log = logging.getLogger(__name__)
 
 ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"          # rmw_zenohd's default listen endpoint
+AUTO = "auto"            # router: connect to a router at the meeting point if one is there, else listen there
 STAMPS = ("wall", "frame")
 SI_SCALE = {"mm": 1e-3, "MPa": 1e6}              # house unit -> SI (m, Pa)
 ERROR_FLAGS = frozenset({"camera_stalled", "camera_lost", "frame_black", "camera_frozen",
@@ -65,7 +68,7 @@ class Ros2Config:
     node: str = "tensortouch"                # ROS node name of this process
     reliability: str = "reliable"            # reliable | best_effort
     depth: int = rw.DEFAULT_DEPTH            # keep last N
-    router: str = ROUTER_ENDPOINT            # Zenoh router to connect to ("" = none)
+    router: str = AUTO                       # Zenoh router to connect to; "auto": see resolve_router; "" = none
     images: tuple[str, ...] = ("disp_z", "fn_z")   # field channels published as 32FC1 images
     surface_every: int = 10                  # gel surface cloud on every N-th fields frame (0 = never)
     surface_step: int = 2                    # surface cloud: every n-th row and column of the grid
@@ -113,9 +116,10 @@ def add_ros2_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--ros2-distro", choices=rw.DISTROS, default=d["distro"].default, help="ROS 2 distribution whose type hashes are published (humble has none)")
     g.add_argument("--ros2-domain", type=int, metavar="ID", help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or 0)")
     g.add_argument("--ros2-namespace", default=d["namespace"].default, metavar="NS", help="topic namespace: topics become /NS/<sensor>/…")
-    g.add_argument("--ros2-router", default=ROUTER_ENDPOINT, metavar="ENDPOINT",
-                   help=f"connect to this Zenoh router, e.g. rmw_zenohd (default {ROUTER_ENDPOINT}); "
-                        "'none' to connect to none")
+    g.add_argument("--ros2-router", default=AUTO, metavar="ENDPOINT",
+                   help="connect to this Zenoh router, e.g. rmw_zenohd at " + ROUTER_ENDPOINT + "; 'auto' (default): "
+                        "connect to a router at the meeting point when one runs there, else listen there "
+                        "(ROS 2 nodes and `listen` connect to it); 'none': no router")
     g.add_argument("--ros2-qos", choices=tuple(rw.RELIABILITY), default=d["reliability"].default, help="QoS reliability announced in the liveliness tokens")
     g.add_argument("--ros2-depth", type=int, default=d["depth"].default, metavar="N", help="QoS history depth (KEEP_LAST N)")
     g.add_argument("--ros2-stamp", choices=STAMPS, default=d["stamp"].default,
@@ -137,12 +141,56 @@ def ros2_config_from_args(args, node: str = "tensortouch") -> Ros2Config | None:
     return Ros2Config(**kw)
 
 
+def _accepting(endpoint: str, timeout_s: float = 0.5) -> bool:
+    """Whether something accepts TCP connections at a `tcp/HOST:PORT` endpoint (False for others)."""
+    import socket
+
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    if proto != "tcp" or not host or not port.isdigit():
+        return False
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
+def resolve_router(router: str, endpoints_given: bool) -> tuple[str | None, str]:
+    """Where ROS 2 mode meets rmw_zenoh: (the endpoint to connect to, or None to keep the session's own
+    endpoints) and the one line that says what happens and what to start.
+
+    "auto" with no --listen/--connect/--zenoh-config: when something already listens at the meeting point
+    (rmw_zenohd holds tcp/127.0.0.1:7447, the meeting point's default), connect to it; else listen
+    there, as without ROS 2, so `tensortouch listen` and ROS 2 nodes on rmw_zenoh (which connect to
+    tcp/localhost:7447 by default) reach this sensor directly. An explicit endpoint is connected to
+    (instead of listening, when no --listen is given); "" connects to none."""
+    from .zenoh_session import default_endpoint
+
+    meet = default_endpoint()
+    if router == AUTO:
+        if endpoints_given:
+            return None, "ROS 2: topics travel on this session's own endpoints (--ros2-router auto)"
+        if _accepting(meet):
+            return meet, (f"ROS 2: a Zenoh router listens at {meet} (rmw_zenohd?): connecting to it; "
+                          f"`tensortouch listen` and ROS 2 nodes reach this sensor through it")
+        return None, (f"ROS 2: no Zenoh router at {meet}: this sensor listens there itself; `tensortouch listen` "
+                      f"and ROS 2 nodes on rmw_zenoh connect to it directly (rmw_zenohd not needed; started "
+                      f"later it finds the port taken: start it first, or give --ros2-router ENDPOINT)")
+    if not router:
+        return None, "ROS 2: no router (--ros2-router none): topics travel on this session's own endpoints"
+    return router, (f"ROS 2: connecting to the Zenoh router {router}; our own keys travel through it too: "
+                    f"`tensortouch listen --connect {router}`")
+
+
 # --------------------------------------------------------------------------- shell
 
 class _Topic:
     """One ROS 2 publisher: a Zenoh publisher on the data key and its MP liveliness token."""
 
     def __init__(self, node: Ros2Node, topic: str, ros_type: str, priority, express: bool):
+        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+
         cfg = node.config
         self.node, self.topic, self.ros_type = node, topic, ros_type
         self.token_key = rw.publisher_token(cfg.domain_id, node.zid, node.node_id, node.next_id(),
@@ -172,6 +220,8 @@ class Ros2Node:
     per-sensor publishers made by `sensor()`. Not the owner of the session."""
 
     def __init__(self, session: zenoh.Session, config: Ros2Config | None = None):
+        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+
         self.session = session
         self.config = config or Ros2Config()
         self.zid = str(session.info.zid())
@@ -220,6 +270,8 @@ class Ros2Sensor:
     (mm, N, N·mm, MPa), SI out. `calibration()` returns the active Calibration (for the surface)."""
 
     def __init__(self, node: Ros2Node, sensor_id: str, calibration: Callable[[], Any] | None = None):
+        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+
         cfg = node.config
         self.node, self.sensor_id, self.calibration = node, sensor_id, calibration
         self.name = rw.name_token(sensor_id)

@@ -1,6 +1,6 @@
 """Subscriber library: receive and decode what `runtime.apps.publisher.Publisher` sends (docs/wire.md).
 
-    from .subscriber import Subscriber
+    from tensortouch.runtime.apps.subscriber import Subscriber
     with Subscriber("*") as sub:                        # connects to tcp/127.0.0.1:7447
         frame = sub.wait_for("fields", timeout=5.0)     # wire.FieldsFrame, float32 (15, H, W)
 

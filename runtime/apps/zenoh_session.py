@@ -18,10 +18,12 @@ import os
 import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
-
-import zenoh
+from typing import TYPE_CHECKING
 
 from ...contracts.errors import TensorTouchError
+
+if TYPE_CHECKING:       # zenoh is imported where a session is configured, not when a parser is built
+    import zenoh
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 ENDPOINT_ENV = "TENSORTOUCH_ENDPOINT"
@@ -39,6 +41,8 @@ def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequen
 
     It listens exactly on `listen` (nowhere when empty), connects to `connect`, and scouts
     (multicast and gossip) only when `multicast` is true."""
+    import zenoh
+
     if mode not in ("peer", "client", "router"):
         raise TensorTouchError(f"zenoh mode {mode!r}: expected 'peer', 'client' or 'router'")
     cfg = zenoh.Config()
@@ -57,6 +61,8 @@ def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequen
 def load_zenoh_config(path: str | os.PathLike, *, listen: Sequence[str] = (),
                       connect: Sequence[str] = ()) -> zenoh.Config:
     """Zenoh's own JSON5 config file; non-empty `listen` / `connect` replace its endpoints."""
+    import zenoh
+
     path = Path(path)
     if not path.is_file():
         raise TensorTouchError(f"{path}: no such Zenoh config file (expected Zenoh's JSON5 configuration)")
@@ -94,6 +100,8 @@ def open_session(config: zenoh.Config | None = None, *, listen: Sequence[str] = 
                  config_file: str | os.PathLike | None = None,
                  multicast: bool = False) -> zenoh.Session:
     """Open a zenoh session from a Config, a config file or endpoints, with a one-line error."""
+    import zenoh
+
     if config is None:
         config = session_config(role, listen=listen, connect=connect, config_file=config_file,
                                 multicast=multicast)

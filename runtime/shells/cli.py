@@ -3,8 +3,14 @@
 Deploy subcommands (run, listen, ...) live here. Train-side, twin and workbench subcommands are
 contributed by `tools/` through the `tensortouch.commands` entry-point group: each entry point is
 a function `register(subparsers)` that adds its parsers. The runtime never imports `tools/`; it only
-asks the installed package metadata which commands exist, so a deploy install without the `train`
-extra still works and simply lacks those commands.
+asks the installed package metadata which commands exist. Registering a command imports only what
+its parser needs (no torch, scipy, zenoh, onnxruntime: `tensortouch --help` starts in well under a
+second); a command declares the optional extra it needs (`set_defaults(extra="train")`), and run
+without it prints one line naming the extra and how to install it (contracts/extras.py), exit 2.
+
+Exit codes: 0 done; 1 the command ran but found nothing (`find` with no camera, `listen` with no
+message); 2 bad input, a missing file or a missing extra (one line, no traceback); 130 interrupted
+(Ctrl-C; a command that resumes says how).
 """
 from __future__ import annotations
 
@@ -28,14 +34,26 @@ def _register_deploy_commands(sub) -> None:
 
 
 def _register_plugins(sub) -> list[str]:
+    from ...contracts.extras import hint_for_import_error
+
     problems = []
     for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
         try:
             register = ep.load()
             register(sub)
-        except Exception as exc:  # a tools/ extra is not installed, or the plugin is broken
-            problems.append(f"{ep.name}: unavailable ({exc}); install the train extra: pip install -e '.[train]'")
+        except ModuleNotFoundError as exc:  # a tools/ module imports an extra's package at registration
+            problems.append(f"{ep.name} commands: " + (hint_for_import_error(exc) or f"unavailable ({exc})"))
+        except Exception as exc:  # noqa: BLE001 - a broken plugin must not take the other commands down
+            problems.append(f"{ep.name} commands: unavailable ({type(exc).__name__}: {exc})")
     return problems
+
+
+def _missing_extra_line(exc: ModuleNotFoundError, args, command: str) -> str | None:
+    """The one line for a module some extra provides (None: not an extra's module, a real bug)."""
+    from ...contracts.extras import hint_for_import_error
+
+    line = hint_for_import_error(exc, prefer=getattr(args, "extra", None))
+    return f"tensortouch {command}: {line}" if line else None
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
@@ -44,7 +62,26 @@ def build_parser() -> tuple[argparse.ArgumentParser, list[str]]:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _register_deploy_commands(sub)
     problems = _register_plugins(sub)
+    describe_commands(parser)
     return parser, problems
+
+
+def subcommands(parser: argparse.ArgumentParser):
+    """(name, parser, help) of each subcommand directly under `parser`."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {a.dest: a.help for a in action._choices_actions}
+            for name, child in action.choices.items():
+                yield name, child, helps.get(name)
+
+
+def describe_commands(parser: argparse.ArgumentParser) -> None:
+    """Every command's `--help` opens with a description: its one-line help where it has no longer one."""
+    for _, child, text in subcommands(parser):
+        if not child.description and text:
+            text = text.replace("%%", "%")
+            child.description = text[0].upper() + text[1:] + ("" if text.endswith(".") else ".")
+        describe_commands(child)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,7 +89,19 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         parser, problems = build_parser()
-        args = parser.parse_args(argv)
+        first = next((a for a in argv if not a.startswith("-")), None)
+        if problems and first is not None and first not in _commands(parser):
+            for line in problems:                 # an unknown command may be one a missing extra adds
+                print("tensortouch:", line, file=sys.stderr)
+            return 2
+        try:
+            args = parser.parse_args(argv)
+        except ModuleNotFoundError as exc:        # a subcommand's options live in a module of an extra
+            line = _missing_extra_line(exc, None, first or "")
+            if line is None:
+                raise
+            print(line, file=sys.stderr)
+            return 2
     finally:
         pending = held.release()
     args.command_line = shlex.join(["tensortouch", *argv])    # what a manifest records as "the command"
@@ -78,12 +127,35 @@ def dispatch(args) -> int:
     """Run a parsed command: its exit code, or 2 with one line on stderr for a TensorTouchError (bad
     input), 130 on Ctrl-C. `main` calls it; tests call it with `build_parser()`'s parser built once."""
     try:
+        if getattr(args, "extra", None):
+            from ...contracts.extras import require
+
+            require(args.extra)
         return int(args.func(args) or 0)
     except TensorTouchError as exc:
         print(f"tensortouch {args.command}: {exc}", file=sys.stderr)
         return 2
+    except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as exc:
+        if not exc.filename:                  # not about a path the command was given: a real bug
+            raise
+        print(f"tensortouch {args.command}: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:
+        line = _missing_extra_line(exc, args, args.command)
+        if line is None:
+            raise
+        print(line, file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
+        hint = getattr(args, "resume_hint", None)       # set by commands that pick up where they stopped
+        print(f"tensortouch {args.command}: interrupted"
+              + (f"; rerun `{getattr(args, 'command_line', args.command)}` to resume ({hint})" if hint else ""), file=sys.stderr)
         return 130
+
+
+def _commands(parser: argparse.ArgumentParser) -> set[str]:
+    """The names the top-level parser takes as COMMAND."""
+    return {name for name, _, _ in subcommands(parser)}
 
 
 class _SignalHold:

@@ -8,7 +8,6 @@ import signal
 import sys
 from pathlib import Path
 
-from ..calib.bringup import LensModel
 from ..apps.zenoh_session import add_zenoh_options, config_from_args, describe
 
 log = logging.getLogger(__name__)
@@ -62,8 +61,8 @@ def register(sub) -> None:
     ci.add_argument("--sensor", required=True, help="sensor id = calibration store folder (e.g. the USB serial)")
     ci.add_argument("--rest-frames", type=int, default=10, help="frames averaged to find the rim (default 10)")
     ci.add_argument("--model", help="model package whose input size the tables use (default: newest installed)")
-    ci.add_argument("--fov-deg", type=float, default=LensModel.fov_deg, help="lens field of view (default 220)")
-    ci.add_argument("--camera-z-mm", type=float, default=LensModel.camera_z_mm,
+    ci.add_argument("--fov-deg", type=float, help="lens field of view (default 220)")
+    ci.add_argument("--camera-z-mm", type=float,
                     help="optical centre below the gel base, mm (default -1)")
     ci.add_argument("--gel", default=None, metavar="BASE,CAP,SKIRT",
                     help="gel base radius, cap height, skirt height in mm (default 12,6,2)")
@@ -138,7 +137,7 @@ def cmd_run(args) -> int:
     from ..stages.model import find_package
     from ..pipeline import open_pipeline
     from ..apps.publisher import Publisher
-    from ..apps.ros2_publisher import Ros2Node, ros2_config_from_args
+    from ..apps.ros2_publisher import Ros2Node, resolve_router, ros2_config_from_args
     from ...contracts.wire import check_sensor_id
 
     cv2.setNumThreads(1)                        # leave the cores to onnxruntime and other sensors
@@ -153,9 +152,11 @@ def cmd_run(args) -> int:
     cal = store.load(sensor)
     pipeline = open_pipeline(package, cal, precision=args.precision, threads=args.threads, sensor_id=sensor)
     ros2 = ros2_config_from_args(args, node=f"tensortouch_{sensor}")
-    if ros2 is not None and ros2.router:
-        # with a ROS 2 router (rmw_zenohd listens on 7447), connect to it instead of listening
-        args.connect = list(args.connect) + [ros2.router]
+    if ros2 is not None:
+        router, note = resolve_router(ros2.router, bool(args.listen or args.connect or args.zenoh_config))
+        print(f"tensortouch run: {note}", file=sys.stderr)
+        if router:      # a router (rmw_zenohd) holds the port: connect to it instead of listening
+            args.connect = list(args.connect) + [router]
     loop = None
     with contextlib.ExitStack() as stack:
         pub = stack.enter_context(Publisher(sensor, zenoh_config=config_from_args(args, "sensor"),
@@ -223,7 +224,7 @@ def cmd_calib_init(args) -> int:
 
     from ...drivers.camera import camera_from_uri
     from ...drivers.camera.camera import EndOfStream
-    from ..calib.bringup import GelShape, init_calibration
+    from ..calib.bringup import GelShape, LensModel, init_calibration
     from ...contracts.errors import CalibrationError, TensorTouchError
     from ..stages.model import find_package
     from ...contracts.store import ANY
@@ -241,6 +242,10 @@ def cmd_calib_init(args) -> int:
         if len(values) != 3 or min(values) < 0 or values[0] <= 0 or values[1] <= 0:
             raise TensorTouchError(f"--gel {args.gel!r}: expected BASE,CAP,SKIRT in mm (e.g. 12,6,2)")
         gel = GelShape(*values)
+    if args.fov_deg is None:
+        args.fov_deg = LensModel.fov_deg
+    if args.camera_z_mm is None:
+        args.camera_z_mm = LensModel.camera_z_mm
     if not 0 < args.fov_deg <= 360:
         raise TensorTouchError(f"--fov-deg {args.fov_deg}: expected a field of view in (0, 360]")
     if args.rest_frames < 1:
@@ -294,7 +299,7 @@ def cmd_find(args, backend=None, sysfs_root=None, dev_root=None, query=None) -> 
     if args.json:
         for cam in cams:
             print(json.dumps(cam.to_dict(), sort_keys=True))
-        return 0
+        return 0 if cams else 1          # the same rule as the text form: 1 = found nothing
     if not cams:
         print("no USB cameras found (is the sensor plugged in? in a container, are /dev and /sys mapped?)")
         return 1

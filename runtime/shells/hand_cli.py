@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import time
 
-from ..apps.hand import Hand
-from ..apps.hand_config import load_hand_config
 from ..apps.zenoh_session import add_zenoh_options, default_endpoint
 
 
@@ -41,6 +39,9 @@ def cmd_hand(args) -> int:
 def _serve(args, stop) -> int:
     import dataclasses
     import sys
+
+    from ..apps.hand import Hand
+    from ..apps.hand_config import load_hand_config
 
     cfg = load_hand_config(args.config)
     cam = dict(cfg.camera_options)

@@ -5,6 +5,9 @@
 
 Saving: <DIR>/<sensor>/fields/<seq>.npy (float32 (15,H,W), written atomically) plus meta.json
 (channels, units), and contacts.jsonl / wrench.jsonl / status.jsonl (one message per line).
+Fields are most of a recording (15 x 128 x 128 float32 = 983 kB a frame, about 30 MB/s at 30 frames/s):
+`--fields-every N` keeps every N-th fields frame of each sensor, `--channels` a subset of the channels,
+and a recording that grows faster than SIZE_WARN_MB_S says so once, with its rate.
 """
 from __future__ import annotations
 
@@ -39,6 +42,11 @@ def add_listen_parser(subparsers) -> None:
     p.add_argument("--save", type=Path, metavar="DIR|FILE",
                    help="DIR: fields as .npy, the rest as JSONL; FILE.mcap: MCAP with Foxglove schemas; "
                         "FILE.rrd: a Rerun recording (.mcap/.rrd need the viewers extra)")
+    p.add_argument("--fields-every", type=int, default=1, metavar="N",
+                   help="show and save the fields of every N-th frame of each sensor only (the other streams: all)")
+    p.add_argument("--channels", metavar="CH,CH",
+                   help="show and save only these field channels, by name (disp_z,fn_z) or modality "
+                        "(displacement, contact_normal, ...; docs/fields.md) (default: all 15)")
     p.add_argument("--json", action="store_true", help="one JSON object per line instead of text")
     p.add_argument("--info", action="store_true",
                    help="first list alive sensors and print their info (queryable)")
@@ -96,6 +104,89 @@ def format_line(kind: str, msg: Any) -> str:
     finger = f" finger={s['finger']}" if s.get("finger") else ""
     return (f"{head}{finger} state={s['state']} fps={fps} flags={','.join(s['flags']) or '-'} "
             f"timings_ms: {timings or '-'}")
+
+
+# --------------------------------------------------------------------------- thinning
+
+SIZE_WARN_MB_S = 2.0          # a recording growing faster than this says so once (7.2 GB per hour)
+
+
+def parse_channels(text: str | None) -> tuple[str, ...] | None:
+    """`--channels` -> channel names in model order (None: all). Names or modality groups, comma-separated."""
+    from ...contracts.errors import CommandError
+    from ...contracts.fields import CHANNELS, MODALITIES
+
+    if text is None:
+        return None
+    chosen: set[str] = set()
+    for word in (w.strip() for w in text.split(",")):
+        if word in CHANNELS:
+            chosen.add(word)
+        elif word in MODALITIES:
+            chosen.update(CHANNELS[MODALITIES[word]])
+        elif word:
+            raise CommandError(f"--channels {text!r}: unknown {word!r}; expected channel names "
+                               f"({', '.join(CHANNELS)}) or modalities ({', '.join(MODALITIES)})")
+    if not chosen:
+        raise CommandError(f"--channels {text!r}: expected at least one channel")
+    return tuple(c for c in CHANNELS if c in chosen)
+
+
+class Thinning:
+    """Which fields frames are kept (every `every`-th per sensor) and which of their channels."""
+
+    def __init__(self, every: int = 1, channels: tuple[str, ...] | None = None):
+        from ...contracts.errors import CommandError
+
+        if every < 1:
+            raise CommandError(f"--fields-every {every}: expected 1 or more")
+        self.every, self.channels = int(every), channels
+        self._seen: dict[str, int] = {}
+
+    def __call__(self, kind: str, msg: Any) -> Any | None:
+        """The message to show and save (a fields frame cut to the channels), or None to drop it."""
+        if kind != "fields":
+            return msg
+        n = self._seen.get(msg.sensor_id, 0)
+        self._seen[msg.sensor_id] = n + 1
+        if n % self.every:
+            return None
+        if self.channels is None:
+            return msg
+        import dataclasses
+
+        keep = [i for i, c in enumerate(msg.channels) if c in self.channels]
+        return dataclasses.replace(msg, data=msg.data[keep], channels=tuple(msg.channels[i] for i in keep),
+                                   units=tuple(msg.units[i] for i in keep),
+                                   clipped=tuple(c for c in msg.clipped if c in self.channels))
+
+
+class RateMeter:
+    """Bytes a recording receives per second (field data as float32 plus the small messages as JSON),
+    and the one warning when it is more than `warn_mb_s`."""
+
+    def __init__(self, warn_mb_s: float = SIZE_WARN_MB_S, after_s: float = 2.0):
+        self.warn_mb_s, self.after_s = warn_mb_s, after_s
+        self.bytes = 0
+        self.started: float | None = None
+        self.warned = False
+
+    def add(self, kind: str, msg: Any, now: float) -> str | None:
+        """Count one saved message; returns the warning line once, when the rate is known and too high."""
+        if self.started is None:        # the clock starts with the first message: the rate counts the later ones
+            self.started = now
+            return None
+        self.bytes += msg.data.size * 4 if kind == "fields" else 200
+        elapsed = now - self.started
+        if self.warned or elapsed < self.after_s:
+            return None
+        rate = self.bytes / elapsed / 1e6
+        if rate <= self.warn_mb_s:
+            return None
+        self.warned = True
+        return (f"tensortouch listen: the recording grows about {rate:.1f} MB/s ({rate * 3.6:.1f} GB per hour), "
+                f"mostly fields; thin it with --fields-every N (every N-th fields frame) and/or "
+                f"--channels disp_z,fn_z (a channel subset)")
 
 
 # --------------------------------------------------------------------------- saving
@@ -200,19 +291,21 @@ def open_saver(path: Path):
 
     from ...contracts.errors import CommandError
 
+    from ...contracts.extras import hint, missing
+
     suffix = Path(path).suffix.lower().lstrip(".")
     eps = [ep for ep in metadata.entry_points(group=SAVER_GROUP) if suffix and ep.name == suffix]
+    if suffix in FILE_SAVERS and (not eps or missing("viewers")):
+        gone = missing("viewers")
+        raise CommandError(f"--save {path}: writing a {FILE_SAVERS[suffix]} "
+                           + hint("viewers", gone[0] if gone else None))
     if not eps:
-        if suffix in FILE_SAVERS:
-            raise CommandError(f"--save {path}: writing a {FILE_SAVERS[suffix]} needs the viewers extra "
-                               "(pip install 'tensortouch[viewers]')")
         return Saver(path)
     try:
         factory = eps[0].load()
-    except Exception as exc:  # noqa: BLE001 - the extra is missing or broken
-        raise CommandError(f"--save {path}: the .{suffix} recorder is unavailable ({exc}); "
-                           "pip install 'tensortouch[viewers]'") from None
-    return factory(path)
+        return factory(path)
+    except ImportError as exc:  # a recorder plugin whose own packages are missing
+        raise CommandError(f"--save {path}: the .{suffix} recorder is unavailable ({exc})") from None
 
 
 # --------------------------------------------------------------------------- shell
@@ -236,6 +329,8 @@ def run_listen(args) -> int:
     unknown = [k for k in kinds if k not in KINDS]
     if unknown:
         raise CommandError(f"--kinds {args.kinds!r}: unknown {unknown}; expected some of {KINDS}")
+    thin = Thinning(args.fields_every, parse_channels(args.channels))
+    meter = RateMeter()
     inbox, callbacks = queued_callbacks(kinds)     # the printer may fall behind: drop, never stall zenoh
     cfg = config_from_args(args, "subscriber")
     where = describe(args, "subscriber")
@@ -273,6 +368,9 @@ def run_listen(args) -> int:
                         hinted = True
                         print(nothing_yet_hint(args.sensor, where, sub.errors), file=sys.stderr, flush=True)
                     continue
+                msg = thin(kind, msg)
+                if msg is None:
+                    continue
                 n += 1
                 line = json.dumps(summarize(kind, msg)) if args.json else format_line(kind, msg)
                 if saver is not None:
@@ -284,6 +382,9 @@ def run_listen(args) -> int:
                         except Exception as exc:  # noqa: BLE001 - the recording goes on without it
                             log.warning("sensor %s: no info for the recording: %s", sid, exc)
                     saver.save(kind, msg)
+                    warning = meter.add(kind, msg, time.monotonic())
+                    if warning:
+                        print(warning, file=sys.stderr, flush=True)
                 print(line, file=out, flush=True)
         except KeyboardInterrupt:
             pass

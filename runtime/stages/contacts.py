@@ -25,8 +25,8 @@ class ContactConfig:
     # per-pixel force (N) that makes a cluster core. The seed uses 0.005 N on its grid; on ours (128²,
     # pixel area 0.044–0.066 mm²) with the current FE gel a 1 N poke peaks at ~0.004 N per pixel, so
     # 0.005 N missed every contact below ~1.5 N. 0.002 N: the lowest value with no false contact on any
-    # rest frame of the 6 training sessions with the shipped model (0.0015 N gave 2–16 per session);
-    # docs/BENCHMARKS.md "Shipped model".
+    # rest frame of the 6 training sessions with an earlier model (0.0015 N gave 2–16 per session). A
+    # package carries its own measured value (manifest `contacts`, tools/train/threshold.py).
     threshold_n: float = 0.002
     support_floor_n: float = 0.0001  # weaker pixels near a cluster still add their force ...
     support_radius_px: float = 10.0  # ... if within this distance of the cluster's core mask (the σ = 2 px
@@ -34,8 +34,8 @@ class ContactConfig:
     min_pixels: int = 3             # drop specks smaller than this (noise)
     # light touches: a component of pixels above weak_threshold_n with no pixel above threshold_n is a core
     # when |its total force| >= min_total_n (N). 0 = off; packages carry measured values
-    # (manifest.runtime, tools/train/threshold.py): with the shipped model 0.3-0.5 / 0.5-1 N contacts went
-    # from 43 / 80 % to 81 / 97 % of held-out frames detected (docs/BENCHMARKS.md "Light contacts")
+    # (manifest.runtime, tools/train/threshold.py): with the model it was measured on, 0.3-0.5 / 0.5-1 N
+    # contacts went from 43 / 80 % to 81 / 97 % of held-out frames detected (docs/history/BENCHMARKS-sessions-1-16.md "Light contacts")
     weak_threshold_n: float = 0.0
     min_total_n: float = 0.0
     # cores joined by pixels above merge_n (N) are one cluster (0 = off); packages carry a measured value

@@ -189,9 +189,11 @@ def find_package(name: str | None = None, root: Path | None = None) -> ModelPack
     found = installed_packages(root)
     root = roots[0]
     if not found:
+        from ...contracts.extras import install_command
+
         raise ModelPackageError(
             f"no trained model is installed in {root}. Build one with `tensortouch train all` "
-            "(needs the train extra: pip install -e '.[train]'), or pass --model PATH to a model package.")
+            f"(needs the train extra: {install_command('train')}), or pass --model PATH to a model package.")
     return load_package(max(found, key=lambda p: (p / "manifest.json").stat().st_mtime))
 
 

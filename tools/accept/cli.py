@@ -1,16 +1,20 @@
 """`tensortouch accept <harness>`: the acceptance harnesses behind docs/BENCHMARKS.md.
 
-Each harness module exposes `add_arguments(parser)` and `run(args) -> int`, as the bench areas do.
+Each harness module exposes `add_arguments(parser)` and `run(args) -> int`, as the bench areas do, and
+is imported only when its harness is chosen.
 """
 from __future__ import annotations
 
-import importlib
+from ..command_group import lazy_group
 
 HARNESSES = {
     "workbench": ("tensortouch.tools.accept.workbench",
                   "the workbench loop on twin sessions with hidden effects, nulls, two effects and a plugin"),
     "workbench-generality": ("tensortouch.tools.accept.workbench_generality",
                              "twin-truth effects at parameters no acceptance case uses"),
+    "workbench-synthetic-generality": ("tensortouch.tools.accept.synthetic_generality",
+                                       "the diagnosis on hidden effects of forms not in the library (synthetic "
+                                       "sessions, the nominal law as the model)"),
     "workbench-twin-generality": ("tensortouch.tools.accept.twin_generality",
                                   "diagnosis on twin units with hidden effects in forms not in the library"),
     "recalib-generality": ("tensortouch.tools.accept.recalib_generality",
@@ -19,10 +23,7 @@ HARNESSES = {
 
 
 def register(sub) -> None:
-    p = sub.add_parser("accept", help="acceptance harnesses (" + ", ".join(HARNESSES) + ")")
-    asub = p.add_subparsers(dest="accept_harness", metavar="HARNESS", required=True)
-    for name, (module, helptext) in HARNESSES.items():
-        q = asub.add_parser(name, help=helptext, description=helptext)
-        mod = importlib.import_module(module)
-        mod.add_arguments(q)
-        q.set_defaults(func=mod.run)
+    p = sub.add_parser("accept", help="acceptance harnesses (" + ", ".join(HARNESSES) + ")",
+                       description="The acceptance harnesses behind docs/BENCHMARKS.md.")
+    p.set_defaults(extra="train")
+    lazy_group(p, "accept_harness", "HARNESS", [(name, module, text) for name, (module, text) in HARNESSES.items()])

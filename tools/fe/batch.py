@@ -113,7 +113,9 @@ def _dask_cluster(jobs, address: str):
         from distributed import Client
         from distributed import as_completed as dask_completed
     except ImportError as exc:
-        raise FEError("--cluster needs Dask.distributed: pip install -e '.[cluster]'") from exc
+        from ...contracts.extras import hint
+
+        raise FEError(f"--cluster {hint('cluster', exc.name)}") from None
     try:
         client = Client(address, timeout=CONNECT_TIMEOUT)
     except (OSError, TimeoutError) as exc:

@@ -183,7 +183,7 @@ INDENTER_COMMANDS = (
 def register(sub) -> None:
     """Add the `fe` command and its subcommands to an argparse subparsers object."""
     fsub = command_group(sub, "fe", "hyperelastic FE of the gel (solve, batch, fit-material, indenters)",
-                         "fe_command", "SUBCOMMAND")
+                         "fe_command", "SUBCOMMAND", extra="train")
     add_commands(fsub, COMMANDS)
     add_commands(command_group(fsub, "indenters", "procedural indenter set (seed III.B standardization)",
                                "ind_command", "ACTION"), INDENTER_COMMANDS)

@@ -1,4 +1,4 @@
-"""Convergence and cross-solver study of tools.fe against CalculiX 2.20 (docs/BENCHMARKS.md).
+"""Convergence and cross-solver study of tools.fe against CalculiX 2.20 (docs/BENCHMARKS.md "CalculiX cross-check and FE convergence study").
 
 `run_study(name, work_dir)` runs one study on the standard dome (sphere R 5 mm at the apex) and
 returns rows of {case, solver, settings, depth or slide, RF, seconds}; `tensortouch fe study NAME

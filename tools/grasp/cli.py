@@ -33,7 +33,7 @@ def register(sub) -> None:
     p.add_argument("--refine-nodes", type=int, default=1300,
                    help="extra contact-graph nodes around the start pinch (default 1300; 0: none)")
     p.add_argument("--seed", type=int, default=0, help="seed of the joint-configuration samples")
-    p.set_defaults(func=cmd_mount)
+    p.set_defaults(func=cmd_mount, extra="hand")
 
     g = sub.add_parser("grasp", help="selective grasp trials in simulation, closed through the sensor runtime",
                        description="MuJoCo trials of the seed's selective grasp: two objects pinched between "
@@ -51,15 +51,18 @@ def register(sub) -> None:
     g.add_argument("--model", help="model package folder or name (default: the shipped one)")
     g.add_argument("--seed", type=int, default=0, help="first trial seed")
     g.add_argument("--picture", action="store_true", help="draw the first trial as a picture sequence")
-    g.set_defaults(func=cmd_grasp)
+    g.set_defaults(func=cmd_grasp, extra="hand")
 
 
 def _extra_missing() -> str | None:
     import importlib.util
 
     missing = [m for m in ("pinocchio", "coal", "mujoco", "matplotlib") if importlib.util.find_spec(m) is None]
-    return (f"the hand extra is not installed (missing {', '.join(missing)}): pip install -e '.[hand]'"
-            if missing else None)
+    if not missing:
+        return None
+    from ...contracts.extras import hint
+
+    return hint("hand", ", ".join(missing))
 
 
 def cmd_mount(args) -> int:

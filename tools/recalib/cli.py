@@ -48,7 +48,7 @@ def register(sub) -> None:
     p.add_argument("--model", help="model package name or path (default: newest installed)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision the recalibration replays")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads")
-    p.set_defaults(func=cmd_recalibrate)
+    p.set_defaults(func=cmd_recalibrate, extra="train")
 
 
 def _frames(camera, pipeline, restamp: bool = False):

@@ -11,13 +11,13 @@ Heavy libraries (torch, onnx) are imported inside the handlers.
 """
 from __future__ import annotations
 
-import importlib
 import json
 import logging
 import shlex
 import time
 from pathlib import Path
 from ...contracts.files import atomic_write_json
+from ..command_group import LazySubcommands
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +127,8 @@ def register(sub) -> None:
     """Add `train` and its stage subcommands to the `tensortouch` parser."""
     p = sub.add_parser("train", help="train-side pipeline: keypoints, datasets, training, export",
                        description="Train-side stages (docs/train.md). Each reads and writes documented files.")
-    ts = p.add_subparsers(dest="train_cmd", metavar="STAGE", required=True)
+    p.set_defaults(extra="train")
+    ts = p.add_subparsers(dest="train_cmd", metavar="STAGE", required=True, action=LazySubcommands)
 
     k = ts.add_parser("keypoints", help="stage 1: contact detection and keypoints of a session")
     k.add_argument("session", help="session directory (docs/session.md)")
@@ -162,7 +163,7 @@ def register(sub) -> None:
     common(f, 20, 16)
     f.add_argument("--arch", default="hiera_qup", choices=("hiera_qup", "unet", "vit"), help="network architecture")
     f.add_argument("--encoder", help="encoder.pt from `train pretrain` (hiera_qup only)")
-    f.set_defaults(func=cmd_fit)
+    f.set_defaults(func=cmd_fit, resume_hint="it continues from the run's last checkpoint")
 
     e = ts.add_parser("export", help="stage 7: ONNX + static int8 + parity → exported_models/<name>/")
     e.add_argument("--run", required=True, help="fit run directory")
@@ -199,14 +200,10 @@ def register(sub) -> None:
     b.set_defaults(func=cmd_bench)
     register_build(ts)  # all, dataset, evaluate
     for name, module, helptext in TOOLS:
-        mod = importlib.import_module(module)
-        q = ts.add_parser(name, help=helptext, description=helptext)
-        mod.add_arguments(q)
-        q.set_defaults(func=mod.run)
-    q = ts.add_parser("budget", help="error budget of a build: label and network error per stage, held out")
-    evaluate = importlib.import_module("tensortouch.tools.train.evaluate")
-    evaluate.add_budget_arguments(q)
-    q.set_defaults(func=evaluate.run_budget_command)
+        ts.add_module(name, module, helptext)
+    ts.add_module("budget", "tensortouch.tools.train.evaluate",
+                  "error budget of a build: label and network error per stage, held out",
+                  add="add_budget_arguments", run="run_budget_command")
 
 
 def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force: list[str] | None = None) -> int:
@@ -231,6 +228,9 @@ def cmd_all(args, upto: str | None = None, only: list[str] | None = None, force:
     if ev and (not stages or "evaluate" in stages):
         print(json.dumps(ev.get("summary", {}), indent=1))
     return 0
+
+
+RESUME = "stamped stages are skipped; recording, FE and fitting continue from what they wrote"
 
 
 def register_build(ts) -> None:
@@ -258,11 +258,11 @@ def register_build(ts) -> None:
                                   "train → export → eval (resumes)")
     common(a)
     a.add_argument("--stages", nargs="+", choices=STAGES, metavar="STAGE", help="run only these stages")
-    a.set_defaults(func=cmd_all)
+    a.set_defaults(func=cmd_all, resume_hint=RESUME)
     d = ts.add_parser("dataset", help="a recipe's stages up to the dataset (twin sessions, keypoints, FE, "
                                       "correspondence, sim-to-real, field images)")
     common(d)
-    d.set_defaults(func=lambda args: cmd_all(args, upto="dataset"), stages=None)
+    d.set_defaults(func=lambda args: cmd_all(args, upto="dataset"), stages=None, resume_hint=RESUME)
     e = ts.add_parser("evaluate", help="held-out twin sessions of a recipe through the runtime (reruns it)")
     common(e)
     e.set_defaults(func=lambda args: cmd_all(args, only=["evaluate"], force=["evaluate"]), stages=None)

@@ -46,7 +46,7 @@ class ExportConfig:
     per_channel: bool = True
     rewrite: bool = True                 # exact graph rewrites of export_graph (fused heads, deconv)
     # Quantization scheme, measured on hiera-qup-128 (128², one thread, interleaved, CPU time per frame
-    # on a loaded machine, docs/BENCHMARKS.md "Runtime"): fp32 (rewritten) 8.8 ms; all-static QDQ
+    # on a loaded machine, when the scheme was chosen; docs/history/BENCHMARKS-sessions-1-16.md): fp32 (rewritten) 8.8 ms; all-static QDQ
     # Conv+Gemm+MatMul 10.0 ms, QOperator the same; static Conv only 9.6; dynamic MatMul only 8.8
     # (-0.02 dB); hybrid = static Conv + dynamic MatMul 6.5 ms (-0.10 dB PSNR vs fp32); hybrid with any
     # of the three convs left fp32 was slower. Quantizing every op (Softmax/Mul/Add/attention MatMul)

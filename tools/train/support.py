@@ -5,7 +5,7 @@ The runtime grows each cluster core onto weaker pixels nearby (ContactConfig.sup
 support_floor_n) so the cluster's force includes the tails the core threshold cuts off. How far those
 tails reach depends on the network: the shipped model paints a sliding contact's shear as a broad, low
 haze, and with the default 10 px / 0.0001 N the matched cluster held 0.73 N of a 0.97 N image-integral
-shear (F/T: 1.20 N) on held-out slide units (docs/BENCHMARKS.md "Contact support and merging"). Measured
+shear (F/T: 1.20 N) on held-out slide units (docs/history/BENCHMARKS-sessions-1-16.md "Contact support and merging"). Measured
 only on request (ThresholdConfig.measure_support, `--support`): a farther support moved the
 recalibration's errors under the nominal crop (docs/model_package.md "Support").
 
@@ -18,7 +18,7 @@ reach) whose mean error is within `margin` of the best wins.
 
 Merging (ContactConfig.merge_n): while sliding, the shipped model splits one contact's field into two
 peaks, and the runtime published a second, phantom contact ~3.1 mm from the first on 11 % of single-contact
-frames of slide units (docs/BENCHMARKS.md "Contact support and merging"). Cores joined by pixels above merge_n are one
+frames of slide units (docs/history/BENCHMARKS-sessions-1-16.md "Contact support and merging"). Cores joined by pixels above merge_n are one
 cluster. Chosen first, on the same frames plus the frames where two indenters touch: among `merge_fractions`
 of the core threshold (0 = off), the one with the fewest phantom frames (an extra cluster above
 `phantom_n`) that keeps two real contacts apart (each tip's nearest cluster its own) on at least as many

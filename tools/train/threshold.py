@@ -47,14 +47,14 @@ class ThresholdConfig:
     # ... and no frame within ± rest_guard_s reads rest_touch_n or more: the frame just after a release (or
     # just before a touch) still holds a real light contact that the F/T reads below rest_n. Session 16: one
     # such frame (0.034 N, 0.03 s after 0.12 N, TWIN-T66) set the threshold and the light-touch bars of a
-    # package for every unit (docs/BENCHMARKS.md "The release frame"). rest_touch_n stays above the F/T's
+    # package for every unit (docs/history/BENCHMARKS-sessions-1-16.md "The release frame"). rest_touch_n stays above the F/T's
     # noise at rest (up to ~0.05 N on the twin), so noise spikes do not drop their neighbours.
     rest_touch_n: float = 0.1
     rest_guard_s: float = 0.1
     contact_n: float = 0.5    # ... and in contact when one is above this (detection is reported)
     min_pixels: int = 3       # as ContactConfig.min_pixels: smaller specks are not clusters
     weak_grid: tuple = (0.0004, 0.0006, 0.0008, 0.001, 0.0012)        # N per pixel
-    # held-out sessions (docs/BENCHMARKS.md "Light contacts"): 4/3 on training rest frames left 23 false
+    # held-out sessions (docs/history/BENCHMARKS-sessions-1-16.md "Light contacts"): 4/3 on training rest frames left 23 false
     # rest frames in 5747 on held-out ones at w = 0.0006, 1.5 left 20 (the strong threshold alone: 16)
     weak_margin: float = 1.5
     min_total_floor_n: float = 0.02   # min_total_n is never below this (N), even on a spotless rest set
@@ -62,10 +62,10 @@ class ThresholdConfig:
     support: SupportConfig = SupportConfig()
     # the farther support is measured only on request (--support): it lowered held-out |F| MAE by 1-7 % but
     # moved the recalibration's nominal-crop errors, so its 60 % cut held on 3 of 6 units instead of 5
-    # (docs/BENCHMARKS.md "Contact support and merging"); merging is always measured
+    # (docs/history/BENCHMARKS-sessions-1-16.md "Contact support and merging"); merging is always measured
     measure_support: bool = False
     # or a fixed cluster reach (px; floor 0 N), chosen by the build (BuildConfig.support_px, `--support-px`):
-    # 20 px recovers a sliding contact's shear haze (docs/BENCHMARKS.md "Weights read back ...", session 11)
+    # 20 px recovers a sliding contact's shear haze (docs/history/BENCHMARKS-sessions-1-16.md "Weights read back from the shipped package")
     support_px: float | None = None
 
 

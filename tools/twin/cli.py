@@ -7,7 +7,6 @@
 """
 from __future__ import annotations
 
-import importlib
 import logging
 
 from ..command_group import command_group
@@ -65,7 +64,7 @@ def _calibration(args) -> int:
 
 def register(sub) -> None:
     tsub = command_group(sub, "twin", "digital twin sensor: record sessions, contact sheets, true calibration",
-                         "twin_command", "TWIN_COMMAND")
+                         "twin_command", "TWIN_COMMAND", extra="train")
     r = tsub.add_parser("record", help="simulate a recording session of one twin unit")
     r.add_argument("--unit", required=True, help="twin unit serial (sets the unit's variation; = sensor id)")
     r.add_argument("--pokes", type=int, default=5, help="number of indenter pokes in the plan")
@@ -87,7 +86,7 @@ def register(sub) -> None:
                    help="JPEG round trip of every frame inside the camera (0 = off), as a USB MJPG camera")
     r.add_argument("--calibration", action="store_true", help="also write the unit's true calibration")
     r.add_argument("--store", help="calibration store root (default: contracts.paths.calibration_dir())")
-    r.set_defaults(func=_record)
+    r.set_defaults(func=_record, resume_hint="an unfinished session folder is resumed")
     s = tsub.add_parser("show", help="contact sheet of a session: frames, deformation, force trace")
     s.add_argument("session", help="session folder")
     s.add_argument("--out", required=True, help="PNG file to write")
@@ -101,8 +100,5 @@ def register(sub) -> None:
     for name, module, helptext in (
             ("demo", "tensortouch.tools.twin.demo", "regenerate the shipped demo session (runtime/demo) and its true calibration"),
             ("gauge", "tensortouch.tools.recalib.twin_gauge", "play a session's force as a serial force gauge (recalibration tests)")):
-        mod = importlib.import_module(module)
-        q = tsub.add_parser(name, help=helptext, description=helptext)
-        mod.add_arguments(q)
-        q.set_defaults(func=mod.run)
+        tsub.add_module(name, module, helptext)
 

@@ -32,6 +32,9 @@ def cmd_view(args) -> int:
     from .server import ViewState, serve
 
     if getattr(args, "rerun", False):
+        from ...contracts.extras import require
+
+        require("viewers")
         from ..viewers.rerun_live import run_rerun_view
 
         return run_rerun_view(args)

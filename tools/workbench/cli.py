@@ -5,7 +5,7 @@
     tensortouch effects list [--json]
     tensortouch effects add NAME --sensor ID [--from-diagnosis [FILE]] [--param p=v ...]
     tensortouch effects remove NAME --sensor ID
-    tensortouch workbench-generality [--draws 3] [--sizes 0.3 1 3] [--nulls 10]   (generality.py)
+    tensortouch accept workbench-synthetic-generality [--draws 3] [--sizes 0.3 1 3] [--nulls 10]   (generality.py)
 
 The model side: the deployed network (`--model PATH|NAME`, default: the installed model package when
 the sensor's calibration is made for its input size and the session has frames) run over the
@@ -52,7 +52,7 @@ def register(sub) -> None:
     c.add_argument("--before-after", nargs="?", const="", metavar="DIR",
                    help="show the error change against an earlier comparison (default: the one in --out)")
     c.add_argument("--no-pictures", action="store_true", help="write no PNGs (the table and JSON only)")
-    c.set_defaults(func=cmd_compare)
+    c.set_defaults(func=cmd_compare, extra="train")
     d = sub.add_parser("diagnose", help="which physical effect is missing? (blocked CV, significance test)")
     session_args(d)
     _model_args(d)
@@ -62,11 +62,8 @@ def register(sub) -> None:
     d.add_argument("--out", help="also write the diagnosis JSON here")
     d.add_argument("--pictures", metavar="DIR", help="write covariates.png (covariate ranking), residual_top.png "
                    "(residual vs the top covariate) and shape.png (the verdict's fitted shape) here")
-    d.set_defaults(func=cmd_diagnose)
+    d.set_defaults(func=cmd_diagnose, extra="train")
     register_effects(sub)
-    from .generality import register as register_generality
-
-    register_generality(sub)
 
 
 # ----- commands --------------------------------------------------------------------------------

@@ -26,11 +26,11 @@ def register_effects(sub) -> None:
                          "enabled effects jointly with the new one on the diagnosed session)")
     ea.add_argument("--model", metavar="PATH|NAME|contact-law", help="the model for the refit (as compare)")
     ea.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision of the replay the fit uses")
-    ea.set_defaults(func=cmd_effects_add)
+    ea.set_defaults(func=cmd_effects_add, extra="train")
     er = esub.add_parser("remove", help="disable an effect for a sensor (new calibration version)")
     er.add_argument("name", help="effect name to disable in a new calibration version")
     session_args(er, session=False)
-    er.set_defaults(func=cmd_effects_remove)
+    er.set_defaults(func=cmd_effects_remove, extra="train")
 
 
 def cmd_effects_list(args) -> int:

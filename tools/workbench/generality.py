@@ -2,7 +2,7 @@
 around the model's floor, on synthetic sessions of a unit and plans no test or recipe uses (fast
 path: the nominal contact law is the model, no network, no frames).
 
-    tensortouch workbench-generality [--draws 3] [--sizes 0.3 1 3] [--nulls 10] [--out FILE]
+    tensortouch accept workbench-synthetic-generality [--draws 3] [--sizes 0.3 1 3] [--nulls 10] [--out FILE]
 
 Per session: a poke plan (press / hold / slide / release at random places; between pokes the
 indenter lifts and travels, so its mocap velocity is non-zero out of contact), a Hertz-like
@@ -23,13 +23,11 @@ same unit after adding the verdict: (before − after) / (before − unaltered).
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 
 import numpy as np
 
-from ...contracts.files import atomic_write_json
 from ...runtime.stages.effects import EffectChain, EnabledEffect, Registry
 from .diagnose import DiagnoseConfig, diagnose
 from .fit import deployed_prediction
@@ -208,25 +206,3 @@ def summarize(rows: list, nulls: list) -> dict:
             "right_at_or_above_floor": f"{sum(r['right'] for r in big)}/{len(big)}",
             "null_false_alarms": f"{sum(n['verdict'] is not None for n in nulls)}/{len(nulls)}",
             "null_covariate_alarms": f"{sum((n['covariate_p'] or 1.0) <= 0.05 for n in nulls)}/{len(nulls)}"}
-
-
-def register(sub) -> None:
-    g = sub.add_parser("workbench-generality", help="detection rate of the diagnosis on hidden effects of "
-                       "forms not in the library (synthetic sessions, nominal law as the model)")
-    g.add_argument("--draws", type=int, default=3, help="random draws per effect and size")
-    g.add_argument("--sizes", type=float, nargs="+", default=[0.3, 1.0, 3.0], help="effect sizes (× the floor)")
-    g.add_argument("--nulls", type=int, default=10, help="sessions with no hidden effect")
-    g.add_argument("--effects", nargs="+", choices=sorted(EXPECTED), help="hide only these effects (default all)")
-    g.add_argument("--out", help="write every row as JSON here")
-    g.set_defaults(func=cmd_generality)
-
-
-def cmd_generality(args) -> int:
-    from pathlib import Path
-
-    out = run(args.draws, tuple(args.sizes), args.nulls, effects=args.effects,
-              progress=lambda r: print(json.dumps(r, default=float), flush=True))
-    print(json.dumps(out["summary"], indent=1))
-    if args.out:
-        atomic_write_json(Path(args.out), out, default=float)
-    return 0
