@@ -65,8 +65,6 @@ def test_mae_pretraining_trains_on_the_meta_device():
     torch.manual_seed(0)
     mae = HieraMAE(Hiera(HieraConfig(image_size=64)), decoder_dim=32, decoder_depth=1).to("meta")
     meta = torch.device("meta")
-    vis = mae.random_mask(2, 4)
-    assert vis.device == meta and vis.dtype == torch.bool and vis.shape == (2, 4)
     opt = torch.optim.AdamW(mae.parameters(), lr=1e-3)
     precision = dev.Precision(meta)
     x = torch.rand(2, 6, 64, 64, device=meta)
@@ -77,6 +75,8 @@ def test_mae_pretraining_trains_on_the_meta_device():
         precision.step(loss.float(), opt)
         assert loss.device == meta and pred.shape == (2, 4, 6 * 32 * 32) and visible.device == meta
     assert all(p.device == meta and p.grad is not None for p in mae.parameters() if p.requires_grad)
+    vis = mae.random_mask(2, 4)
+    assert vis.device == meta and vis.dtype == torch.bool and vis.shape == (2, 4)
 
 
 def test_the_mae_mask_is_the_same_on_every_device():
