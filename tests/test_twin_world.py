@@ -235,3 +235,53 @@ def test_a_rig_estimates_the_rig_world_from_the_session(rig_session):
     assert abs(np.median(rest[:, 2:5])) < 0.03                                   # tared
     again = estimate(after_ses)                                                   # a second pass finds ~nothing
     assert all(abs(v) < 0.003 for v in again["clock_offset_s"].values())
+
+
+def test_a_rig_world_fe_recording_solves_the_units_own_scenario(tmp_path, monkeypatch):
+    """One press in FE (a coarse world mesh to keep it short): the recording's FE is the unit's gel and
+    Yeoh (its scenario hash is the world's, not the label solver's), and its true force is the FE
+    reaction itself (no force factor)."""
+    pytest.importorskip("felupe")
+    monkeypatch.setenv("TENSORTOUCH_CACHE", str(tmp_path / "cache"))
+    cfg = RecordConfig(serial="TWIN-FE", pokes=1, seed=11, physics="fe", frame_format="png", world="rig",
+                       world_params={"fe_mesh_top": 1.2, "fe_mesh_inside": 2.5})
+    cfg.trajectory.kinds = ("press",)
+    cfg.trajectory.p_two = 0.0
+    cfg.rig.camera_fps = 10.0
+    rec = Recorder(cfg, tmp_path / "s")
+    rec.run()
+    truth = json.loads((tmp_path / "s" / "truth" / "truth.json").read_text())
+    world_fe = make_physics(cfg, rec.unit)
+    assert truth["fe_scenarios"] == [world_fe.scenario(rec.plan[0]).hash()]
+    label_cfg = RecordConfig(serial="TWIN-FE", pokes=1, seed=11, physics="fe")
+    assert truth["fe_scenarios"][0] != make_physics(label_cfg, Recorder(label_cfg, tmp_path / "x").unit).scenario(
+        rec.plan[0]).hash()
+    cols = ["t", "indenter", "fx", "fy", "fz", "mx", "my", "mz"]
+    np.testing.assert_array_equal(read_table(tmp_path / "s" / "truth" / "reaction.csv", cols),
+                                  read_table(tmp_path / "s" / "truth" / "reaction_fe.csv", cols))
+    assert np.abs(read_table(tmp_path / "s" / "truth" / "reaction.csv", cols)[:, 4]).max() > 0.5
+
+
+def test_a_recipe_session_in_the_rig_world_is_estimated_once(rig_session, tmp_path):
+    """SessionSpec.world reaches the recording and the build's keys (a label-world spec keeps its old
+    key); the build's sessions stage folds a rig estimate into a rig session once."""
+    import shutil
+
+    from tensortouch.tools.train.build import BuildConfig, SessionSpec, stage_keys
+    from tensortouch.tools.train.stages import _rig_estimate
+
+    label, rig = SessionSpec("TWIN-X", 1, 2), SessionSpec("TWIN-X", 1, 2, world="rig")
+    assert rig.record_config("hertz-fallback", 128).world == "rig"
+    assert "world" not in BuildConfig(train=[label]).to_dict()["train"][0]
+    assert stage_keys(BuildConfig(train=[label]))["sessions"] != stage_keys(BuildConfig(train=[rig]))["sessions"]
+    _, out = rig_session
+    s = shutil.copytree(out, tmp_path / "s")
+    man = json.loads((s / "session.json").read_text())
+    man["streams"] = {k: {f: v for f, v in info.items() if f not in ("clock_offset_s", "bias")}
+                      for k, info in man["streams"].items()}
+    man["provenance"].pop("rig_estimate", None)
+    (s / "session.json").write_text(json.dumps(man))
+    first = _rig_estimate(s)
+    assert first["onsets"] >= 6 and "clock_offset_s" in load_session(s).streams["wrench"]
+    before = (s / "session.json").read_bytes()
+    assert _rig_estimate(s) == first and (s / "session.json").read_bytes() == before
