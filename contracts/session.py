@@ -76,15 +76,23 @@ class Session:
         return stream in self.streams
 
     def table(self, stream: str) -> np.ndarray:
-        """A stream as a float64 array with the columns of STREAM_COLUMNS[stream]."""
+        """A stream as a float64 array with the columns of STREAM_COLUMNS[stream], in house units, the
+        sensor frame and the camera's clock (the stream's rig calibration applied: `to_house_frame`)."""
         if stream not in self._cache:
             if stream not in self.streams:
                 raise SessionError(f"{self.path / 'session.json'}: no stream '{stream}' "
                                    f"(present: {sorted(self.streams)})")
-            info = self.streams[stream]
-            table = read_table(self.path / info.get("file", STREAM_FILES[stream]), STREAM_COLUMNS[stream])
-            self._cache[stream] = to_house_units(table, stream, self.manifest.get("units", {}))
+            self._cache[stream] = to_house_frame(self.recorded(stream), stream, self.streams[stream])
         return self._cache[stream]
+
+    def recorded(self, stream: str) -> np.ndarray:
+        """A stream as its file holds it, in house units but without its rig calibration (clock offset,
+        F/T bias, mocap extrinsic: `to_house_frame`) — what a tool rewriting the file works on."""
+        if stream not in self.streams:
+            raise SessionError(f"{self.path / 'session.json'}: no stream '{stream}' (present: {sorted(self.streams)})")
+        info = self.streams[stream]
+        table = read_table(self.path / info.get("file", STREAM_FILES[stream]), STREAM_COLUMNS[stream])
+        return to_house_units(table, stream, self.manifest.get("units", {}))
 
     def with_table(self, stream: str, table: np.ndarray) -> Session:
         """A copy in memory whose `stream` is `table` (house units, the stream's columns); the other
@@ -219,7 +227,90 @@ def validate_manifest(manifest: dict, where: str = "session.json") -> None:
             if info.get(key) is not None and (not isinstance(info[key], int) or isinstance(info[key], bool)
                                               or info[key] < 0):
                 raise SessionError(f"{where}: streams.{name}.{key} is {info[key]!r}, expected a count >= 0")
+        _check_stream_calibration(name, info, where)
     check_manifest_values(manifest, where)     # numbers: finite, unit quaternion, ranges (session_schema.py)
+
+
+POSE_FRAMES = ("sensor", "mocap")
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (..., 4) quaternions in w, x, y, z order."""
+    aw, ax, ay, az = np.moveaxis(np.asarray(a, np.float64), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b, np.float64), -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def quat_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions (w, x, y, z) → (..., 3, 3) rotation matrices."""
+    w, x, y, z = np.moveaxis(np.asarray(q, np.float64), -1, 0)
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+                     np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+                     np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def mocap_to_sensor(poses: np.ndarray, rotation_wxyz, translation_mm) -> np.ndarray:
+    """Pose rows (t, indenter, x, y, z, qw, qx, qy, qz) in the mocap frame → the sensor frame with the
+    extrinsic p_sensor = R p_mocap + t (R from `rotation_wxyz`, normalised), q_sensor = q_R ⊗ q_mocap;
+    quaternions kept with qw ≥ 0."""
+    q = np.asarray(rotation_wxyz, np.float64)
+    q = q / np.linalg.norm(q)
+    out = np.array(poses, dtype=np.float64, copy=True)
+    out[:, 2:5] = out[:, 2:5] @ quat_matrix(q).T + np.asarray(translation_mm, np.float64)
+    qs = quat_mul(q, out[:, 5:9])
+    out[:, 5:9] = qs * np.where(qs[:, :1] < 0, -1.0, 1.0)
+    return out
+
+
+def to_house_frame(table: np.ndarray, stream: str, info: dict) -> np.ndarray:
+    """A stream's rig calibration, applied as every stage reads it (house units first): the stream's clock
+    offset (`clock_offset_s`: its stamps run that far ahead of the camera's, t − offset), the F/T `bias`
+    ({indenter id: six numbers in N and N*mm}, subtracted from that indenter's rows) and, for poses
+    recorded in the mocap frame
+    (`frame: "mocap"`), the `mocap_to_sensor` extrinsic. Streams without these fields are unchanged."""
+    offset = info.get("clock_offset_s")
+    bias = info.get("bias") if stream == "wrench" else None
+    mocap = stream == "poses" and info.get("frame") == "mocap"
+    if offset is None and bias is None and not mocap:
+        return table
+    table = np.array(table, dtype=np.float64, copy=True)
+    if offset is not None:
+        table[:, 0] -= float(offset)
+    if bias is not None:
+        for k, b in bias.items():
+            table[table[:, 1] == int(k), 2:8] -= np.asarray(b, np.float64)
+    if mocap:
+        ext = info["mocap_to_sensor"]
+        table = mocap_to_sensor(table, ext["rotation_wxyz"], ext["translation_mm"])
+    return table
+
+
+def _numbers(value, n: int) -> bool:
+    return (isinstance(value, list) and len(value) == n
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in value))
+
+
+def _check_stream_calibration(name: str, info: dict, where: str) -> None:
+    """The rig-calibration fields of a stream (to_house_frame), each checked by type and size."""
+    off = info.get("clock_offset_s")
+    if off is not None and not (_numbers([off], 1) and abs(off) <= 60.0):
+        raise SessionError(f"{where}: streams.{name}.clock_offset_s is {off!r}, expected seconds (|offset| <= 60)")
+    bias = info.get("bias") if name == "wrench" else None
+    if bias is not None and not (isinstance(bias, dict) and all(
+            isinstance(k, str) and k.isdigit() and _numbers(v, 6) for k, v in bias.items())):
+        raise SessionError(f"{where}: streams.wrench.bias is {str(bias)[:200]}, expected {{indenter id: 6 finite "
+                           "numbers (fx, fy, fz in N, tx, ty, tz in N*mm)}}")
+    if name == "poses" and "frame" in info:
+        if info["frame"] not in POSE_FRAMES:
+            raise SessionError(f"{where}: streams.poses.frame is {info['frame']!r}, expected one of {list(POSE_FRAMES)}")
+        if info["frame"] == "mocap":
+            ext = info.get("mocap_to_sensor")
+            if not (isinstance(ext, dict) and _numbers(ext.get("rotation_wxyz"), 4) and
+                    _numbers(ext.get("translation_mm"), 3) and np.linalg.norm(ext["rotation_wxyz"]) > 0.5):
+                raise SessionError(f"{where}: streams.poses.mocap_to_sensor must give rotation_wxyz (a unit "
+                                   "quaternion, 4 numbers) and translation_mm (3 numbers): "
+                                   "p_sensor = R p_mocap + t (poses recorded in the mocap frame)")
 
 
 def _plain_name(name: str) -> bool:
@@ -361,7 +452,7 @@ def rewrite_in_units(path: str | Path, units: dict | None = None) -> Session:
     if all(to_house(k, target[k]) == to_house(k, current[k]) for k in UNITS):
         return session
     for name, info in session.streams.items():
-        table = session.table(name).copy()             # house units
+        table = session.recorded(name).copy()          # house units, the file's frame and clock
         for col, scale, offset in _column_maps(name, target):
             table[:, col] = (table[:, col] - offset) / scale
         write_table(session.path / info.get("file", STREAM_FILES[name]), STREAM_COLUMNS[name], table)

@@ -71,6 +71,11 @@ def test_manifest_follows_the_contract(package):
     assert "train export" in tr["command"] and "--name tiny" in tr["command"]
     assert tr["data_hash"] == hashlib.sha256((data / "index.json").read_bytes()).hexdigest()
     assert len(tr["git_commit"]) in (40, 7) or tr["git_commit"] == "unknown"
+    place = tr["run_place"]["fit"]                       # where the weights were trained (issue 42)
+    assert len(place) == 1 and place[0]["from_step"] == 0
+    assert place[0]["device"] == "cpu" and place[0]["precision"] == "float32" and place[0]["threads"] == 1
+    assert place[0]["param_dtype"] == "float32" and place[0]["torch"] == torch.__version__
+    assert json.loads((run / "train_config.json").read_text())["segments"] == place
     m = man["metrics"]
     for prec in ("fp32", "int8"):
         assert set(m[prec]) >= {"psnr", "ssim", "mse", "auc_rel", "fpr_rel"}

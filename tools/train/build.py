@@ -35,6 +35,9 @@ class SessionSpec:
     # the plan's ranges (tools.twin.trajectory.TrajectoryConfig fields), e.g. {"kinds": ["slide"],
     # "slide": [0.8, 1.6]}: sessions rich in one motion; empty = the twin's defaults
     trajectory: dict = field(default_factory=dict)
+    # the twin's world (tools/twin/world.py): "label" = the labels' own physics and an ideal rig (the
+    # ceiling); "rig" = a world that differs from the label solver, estimated as a rig would (rig_estimate)
+    world: str = "label"
 
     @property
     def name(self) -> str:
@@ -46,7 +49,7 @@ class SessionSpec:
         from ..twin.trajectory import with_ranges
 
         rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=physics,
-                            frame_format=self.frames, mjpg_quality=self.quality, model_size=size)
+                            frame_format=self.frames, mjpg_quality=self.quality, model_size=size, world=self.world)
         rcfg.trajectory = with_ranges(rcfg.trajectory, self.trajectory, f"session {self.name} trajectory")
         return rcfg
 
@@ -122,6 +125,8 @@ class BuildConfig:
             for spec in d.get(k) or []:
                 if not spec.get("trajectory"):
                     spec.pop("trajectory", None)
+                if spec.get("world") == "label":
+                    spec.pop("world")
         return d
 
 

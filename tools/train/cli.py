@@ -29,6 +29,8 @@ TOOLS = (
      "several packages side by side on held-out sessions through the runtime: detection, |F| MAE, phantoms"),
     ("resolve-check", "tensortouch.tools.train.resolve_check",
      "twin-only check of stage 2: FE re-solved from measured keypoints against the twin's own solves"),
+    ("rig-estimate", "tensortouch.tools.train.rig_estimate",
+     "a session's F/T bias, clock offsets (cross-correlation) and mocap extrinsic shift from its own data"),
 )
 
 

@@ -251,7 +251,7 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
     `cfg.with_fp32` it is left in the build cache (`fp32_cache_path(run, name)`), not in the package."""
     from .fields import read_bounds
     from .model.data import data_hash, load_split
-    from .model.train import load_trained
+    from .model.train import load_trained, run_places
 
     run, data = Path(run), Path(data)
     model, info = load_trained(run)
@@ -296,6 +296,9 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
                              regenerate=regenerate_command(run, data, name, models_root))
         if previous and previous.get("command") != command:
             man["training"]["build"] = previous
+        places = run_places(run)          # device, precision, torch, threads of the runs behind the weights
+        if places:
+            man["training"]["run_place"] = places
         folder = write_package(models_root, name, {k: p for k, p in ((FP32, fp32), (INT8, int8)) if k in shipped},
                                man)
     verify_package(folder)

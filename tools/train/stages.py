@@ -54,8 +54,24 @@ def stage_sessions(b) -> dict:
             log.info("[sessions %d/%d] recording %s (unit %s, seed %d, %d pokes)", i + 1, len(b.all_sessions()),
                      spec.name, spec.serial, spec.seed, spec.pokes)
             rec.run()
-        out[spec.name] = {"path": str(path), "true_calibration": version}
+        if spec.world == "rig":
+            out[spec.name] = {"rig_estimate": _rig_estimate(path)}
+        out[spec.name] = {**out.get(spec.name, {}), "path": str(path), "true_calibration": version}
     return {"sessions": out}
+
+
+def _rig_estimate(path: Path) -> dict:
+    """A rig-world session, as a rig would prepare it: F/T tare, clock offsets and the mocap extrinsic's
+    shift estimated from its own data and folded into its manifest (once; tools/train/rig_estimate.py)."""
+    from ...contracts.session import load_session
+    from .rig_estimate import estimate, write
+
+    ses = load_session(path)
+    done = ses.manifest.get("provenance", {}).get("rig_estimate")
+    if done is None:
+        done = estimate(ses)
+        write(path, done)
+    return {k: done[k] for k in ("clock_offset_s", "mocap_translation_mm", "onsets")}
 
 
 def stage_keypoints(b) -> dict:

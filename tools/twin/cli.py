@@ -25,7 +25,7 @@ def _record(args) -> int:
     except ValueError as exc:
         raise TensorTouchError(str(exc)) from None
     cfg = RecordConfig(serial=args.unit, pokes=args.pokes, seed=args.seed, effects=effects,
-                       physics=args.physics, frame_format=args.frames, model_size=args.model_size)
+                       physics=args.physics, frame_format=args.frames, model_size=args.model_size, world=args.world)
     cfg.rig.camera_fps = args.fps
     if args.hysteresis_tau is not None:
         cfg.rig.hysteresis_tau_s = args.hysteresis_tau
@@ -76,6 +76,10 @@ def register(sub) -> None:
                    help="fe (default): per-poke FE solves, cached; hertz-fallback: analytic, for quick previews")
     r.add_argument("--frames", choices=("ffv1", "mjpg", "png"), default="ffv1",
                    help="ffv1 = lossless .avi (default), png = lossless folder, mjpg = small lossy .avi")
+    r.add_argument("--world", choices=("label", "rig"), default="label",
+                   help="label (default): the labels' own FE and an ideal rig (the ceiling); rig: per-unit gel, "
+                        "Yeoh, mocap extrinsic error, F/T bias + cross-talk, clock offsets, coloured noise, finer "
+                        "FE (docs/twin.md \"Worlds\")")
     r.add_argument("--fps", type=float, default=30.0, help="camera frame rate (frames/s)")
     r.add_argument("--model-size", type=int, default=128, help="model input size (px) of the calibration written with the session")
     r.add_argument("--hysteresis-tau", type=float, help="gel recovery time constant, s (default 1.5)")

@@ -53,8 +53,8 @@ class GelSurface:
         return self.profile.edge_theta(self.radius)
 
     def intersect(self, origin, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rays origin + t*dirs (origin on the axis, below the cap sphere's top) -> first hit on
-        the inner side of the outer surface (N..,3) and a validity mask."""
+        """Rays origin + t*dirs (origin inside the gel's base circle, below the cap sphere's top) -> first
+        hit on the inner side of the outer surface (N..,3) and a validity mask."""
         o = np.asarray(origin, dtype=np.float64)
         d = np.asarray(dirs, dtype=np.float64)
         zc, rho = self.profile.center_z_mm, self.profile.radius_mm
@@ -66,7 +66,13 @@ class GelSurface:
         p_cap = o + t_cap[..., None] * d
         ok_cap = (disc >= 0) & (t_cap > 0) & (p_cap[..., 2] >= self.skirt - 1e-9)
         rxy = np.hypot(d[..., 0], d[..., 1])
-        t_sk = np.where(rxy > 1e-12, self.radius / np.maximum(rxy, 1e-12), np.inf)
+        if o[0] == 0.0 and o[1] == 0.0:
+            t_sk = np.where(rxy > 1e-12, self.radius / np.maximum(rxy, 1e-12), np.inf)
+        else:       # origin off the axis (a unit whose camera sits beside the gel axis): ray vs. cylinder
+            bb = d[..., 0] * o[0] + d[..., 1] * o[1]
+            cc = o[0] ** 2 + o[1] ** 2 - self.radius ** 2
+            a2 = np.maximum(rxy * rxy, 1e-24)
+            t_sk = np.where(rxy > 1e-12, (-bb + np.sqrt(np.clip(bb * bb - a2 * cc, 0.0, None))) / a2, np.inf)
         p_sk = o + np.where(np.isfinite(t_sk), t_sk, 0.0)[..., None] * d
         ok_sk = np.isfinite(t_sk) & (p_sk[..., 2] >= 0.0) & (p_sk[..., 2] < self.skirt)
         pts = np.where(ok_cap[..., None], p_cap, p_sk)

@@ -31,6 +31,7 @@ from .fe_physics import PokeSolveFailed
 from .trajectory import (GuidedConfig, TrajectoryConfig, apply_replans, module_indenters, plan_guided,
                                    plan_session, segment_phase, session_duration, shorten)
 from .unit import TwinUnit
+from .world import WORLDS, WorldConfig, ar1_filter, distort_ft, draw_world, quat_wxyz_of, sensor_to_mocap, stamp
 
 log = logging.getLogger(__name__)
 PHYSICS = ("fe", "hertz-fallback")
@@ -53,13 +54,17 @@ class RecordConfig:
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     unit: dict | None = None         # explicit unit variation (unit.py UNIT_OVERRIDES keys), else from the serial
     guided: GuidedConfig | None = None  # guided presses at given points instead of a random plan (pokes ignored)
+    world: str = "label"             # "label": the labels' own physics and an ideal rig; "rig": tools.twin.world
+    world_params: dict | None = None  # WorldConfig fields that differ from its defaults (world "rig")
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["effects"] = [[n, dict(p)] for n, p in self.effects]
-        for k in ("unit", "guided"):     # absent when unset: keys of earlier recordings stay valid
+        for k in ("unit", "guided", "world_params"):     # absent when unset: keys of earlier recordings stay valid
             if d[k] is None:
                 d.pop(k)
+        if d["world"] == "label":
+            d.pop("world")
         return json.loads(json.dumps(d))
 
     def key(self) -> str:
@@ -67,14 +72,24 @@ class RecordConfig:
 
 
 def make_physics(cfg: RecordConfig, unit: TwinUnit, progress=None):
+    """The recording's physics: in world "label" the labels' FE (nominal Yeoh; the unit's force factor is
+    applied by the recorder); in world "rig" the unit's own gel and Yeoh constants on the world's mesh."""
+    w = unit.world
     if cfg.physics == "hertz-fallback":
+        if w is not None:
+            return HertzFallbackPhysics(unit.gel, shear_modulus=2.0 * w.yeoh[0])
         return HertzFallbackPhysics(unit.gel)
     if cfg.physics == "fe":
-        from ..fe import GelGeometry, MeshSettings
+        from ..fe import GelGeometry, MeshSettings, SolverSettings
         from .fe_physics import FEPhysics
 
         g = unit.gel
         gel = GelGeometry(kind="flattened_dome", radius=g.radius, cap_height=g.cap_height, skirt=g.skirt)
+        if w is not None:
+            c = w.config
+            return FEPhysics(gel=gel, material=w.material(), progress=progress,
+                             mesh=MeshSettings(size_top=c.fe_mesh_top, size_inside=c.fe_mesh_inside, order=c.fe_order),
+                             solver=SolverSettings(max_bulk_ratio=c.fe_max_bulk_ratio))
         return FEPhysics(gel=gel, mesh=MeshSettings(size_top=cfg.fe_mesh_top, size_inside=cfg.fe_mesh_inside),
                          progress=progress)
     raise SessionError(f"physics {cfg.physics!r}: expected one of {PHYSICS}")
@@ -91,13 +106,27 @@ def _interleave(t: np.ndarray, per_slot: list[np.ndarray]) -> np.ndarray:
                                             np.concatenate([t] * len(per_slot))))]
 
 
+def _restamp(rows: np.ndarray, offset_s: float) -> np.ndarray:
+    """Rows (t, ...) stamped by a clock `offset_s` ahead of the camera's (world.stamp); rows stamped
+    before 0 are dropped."""
+    rows = rows.copy()
+    rows[:, 0] = stamp(rows[:, 0], offset_s)
+    return rows[rows[:, 0] >= 0.0]
+
+
 class Recorder:
     """One recording job. `run()` returns the session path."""
 
     def __init__(self, cfg: RecordConfig, out, physics=None, progress=None):
         self.cfg, self.out = cfg, Path(out)
         self.progress = progress or (lambda stage, i, n: None)
-        self.unit = TwinUnit(cfg.serial, noise=cfg.noise, override=cfg.unit)
+        if cfg.world not in WORLDS:
+            raise SessionError(f"world {cfg.world!r}: expected one of {WORLDS}")
+        if cfg.world_params and cfg.world == "label":
+            raise SessionError("world_params: only world 'rig' takes world parameters")
+        self.world = (draw_world(cfg.serial, WorldConfig.with_overrides(cfg.world_params, "world_params"))
+                      if cfg.world == "rig" else None)
+        self.unit = TwinUnit(cfg.serial, noise=cfg.noise, override=cfg.unit, world=self.world)
         self.gel = self.unit.gel
         if cfg.guided is not None:
             g = cfg.guided if isinstance(cfg.guided, GuidedConfig) else GuidedConfig(**cfg.guided)
@@ -148,15 +177,19 @@ class Recorder:
         t_tmp = np.arange(0.0, dur, 1.0 / rig.temperature_rate)
         temp = temperature(t_tmp, rig, _rng(cfg, 1))
         # poses -------------------------------------------------------------------------------
+        w = self.world
+        phi = w.noise_ar1 if w is not None else 0.0
         true_pose, meas_pose = [], []
         for k in range(K):
             pos, rv = slot_track(self.plan, k, t_pose, rig)
-            npos, nrv = mocap_noise(pos, rv, rig, _rng(cfg, 2, k))
+            npos, nrv = mocap_noise(pos, rv, rig, _rng(cfg, 2, k), phi)
+            if w is not None:                 # the rig's mocap reports its own frame
+                npos, nrv = sensor_to_mocap(npos, nrv, *w.extrinsic_true())
             true_pose.append(np.column_stack([pos, quat_wxyz(rv)]))
             meas_pose.append(np.column_stack([npos, quat_wxyz(nrv)]))
         # wrench ------------------------------------------------------------------------------
         truth_rows, fe_rows, contact_rows, ft_rows, shear = [], [], [], [], []
-        scale = self.unit.params.stiffness_scale
+        scale = self.unit.params.stiffness_scale if w is None else 1.0   # rig: the unit's Yeoh is in the physics
         for k in range(K):
             rf, rm = np.zeros((len(t_wr), 3)), np.zeros((len(t_wr), 3))
             depth, area = np.zeros(len(t_wr)), np.zeros(len(t_wr))
@@ -201,13 +234,25 @@ class Recorder:
             pos, rv = slot_track(self.plan, k, t_wr, rig)
             ft = ft_reading(x[:, :3], x[:, 3:], pos, rv, rig)
             ft = apply_stage(self.effects, "measurement", ft, {"time": t_wr})
-            noise = _rng(cfg, 3, k).normal(0.0, 1.0, ft.shape) * np.array([rig.ft_noise_n] * 3 + [rig.ft_noise_nmm] * 3)
+            if w is not None:
+                ft = distort_ft(ft, w.ft_crosstalk[k], w.ft_bias[k])
+            white = _rng(cfg, 3, k).normal(0.0, 1.0, ft.shape)
+            noise = (ar1_filter(white, phi) if phi else white) * np.array([rig.ft_noise_n] * 3 + [rig.ft_noise_nmm] * 3)
             ft_rows.append(ft + noise)
-        writer.table("poses", _interleave(t_pose, meas_pose), rate_hz=rig.pose_rate, frame="sensor",
+        pose_info = {"frame": "sensor"}
+        pose_rows, wrench_rows = _interleave(t_pose, meas_pose), _interleave(t_wr, ft_rows)
+        if w is not None:                     # mocap frame + its calibrated extrinsic; each stream on its own clock
+            R, t = w.extrinsic_calibrated()
+            pose_info = {"frame": "mocap", "mocap_to_sensor": {
+                "rotation_wxyz": quat_wxyz_of(R), "translation_mm": [float(v) for v in t],
+                "meaning": "p_sensor = R p_mocap + t, as calibrated (tools.twin.world: with an error)"}}
+            pose_rows, wrench_rows = (_restamp(r, w.clock_offset_s[n]) for r, n in
+                                      ((pose_rows, "poses"), (wrench_rows, "wrench")))
+        writer.table("poses", pose_rows, rate_hz=rig.pose_rate, **pose_info,
                      indenters={str(k): n for k, n in enumerate(self.modules)},
                      pose="indenter tip position (mm) and orientation (local -> sensor), docs/fe.md frame",
                      noise={"position_mm": rig.pose_noise_mm, "rotation_rad": rig.pose_noise_rad})
-        writer.table("wrench", _interleave(t_wr, ft_rows), rate_hz=rig.wrench_rate, frame="ft",
+        writer.table("wrench", wrench_rows, rate_hz=rig.wrench_rate, frame="ft",
                      ft_to_indenter=rig.ft_to_indenter_dict(),
                      sign="load of the gel on the indenter (= -RF of docs/fe.md), moment about the F/T origin",
                      noise={"force_n": rig.ft_noise_n, "torque_nmm": rig.ft_noise_nmm})
@@ -223,7 +268,7 @@ class Recorder:
         prov = {"source": "twin", "unit": cfg.serial, "seed": cfg.seed, "pokes": len(self.plan),
                 "planned_pokes": len(self.planned),
                 "replanned": [{k: e[k] for k in ("poke", "action")} for e in self.events],
-                "generator": "tensortouch twin record", "resumed": resumed,
+                "generator": "tensortouch twin record", "resumed": resumed, **({"world": cfg.world} if w else {}),
                 "command": " ".join(sys.argv) if sys.argv and "tensortouch" in sys.argv[0] else ""}
         writer.finish(prov, {"source": "simulated", "t0": 0.0, "unit": "s"},
                       truth={"dir": "truth", "note": "twin ground truth: no deploy or workbench stage reads it"})
@@ -285,6 +330,9 @@ class Recorder:
                             "moment about the tip; reaction_fe.csv = nominal material, no effects",
                 "hysteresis": {"fraction": self.cfg.rig.hysteresis_fraction, "tau_s": self.cfg.rig.hysteresis_tau_s},
                 "calibration": {"store_sensor_id": self.cfg.serial, "method": "twin-truth"}}
+        if self.world is not None:
+            info["world"] = {"name": self.cfg.world, **self.world.to_dict(),
+                             "note": "truth/ is on the camera clock, in the sensor frame, without F/T bias or noise"}
         atomic_write_json(d / "truth.json", info, indent=2)
 
     def _frames(self, writer, t_cam, t_wr, shear, t_tmp, temp, solves) -> int:

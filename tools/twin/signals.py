@@ -98,11 +98,16 @@ def quat_wxyz(rotvec: np.ndarray) -> np.ndarray:
     return q * np.where(q[:, :1] < 0, -1.0, 1.0)
 
 
-def mocap_noise(pos, rotvec, rig: RigConfig, rng: np.random.Generator):
-    """Noisy pose measurement: Gaussian position and small-rotation noise."""
-    npos = pos + rng.normal(0.0, rig.pose_noise_mm, pos.shape)
-    dr = Rotation.from_rotvec(rng.normal(0.0, rig.pose_noise_rad, rotvec.shape))
-    return npos, (dr * Rotation.from_rotvec(rotvec)).as_rotvec()
+def mocap_noise(pos, rotvec, rig: RigConfig, rng: np.random.Generator, ar1: float = 0.0):
+    """Noisy pose measurement: Gaussian position and small-rotation noise, white or (ar1 > 0) AR(1)
+    coloured with the same stationary σ (tools.twin.world.ar1_filter)."""
+    dp = rng.normal(0.0, rig.pose_noise_mm, pos.shape)
+    dr = rng.normal(0.0, rig.pose_noise_rad, rotvec.shape)
+    if ar1:
+        from .world import ar1_filter
+
+        dp, dr = ar1_filter(dp, ar1), ar1_filter(dr, ar1)
+    return pos + dp, (Rotation.from_rotvec(dr) * Rotation.from_rotvec(rotvec)).as_rotvec()
 
 
 def ft_reading(rf: np.ndarray, rm: np.ndarray, tip: np.ndarray, rotvec: np.ndarray, rig: RigConfig) -> np.ndarray:

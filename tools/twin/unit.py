@@ -75,6 +75,7 @@ class TwinUnit:
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     variation: VariationConfig = field(default_factory=VariationConfig)
     override: dict | None = None   # explicit values for UNIT_OVERRIDES keys (e.g. an acceptance unit)
+    world: object = None           # a tools.twin.world.WorldUnit (world "rig"): its gel and camera offset
 
     def __post_init__(self):
         self.params = unit_params(self.serial, self.variation, self.leds.count)
@@ -90,6 +91,10 @@ class TwinUnit:
                                    cy=self.camera.cy + p.center_offset_px[1],
                                    focal_px=self.camera.focal_px * p.focal_scale)
         self.model = FisheyeModel(self.camera_true)
+        if self.world is not None:            # the rig world's gel, and the camera beside the gel axis
+            self.gel = self.world.gel
+            dx, dy = self.world.camera_offset_mm
+            self.model.center = np.array([float(dx), float(dy), self.camera_true.cam_z])
         self._renderer = None
 
     @property
@@ -110,9 +115,12 @@ class TwinUnit:
         return self.model.rim_radius_px(self.gel)
 
     def describe(self) -> dict:
-        return {"serial": self.serial, "params": self.params.to_dict(), "gel": asdict(self.gel),
-                "camera_nominal": asdict(self.camera), "camera_true": asdict(self.camera_true),
-                "leds": asdict(self.leds), "pattern": asdict(self.pattern), "noise": asdict(self.noise)}
+        d = {"serial": self.serial, "params": self.params.to_dict(), "gel": asdict(self.gel),
+             "camera_nominal": asdict(self.camera), "camera_true": asdict(self.camera_true),
+             "leds": asdict(self.leds), "pattern": asdict(self.pattern), "noise": asdict(self.noise)}
+        if self.world is not None:
+            d["world"] = self.world.to_dict()
+        return d
 
 
 def true_tables(unit: TwinUnit, model_size: int = 128) -> dict[str, np.ndarray]:

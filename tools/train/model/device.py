@@ -5,7 +5,9 @@ without a CUDA device is an error naming the option. On CUDA the forward pass an
 float16 autocast with a gradient scaler (`Precision`); on the CPU everything stays float32, as
 before. The device is where a run executes, not what it learns from: it is not part of a run's
 config.json, the recipe or the data hash, so the same recipe gives the same dataset anywhere and
-a run may resume on another device.
+a run may resume on another device. Since device and precision still change the weights, each run
+records where it trained (train_config.json, `train.run_place`) and the package manifest copies it
+(`training.run_place`).
 """
 from __future__ import annotations
 

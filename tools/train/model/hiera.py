@@ -179,12 +179,21 @@ class HieraMAE(nn.Module):
         self.unit_px = cfg.mask_unit * cfg.patch_stride
         self.pred = nn.Linear(decoder_dim, cfg.in_chans * self.unit_px ** 2)
 
-    def random_mask(self, b: int, n_units: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        """(B, U) bool, True = visible; exactly round((1 − ratio)·U) visible units per sample (≥ 1)."""
-        n_vis = max(1, int(round(n_units * (1 - self.mask_ratio))))
-        noise = torch.rand(b, n_units, generator=generator)
+    def n_visible(self, n_units: int) -> int:
+        """Visible units per sample: round((1 − ratio)·U), at least 1."""
+        return max(1, int(round(n_units * (1 - self.mask_ratio))))
+
+    def random_mask(self, b: int, n_units: int, generator: torch.Generator | None = None,
+                    device: torch.device | str | None = None) -> torch.Tensor:
+        """(B, U) bool on `device` (default: the model's), True = visible; exactly `n_visible(U)` visible
+        units per sample. The uniform draw comes from the CPU generator (torch's global one unless
+        `generator`), whose state a checkpoint keeps, so the same seed masks the same units on every
+        device and a resumed run draws the same masks; only the (B, U) draw crosses to the device."""
+        device = torch.device(device) if device is not None else self.mask_token.device
+        n_vis = self.n_visible(n_units)
+        noise = torch.rand(b, n_units, generator=generator).to(device)
         ids = noise.argsort(dim=1)[:, :n_vis]
-        vis = torch.zeros(b, n_units, dtype=torch.bool)
+        vis = torch.zeros(b, n_units, dtype=torch.bool, device=device)
         vis.scatter_(1, ids, True)
         return vis
 
@@ -199,8 +208,11 @@ class HieraMAE(nn.Module):
         tokens = enc.embed(img)                                         # (B, U, T, C)
         n_units = tokens.shape[1]
         if visible is None:
-            visible = self.random_mask(b, n_units)
-        n_vis = int(visible[0].sum())
+            visible = self.random_mask(b, n_units, device=img.device)
+            n_vis = self.n_visible(n_units)            # known without reading the mask back from the device
+        else:
+            visible = visible.to(img.device)
+            n_vis = int(visible[0].sum())
         idx = visible.float().argsort(dim=1, descending=True, stable=True)[:, :n_vis]   # visible unit ids
         gathered = torch.gather(tokens, 1, idx[:, :, None, None].expand(-1, -1, tokens.shape[2], tokens.shape[3]))
         outs = enc.forward_units(gathered)

@@ -5,8 +5,12 @@ checkpoint (atomic) every `checkpoint_every_s` and at each epoch end; an interru
 `checkpoint.pt` (same epoch order: each epoch's permutation is seeded by (seed, epoch)); the best
 validation weights are kept in `best.pt`. A run directory holds:
 
-  config.json  checkpoint.pt  best.pt  history.jsonl  metrics.json        (fit)
-  config.json  checkpoint.pt  encoder.pt  history.jsonl                   (pretrain)
+  config.json  train_config.json  checkpoint.pt  best.pt  history.jsonl  metrics.json        (fit)
+  config.json  train_config.json  checkpoint.pt  encoder.pt  history.jsonl                   (pretrain)
+
+config.json is what a resume must match (no device); train_config.json (also inside every checkpoint.pt)
+is the full config with the places the run trained in — device, precision, torch version, threads
+(`run_place`, `train_config`).
 """
 from __future__ import annotations
 
@@ -144,8 +148,34 @@ def _batches(n: int, batch: int, seed: int, epoch: int) -> list[np.ndarray]:
     return [perm[i:i + batch] for i in range(0, n - batch + 1 if n >= batch else 1, batch)]
 
 
+def run_place(device: torch.device, precision: Precision, model: torch.nn.Module) -> dict:
+    """Where and how a run executes — the things that change its weights but not its config.json:
+    device, precision, parameter dtype, torch (and CUDA) version, CPU threads."""
+    import platform
+
+    cuda = device.type == "cuda"
+    return {"device": str(device),
+            "device_name": torch.cuda.get_device_name(device) if cuda else (platform.processor() or platform.machine()),
+            "precision": "float16 autocast + grad scaling" if precision.enabled else "float32",
+            "param_dtype": str(next(model.parameters()).dtype).removeprefix("torch."),
+            "torch": torch.__version__, "cuda": torch.version.cuda if cuda else None,
+            "threads": torch.get_num_threads(),
+            "deterministic_algorithms": torch.are_deterministic_algorithms_enabled()}
+
+
+def train_config(cfg: LoopConfig, what: str, previous: dict | None, place: dict, step: int, **more) -> dict:
+    """The run's full train config (every LoopConfig field, device and amp included) with the run places
+    it trained in: `segments` = [{from_step, **run_place}], one more whenever a run resumes elsewhere.
+    Saved in every checkpoint and as train_config.json beside it (as LeRobot keeps its train_config.json
+    with each checkpoint); the package manifest copies the segments (training.run_place)."""
+    segments = list((previous or {}).get("segments", []))
+    if not segments or {k: v for k, v in segments[-1].items() if k != "from_step"} != place:
+        segments.append({"from_step": int(step), **place})
+    return {"what": what, "config": asdict(cfg), **more, "segments": segments}
+
+
 def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, what: str, on_epoch=None,
-          state_extra=None) -> dict:
+          state_extra=None, config_extra: dict | None = None) -> dict:
     """Shared epoch/step loop with checkpoint + resume. loss_fn(model, xb, yb) -> scalar tensor."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
@@ -172,6 +202,9 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, 
         torch.set_rng_state(ckpt["torch_rng"])
         precision.load_state_dict(ckpt.get("grad_scaler", {}))
         log.info("%s: resuming %s at step %d (epoch %d, batch %d)", what, out, step, epoch0, batch0)
+    tconf = train_config(cfg, what, None if ckpt is None else ckpt.get("train_config"),
+                         run_place(device, precision, model), step, **(config_extra or {}))
+    atomic_write_json(out / "train_config.json", tconf)
     prog = _Progress(total, cfg.batch_size, cfg.log_every, what)
     prog.start(step)
     last_ckpt = time.monotonic()
@@ -180,7 +213,7 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, 
     def save(epoch: int, batch: int):
         save_state({"model": cpu_state(model), "optimizer": opt.state_dict(), "step": step,
                       "epoch": epoch, "batch": batch, "extra": extra, "torch_rng": torch.get_rng_state(),
-                      "grad_scaler": precision.state_dict()},
+                      "grad_scaler": precision.state_dict(), "train_config": tconf},
                      out / "checkpoint.pt")
 
     for epoch in range(epoch0, cfg.epochs):
@@ -351,7 +384,12 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
             save_state(cpu_state(model), out / "best.pt")
         return {"val_l1": val}
 
-    extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch)
+    init = {}
+    if cfg.init_from:
+        init["init_from"] = {"path": str(cfg.init_from), "run": _run_train_config(Path(cfg.init_from).parent)}
+    elif encoder_init is not None:
+        init["encoder_init"] = {"path": str(encoder_init), "run": _run_train_config(Path(encoder_init).parent)}
+    extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch, config_extra=init)
     del x_tr, y_tr     # the training split is most of the memory (18k samples: ~18 GB); free it before the final evaluation
     model.load_state_dict(torch.load(out / "best.pt", weights_only=True, map_location="cpu"))
     metrics = evaluate(predict(model, x_va, cfg.eval_batch), y_va, bounds)
@@ -359,6 +397,28 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
               "metrics": metrics, "val_samples": int(x_va.shape[0]), **extra}
     atomic_write_json(out / "metrics.json", result)
     return result
+
+
+def _run_train_config(run: Path) -> dict | None:
+    """A run folder's train_config.json (None for runs made before it was written)."""
+    try:
+        return json.loads((run / "train_config.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def run_places(run: str | Path) -> dict:
+    """{"fit": segments[, "pretrain": segments | "init": segments]} of a fit run and the run its weights
+    started from, for the package manifest (training.run_place); {} for runs without train_config.json."""
+    tc = _run_train_config(Path(run))
+    if tc is None:
+        return {}
+    out = {tc.get("what", "fit"): tc.get("segments", [])}
+    for key, name in (("encoder_init", "pretrain"), ("init_from", "init")):
+        start = (tc.get(key) or {}).get("run")
+        if start:
+            out[name] = start.get("segments", [])
+    return out
 
 
 def _force_scale(data: Path, bounds: dict) -> torch.Tensor:
