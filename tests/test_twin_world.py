@@ -58,7 +58,8 @@ def test_extrinsic_hand_worked_and_the_contract_inverts_it():
     np.testing.assert_allclose(back[0, 2:5], [10.0, 1.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(back[0, 5:9], [1.0, 0.0, 0.0, 0.0], atol=1e-12)
     Rc, tc = calibrated_extrinsic(np.eye(3), [1.0, 2.0, 3.0], np.eye(3), [0.1, 0.0, 0.0])
-    np.testing.assert_allclose(tc, [1.1, 2.0, 3.0]) and np.testing.assert_allclose(Rc, np.eye(3))
+    np.testing.assert_allclose(tc, [1.1, 2.0, 3.0])
+    np.testing.assert_allclose(Rc, np.eye(3))
     np.testing.assert_allclose(stamp([0.0, 1.0], 0.012), [0.012, 1.012])
 
 
@@ -92,15 +93,17 @@ def test_clock_lag_contact_onsets_and_the_onset_fit_hand_worked():
     c, rho = gel.profile.center_z_mm, gel.profile.radius_mm
     th, ph = np.meshgrid(np.linspace(0.0, 0.6, 4), np.linspace(0, 2 * np.pi, 6, endpoint=False))
     d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3)
-    pts = np.array([0.0, 0.0, c]) + (rho - 0.05) * d + [0.2, -0.1, 0.3]    # 0.05 mm deep, shifted
+    pts = np.array([0.0, 0.0, c]) + (rho - 0.05) * d + [0.2, -0.1, 0.0]    # 0.05 mm deep, shifted sideways
     shift, depth = fit_translation(pts, c, rho)
-    np.testing.assert_allclose(shift, [0.2, -0.1, 0.3], atol=1e-6) and abs(depth - 0.05) < 1e-6
+    np.testing.assert_allclose(shift, [0.2, -0.1, 0.0], atol=1e-6)
+    assert abs(depth - 0.05) < 1e-6
 
 
 def test_off_axis_camera_rays_hit_the_skirt_where_they_should():
     gel = GelSurface()
     pts, ok = gel.intersect(np.array([0.5, 0.0, 0.5]), np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]))
-    np.testing.assert_allclose(pts, [[12.0, 0.0, 0.5], [-12.0, 0.0, 0.5]]) and ok.all()
+    np.testing.assert_allclose(pts, [[12.0, 0.0, 0.5], [-12.0, 0.0, 0.5]])
+    assert ok.all()
 
 
 def test_each_unit_draws_its_own_world_within_its_sizes():
@@ -120,6 +123,11 @@ def test_each_unit_draws_its_own_world_within_its_sizes():
         assert m.C10 == w.yeoh[0] and abs(m.bulk_modulus / m.shear_modulus - 50.0) < 1e-9
     with pytest.raises(Exception, match="unknown world parameters"):
         WorldConfig.with_overrides({"gravity": 1.0})
+    for bad, msg in (({"noise_ar1": "x"}, "noise_ar1"), ({"noise_ar1": 1.0}, "noise_ar1"),
+                     ({"c10": -0.1}, "c10"), ({"mocap_origin_mm": [1, 2]}, "mocap_origin_mm"), ({"fe_order": 3}, "fe_order")):
+        with pytest.raises(Exception, match=msg):
+            WorldConfig.with_overrides(bad)
+    assert WorldConfig.with_overrides({"clock_ft_s": 0, "fe_order": 2}).fe_order == 2
 
 
 def test_the_rig_world_fe_is_the_units_own_gel_yeoh_and_finer_mesh():
