@@ -293,3 +293,26 @@ def test_a_recipe_session_in_the_rig_world_is_estimated_once(rig_session, tmp_pa
     assert first["onsets"] >= 6 and "clock_offset_s" in load_session(s).streams["wrench"]
     before = (s / "session.json").read_bytes()
     assert _rig_estimate(s) == first and (s / "session.json").read_bytes() == before
+
+
+def test_a_rewritten_stream_carries_its_calibration_in_the_numbers(rig_session, tmp_path):
+    """A tool that rewrites a stream from `Session.table` (e.g. tools/accept/alter.py) writes it through
+    `write_stream`: the calibration leaves the manifest, so it is not applied twice."""
+    import shutil
+
+    from tensortouch.contracts.session import write_stream
+
+    _, out = rig_session
+    s = shutil.copytree(out, tmp_path / "s")
+    ses = load_session(s)
+    man = json.loads((s / "session.json").read_text())
+    man["streams"]["wrench"].update(clock_offset_s=0.01, bias={"0": [0.1, 0, 0, 0, 0, 0]})
+    (s / "session.json").write_text(json.dumps(man))
+    ses = load_session(s)
+    w = ses.table("wrench").copy()
+    w[:, 2] *= 2.0
+    again = write_stream(s, "wrench", w)
+    info = again.streams["wrench"]
+    assert "bias" not in info and "clock_offset_s" not in info and info["rows"] == len(w)
+    np.testing.assert_allclose(again.table("wrench"), w, rtol=1e-8, atol=1e-8)
+    np.testing.assert_array_equal(again.table("poses"), ses.table("poses"))     # other streams untouched
