@@ -460,6 +460,24 @@ def rewrite_in_units(path: str | Path, units: dict | None = None) -> Session:
     return load_session(session.path, check_frames=False)
 
 
+CALIBRATION_FIELDS = ("clock_offset_s", "bias", "mocap_to_sensor")
+
+
+def write_stream(path: str | Path, stream: str, table: np.ndarray) -> Session:
+    """Replace a stream's file with `table` as `Session.table` reads it (house units, sensor frame, camera
+    clock). The recording is first rewritten in house units (`rewrite_in_units`); the stream's
+    rig-calibration fields leave the manifest (they are in the numbers now); the file first, the
+    manifest last. Returns the session as it now reads."""
+    session = rewrite_in_units(path)
+    info = {k: v for k, v in session.streams[stream].items() if k not in CALIBRATION_FIELDS}
+    if stream == "poses" and "frame" in info:
+        info["frame"] = "sensor"
+    info["rows"] = int(len(table))
+    write_table(session.path / info.get("file", STREAM_FILES[stream]), STREAM_COLUMNS[stream], table)
+    write_manifest(session.path, dict(session.manifest, streams={**session.streams, stream: info}))
+    return load_session(session.path, check_frames=False)
+
+
 def write_manifest(path: str | Path, manifest: dict) -> None:
     """Validate and atomically write session.json."""
     path = Path(path)

@@ -58,7 +58,8 @@ def test_extrinsic_hand_worked_and_the_contract_inverts_it():
     np.testing.assert_allclose(back[0, 2:5], [10.0, 1.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(back[0, 5:9], [1.0, 0.0, 0.0, 0.0], atol=1e-12)
     Rc, tc = calibrated_extrinsic(np.eye(3), [1.0, 2.0, 3.0], np.eye(3), [0.1, 0.0, 0.0])
-    np.testing.assert_allclose(tc, [1.1, 2.0, 3.0]) and np.testing.assert_allclose(Rc, np.eye(3))
+    np.testing.assert_allclose(tc, [1.1, 2.0, 3.0])
+    np.testing.assert_allclose(Rc, np.eye(3))
     np.testing.assert_allclose(stamp([0.0, 1.0], 0.012), [0.012, 1.012])
 
 
@@ -92,15 +93,17 @@ def test_clock_lag_contact_onsets_and_the_onset_fit_hand_worked():
     c, rho = gel.profile.center_z_mm, gel.profile.radius_mm
     th, ph = np.meshgrid(np.linspace(0.0, 0.6, 4), np.linspace(0, 2 * np.pi, 6, endpoint=False))
     d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3)
-    pts = np.array([0.0, 0.0, c]) + (rho - 0.05) * d + [0.2, -0.1, 0.3]    # 0.05 mm deep, shifted
+    pts = np.array([0.0, 0.0, c]) + (rho - 0.05) * d + [0.2, -0.1, 0.0]    # 0.05 mm deep, shifted sideways
     shift, depth = fit_translation(pts, c, rho)
-    np.testing.assert_allclose(shift, [0.2, -0.1, 0.3], atol=1e-6) and abs(depth - 0.05) < 1e-6
+    np.testing.assert_allclose(shift, [0.2, -0.1, 0.0], atol=1e-6)
+    assert abs(depth - 0.05) < 1e-6
 
 
 def test_off_axis_camera_rays_hit_the_skirt_where_they_should():
     gel = GelSurface()
     pts, ok = gel.intersect(np.array([0.5, 0.0, 0.5]), np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]))
-    np.testing.assert_allclose(pts, [[12.0, 0.0, 0.5], [-12.0, 0.0, 0.5]]) and ok.all()
+    np.testing.assert_allclose(pts, [[12.0, 0.0, 0.5], [-12.0, 0.0, 0.5]])
+    assert ok.all()
 
 
 def test_each_unit_draws_its_own_world_within_its_sizes():
@@ -120,6 +123,23 @@ def test_each_unit_draws_its_own_world_within_its_sizes():
         assert m.C10 == w.yeoh[0] and abs(m.bulk_modulus / m.shear_modulus - 50.0) < 1e-9
     with pytest.raises(Exception, match="unknown world parameters"):
         WorldConfig.with_overrides({"gravity": 1.0})
+    for bad, msg in (({"noise_ar1": "x"}, "noise_ar1"), ({"noise_ar1": 1.0}, "noise_ar1"),
+                     ({"c10": -0.1}, "c10"), ({"mocap_origin_mm": [1, 2]}, "mocap_origin_mm"), ({"fe_order": 3}, "fe_order")):
+        with pytest.raises(Exception, match=msg):
+            WorldConfig.with_overrides(bad)
+    assert WorldConfig.with_overrides({"clock_ft_s": 0, "fe_order": 2}).fe_order == 2
+
+
+def test_a_rig_units_calibration_names_the_gel_design_not_its_own_gel():
+    """The label FE reads the gel from the calibration's meta: it must stay the design (no truth leak)."""
+    from tensortouch.tools.twin.unit import TwinUnit, calibration_meta, true_tables
+
+    w = draw_world("TWIN-W1")
+    rig, label = TwinUnit("TWIN-W1", world=w), TwinUnit("TWIN-W1")
+    m = calibration_meta(rig, 32)
+    assert m["gel"] == calibration_meta(label, 32)["gel"] and m["gel"]["base_radius_mm"] == 12.0
+    assert m["provenance"]["unit_gel"]["base_radius_mm"] == w.gel.radius
+    assert not np.array_equal(true_tables(rig, 32)["theta"], true_tables(label, 32)["theta"])   # the images differ
 
 
 def test_the_rig_world_fe_is_the_units_own_gel_yeoh_and_finer_mesh():
@@ -285,3 +305,26 @@ def test_a_recipe_session_in_the_rig_world_is_estimated_once(rig_session, tmp_pa
     assert first["onsets"] >= 6 and "clock_offset_s" in load_session(s).streams["wrench"]
     before = (s / "session.json").read_bytes()
     assert _rig_estimate(s) == first and (s / "session.json").read_bytes() == before
+
+
+def test_a_rewritten_stream_carries_its_calibration_in_the_numbers(rig_session, tmp_path):
+    """A tool that rewrites a stream from `Session.table` (e.g. tools/accept/alter.py) writes it through
+    `write_stream`: the calibration leaves the manifest, so it is not applied twice."""
+    import shutil
+
+    from tensortouch.contracts.session import write_stream
+
+    _, out = rig_session
+    s = shutil.copytree(out, tmp_path / "s")
+    ses = load_session(s)
+    man = json.loads((s / "session.json").read_text())
+    man["streams"]["wrench"].update(clock_offset_s=0.01, bias={"0": [0.1, 0, 0, 0, 0, 0]})
+    (s / "session.json").write_text(json.dumps(man))
+    ses = load_session(s)
+    w = ses.table("wrench").copy()
+    w[:, 2] *= 2.0
+    again = write_stream(s, "wrench", w)
+    info = again.streams["wrench"]
+    assert "bias" not in info and "clock_offset_s" not in info and info["rows"] == len(w)
+    np.testing.assert_allclose(again.table("wrench"), w, rtol=1e-8, atol=1e-8)
+    np.testing.assert_array_equal(again.table("poses"), ses.table("poses"))     # other streams untouched

@@ -33,8 +33,9 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
-from ...contracts.session import STREAM_COLUMNS, load_session, rewrite_in_units, write_manifest, write_table
+from ...contracts.session import load_session, rewrite_in_units, write_manifest
 from ...contracts.files import finish_partial
+from ...contracts.session import write_stream
 
 
 def copy_without_truth(src: Path, dst: Path) -> Path:
@@ -150,5 +151,5 @@ def alter_session(src: Path, dst: Path, kind: str, params: dict) -> Path:
         else:
             raise ValueError(kind)
         w[m, 2:5] = f
-    write_table(dst / "wrench.csv", STREAM_COLUMNS["wrench"], w)
+    write_stream(dst, "wrench", w)       # as read: a rig calibration of the stream is in the numbers now
     return dst

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from ...contracts.files import atomic_write_json
-from ...contracts.session import STREAM_COLUMNS, Session, as_written, load_session, write_table
+from ...contracts.session import Session, as_written, load_session, write_stream
 from .alter import _quat_matrix, copy_without_truth
 
 FORMS = ("saturating_stiffening", "two_term_relaxation", "rim_profile", "temperature_onset", "velocity_drag")
@@ -119,7 +119,7 @@ def alter(src: Path, dst: Path, kind: str, amp: float, gel: dict) -> Path:
     s = load_session(dst, check_frames=False)
     w = s.table("wrench").copy()
     w[:, 2:5] = contribution(s, kind, amp, gel)
-    write_table(dst / "wrench.csv", STREAM_COLUMNS["wrench"], w)
+    write_stream(dst, "wrench", w)       # as read: a rig calibration of the stream is in the numbers now
     manifest = json.loads((dst / "session.json").read_text())
     manifest["provenance"] = {"source": "altered copy (tools/accept/alter_forms.py)"}
     atomic_write_json(dst / "session.json", manifest, indent=2)

@@ -11,11 +11,12 @@ imperfect mocap extrinsic, an F/T with a bias, and three clocks. Nothing here re
   |F| (the gel skin's slow part, `image_slow_tau_s`) gives the F/T clock; each indenter's normal load
   against its tip's signed penetration of the rest surface gives the mocap clock against the F/T.
   Sub-sample lag by a parabola through the best three.
-- **Extrinsic translation** from contact onsets (`fit_translation`): where |F| first rises above
-  `onset_n`, the tip touches the rest surface; the shift δ (and the mean onset depth b) that put these
-  points on the cap's sphere. Rotations of the extrinsic are not estimated: a rotation about the cap
-  sphere's centre leaves the dome unchanged, so onsets cannot see it (it would need image
-  correspondences); what the translation cannot absorb stays as a residual error.
+- **Extrinsic translation, lateral** from contact onsets (`fit_translation`): where |F| first rises
+  above `onset_n`, the tip touches the rest surface; the lateral shift (δx, δy) and the mean onset
+  depth b that put these points on the cap's sphere. Not estimated: δz (near the apex it moves the
+  onsets exactly as the onset depth does) and the extrinsic's rotation (a rotation about the cap
+  sphere's centre leaves the dome unchanged; it would need image correspondences); what the shift
+  cannot absorb stays as a residual error.
 - **Not estimated**: F/T cross-talk (needs a reference load), the unit's gel geometry and stiffness
   (the calibration stage's and the label budget's business).
 
@@ -91,21 +92,22 @@ def lowpass(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
 
 
 def fit_translation(points: np.ndarray, center_z: float, radius: float) -> tuple[np.ndarray, float]:
-    """(δ (3,), b): the shift and mean inward depth that put contact-onset points on the cap sphere
-    (centre (0, 0, center_z), radius ρ): least squares of |p − δ − c| − (ρ − b). The corrected positions
-    are p − δ."""
+    """(δ (3,), b): the lateral shift (δx, δy; δz = 0) and the mean inward depth b that put contact-onset
+    points on the cap sphere (centre (0, 0, center_z), radius ρ): least squares of |p − δ − c| − (ρ − b).
+    The corrected positions are p − δ. δz is not fitted: onsets near the apex move with δz exactly as
+    with the onset depth b, so the two cannot be told apart."""
     from scipy.optimize import least_squares
 
     p = np.asarray(points, np.float64)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 4:
-        raise ValueError(f"fit_translation: expected (N >= 4, 3) points, got {p.shape}")
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 3:
+        raise ValueError(f"fit_translation: expected (N >= 3, 3) points, got {p.shape}")
     c = np.array([0.0, 0.0, center_z])
 
     def res(x):
-        return np.linalg.norm(p - x[:3] - c, axis=1) - (radius - x[3])
+        return np.linalg.norm(p - [x[0], x[1], 0.0] - c, axis=1) - (radius - x[2])
 
-    sol = least_squares(res, np.zeros(4))
-    return sol.x[:3], float(sol.x[3])
+    sol = least_squares(res, np.zeros(3))
+    return np.array([sol.x[0], sol.x[1], 0.0]), float(sol.x[2])
 
 
 def contact_onsets(t: np.ndarray, force: np.ndarray, threshold: float, quiet_s: float) -> np.ndarray:

@@ -91,6 +91,7 @@ class TwinUnit:
                                    cy=self.camera.cy + p.center_offset_px[1],
                                    focal_px=self.camera.focal_px * p.focal_scale)
         self.model = FisheyeModel(self.camera_true)
+        self.design_gel = self.gel            # what the unit's drawings say (its calibration's meta.gel)
         if self.world is not None:            # the rig world's gel, and the camera beside the gel axis
             self.gel = self.world.gel
             dx, dy = self.world.camera_offset_mm
@@ -139,7 +140,7 @@ def true_tables(unit: TwinUnit, model_size: int = 128) -> dict[str, np.ndarray]:
         return pts, ok & fov
 
     pts, ok = surface(u, v)
-    theta, phi = unit.gel.theta_phi(pts)
+    theta, phi = unit.design_gel.theta_phi(pts)     # θ about the design's cap sphere centre, as meta.gel says
     normals = unit.gel.normals(pts)
     h = 0.5
     dxu = (surface(u + h, v)[0] - surface(u - h, v)[0]) / (2 * h)
@@ -152,14 +153,20 @@ def true_tables(unit: TwinUnit, model_size: int = 128) -> dict[str, np.ndarray]:
 
 
 def calibration_meta(unit: TwinUnit, model_size: int = 128) -> dict:
-    g = unit.gel
-    return {"camera": {"width": unit.camera.width, "height": unit.camera.height},
+    """The calibration's metadata. `gel` is the gel's design (what a rig's store holds and the label FE
+    uses), also for a rig-world unit whose own gel differs: that one is in provenance.unit_gel."""
+    g = unit.design_gel
+    meta = {"camera": {"width": unit.camera.width, "height": unit.camera.height},
             "gel_center_px": list(unit.gel_center_px), "gel_radius_px": unit.gel_radius_px,
             "model_size": [model_size, model_size],
             "gel": GelShape(g.radius, g.cap_height, g.skirt).meta(),
             "provenance": {"method": "twin-truth", "pokes": 0,
                            "notes": f"exact tables of twin unit {unit.serial} (tools.twin.unit)",
                            "unit": unit.params.to_dict()}}
+    if unit.world is not None:
+        w = unit.gel
+        meta["provenance"]["unit_gel"] = GelShape(w.radius, w.cap_height, w.skirt).meta()
+    return meta
 
 
 def write_true_calibration(unit: TwinUnit, root=None, model_size: int = 128, force: bool = False) -> str:

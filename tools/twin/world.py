@@ -75,8 +75,29 @@ class WorldConfig:
         bad = sorted(set(overrides or {}) - names)
         if bad:
             raise TensorTouchError(f"{where}: unknown world parameters {bad} (known: {sorted(names)})")
-        o = {k: tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else v for k, v in (overrides or {}).items()}
-        return replace(cls(), **o)
+        defaults, o = cls(), {}
+        for k, v in (overrides or {}).items():
+            want = getattr(defaults, k)
+            try:
+                if isinstance(want, tuple):
+                    if len(v) != len(want):
+                        raise ValueError
+                    o[k] = tuple(float(x) for x in v)
+                elif isinstance(want, int):
+                    o[k] = int(v) if float(v) == int(v) else None
+                else:
+                    o[k] = float(v)
+            except (TypeError, ValueError):
+                o[k] = None
+            if o[k] is None or not np.all(np.isfinite(o[k])):
+                raise TensorTouchError(f"{where}.{k} is {v!r}, expected {type(want).__name__} like {want!r}")
+        cfg = replace(defaults, **o)
+        bad = [f.name for f in fields(cls) if f.name not in ("mocap_origin_mm", "mocap_yaw_deg")
+               and np.any(np.asarray(getattr(cfg, f.name)) < 0)]
+        if bad or not cfg.noise_ar1 < 1.0 or cfg.fe_order not in (1, 2):
+            raise TensorTouchError(f"{where}: {bad or ['noise_ar1', 'fe_order']} out of range (sizes >= 0, "
+                                   "0 <= noise_ar1 < 1, fe_order 1 or 2)")
+        return cfg
 
 
 @dataclass
