@@ -64,7 +64,7 @@ def test_a_recipe_named_like_a_path_is_refused_before_anything_runs(tmp_path, na
     recipe = tmp_path / "bad.toml"
     recipe.write_text(f'name = "{name}"\n[build]\n')
     code, err = _cli("train", "all", "--recipe", recipe, cwd=tmp_path)
-    assert code == 2 and len(err) == 1 and "name (the package name)" in err[0] and NAME_PATTERN in err[0], err
+    assert code == 2 and len(err) == 1 and "'name' (the package name)" in err[0] and NAME_PATTERN in err[0], err
     assert not (tmp_path / "escaped").exists() and not Path(name).exists()
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*"))
 
