@@ -95,3 +95,10 @@ def test_effects_add_with_a_path_as_sensor_is_refused(tmp_path):
                      "--store", tmp_path / "store", cwd=tmp_path)
     assert code == 2 and len(err) == 1 and "--sensor" in err[0], err
     assert not any(tmp_path.rglob("*.lock"))
+
+
+def test_export_with_a_path_as_package_name_is_refused_before_any_work(tmp_path):
+    code, err = _cli("train", "export", "--run", tmp_path / "no-run", "--data", tmp_path / "no-data",
+                     "--name", "../../evil", "--models-dir", tmp_path / "models", cwd=tmp_path)
+    assert code == 2 and len(err) == 1 and "package name '../../evil'" in err[0], err
+    assert not (tmp_path / "models").exists() and not (tmp_path.parent / "evil").exists()
