@@ -2,8 +2,8 @@
 
 Writers of one sensor queue on a lock file (flock). Every operation that derives a version from the
 current one (derive, rollback, a caller's read-modify-write inside `locked()`) reads the current
-version under that lock, so two processes never lose each other's change. A new version goes to a temporary folder inside
-`versions/`; every file is fsynced and hashed, the folder fsynced, renamed into place and `versions/`
+version under that lock, so two processes never lose each other's change. A new version goes to a
+temporary folder inside `versions/`; every file is fsynced and hashed, the folder fsynced, renamed into place and `versions/`
 fsynced; the `CURRENT` pointer is replaced last with an atomic rename and the sensor folder fsynced.
 A crash or a full disk at any point leaves the previous version active and intact. Loads check
 calibration.json by type and by plausibility (contracts/calibration_schema.py), confine every path
@@ -220,7 +220,7 @@ _held = threading.local()     # the sensor folders this thread holds the lock of
 def _locked(sensor_dir: Path):
     """Exclusive lock of one sensor's folder (flock on LOCK_NAME): writers queue, one at a time.
     Re-entrant within a thread, so a read-modify-write can hold it around write/derive/rollback."""
-    key = os.path.abspath(sensor_dir)
+    key = os.path.realpath(sensor_dir)
     held = _held.__dict__.setdefault("dirs", set())
     if key in held:
         yield

@@ -64,7 +64,7 @@ def test_a_recipe_named_like_a_path_is_refused_before_anything_runs(tmp_path, na
     recipe = tmp_path / "bad.toml"
     recipe.write_text(f'name = "{name}"\n[build]\n')
     code, err = _cli("train", "all", "--recipe", recipe, cwd=tmp_path)
-    assert code == 2 and len(err) == 1 and "name (the package name)" in err[0] and NAME_PATTERN in err[0], err
+    assert code == 2 and len(err) == 1 and "'name' (the package name)" in err[0] and NAME_PATTERN in err[0], err
     assert not (tmp_path / "escaped").exists() and not Path(name).exists()
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*"))
 
@@ -95,3 +95,10 @@ def test_effects_add_with_a_path_as_sensor_is_refused(tmp_path):
                      "--store", tmp_path / "store", cwd=tmp_path)
     assert code == 2 and len(err) == 1 and "--sensor" in err[0], err
     assert not any(tmp_path.rglob("*.lock"))
+
+
+def test_export_with_a_path_as_package_name_is_refused_before_any_work(tmp_path):
+    code, err = _cli("train", "export", "--run", tmp_path / "no-run", "--data", tmp_path / "no-data",
+                     "--name", "../../evil", "--models-dir", tmp_path / "models", cwd=tmp_path)
+    assert code == 2 and len(err) == 1 and "package name '../../evil'" in err[0], err
+    assert not (tmp_path / "models").exists() and not (tmp_path.parent / "evil").exists()

@@ -238,3 +238,13 @@ def test_contact_numbers_must_be_json_numbers(field, value):
     """float("nan") and float("1") accept strings; the decoder wants JSON numbers of the right kind."""
     with pytest.raises(wire.WireError, match=field):
         wire.Contact.from_dict({**CONTACT, field: value})
+
+
+def test_fields_beyond_a_receivers_limit_or_of_zero_size_are_refused():
+    payload, att, _ = wire.encode_fields(np.zeros((15, 64, 32), np.float32), 1, 0.0, "s")
+    assert wire.decode_fields(payload, att, max_shape=(15, 64, 64)).data.shape == (15, 64, 32)
+    with pytest.raises(wire.WireError, match=r"exceeds this receiver's limit \(15, 32, 32\)"):
+        wire.decode_fields(payload, att, max_shape=(15, 32, 32))
+    head = {**json.loads(att), "shape": [15, 0, 0]}
+    with pytest.raises(wire.WireError, match="every size >= 1"):
+        wire.decode_fields(b"", json.dumps(head).encode())

@@ -250,6 +250,8 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
     The fp32 graph is always made (parity and latency are measured against it); without
     `cfg.with_fp32` it is left in the build cache (`fp32_cache_path(run, name)`), not in the package."""
     from .fields import read_bounds
+
+    package = confined(models_root, name, "package name", ModelPackageError)    # before any work
     from .model.data import data_hash, load_split
     from .model.train import load_trained, run_places
 
@@ -265,7 +267,7 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
     except Exception:  # noqa: BLE001 — a dataset without a val split evaluates on training samples
         x_va, y_va = load_split(data, "train", limit=16)
     dhash = data_hash(data)
-    previous = _previous_build(confined(models_root, name, "package name", ModelPackageError), dhash)
+    previous = _previous_build(package, dhash)
     with tempfile.TemporaryDirectory() as tmp:
         fp32, int8 = Path(tmp) / FP32, Path(tmp) / INT8
         export_onnx(model, fp32, size, cfg.opset, rewrite=cfg.rewrite)

@@ -130,7 +130,7 @@ def validate(doc: dict, where: str) -> None:
     unknown = set(doc) - TOP_KEYS
     if unknown:
         raise RecipeError(f"{where}: unknown top-level key(s) {sorted(unknown)}; expected some of {sorted(TOP_KEYS)}")
-    check_name(doc.get("name"), f"{where}: name (the package name)", RecipeError)   # it names folders
+    check_name(doc.get("name"), f"{where}: 'name' (the package name)", RecipeError)   # it names folders
     sessions = doc.get("sessions", {})
     if not isinstance(sessions, dict) or set(sessions) - SESSION_KEYS:
         raise RecipeError(f"{where}: [sessions] takes only {sorted(SESSION_KEYS)}")
