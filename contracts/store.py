@@ -7,7 +7,8 @@ temporary folder inside `versions/`; every file is fsynced and hashed, the folde
 fsynced; the `CURRENT` pointer is replaced last with an atomic rename and the sensor folder fsynced.
 A crash or a full disk at any point leaves the previous version active and intact. Loads check
 calibration.json by type and by plausibility (contracts/calibration_schema.py), confine every path
-to the version folder, verify hashes and check that every table is finite and in range. Arrays load with `allow_pickle=False`.
+to the version folder, verify hashes and check that every table is finite and in range. Arrays load
+with `allow_pickle=False`.
 """
 from __future__ import annotations
 

@@ -108,9 +108,10 @@ class Preprocessor:
         than the frame's long side (the window would be larger than the image it crops)."""
         h, w = shape[:2]
         if not (0 <= self.cx <= w and 0 <= self.cy <= h and self.radius <= max(w, h)):
-            raise CalibrationError(f"gel circle at ({self.cx:.6g}, {self.cy:.6g}) radius {self.radius:.6g} px does "
-                                   f"not fit the {w}x{h} camera frame (expected the centre inside the frame and "
-                                   f"a radius <= {max(w, h)} px; wrong calibration for this camera?)")
+            raise CalibrationError(f"gel circle at ({self.cx:.6g}, {self.cy:.6g}) radius {self.radius:.6g} px lies "
+                                   f"outside the {w}x{h} camera frame or is larger than it (expected the centre "
+                                   f"inside the frame and a radius <= {max(w, h)} px; wrong calibration for this "
+                                   f"camera?)")
         n = self.window
         sx0, sy0 = max(self.x0, 0), max(self.y0, 0)
         sx1, sy1 = min(self.x0 + n, w), min(self.y0 + n, h)
