@@ -3,6 +3,7 @@ package's own contact stage. Hand-worked values on tiny tables built here; then 
 the shipped demo with the shipped package, train's budget scoring, the workbench, recalibration and
 replay_session all see the contacts `tensortouch run` publishes (real onnxruntime, OpenCV, Zenoh on
 loopback; nothing mocked)."""
+import json
 import os
 import shutil
 import subprocess
@@ -101,6 +102,28 @@ def test_contact_config_is_the_packages_own():
         (0.00233, 0.0008, 0.13678, 20.0, 0.0012)
     assert cc.min_pixels == ContactConfig().min_pixels                  # null keeps the default
     assert contact_config(SimpleNamespace(manifest={})) == ContactConfig()
+
+
+
+def test_train_budget_clusters_with_the_scored_packages_settings(caplog):
+    """`train budget` takes the settings of --package, else of the build's exported package; the runtime
+    defaults only when there is no package, and it says so."""
+    from tensortouch.tools.train.evaluate import budget_contacts, scored_package
+
+    shipped = ROOT / "exported_models" / "hiera-qup-128"
+    if not (shipped / "manifest.json").is_file():
+        pytest.skip("no shipped package")
+    exported = SimpleNamespace(read_stamp=lambda stage: {"package": str(shipped)} if stage == "export" else {})
+    none = SimpleNamespace(read_stamp=lambda stage: {})
+    shipped_contacts = budget_contacts(scored_package(exported))
+    manifest = json.loads((shipped / "manifest.json").read_text())["runtime"]["contacts"]
+    assert all(getattr(shipped_contacts, k) == v for k, v in manifest.items() if v is not None)
+    assert shipped_contacts != ContactConfig()
+    assert budget_contacts(scored_package(none, str(shipped))) == shipped_contacts
+    assert scored_package(none) is None
+    with caplog.at_level("WARNING"):
+        assert budget_contacts(None) == ContactConfig()
+    assert "runtime defaults" in caplog.text
 
 
 # ------------------------------------------------------------------ acceptance: one scoring path
