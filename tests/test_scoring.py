@@ -126,6 +126,29 @@ def test_train_budget_clusters_with_the_scored_packages_settings(caplog):
     assert "runtime defaults" in caplog.text
 
 
+
+def test_the_workbench_table_holds_measured_at_with_the_ft_sign():
+    """The workbench's sample table is measured_at with its filters (the F/T's sign: the load on the
+    indenter), on the shipped demo's streams."""
+    from tensortouch.contracts import paths
+    from tensortouch.contracts.session import load_session
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.tools.workbench.samples import SampleConfig, build_table
+
+    if not (paths.demo_dir() / "session.json").is_file():
+        pytest.skip("no demo recording")
+    session = load_session(paths.demo_dir())
+    cal = CalibrationStore(ROOT / "calibration_store").load("TWIN-DEMO")
+    cfg = SampleConfig()
+    table = build_table(session, cal, cfg, brightness=False)
+    m = measured_at(session, None, average=cfg.average, pose_cutoff_hz=cfg.pose_cutoff_hz)
+    for k, v in m.items():
+        rows = table.cols["series"] == k
+        np.testing.assert_allclose(table.cols["t"][rows], v["t"])
+        np.testing.assert_allclose(table.meas[rows], -v["force"], rtol=1e-12, atol=1e-12)
+    assert np.abs(table.meas).max() > 1.0             # real presses, not an empty stream
+
+
 # ------------------------------------------------------------------ acceptance: one scoring path
 def _published(session: Path, package_dir: Path, store_root: Path, sensor: str) -> dict:
     """`tensortouch run` on a recording in its own process, its contacts received over Zenoh (loopback)."""
