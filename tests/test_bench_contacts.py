@@ -11,7 +11,8 @@ def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):
     assert run(p.parse_args(["--frames", "2", "--json"])) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     rows = {(r["field"], r["config"]): r for r in out["rows"]}
-    assert len(rows) == 9 and all(r["ms"] > 0 for r in rows.values())
+    assert len(rows) == 12 and all(r["ms"] > 0 for r in rows.values())
+    assert out["package"] == "hiera-qup-128"         # the fourth configuration: the shipped package's settings
     assert len(rows[("one touch + light touch", "strong only")]["clusters_n"]) == 1
     light = sorted(rows[("one touch + light touch", "with rule")]["clusters_n"])
     assert len(light) == 2 and 0.25 < light[0] <= 0.31
@@ -21,3 +22,6 @@ def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):
     split = rows[("split sliding contact", "with rule")]["clusters_n"]
     merged = rows[("split sliding contact", "rule+merge")]["clusters_n"]
     assert len(split) == 2 and len(merged) == 1 and merged[0] > max(split)
+    # the shipped package's light-touch rule and merge see the light touch and join the split contact
+    assert len(rows[("one touch + light touch", "package")]["clusters_n"]) == 2
+    assert len(rows[("split sliding contact", "package")]["clusters_n"]) == 1

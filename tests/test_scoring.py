@@ -3,6 +3,7 @@ package's own contact stage. Hand-worked values on tiny tables built here; then 
 the shipped demo with the shipped package, train's budget scoring, the workbench, recalibration and
 replay_session all see the contacts `tensortouch run` publishes (real onnxruntime, OpenCV, Zenoh on
 loopback; nothing mocked)."""
+import json
 import os
 import shutil
 import subprocess
@@ -101,6 +102,51 @@ def test_contact_config_is_the_packages_own():
         (0.00233, 0.0008, 0.13678, 20.0, 0.0012)
     assert cc.min_pixels == ContactConfig().min_pixels                  # null keeps the default
     assert contact_config(SimpleNamespace(manifest={})) == ContactConfig()
+
+
+
+def test_train_budget_clusters_with_the_scored_packages_settings(caplog):
+    """`train budget` takes the settings of --package, else of the build's exported package; the runtime
+    defaults only when there is no package, and it says so."""
+    from tensortouch.tools.train.evaluate import budget_contacts, scored_package
+
+    shipped = ROOT / "exported_models" / "hiera-qup-128"
+    if not (shipped / "manifest.json").is_file():
+        pytest.skip("no shipped package")
+    exported = SimpleNamespace(read_stamp=lambda stage: {"package": str(shipped)} if stage == "export" else {})
+    none = SimpleNamespace(read_stamp=lambda stage: {})
+    shipped_contacts = budget_contacts(scored_package(exported))
+    manifest = json.loads((shipped / "manifest.json").read_text())["runtime"]["contacts"]
+    assert all(getattr(shipped_contacts, k) == v for k, v in manifest.items() if v is not None)
+    assert shipped_contacts != ContactConfig()
+    assert budget_contacts(scored_package(none, str(shipped))) == shipped_contacts
+    assert scored_package(none) is None
+    with caplog.at_level("WARNING"):
+        assert budget_contacts(None) == ContactConfig()
+    assert "runtime defaults" in caplog.text
+
+
+
+def test_the_workbench_table_holds_measured_at_with_the_ft_sign():
+    """The workbench's sample table is measured_at with its filters (the F/T's sign: the load on the
+    indenter), on the shipped demo's streams."""
+    from tensortouch.contracts import paths
+    from tensortouch.contracts.session import load_session
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.tools.workbench.samples import SampleConfig, build_table
+
+    if not (paths.demo_dir() / "session.json").is_file():
+        pytest.skip("no demo recording")
+    session = load_session(paths.demo_dir())
+    cal = CalibrationStore(ROOT / "calibration_store").load("TWIN-DEMO")
+    cfg = SampleConfig()
+    table = build_table(session, cal, cfg, brightness=False)
+    m = measured_at(session, None, average=cfg.average, pose_cutoff_hz=cfg.pose_cutoff_hz)
+    for k, v in m.items():
+        rows = table.cols["series"] == k
+        np.testing.assert_allclose(table.cols["t"][rows], v["t"])
+        np.testing.assert_allclose(table.meas[rows], -v["force"], rtol=1e-12, atol=1e-12)
+    assert np.abs(table.meas).max() > 1.0             # real presses, not an empty stream
 
 
 # ------------------------------------------------------------------ acceptance: one scoring path

@@ -1,6 +1,7 @@
 """`tensortouch bench contacts`: the contact clustering step with and without the light-touch rule, and
 with the rule and merging (tools/train/support.py), side by side in one run, on a unit's real
-calibration tables (128² for the demo unit).
+calibration tables (128² for the demo unit); and with the model package's own settings (its manifest's
+runtime.contacts through tools.scoring.contact_config: what `tensortouch run` clusters with).
 
 Fields are synthetic contact-force maps (docs/runtime.md): a 1.5 N touch (σ = 4 px) with and without a
 0.3 N light touch spread thinner than the strong threshold (σ = 5.5 px), and a sliding contact split
@@ -22,6 +23,8 @@ def add_arguments(p) -> None:
     p.add_argument("--weak", type=float, default=0.0012, help="weak threshold (N per pixel)")
     p.add_argument("--min-total", type=float, default=0.041, help="min_total_n (N)")
     p.add_argument("--merge", type=float, default=0.0012, help="merge_n (N per pixel) of the third configuration")
+    p.add_argument("--model", help="model package (name or folder) whose contact settings are the fourth "
+                                   "configuration (default: the newest installed)")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
 
 
@@ -50,8 +53,11 @@ def _time(fp, args_, cfg, n: int) -> tuple[float, list]:
 def run(args) -> int:
     from ...contracts.store import CalibrationStore
     from ...runtime.stages.contacts import ContactConfig
+    from ...runtime.stages.model import find_package
+    from ..scoring import contact_config
 
     cal = CalibrationStore(args.store).load(args.sensor)
+    package = find_package(getattr(args, "model", None))
     args_ = (cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask)
     h, w = cal.model_size
     fields = {"one touch": [(0.3 * w, 0.5 * h, 1.5, 4.0)],
@@ -59,8 +65,9 @@ def run(args) -> int:
               "split sliding contact": [(0.45 * w, 0.5 * h, 1.0, 2.0), (0.45 * w + 12, 0.5 * h, 0.6, 2.0),
                                         (0.45 * w + 6, 0.5 * h, 0.045, 3.0)]}
     rule = ContactConfig(weak_threshold_n=args.weak, min_total_n=args.min_total)
-    cfgs = {"strong only": ContactConfig(), "with rule": rule, "rule+merge": replace(rule, merge_n=args.merge)}
-    out = {"bench": "contacts", "sensor": args.sensor, "size": [h, w], "rows": []}
+    cfgs = {"strong only": ContactConfig(), "with rule": rule, "rule+merge": replace(rule, merge_n=args.merge),
+            "package": contact_config(package)}
+    out = {"bench": "contacts", "sensor": args.sensor, "size": [h, w], "package": package.name, "rows": []}
     print(f"bench contacts ({args.sensor}, {h}x{w}, {args.frames} calls each)")
     for fname, touches in fields.items():
         fp = touch_field(cal, touches)

@@ -203,6 +203,7 @@ def run_compare(session_path, sensor: str | None, store: CalibrationStore, model
         deployed, info = model.deployed(session, table, cal)
         comp = compare_table(table, chain, cfg, post=correction_post(table, cal), deployed=deployed)
         extra = {"network_pass": dict(model.info), "runtime_flags": info["flags"],
+                 "runtime_stale_at": info.get("stale_at"),
                  "correction": cal.meta.get("correction")}
     else:
         raw = predict_cached(table, model, folder if cache else None)

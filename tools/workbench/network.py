@@ -103,7 +103,8 @@ def load_or_run_pass(session, package, cal, cfg: NetworkConfig, cache_dir: Path 
 
 
 # ----- stage 2: replay (the runtime's finish over the kept passes) --------------------------
-def replay(passed: dict, package, cal, temperature=None, correction=None, covariates: bool = False) -> dict:
+def replay(passed: dict, package, cal, temperature=None, correction=None, covariates: bool = False,
+           model=None) -> dict:
     """The kept passes through the runtime's finish (runtime.offline.finish_passes: SensorPipeline.finish
     of the pipeline `tensortouch run` builds with `cal` — its enabled effects, then `correction` or the
     calibration's — with `temperature(t)` as the sensor's thermistor reading), frame by frame.
@@ -111,12 +112,13 @@ def replay(passed: dict, package, cal, temperature=None, correction=None, covari
     Returns per cluster row: "force" (N,3) as published (force on the gel, N), "flags" per frame and
     "stale_at": the time from which the finish feeds the baseline another force band than the raw pass
     saw (None: every number is what the runtime publishes); with covariates=True also the runtime's
-    effect covariates per cluster row, the correction inputs (uv, θ/φ) and the raw force."""
+    effect covariates per cluster row, the correction inputs (uv, θ/φ) and the raw force. `model`: a loaded
+    FieldModel of `package` to build the pipeline with (the finish never runs it; saves loading it again)."""
     from ...runtime.offline import finish_passes
     from ...runtime.pipeline import correction_inputs, open_pipeline
     from ...runtime.stages.effects.stage import EffectStage
 
-    pipe = open_pipeline(package, cal, precision=passed.get("precision", "int8"), correction=correction)
+    pipe = open_pipeline(package, cal, precision=passed.get("precision", "int8"), correction=correction, model=model)
     results, stale = finish_passes(passed["passes"], pipe, temperature)
     if stale is not None:
         log.warning("%s: with calibration %s the runtime's baseline would read other forces from %.3f s on than "
@@ -252,7 +254,16 @@ class NetworkModel:
         self.package, self.cfg = package, cfg or NetworkConfig()
         self.source = str(package.folder)
         self._passes: dict = {}
+        self._field_model = None
         self.info: dict = {}
+
+    def field_model(self):
+        """The package's network, loaded once (the runtime's finish builds its pipeline around it)."""
+        if self._field_model is None:
+            from ...runtime.stages.model import FieldModel
+
+            self._field_model = FieldModel(self.package, self.cfg.precision, self.cfg.threads)
+        return self._field_model
 
     def fingerprint(self) -> str:
         text = json.dumps({"model": model_sha(self.package, self.cfg.precision), "cfg": asdict(self.cfg)}, sort_keys=True)
@@ -274,7 +285,7 @@ class NetworkModel:
         path = folder / f"net{LINEUP_VERSION}-{self.info['key']}-{self.fingerprint()}.npz" if folder else None
         if path is not None and path.is_file():
             return SampleTable.load(path)
-        runtime = replay(passed, self.package, cal, temperature_of(session), covariates=True)
+        runtime = replay(passed, self.package, cal, temperature_of(session), covariates=True, model=self.field_model())
         table = lineup(base, passed, runtime, self.cfg)
         if path is not None:
             table.save(path)
@@ -283,7 +294,7 @@ class NetworkModel:
     def deployed(self, session, table: SampleTable, cal) -> tuple[np.ndarray, dict]:
         """What the runtime publishes for each row (table sign), and the replay's status flags."""
         passed = self._passes[str(session.path)]
-        out = replay(passed, self.package, cal, temperature_of(session))
+        out = replay(passed, self.package, cal, temperature_of(session), model=self.field_model())
         rows = table.cols["cluster_row"].astype(int)
         pred = np.zeros_like(table.meas)
         pred[rows >= 0] = -out["force"][rows[rows >= 0]]
