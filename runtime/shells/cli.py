@@ -102,6 +102,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise
             print(line, file=sys.stderr)
             return 2
+        except TensorTouchError as exc:           # its extra is missing (checked before its module loads)
+            print(f"tensortouch {first}: {exc}", file=sys.stderr)
+            return 2
     finally:
         pending = held.release()
     args.command_line = shlex.join(["tensortouch", *argv])    # what a manifest records as "the command"
