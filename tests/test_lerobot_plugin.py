@@ -32,7 +32,7 @@ def _missing() -> str | None:
         importlib.metadata.distribution("lerobot_camera_tensortouch")
         import lerobot.cameras  # noqa: F401
     except Exception as exc:  # noqa: BLE001 - the reason is shown in the skip message
-        return f"{type(exc).__name__}: {exc} (pip install --no-deps lerobot==0.4.4 ./integrations/lerobot draccus==0.10.0)"
+        return f"{type(exc).__name__}: {exc} (LeRobot's venv: .ci/lerobot, docs/lerobot.md)"
     if not (paths.demo_dir() / "session.json").is_file():
         return "no demo recording"
     return None
