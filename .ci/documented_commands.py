@@ -5,8 +5,10 @@ line naming it with the install form of this installation (`--form editable`: pi
 
     python .ci/documented_commands.py --form editable        # (.ci/base-install runs it in a base venv)
 
-Commands come from code blocks and inline code. Commands run in a scratch folder with a private Zenoh meeting point; long-running ones (run, listen,
-view, hand, benchmarks) are stopped after --timeout seconds, which counts as working. Placeholders
+Commands come from code blocks and inline code. Commands run in a scratch folder with a private Zenoh
+meeting point and a scratch copy of the calibration store and cache (no file may appear in the
+checkout); long-running ones (run, listen, view, hand, benchmarks) are stopped after --timeout seconds,
+which counts as working. Placeholders
 (SESSION, ID, ...) stay as written: such a command may end with its one-line bad-input error (exit 2).
 Optional parts in brackets and `...` are dropped.
 """
@@ -74,6 +76,16 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def untracked(root: Path = ROOT) -> set[str]:
+    """Files git does not know in the checkout (ignored ones left out); empty without git."""
+    try:
+        out = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=all"],
+                             capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return set()
+    return {line[3:] for line in out.splitlines() if line.startswith("??")}
+
+
 def check(command: str, form: str, timeout: float, scratch: Path) -> str | None:
     """None when `command` works or fails cleanly, else what is wrong."""
     try:
@@ -81,7 +93,8 @@ def check(command: str, form: str, timeout: float, scratch: Path) -> str | None:
     except ValueError:
         return None
     exe = Path(sys.executable).with_name("tensortouch")
-    env = dict(os.environ, TENSORTOUCH_ENDPOINT=f"tcp/127.0.0.1:{free_port()}")
+    env = dict(os.environ, TENSORTOUCH_ENDPOINT=f"tcp/127.0.0.1:{free_port()}",
+               TENSORTOUCH_CALIBRATION=str(scratch / "calibration_store"), TENSORTOUCH_CACHE=str(scratch / "cache"))
     work = Path(tempfile.mkdtemp(dir=scratch))
     proc = subprocess.Popen([str(exe), *argv[1:]], cwd=work, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -120,11 +133,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=6.0, help="seconds before a still-running command is stopped")
     ap.add_argument("--jobs", type=int, default=2, help="commands run at once")
     args = ap.parse_args(argv)
+    import shutil
+
+    from tensortouch.contracts.paths import calibration_dir
+
     commands = documented_commands()
+    before = untracked()
     with tempfile.TemporaryDirectory(prefix="tt-doc-commands-") as scratch:
+        # the calibration store and cache the commands may write: copies in the scratch folder
+        shutil.copytree(calibration_dir(), Path(scratch) / "calibration_store")
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             problems = list(pool.map(lambda c: (c, check(c, args.form, args.timeout, Path(scratch))), commands))
     bad = [(c, why) for c, why in problems if why]
+    left = sorted(untracked() - before)
+    if left:
+        bad.append(("(all of them)", f"files left in the checkout: {left[:10]}"))
     for c, why in bad:
         print(f"FAIL {c}\n  {why}", file=sys.stderr)
     print(f"documented commands ({args.form} install): {len(commands) - len(bad)} of {len(commands)} work or fail "

@@ -6,20 +6,18 @@ Real parts: LeRobot 0.4.4's own plugin discovery, `make_cameras_from_configs` an
 LeRobot installed in the test venv as .ci/run does (lerobot==0.4.4 with --no-deps, draccus, and for the
 robot layer the packages LeRobot imports on the way; see docs/lerobot.md).
 
-One stand-in, at a missing-package edge: LeRobot 0.4.4's robot layer imports
-`torchvision.transforms.functional` (via lerobot.processor) and never calls it on this path; PyPI's
-torchvision wheels need a CUDA torch and this venv has the CPU one. When `import torchvision` fails, the
-robot test puts an empty `torchvision` module in place for that import only (see `_lerobot_robots`).
+No stand-in module: LeRobot 0.4.4's robot layer imports torch and torchvision (via lerobot.processor), so
+the robot test runs where both import, in the venv .ci/lerobot makes (torch 2.14.1 + torchvision 0.29.1,
+docs/lerobot.md says why those). Where the robot plugin is not installed, the robot test is skipped;
+where it is installed and LeRobot's robot layer does not import, it fails.
 """
 import dataclasses
-import importlib.machinery
 import importlib.metadata
 import os
 import subprocess
 import sys
 import threading
 import time
-import types
 
 import numpy as np
 import pytest
@@ -34,7 +32,7 @@ def _missing() -> str | None:
         importlib.metadata.distribution("lerobot_camera_tensortouch")
         import lerobot.cameras  # noqa: F401
     except Exception as exc:  # noqa: BLE001 - the reason is shown in the skip message
-        return f"{type(exc).__name__}: {exc} (pip install --no-deps lerobot==0.4.4 ./integrations/lerobot draccus==0.10.0)"
+        return f"{type(exc).__name__}: {exc} (LeRobot's venv: .ci/lerobot, docs/lerobot.md)"
     if not (paths.demo_dir() / "session.json").is_file():
         return "no demo recording"
     return None
@@ -153,45 +151,18 @@ def test_tactile_floats_wrench_and_top_contacts(runtime_endpoint):
         tac.disconnect()
 
 
-ROBOT_INSTALL = ("pip install --no-deps ./integrations/lerobot_robot plus LeRobot's import-time packages "
-                 "(docs/lerobot.md)")
+ROBOT_INSTALL = ("its own venv: pip install torch==2.14.1 torchvision==0.29.1, then lerobot==0.4.4 and the plugins "
+                 "with --no-deps and integrations/lerobot_robot/requirements-lerobot-0.4.4.txt; docs/lerobot.md, "
+                 ".ci/lerobot")
 
 
-def _lerobot_robots():
-    """Import LeRobot's robot layer; the torchvision stand-in only when torchvision cannot be imported.
-    Called with the robot plugin installed, so a layer that does not import is a failure, not a skip."""
-    try:
-        import torchvision  # noqa: F401
-        stub = False
-    except Exception:  # noqa: BLE001 - PyPI's wheel fails on a CPU torch; any failure means "use the stand-in"
-        stub = True
-    names = ("torchvision", "torchvision.transforms", "torchvision.transforms.functional")
-    if stub:
-        try:
-            import datasets  # noqa: F401 - it records whether torchvision exists: let it see that it does not
-        except ImportError as exc:
-            pytest.fail(f"LeRobot's robot layer needs `datasets`: {exc} ({ROBOT_INSTALL})")
-        for name in names:
-            sys.modules.pop(name, None)
-            mod = types.ModuleType(name)
-            mod.__path__ = []
-            mod.__spec__ = importlib.machinery.ModuleSpec(name, None, is_package=True)
-
-            def unused(attr, _name=name):
-                raise AttributeError(f"{_name}.{attr}: a stand-in for the test (torchvision is not installed)")
-            mod.__getattr__ = unused
-            sys.modules[name] = mod
-        sys.modules["torchvision"].transforms = sys.modules["torchvision.transforms"]
-        sys.modules["torchvision.transforms"].functional = sys.modules["torchvision.transforms.functional"]
+def _lerobot_robots() -> None:
+    """Import LeRobot's real robot layer (lerobot.robots -> lerobot.processor -> torch, torchvision). Called
+    with the robot plugin installed, so a layer that does not import is a failure, not a skip."""
     try:
         import lerobot.robots  # noqa: F401
-        return stub
-    except ImportError as exc:
-        pytest.fail(f"LeRobot's robot layer does not import: {exc} ({ROBOT_INSTALL})")
-    finally:
-        if stub:
-            for name in names:
-                sys.modules.pop(name, None)
+    except Exception as exc:  # noqa: BLE001 - e.g. PyPI's torchvision beside a CPU-only torch (operator torchvision::nms)
+        pytest.fail(f"LeRobot's robot layer does not import: {type(exc).__name__}: {exc} ({ROBOT_INSTALL})")
 
 
 def _expected_floats(wrench, contacts, prefix: str, top_k: int) -> dict[str, float]:
@@ -210,7 +181,7 @@ def _expected_floats(wrench, contacts, prefix: str, top_k: int) -> dict[str, flo
     return out
 
 
-def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, monkeypatch):
+def test_robot_factory_reads_floats_and_frames(tmp_path, monkeypatch):
     try:
         importlib.metadata.distribution("lerobot_robot_tensortouch")
     except importlib.metadata.PackageNotFoundError:
@@ -224,7 +195,7 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     robot = None
     try:
-        stubbed = _lerobot_robots()
+        _lerobot_robots()
         import draccus
         from lerobot.cameras.utils import make_cameras_from_configs
         from lerobot.robots import RobotConfig, make_robot_from_config
@@ -318,8 +289,7 @@ def test_robot_factory_reads_floats_and_frames_torchvision_stand_in(tmp_path, mo
         assert not robot.is_connected
         with pytest.raises(DeviceNotConnectedError):
             robot.get_observation()
-        print(f"LeRobot robot: {checked} observations checked against the subscriber, {pressed} pressed; "
-              f"torchvision stand-in: {stubbed}")
+        print(f"LeRobot robot: {checked} observations checked against the subscriber, {pressed} pressed")
     finally:
         if robot is not None and robot.tactile.is_connected:
             robot.disconnect()                       # open Zenoh sessions would hold up the interpreter's exit

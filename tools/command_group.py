@@ -65,6 +65,11 @@ class LazySubcommands(argparse._SubParsersAction):
 
     def __call__(self, parser, namespace, values, option_string=None):
         if values and values[0] in self._pending:
+            extra = self._pending[values[0]][0].get_default("extra") or getattr(namespace, "extra", None)
+            if extra:               # say which extra is missing before importing a module that needs it
+                from ..contracts.extras import require
+
+                require(extra)
             self.load(values[0])
         super().__call__(parser, namespace, values, option_string)
 

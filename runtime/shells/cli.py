@@ -93,7 +93,6 @@ def main(argv: list[str] | None = None) -> int:
         if problems and first is not None and first not in _commands(parser):
             for line in problems:                 # an unknown command may be one a missing extra adds
                 print("tensortouch:", line, file=sys.stderr)
-            return 2
         try:
             args = parser.parse_args(argv)
         except ModuleNotFoundError as exc:        # a subcommand's options live in a module of an extra
@@ -101,6 +100,9 @@ def main(argv: list[str] | None = None) -> int:
             if line is None:
                 raise
             print(line, file=sys.stderr)
+            return 2
+        except TensorTouchError as exc:           # its extra is missing (checked before its module loads)
+            print(f"tensortouch {first}: {exc}", file=sys.stderr)
             return 2
     finally:
         pending = held.release()
