@@ -15,6 +15,7 @@ import json
 import logging
 import math
 import time
+from dataclasses import asdict
 
 import numpy as np
 import scipy.sparse as sp
@@ -47,9 +48,24 @@ FIRST_TOUCH_ANCHOR = True
 DEFAULT_ENGINE = "pardiso"
 
 
+MESH_MEMO_SIZE = 4
+_MESH_MEMO: dict[str, GelMesh] = {}
+
+
 def build_mesh(scenario: Scenario) -> GelMesh:
-    stl = str(scenario.resolve(scenario.gel.stl_path)) if scenario.gel.kind == "stl" else ""
-    return mesh_gel(scenario.gel, scenario.mesh, stl_path=stl)
+    """The scenario's gel mesh. gmsh is deterministic for fixed inputs, so meshes of analytic gels are
+    kept per process (the last MESH_MEMO_SIZE gel + mesh settings): a twin recording or a batch
+    worker meshes its gel once, not once per poke. The arrays are shared: treat them as read-only."""
+    if scenario.gel.kind == "stl":
+        return mesh_gel(scenario.gel, scenario.mesh, stl_path=str(scenario.resolve(scenario.gel.stl_path)))
+    key = json.dumps([asdict(scenario.gel), asdict(scenario.mesh)], sort_keys=True)
+    gm = _MESH_MEMO.pop(key, None)
+    if gm is None:
+        gm = mesh_gel(scenario.gel, scenario.mesh)
+    _MESH_MEMO[key] = gm
+    while len(_MESH_MEMO) > MESH_MEMO_SIZE:
+        _MESH_MEMO.pop(next(iter(_MESH_MEMO)))
+    return gm
 
 
 class GelModel:
@@ -97,8 +113,11 @@ class GelModel:
         self._crow, self._ccol = rows, cols
         self.fast = None  # own P1 assembly on a fixed pattern (engine "pardiso", Yeoh on linear tets)
         if engine == "pardiso" and self.order == 1 and isinstance(self.umat, YeohUmat):
-            B = np.asarray(self.region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
-            self.fast = P1Assembly(gm.tets, n, self.free, self.surf_dofs, B, np.asarray(self.region.dV)[0])
+            self.fast = getattr(gm, "_p1_assembly", None)  # the pattern depends on the mesh only
+            if self.fast is None:
+                B = np.asarray(self.region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
+                self.fast = P1Assembly(gm.tets, n, self.free, self.surf_dofs, B, np.asarray(self.region.dV)[0])
+                gm._p1_assembly = self.fast
         self.symmetric = scenario.friction == 0.0
         self.factor = make_factor(engine, self.symmetric)
 
