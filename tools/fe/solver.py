@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import time
 from dataclasses import asdict
 
@@ -42,10 +43,12 @@ SOLVER_REVISION = 2
 # docs/decisions/2026-11-25-fe-increments-and-locking.md). Module switch, not a scenario field, so
 # the scenario hashes (the FE cache keys) stay as they are; solver_info records it.
 FIRST_TOUCH_ANCHOR = True
-# Linear solver engine when solve() is not told (tools.fe.linsolve). Not a scenario field: both
-# engines solve the same equations (final forces agree to < 0.5 %, `tensortouch bench fe`), so the
-# scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
-DEFAULT_ENGINE = "pardiso"
+# Linear solver engine when solve() is not told (tools.fe.linsolve); the environment variable
+# TENSORTOUCH_FE_ENGINE sets it for a whole pipeline, batch worker processes included (before/after
+# timings of a recipe stage). Not a scenario field: both engines solve the same equations (final
+# forces agree to rounding, `tensortouch bench fe`), so the scenario hashes (the FE cache keys) stay
+# as they are; solver_info records the engine.
+DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso")
 
 
 MESH_MEMO_SIZE = 4
@@ -75,7 +78,8 @@ class GelModel:
         import felupe as fem
 
         if engine not in ENGINES:
-            raise ValueError(f"FE engine {engine!r}: expected one of {ENGINES}")
+            raise ScenarioError(f"FE engine {engine!r} (solve(engine=) or TENSORTOUCH_FE_ENGINE): expected one of "
+                                f"{', '.join(ENGINES)}")
         self.engine = engine
 
         self.sc, self.gm = scenario, gm
