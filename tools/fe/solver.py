@@ -137,7 +137,11 @@ class GelModel:
 
     def residual(self, U, poses, state, tangent=True, hold=None, slip_tangent="exact"):
         self._U = U
-        r = self.internal_forces(U)
+        if self.fast is not None:
+            self._cells = self.fast.kinematics(U, self.umat)
+            r = self.fast.forces(U, self.umat, self._cells)
+        else:
+            r = self.internal_forces(U)
         x = self.gm.nodes[self.surf] + U[self.surf]
         ce = fc.evaluate(x, self.area, self.shapes, poses, state, self.penalty, self.sc.friction, tangent,
                          self.sc.solver.friction_stiffness_ratio, hold, slip_tangent)
@@ -154,7 +158,7 @@ class GelModel:
     def tangent(self, ce):
         """Free-DOF tangent at the displacement of the last residual() call."""
         if self.fast is not None:
-            _, data = self.fast.forces_and_tangent(self._U, self.umat, ce.K)
+            _, data = self.fast.forces_and_tangent(self._U, self.umat, ce.K, cells=self._cells)
             return self.fast.matrix(data)
         self.set_u(self._U)
         K = self.solid.assemble.matrix(self.field).tocsr()
