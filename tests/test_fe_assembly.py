@@ -72,6 +72,9 @@ def test_p1_forces_and_tangent_match_felupe(bulk):
     K = fast.matrix(data).toarray()
     assert np.abs(f - f_ref).max() <= 1e-12 * np.abs(f_ref).max() * 10
     assert np.abs(fast.forces(U, umat) - f).max() == 0.0
+    cells = fast.kinematics(U, umat)  # shared between a residual and the tangent at the same U
+    assert np.array_equal(fast.forces(U, umat, cells), f)
+    assert np.array_equal(fast.forces_and_tangent(U, umat, Kc, cells=cells)[1], fast.forces_and_tangent(U, umat, Kc)[1])
     assert np.abs(K - K_ref).max() <= 1e-11 * np.abs(K_ref).max()
     # the fixed pattern holds every element and contact entry, and a second call gives the same bits
     assert fast.matrix(data).nnz == fast.nnz
@@ -124,3 +127,33 @@ def test_singular_matrix_is_a_floating_point_error():
     for fac in (SuperLUFactor(), ):
         with pytest.raises(FloatingPointError):
             fac.factor(A)
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.4])
+def test_engines_give_the_same_solve_and_pardiso_repeats_bit_for_bit(mu):
+    """A press-and-slide on a small pad: the reference engine (felupe + SuperLU) and the default one
+    (own assembly + PARDISO, symmetric type when mu = 0) reach the same iterates; two runs of the
+    default engine give identical bits (the FE cache and the recipe's data hash rely on it)."""
+    import json
+
+    from tensortouch.tools.fe import solve
+    from tensortouch.tools.fe.mesh import mesh_gel
+    from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario
+
+    pad = GelGeometry(kind="flat_pad", size_x=12.0, size_y=12.0, thickness=5.0)
+    ms = MeshSettings(size_top=1.2, size_inside=1.5)
+    ind = Indenter(name="s", shape="sphere", params={"radius": 4.0}, position=[0.0, 0.0, 5.0],
+                   keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in [(0, 0, -0.6), (0.6, 0, -0.6)]])
+    sc = Scenario(gel=pad, mesh=ms, indenters=[ind], friction=mu)
+    gm = mesh_gel(pad, ms)
+    ref = solve(sc, mesh=gm, engine="superlu")
+    new = solve(sc, mesh=gm, engine="pardiso")
+    again = solve(sc, mesh=gm, engine="pardiso")
+    info = json.loads(new.solver_info)
+    assert info["engine"] == "pardiso" and info["symmetric_tangent"] == (mu == 0.0)
+    assert info["symbolic_analyses"] == 1 and info["factorizations"] == info["iterations"]
+    assert json.loads(ref.solver_info)["iterations"] == info["iterations"]
+    assert np.allclose(new.RF, ref.RF, rtol=1e-9, atol=1e-12) and np.allclose(new.U, ref.U, atol=1e-10)
+    assert np.array_equal(again.RF, new.RF) and np.array_equal(again.U, new.U)
+    if mu == 0.0:  # no friction: only the plowing slope of the pressed surface pushes back in x
+        assert abs(new.RF[-1, 0, 0]) < 0.03 * abs(new.RF[-1, 0, 2])

@@ -27,7 +27,7 @@ def test_ccx_deck_keywords(tmp_path):
     deck = export_inp_ccx(sc, tmp_path / "d.inp").read_text()
     for bad in ("ENCASTRE", "C3D4H", "R3D3", "*PART", "*INSTANCE", "GEL-1.", "ELSET=IND1_EL\n*RIGID", "H,"):
         assert bad not in deck
-    for key in ("*ELEMENT, TYPE=C3D4, ELSET=GEL", "BASE, 1, 3", "TYPE=SURFACE TO SURFACE",
+    for key in ("*ELEMENT, TYPE=C3D4, ELSET=GEL", "BASE, 1, 3", "TYPE=NODE TO SURFACE",
                 "*RIGID BODY, NSET=IND1_NODES, REF NODE=", "ROT NODE=", "PRESSURE-OVERCLOSURE=LINEAR\n6\n",
                 "*FRICTION\n2.2, 0.6\n", "IND1_ROT, 3, 3, 0.05", "*NODE PRINT, NSET=IND1_REF"):
         assert key in deck, key

@@ -3,7 +3,7 @@
 Public API (stable; see docs/fe.md):
     Scenario, load_scenario, save_scenario, standard_dome  -- tools.fe.scenario
     FEResult, load_result, save_result                     -- tools.fe.result
-    solve(scenario, progress=None) -> FEResult              -- tools.fe.solver
+    solve(scenario, progress=None, mesh=None, engine=None) -> FEResult  -- tools.fe.solver
 Heavy libraries (felupe, gmsh, trimesh) are imported lazily inside functions.
 """
 from .errors import FEConvergenceError, FEError, FEResultError, ScenarioError
@@ -12,11 +12,12 @@ from .scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings, 
                                SolverSettings, load_scenario, save_scenario, standard_dome)
 
 
-def solve(scenario, progress=None, mesh=None):
-    """Solve an FE scenario; see tools.fe.solver.solve (mesh: optional prebuilt GelMesh)."""
+def solve(scenario, progress=None, mesh=None, engine=None):
+    """Solve an FE scenario; see tools.fe.solver.solve (mesh: optional prebuilt GelMesh; engine: the
+    linear solver path, tools.fe.linsolve.ENGINES, None = the default)."""
     from .solver import solve as _solve
 
-    return _solve(scenario, progress=progress, mesh=mesh)
+    return _solve(scenario, progress=progress, mesh=mesh, engine=engine)
 
 
 __all__ = ["FEConvergenceError", "FEError", "FEResult", "FEResultError", "GelGeometry", "Indenter",

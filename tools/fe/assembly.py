@@ -64,7 +64,9 @@ class P1Assembly:
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ukeys // nf, minlength=nf))]).astype(np.int32)
 
     # -- kinematics ------------------------------------------------------------------------------
-    def _cells(self, U: np.ndarray, umat):
+    def kinematics(self, U: np.ndarray, umat) -> tuple:
+        """Per-cell quantities at displacement U (N,3) that forces and tangent share; pass them back as
+        `cells=` to skip recomputing them (the Newton loop's tangent is at its last residual's U)."""
         ue = U[self.tets]                                                   # (C,4,3)
         F = np.eye(3) + ue.transpose(0, 2, 1) @ self.B                     # (C,3,3) F_iJ
         J, iF = _det_inv3(F)
@@ -79,17 +81,18 @@ class P1Assembly:
     def _element_forces(self, J, f1, q, d, bulk):
         return self.V[:, None, None] * (f1[:, None, None] * d + (bulk * (J - 1.0) * J)[:, None, None] * q)
 
-    def forces(self, U: np.ndarray, umat) -> np.ndarray:
+    def forces(self, U: np.ndarray, umat, cells: tuple | None = None) -> np.ndarray:
         """Internal force vector (ndof,) of the gel at displacement U (N,3)."""
-        J, _, _, f1, _, _, q, d = self._cells(U, umat)
+        J, _, _, f1, _, _, q, d = cells if cells is not None else self.kinematics(U, umat)
         return np.bincount(self.edofs, self._element_forces(J, f1, q, d, umat.bulk).ravel(), minlength=self.ndof)
 
-    def forces_and_tangent(self, U: np.ndarray, umat, contact_K: np.ndarray | None = None):
+    def forces_and_tangent(self, U: np.ndarray, umat, contact_K: np.ndarray | None = None,
+                           cells: tuple | None = None):
         """(internal force vector (ndof,), CSR data (nnz,) of the free-DOF tangent incl. contact_K).
 
         contact_K (M,3,3): d(contact force)/dx per surface node; enters with a minus sign (the
         residual is internal minus contact force)."""
-        J, trC, a, f1, f2, p, q, d = self._cells(U, umat)
+        J, trC, a, f1, f2, p, q, d = cells if cells is not None else self.kinematics(U, umat)
         V, kap = self.V, umat.bulk
         fe = self._element_forces(J, f1, q, d, kap)
         C = len(V)

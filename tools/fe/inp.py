@@ -3,11 +3,13 @@
 `dialect="ccx"` (`export_inp_ccx`, runs in CalculiX 2.20 as written): flat model (no parts or
 instances), base fixed by *BOUNDARY 1-3, gel as C3D4 (P1 mesh) or C3D10 (P2 mesh); each indenter is
 a rigid body (*RIGID BODY, NSET, REF NODE at the tip, ROT NODE carrying the rotation vector) made of
-one thin C3D4 per surface triangle whose outer face is the contact master surface; surface-to-surface
-penalty contact with the pressure-overclosure slope, and the stick slope of *FRICTION, set to the
-values tools.fe uses (ccx's default penalty reads forces 7-10 % low); no *FRICTION when mu = 0; the
-bulk modulus is the one tools.fe uses (`bulk="solver"`: capped for P1, docs/fe.md "Volumetric
-locking") or the material's D1 (`bulk="material"`); increments per step as in tools.fe (or at most `max_increment_mm`); the reaction
+one thin C3D4 per surface triangle whose outer face is the contact master surface; node-to-surface
+penalty contact (the gel's surface nodes against the indenter's faces, as tools.fe solves it: with a
+surface-to-surface pair a frictionless 1.5 mm press read 6 % apart, node-to-surface 0.5 %) with the
+pressure-overclosure slope, and the stick slope of *FRICTION, set to the values tools.fe uses (ccx's
+default penalty reads forces 7-10 % low); no *FRICTION when mu = 0; the bulk modulus is the one
+tools.fe uses (`bulk="solver"`: capped for P1, docs/fe.md "Volumetric locking") or the material's D1
+(`bulk="material"`); increments per step as in tools.fe (or at most `max_increment_mm`); the reaction
 at each reference node printed to the .dat file (`tools.fe.ccx` reads it).
 
 `dialect="abaqus"`: gel our gmsh mesh as C3D4H (hybrid linear tets), base encastre, Yeoh/NH/MR hyperelastic with the
@@ -236,7 +238,7 @@ def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver",
             "*SURFACE BEHAVIOR, PRESSURE-OVERCLOSURE=LINEAR", f"{penalty:.8g}"]
     if scenario.friction > 0:
         out += ["*FRICTION", f"{scenario.friction:.8g}, {sv.friction_stiffness_ratio * penalty:.8g}"]
-    out += [f"*CONTACT PAIR, INTERACTION=GEL_CONTACT, TYPE=SURFACE TO SURFACE\nGEL_TOP, {name}_SURF"
+    out += [f"*CONTACT PAIR, INTERACTION=GEL_CONTACT, TYPE=NODE TO SURFACE\nGEL_TOP, {name}_SURF"
             for name, _ in refs]
     for j, n_inc in enumerate(step_increments(scenario, max_increment_mm)):
         dt = 1.0 / n_inc

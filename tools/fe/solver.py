@@ -14,7 +14,9 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import time
+from dataclasses import asdict
 
 import numpy as np
 import scipy.sparse as sp
@@ -41,15 +43,32 @@ SOLVER_REVISION = 2
 # docs/decisions/2026-11-25-fe-increments-and-locking.md). Module switch, not a scenario field, so
 # the scenario hashes (the FE cache keys) stay as they are; solver_info records it.
 FIRST_TOUCH_ANCHOR = True
-# Linear solver engine when solve() is not told (tools.fe.linsolve). Not a scenario field: both
-# engines solve the same equations (final forces agree to < 0.5 %, `tensortouch bench fe`), so the
-# scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
-DEFAULT_ENGINE = "pardiso"
+# Linear solver engine when solve() is not told (tools.fe.linsolve); the environment variable
+# TENSORTOUCH_FE_ENGINE sets it for a whole pipeline, batch worker processes included (before/after
+# timings of a recipe stage). Not a scenario field: both engines solve the same equations (final
+# forces agree to rounding, `tensortouch bench fe`), so the scenario hashes (the FE cache keys) stay
+# as they are; solver_info records the engine.
+DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso")
+
+
+MESH_MEMO_SIZE = 4
+_MESH_MEMO: dict[str, GelMesh] = {}
 
 
 def build_mesh(scenario: Scenario) -> GelMesh:
-    stl = str(scenario.resolve(scenario.gel.stl_path)) if scenario.gel.kind == "stl" else ""
-    return mesh_gel(scenario.gel, scenario.mesh, stl_path=stl)
+    """The scenario's gel mesh. gmsh is deterministic for fixed inputs, so meshes of analytic gels are
+    kept per process (the last MESH_MEMO_SIZE gel + mesh settings): a twin recording or a batch
+    worker meshes its gel once, not once per poke. The arrays are shared: treat them as read-only."""
+    if scenario.gel.kind == "stl":
+        return mesh_gel(scenario.gel, scenario.mesh, stl_path=str(scenario.resolve(scenario.gel.stl_path)))
+    key = json.dumps([asdict(scenario.gel), asdict(scenario.mesh)], sort_keys=True)
+    gm = _MESH_MEMO.pop(key, None)
+    if gm is None:
+        gm = mesh_gel(scenario.gel, scenario.mesh)
+    _MESH_MEMO[key] = gm
+    while len(_MESH_MEMO) > MESH_MEMO_SIZE:
+        _MESH_MEMO.pop(next(iter(_MESH_MEMO)))
+    return gm
 
 
 class GelModel:
@@ -59,7 +78,8 @@ class GelModel:
         import felupe as fem
 
         if engine not in ENGINES:
-            raise ValueError(f"FE engine {engine!r}: expected one of {ENGINES}")
+            raise ScenarioError(f"FE engine {engine!r} (solve(engine=) or TENSORTOUCH_FE_ENGINE): expected one of "
+                                f"{', '.join(ENGINES)}")
         self.engine = engine
 
         self.sc, self.gm = scenario, gm
@@ -97,8 +117,11 @@ class GelModel:
         self._crow, self._ccol = rows, cols
         self.fast = None  # own P1 assembly on a fixed pattern (engine "pardiso", Yeoh on linear tets)
         if engine == "pardiso" and self.order == 1 and isinstance(self.umat, YeohUmat):
-            B = np.asarray(self.region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
-            self.fast = P1Assembly(gm.tets, n, self.free, self.surf_dofs, B, np.asarray(self.region.dV)[0])
+            self.fast = getattr(gm, "_p1_assembly", None)  # the pattern depends on the mesh only
+            if self.fast is None:
+                B = np.asarray(self.region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
+                self.fast = P1Assembly(gm.tets, n, self.free, self.surf_dofs, B, np.asarray(self.region.dV)[0])
+                gm._p1_assembly = self.fast
         self.symmetric = scenario.friction == 0.0
         self.factor = make_factor(engine, self.symmetric)
 
@@ -114,7 +137,11 @@ class GelModel:
 
     def residual(self, U, poses, state, tangent=True, hold=None, slip_tangent="exact"):
         self._U = U
-        r = self.internal_forces(U)
+        if self.fast is not None:
+            self._cells = self.fast.kinematics(U, self.umat)
+            r = self.fast.forces(U, self.umat, self._cells)
+        else:
+            r = self.internal_forces(U)
         x = self.gm.nodes[self.surf] + U[self.surf]
         ce = fc.evaluate(x, self.area, self.shapes, poses, state, self.penalty, self.sc.friction, tangent,
                          self.sc.solver.friction_stiffness_ratio, hold, slip_tangent)
@@ -131,7 +158,7 @@ class GelModel:
     def tangent(self, ce):
         """Free-DOF tangent at the displacement of the last residual() call."""
         if self.fast is not None:
-            _, data = self.fast.forces_and_tangent(self._U, self.umat, ce.K)
+            _, data = self.fast.forces_and_tangent(self._U, self.umat, ce.K, cells=self._cells)
             return self.fast.matrix(data)
         self.set_u(self._U)
         K = self.solid.assemble.matrix(self.field).tocsr()

@@ -22,13 +22,15 @@ comparison: 1.6–9 px off).
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+
+from ...contracts.errors import TensorTouchError
+from ...contracts.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -293,11 +295,16 @@ def _px_truth_errors(unit, c: dict) -> list:
     return np.round(np.asarray(c["xy"]) - unit.model.project(c["points"]), 3).tolist()
 
 
+class CorrespondenceError(TensorTouchError):
+    """A unit's GPR calibration failed: the build stops (it never falls back to the twin's truth)."""
+
+
 def build_unit_calibrations(b, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:
-    """Stage 3 for every unit of the build: GPR tables (tables = "gpr"), falling back to the unit's
-    true tables when the fit fails; writes correspondence/<serial>.json naming the version to use."""
+    """Stage 3 for every unit of the build: GPR tables (tables = "gpr") or the twin's true tables
+    (tables = "truth"); writes correspondence/<serial>.json naming the version to use. A GPR fit that
+    fails raises CorrespondenceError naming the unit: a build never swaps in the true tables behind
+    the recipe's back."""
     from ...contracts.store import CalibrationStore
-    from ...contracts.errors import TensorTouchError
 
     store = CalibrationStore(b.store_root)
     out = {}
@@ -309,13 +316,14 @@ def build_unit_calibrations(b, cfg: CorrespondenceConfig = CorrespondenceConfig(
         if b.cfg.tables == "gpr":
             try:
                 g = fit_unit(b, spec.serial, cfg)
-                doc.update(method="gpr-pokes", version=g["version"], gpr=g)
-                log.info("correspondence %s: %d pokes, θ error mean %.2f° p95 %.2f°", spec.serial, g["pokes"],
-                         g["theta_err_deg"]["mean"], g["theta_err_deg"]["p95"])
             except TensorTouchError as exc:
-                log.warning("correspondence %s: GPR fit failed (%s); using the unit's true tables", spec.serial, exc)
-                doc["gpr_error"] = str(exc)
-        (b.root / "correspondence" / f"{spec.serial}.json").write_text(json.dumps(doc, indent=1))
+                raise CorrespondenceError(f"correspondence {spec.serial} (session {spec.name}): the GPR fit failed "
+                                          f"({exc}); the build stops (tables = \"gpr\" never falls back to the "
+                                          f"unit's true tables)") from exc
+            doc.update(method="gpr-pokes", version=g["version"], gpr=g)
+            log.info("correspondence %s: %d pokes, θ error mean %.2f° p95 %.2f°", spec.serial, g["pokes"],
+                     g["theta_err_deg"]["mean"], g["theta_err_deg"]["p95"])
+        atomic_write_json(b.root / "correspondence" / f"{spec.serial}.json", doc)
         out[spec.serial] = {"method": doc["method"], "version": doc["version"],
                             **({"theta_err_deg": doc["gpr"]["theta_err_deg"]} if "gpr" in doc else {})}
     return {"units": out}
