@@ -1,5 +1,6 @@
-"""The contact clustering as it was before the speed work of issue #44 (2026-11-28), frozen: the
-reference the faster runtime/stages/contacts.py must reproduce exactly (tests/test_contacts_speed.py)."""
+"""The contact clustering and the fields encoder as they were before the speed work of issue #44
+(2026-11-28), frozen: the references the faster runtime/stages/contacts.py and contracts/wire.py must
+reproduce exactly (tests/test_contacts_speed.py)."""
 from __future__ import annotations
 
 import cv2
@@ -133,3 +134,28 @@ def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.n
             perim[j] = p
             circ[j] = min(1.0, 4 * np.pi * a / (p * p)) if p > 0 else 0.0
     return perim, circ
+
+
+# ---------------------------------------------------------------- the fields encoder before the speed work
+
+def encode_fields(fields, seq, t, sensor_id):
+    """contracts/wire.encode_fields as it was (default channels), frozen: the payload reference."""
+    from tensortouch.contracts import wire, wire_keys
+
+    arr = np.asarray(fields)
+    half = wire.to_float16(arr)
+    bits = half.view(np.uint16)
+    nan = (bits & 0x7FFF) > 0x7C00
+    if nan.any():
+        bad = nan.reshape(nan.shape[0], -1).any(axis=1)
+        raise wire.WireError(f"fields: NaN in channel(s) {[n for n, b in zip(wire.CHANNELS, bad) if b]} cannot be sent")
+    over = (bits & 0x7FFF) == 0x7C00
+    clipped = ()
+    if over.any():
+        bad = over.reshape(over.shape[0], -1).any(axis=1)
+        clipped = tuple(name for name, b in zip(wire.CHANNELS, bad) if b)
+        bits[over] = (bits[over] & 0x8000) | 0x7BFF
+    header = {"schema": wire.SCHEMAS["fields"], "sensor_id": wire.check_sensor_id(sensor_id), "seq": int(seq),
+              "t": float(t), "shape": list(arr.shape), "dtype": wire.FIELDS_DTYPE,
+              "channels": list(wire.CHANNELS), "units": list(wire.CHANNEL_UNITS), "clipped": list(clipped)}
+    return half.tobytes(), wire_keys.dumps(header), clipped

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tensortouch.contracts import wire
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.pipeline import PipelineConfig, contact_stage, open_pipeline
 from tensortouch.runtime.stages.contacts import ContactConfig, find_clusters, pixel_forces
@@ -107,3 +108,22 @@ def test_rest_frame_returns_nothing_before_labelling():
     fp[2, 5, 7] = 0.01
     (c,) = find_clusters(fp, xyz, nrm, area, mask, cfg=cfg)
     assert c.pixels == 1 and c.uv_px[0] == pytest.approx(7.5, abs=0.5) and c.area_mm2 == pytest.approx(0.05)
+
+
+def test_fields_payload_same_bytes_as_before(demo):
+    """encode_fields: the same payload, attachment and clipped channels as the frozen encoder on every
+    demo frame, and on hand-made frames with subnormals, ±65504, overflow to ±inf, and NaN (refused)."""
+    _, _, fields = demo
+    for i, f in enumerate(fields):
+        assert wire.encode_fields(f, i, 0.25 * i, "TWIN-DEMO") == ref.encode_fields(f, i, 0.25 * i, "TWIN-DEMO")
+    f = np.zeros((15, 6, 5), np.float32)
+    f[3] = 3e-6                                     # float16 subnormal
+    f[4, 0, 0], f[5, 1, 1], f[6, 2, 2] = 65504.0, -65519.0, 65520.0   # kept, kept (rounds), overflows
+    f[10, 3, 3], f[11, 4, 4] = -np.inf, 1e9
+    got, want = wire.encode_fields(f, 7, 1.5, "s"), ref.encode_fields(f, 7, 1.5, "s")
+    assert got == want and got[2] == ("sigma_xy", "fn_y", "fn_z")
+    f[0, 0, 0] = np.nan
+    with pytest.raises(wire.WireError, match="NaN in channel.*disp_x"):
+        wire.encode_fields(f, 7, 1.5, "s")
+    with pytest.raises(wire.WireError, match="NaN in channel.*disp_x"):
+        ref.encode_fields(f, 7, 1.5, "s")
