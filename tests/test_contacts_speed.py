@@ -1,5 +1,5 @@
 """The faster contact clustering (runtime/stages/contacts.py) gives exactly the clusters of the frozen
-reference (tests/contacts_reference.py, the code before the speed work): on the demo unit's real fields
+reference (tools/bench/previous_stages.py, the code before the speed work): on the demo unit's real fields
 (shipped int8 network on runtime/demo/frames.avi, TWIN-DEMO calibration) under the package's contact
 rules and variants of them, and on synthetic touches placed at the image border."""
 from dataclasses import replace
@@ -15,7 +15,7 @@ from tensortouch.runtime.pipeline import PipelineConfig, contact_stage, open_pip
 from tensortouch.runtime.stages.contacts import ContactConfig, find_clusters, pixel_forces
 from tensortouch.runtime.stages.model import find_package
 
-from . import contacts_reference as ref
+from tensortouch.tools.bench import previous_stages as ref
 
 DEMO = Path(__file__).resolve().parents[1] / "runtime" / "demo" / "frames.avi"
 

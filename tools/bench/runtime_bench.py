@@ -149,6 +149,37 @@ def fp32_package(pkg, work: Path):
     return load_package(folder), source
 
 
+KEEP_FIELDS = 100     # fields kept per configuration for the stage comparison
+
+
+def stage_ratios(fields: list[np.ndarray], cal, cfg, rounds: int = 5) -> dict:
+    """The stages changed for issue #44 before and now, on the same fields, interleaved: ms per frame
+    (median over `rounds`) of the frozen previous core (tools/bench/previous_stages.py) and of the
+    current one, and previous / current. `contacts` = pixel forces + clustering (before tracking);
+    `fields_encoding` = contracts.wire.encode_fields (the bulk of `publish`)."""
+    from ...contracts import wire
+    from ...runtime.pipeline import contact_stage
+    from . import previous_stages as previous
+
+    pairs = {"contacts": (lambda f: previous.contact_stage(f, cal, cfg), lambda f: contact_stage(f, cal, cfg)),
+             "fields_encoding": (lambda f: previous.encode_fields(f, 0, 0.0, "bench-0"),
+                                 lambda f: wire.encode_fields(f, 0, 0.0, "bench-0"))}
+    if not fields:
+        return {"frames": 0}
+    out = {"frames": len(fields), "frames_with_clusters": sum(bool(contact_stage(f, cal, cfg)) for f in fields)}
+    for name, fns in pairs.items():
+        ms: tuple[list, list] = ([], [])
+        for _ in range(rounds):
+            for fn, acc in zip(fns, ms):
+                t0 = time.perf_counter()
+                for f in fields:
+                    fn(f)
+                acc.append(1e3 * (time.perf_counter() - t0) / len(fields))
+        before, now = float(np.median(ms[0])), float(np.median(ms[1]))
+        out[name] = {"previous_ms": round(before, 4), "current_ms": round(now, 4), "ratio": round(before / now, 2)}
+    return out
+
+
 class _Config:
     """One (model, precision) frame loop of the benchmark, run in chunks alternating with the others."""
 
@@ -166,6 +197,12 @@ class _Config:
         self.loop.latency = LatencyWindow(10 ** 6)
         self.loop.frames = 0
         self.wall = self.cpu = self.cpu_all = 0.0
+        self.fields: list[np.ndarray] = []          # the first timed frames' fields (stage_ratios)
+        self.loop.on_result = self._keep
+
+    def _keep(self, result) -> None:
+        if result.fields is not None and len(self.fields) < KEEP_FIELDS:
+            self.fields.append(result.fields.copy())
 
     def chunk(self, n: int) -> None:
         t0, c0, p0 = time.perf_counter(), time.thread_time(), time.process_time()
@@ -193,7 +230,7 @@ def run(args) -> int:
     cv2.setNumThreads(1)           # as `tensortouch run` does: one core for the whole sensor loop
 
     sizes = [int(s) for s in args.sizes.split(",")]
-    results, notes = {}, []
+    results, notes, stages = {}, [], {}
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -220,6 +257,8 @@ def run(args) -> int:
                     for c in configs.values():
                         c.chunk(n)
                     done += n
+                q = configs[f"{size}/int8"]
+                stages[size] = stage_ratios(q.fields, q.pipe.cal, q.pipe.cfg.contacts)
                 for key, c in configs.items():
                     c.close()
                     results[key] = {**c.result(), "model": pkg.name, "synthetic": synthetic, "params": params}
@@ -255,12 +294,21 @@ def run(args) -> int:
             print(f"  {size}² int8, fields every {args.fields_every}th frame (wrench/contacts every frame): "
                   f"{r['hz']:.1f} frames/s, CPU/frame {r['cpu_ms_per_frame']:.2f} ms, publish p50 "
                   f"{r['stages']['publish']['p50_ms']:.3f} ms vs {q['stages']['publish']['p50_ms']:.3f} ms")
+    print("\nchanged stages, previous → current core on the same fields (int8 run's first "
+          f"{KEEP_FIELDS} frames, interleaved; tools/bench/previous_stages.py):")
+    for size, st in stages.items():
+        if not st["frames"]:
+            print(f"  {size}²: no frame with fields was kept (baseline never ready)")
+        for name in ("contacts", "fields_encoding") if st["frames"] else ():
+            v = st[name]
+            print(f"  {size}² {name:<16} {v['previous_ms']:.3f} → {v['current_ms']:.3f} ms/frame (×{v['ratio']:.2f}); "
+                  f"{st['frames']} frames, {st['frames_with_clusters']} with clusters")
     shipped = f"{max(sizes)}/int8"
     summary = {"config": shipped, "end_to_end_hz": round(results[shipped]["hz"], 2),
                "p99_ms": results[shipped]["stages"]["end_to_end"]["p99_ms"],
                "cpu_ms_per_frame": round(results[shipped]["cpu_ms_per_frame"], 3),
                "synthetic_weights": results[shipped]["synthetic"], "load_average": [load_before[0], load_after[0]],
-               "fp32_source": notes, "results": results}
+               "fp32_source": notes, "results": results, "stages_previous_vs_current": stages}
     if args.json:
         print(json.dumps(summary))
     return 0

@@ -1,12 +1,13 @@
 """The contact clustering and the fields encoder as they were before the speed work of issue #44
-(2026-11-28), frozen: the references the faster runtime/stages/contacts.py and contracts/wire.py must
-reproduce exactly (tests/test_contacts_speed.py)."""
+(2026-11-28), frozen. `tensortouch bench runtime` times them beside the current runtime/stages/contacts.py
+and contracts/wire.encode_fields on the same fields (the stage ratios), and tests/test_contacts_speed.py
+checks that the current ones give exactly their results. Benchmark reference only: nothing else runs it."""
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from tensortouch.runtime.stages.contacts import Cluster, ContactConfig
+from ...runtime.stages.contacts import Cluster, ContactConfig
 
 
 def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.ndarray,
@@ -140,7 +141,7 @@ def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.n
 
 def encode_fields(fields, seq, t, sensor_id):
     """contracts/wire.encode_fields as it was (default channels), frozen: the payload reference."""
-    from tensortouch.contracts import wire, wire_keys
+    from ...contracts import wire, wire_keys
 
     arr = np.asarray(fields)
     half = wire.to_float16(arr)
@@ -159,3 +160,11 @@ def encode_fields(fields, seq, t, sensor_id):
               "t": float(t), "shape": list(arr.shape), "dtype": wire.FIELDS_DTYPE,
               "channels": list(wire.CHANNELS), "units": list(wire.CHANNEL_UNITS), "clipped": list(clipped)}
     return half.tobytes(), wire_keys.dumps(header), clipped
+
+
+def contact_stage(fields, cal, cfg: ContactConfig) -> list[Cluster]:
+    """runtime.pipeline.contact_stage with the clustering above."""
+    from ...runtime.stages.contacts import pixel_forces
+
+    fp = pixel_forces(fields, cal.pixel_area)
+    return find_clusters(fp, cal.surface_xyz, cal.normals, cal.pixel_area, cal.mask, disp=fields[0:3], cfg=cfg)
