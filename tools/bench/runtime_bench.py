@@ -121,6 +121,9 @@ def fp32_package(pkg, work: Path):
         run = pkg.manifest.get("training", {}).get("run")
         run = (ROOT / run) if run and not Path(run).is_absolute() else (Path(run) if run else None)
         if run is None or not (run / "best.pt").is_file():
+            half = _half_weights_package(pkg, folder, info)
+            if half is not None:
+                return half
             return None, f"fp32 graph neither in the build cache ({cached}) nor regenerable (fit run {run} has no best.pt); " + (
                 f"rebuild the package with its recipe: tensortouch train all --recipe {pkg.folder / 'manifest.json'}"
                 if pkg.manifest.get("training", {}).get("recipe") else
@@ -178,6 +181,30 @@ def stage_ratios(fields: list[np.ndarray], cal, cfg, rounds: int = 5) -> dict:
         before, now = float(np.median(ms[0])), float(np.median(ms[1]))
         out[name] = {"previous_ms": round(before, 4), "current_ms": round(now, 4), "ratio": round(before / now, 2)}
     return out
+
+
+def _half_weights_package(pkg, folder: Path, info: dict):
+    """(package, source) running the package's shipped fp32 graph with float16-stored weights
+    (`model.fp32-half.onnx`, tools/train/export.py `half_weights`) as its fp32 model, or None when it
+    ships none. Computed in float32 at fp32 speed; its outputs differ from the exact fp32 graph's by the
+    weight rounding, whose PSNR the export measured (manifest metrics.fp32_half)."""
+    import shutil
+
+    from ...runtime.stages.model import PRECISION_FILES, load_package
+    from ..train.package import FP32_HALF
+
+    if not (pkg.folder / FP32_HALF).is_file():
+        return None
+    shutil.copyfile(pkg.folder / FP32_HALF, folder / PRECISION_FILES["fp32"])
+    for name in (FP32_HALF, PRECISION_FILES["int8"]):
+        shutil.copyfile(pkg.folder / name, folder / name)
+    man = json.loads((pkg.folder / "manifest.json").read_text())
+    man["files"] = {**man["files"], PRECISION_FILES["fp32"]: dict(man["files"][FP32_HALF])}
+    (folder / "manifest.json").write_text(json.dumps(man))
+    psnr = man.get("metrics", {}).get("fp32_half", {}).get("vs_fp32_psnr_min")
+    return load_package(folder), ("the package's fp32 graph with float16-stored weights (computed in float32; "
+                                  + (f"min PSNR vs the exact fp32 graph at export {psnr:.1f} dB" if psnr is not None
+                                     else "identical to the exact fp32 graph at export") + f"; exact one: {info.get('regenerate', '')})")
 
 
 class _Config:
