@@ -143,7 +143,10 @@ def encode_fields(fields: np.ndarray, seq: int, t: float, sensor_id: str,
     header = {"schema": SCHEMAS["fields"], "sensor_id": check_sensor_id(sensor_id), "seq": int(seq),
               "t": float(t), "shape": list(arr.shape), "dtype": FIELDS_DTYPE,
               "channels": list(channels), "units": list(units), "clipped": list(clipped)}
-    return half.tobytes(), _dumps(header), clipped
+    if not math.isfinite(header["t"]):
+        raise WireError(f"non-finite number {header['t']} cannot be sent as JSON")
+    # the members are plain str / int / float / lists already: json directly gives the bytes of _dumps
+    return half.tobytes(), json.dumps(header, separators=(",", ":")).encode(), clipped
 
 
 def decode_fields(payload: bytes | bytearray, attachment: bytes | bytearray | str | None,

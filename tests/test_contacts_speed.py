@@ -127,3 +127,10 @@ def test_fields_payload_same_bytes_as_before(demo):
         wire.encode_fields(f, 7, 1.5, "s")
     with pytest.raises(wire.WireError, match="NaN in channel.*disp_x"):
         ref.encode_fields(f, 7, 1.5, "s")
+    f[0, 0, 0] = 0.0
+    for t in (np.nan, np.inf):                      # a non-finite time is refused as before
+        with pytest.raises(wire.WireError, match="non-finite number"):
+            wire.encode_fields(f, 7, t, "s")
+        with pytest.raises(wire.WireError, match="non-finite number"):
+            ref.encode_fields(f, 7, t, "s")
+    assert wire.encode_fields(f, np.int64(7), np.float32(1.5), "s") == ref.encode_fields(f, np.int64(7), np.float32(1.5), "s")
