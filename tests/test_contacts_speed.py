@@ -134,3 +134,23 @@ def test_fields_payload_same_bytes_as_before(demo):
         with pytest.raises(wire.WireError, match="non-finite number"):
             ref.encode_fields(f, 7, t, "s")
     assert wire.encode_fields(f, np.int64(7), np.float32(1.5), "s") == ref.encode_fields(f, np.int64(7), np.float32(1.5), "s")
+
+
+def test_many_touches_same_as_reference(demo):
+    """A dozen separate touches (more labels than the per-label pass takes: the sorted path), with
+    displacements, against the reference."""
+    cal, cfg, _ = demo
+    h, w = cal.model_size
+    yy, xx = np.mgrid[0:h, 0:w]
+    nrm = np.moveaxis(cal.normals, -1, 0)
+    rng = np.random.default_rng(9)
+    f = np.zeros((15, h, w), np.float32)
+    for u in (20, 45, 70, 95):
+        for v in (30, 64, 98):
+            g = np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 2.0 ** 2))
+            g = g / (g * cal.pixel_area).sum()
+            f[9:12] += (-rng.uniform(0.3, 1.5) * g)[None] * nrm
+            f[0:3] += (-0.3 * g / g.max())[None] * nrm
+    cfg = replace(cfg, merge_n=0.0, support_radius_px=6.0)
+    want = reference(f, cal, cfg)
+    assert len(want) >= 10 and contact_stage(f, cal, cfg) == want

@@ -135,8 +135,15 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
 
 
 def _max_per_label(out: np.ndarray, lab: np.ndarray, values: np.ndarray) -> None:
-    """out[j] = max(out[j], values where lab == j) for every label (np.maximum.at, without its slow path)."""
+    """out[j] = max(out[j], values where lab == j) for every label (np.maximum.at, without its slow path):
+    one masked pass per label when there are few, else one sort."""
     if not len(lab):
+        return
+    if len(out) <= 8:
+        for j in range(1, len(out)):
+            sel = values[lab == j]
+            if len(sel):
+                out[j] = np.maximum(out[j], sel.max())
         return
     order = np.argsort(lab, kind="stable")
     sl = lab[order]
