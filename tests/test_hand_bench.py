@@ -78,6 +78,7 @@ def test_hand_bench_small(capsys):
     assert soak["windows"] >= 2 and soak["rss_last_mb"] > 0 and soak["fps_target"] == 10
     assert set(soak["mean_hz"]) == {"f0", "f1"} and all(0 < v <= 11 for v in soak["mean_hz"].values())
     assert all(v >= 0 for v in soak["behind_frames"].values()) and soak["load1_median"] >= 0
+    assert 0 < soak["cpu_share_total"] <= (os.cpu_count() or 2) + 0.1 and "whole soak" in out
 
 
 def _rows(n=40, leak_mb_per_h=0.0, p99_ms=20.0):

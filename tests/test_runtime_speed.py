@@ -157,3 +157,8 @@ def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
         assert r["frames"] == 12 and r["hz"] > 0 and 0 < r["cpu_ms_per_frame"] <= r["process_cpu_ms_per_frame"] + 0.01
         assert {"capture", "preprocess", "inference", "contacts", "publish", "end_to_end"} <= set(r["stages"])
     assert "int8 vs fp32 (same run, interleaved)" in out and "fp32 model: shipped in the package" in out
+    st = summary["stages_previous_vs_current"]["32"]
+    assert st["frames"] == 12                       # every timed int8 frame's fields, both cores timed on them
+    for name in ("contacts", "fields_encoding"):
+        assert st[name]["previous_ms"] > 0 and st[name]["current_ms"] > 0 and st[name]["ratio"] > 0
+    assert "changed stages, previous → current core" in out

@@ -17,7 +17,7 @@ from tensortouch.contracts.errors import ModelPackageError    # noqa: E402
 from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS    # noqa: E402
 from tensortouch.contracts.paths import ROOT    # noqa: E402
 from tensortouch.tools.train.cli import register    # noqa: E402
-from tensortouch.tools.train.export import FP32, INT8, count_quantize_nodes, fp32_cache_path, verify_package    # noqa: E402
+from tensortouch.tools.train.export import FP32, FP32_HALF, INT8, count_quantize_nodes, fp32_cache_path, verify_package    # noqa: E402
 
 SIZE = 64
 
@@ -48,7 +48,7 @@ def package(tmp_path_factory):
 
 def test_manifest_follows_the_contract(package):
     folder, data, run = package
-    assert sorted(p.name for p in folder.iterdir()) == sorted(["manifest.json", INT8])     # int8 only
+    assert sorted(p.name for p in folder.iterdir()) == sorted(["manifest.json", INT8, FP32_HALF])  # no exact fp32
     man = json.loads((folder / "manifest.json").read_text())
     assert man["schema"] == "tensortouch.model" and man["schema_version"] == 1 and man["name"] == "tiny"
     assert man["input"] == {"name": "input", "layout": "NCHW", "size": [SIZE, SIZE], "dtype": "float32",
@@ -169,6 +169,50 @@ def test_with_fp32_ships_both_and_the_fp32_graph_is_reproducible(package, tmp_pa
     x = np.random.default_rng(1).random((6, SIZE, SIZE), dtype=np.float32)
     y32, y8 = FieldModel(load_package(both), "fp32")(x), FieldModel(load_package(both), "int8")(x)
     assert y32.shape == y8.shape == (15, SIZE, SIZE) and not np.array_equal(y32, y8)
+
+
+def test_half_weight_fp32_ships_at_half_size_and_serves_the_bench_from_a_clean_checkout(package, tmp_path):
+    """An int8-only package ships the fp32 graph with float16-stored weights: about half the exact fp32
+    graph's size, float32 in and out, outputs within the float16 rounding of the exact graph's (the PSNR
+    the manifest records), and `bench runtime` runs it as fp32 when neither the build cache nor the
+    checkpoint exists (a clean checkout)."""
+    import shutil
+
+    from tensortouch.runtime.stages.model import FieldModel, load_package
+    from tensortouch.tools.bench.runtime_bench import fp32_package
+
+    folder, _, run = package
+    man = verify_package(folder)
+    exact = fp32_cache_path(run, "tiny")
+    half = folder / FP32_HALF
+    assert half.stat().st_size < 0.6 * exact.stat().st_size
+    info = man["metrics"]["fp32_half"]
+    assert info["converted"] > 0 and info["bytes"] == half.stat().st_size and info["fp32_bytes"] == exact.stat().st_size
+    assert info["vs_fp32_psnr_min"] > 60.0
+    g = onnx.load(str(half)).graph
+    assert g.input[0].type.tensor_type.elem_type == onnx.TensorProto.FLOAT
+    assert any(i.data_type == onnx.TensorProto.FLOAT16 for i in g.initializer)
+    x = np.random.default_rng(2).random((1, 6, SIZE, SIZE), dtype=np.float32)
+    ye = ort.InferenceSession(str(exact), providers=["CPUExecutionProvider"]).run(None, {"input": x})[0]
+    yh = ort.InferenceSession(str(half), providers=["CPUExecutionProvider"]).run(None, {"input": x})[0]
+    assert yh.dtype == np.float32 and np.abs(yh - ye).max() < 1e-2 and not np.array_equal(yh, ye)
+
+    clean = tmp_path / "clean" / "tiny"                 # the package as a clean checkout sees it
+    shutil.copytree(folder, clean)
+    m = json.loads((clean / "manifest.json").read_text())
+    m["training"]["run"] = str(tmp_path / "no-such-run")
+    m["files"][FP32]["cache"] = str(tmp_path / "no-such-cache.onnx")
+    (clean / "manifest.json").write_text(json.dumps(m))
+    full, source = fp32_package(load_package(clean), tmp_path / "work")
+    assert full is not None and "float16-stored weights" in source and f"{info['vs_fp32_psnr_min']:.1f} dB" in source
+    assert full.sha256("fp32") == m["files"][FP32_HALF]["sha256"]
+    y = FieldModel(full, "fp32")(x[0])
+    assert y.shape == (15, SIZE, SIZE) and np.isfinite(y).all()
+    (clean / FP32_HALF).unlink()                        # an older package without it: the recipe message stays
+    del m["files"][FP32_HALF]
+    (clean / "manifest.json").write_text(json.dumps(m))
+    none, why = fp32_package(load_package(clean), tmp_path / "work2")
+    assert none is None and "no best.pt" in why
 
 
 def test_optional_fp32_is_still_verified_when_present(package, tmp_path):

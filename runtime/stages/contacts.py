@@ -73,18 +73,28 @@ def pixel_forces(fields: np.ndarray, pixel_area: np.ndarray) -> np.ndarray:
 def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.ndarray,
                   pixel_area: np.ndarray, mask: np.ndarray, disp: np.ndarray | None = None,
                   cfg: ContactConfig = ContactConfig()) -> list[Cluster]:
-    """Untracked clusters (id = -1) of one frame, in label order."""
-    mag = np.sqrt((force_px ** 2).sum(axis=0))
+    """Untracked clusters (id = -1) of one frame, in label order.
+
+    Every per-cluster sum runs over the cluster's pixels in raster order (np.bincount), so the numbers
+    do not depend on how the work is cut: a frame with no pixel above a threshold returns before any
+    labelling, and the support growth runs on the cores' neighbourhood only (docs/runtime.md "Speed")."""
+    fx, fy, fz = force_px[0], force_px[1], force_px[2]
+    mag = np.sqrt(fx * fx + fy * fy + fz * fz)
     binary = ((mag > cfg.threshold_n) & mask).astype(np.uint8)
     light = light_cores(force_px, mag, mask, binary, cfg)
     if light is not None:
         binary = binary | light
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
-    if n <= 1:
+    if not binary.any():
         return []
+    n, labels = cv2.connectedComponents(binary, connectivity=8)
     if n > 2 and cfg.merge_n > 0:
-        labels, n, stats = merge_bridged(labels, binary, mag, mask, cfg.merge_n)
+        labels, n, _ = merge_bridged(labels, binary, mag, mask, cfg.merge_n)
     k = n
+    flat = labels.ravel()
+    ci = np.flatnonzero(flat)                     # core pixels, raster order
+    core = flat[ci]
+    pixels = np.bincount(core, minlength=k)
+    area = np.bincount(core, weights=pixel_area.ravel()[ci], minlength=k)
     support = _support_labels(labels, mag, cfg)
     idx = np.flatnonzero(support)                 # only pixels that belong to some cluster
     lab = support.ravel()[idx]
@@ -94,36 +104,52 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     wd = mag.shape[1]
     vv, uu = np.divmod(idx, wd)
 
-    def wmean(values):  # force-weighted mean per cluster of (len(idx), ...) values
-        values = values.reshape(len(idx), -1)
-        return np.stack([np.bincount(lab, weights=w * values[:, i], minlength=k)
-                         for i in range(values.shape[1])], 1) / safe[:, None]
+    def per_cluster(values, weights=None):  # (len(idx), m) values -> (k, m) per-cluster sums of weights * values
+        return np.stack([np.bincount(lab, weights=values[:, i] if weights is None else weights * values[:, i],
+                                     minlength=k) for i in range(values.shape[1])], 1)
 
-    uv = wmean(np.stack([uu + 0.5, vv + 0.5], 1))
+    uv = per_cluster(np.stack([uu + 0.5, vv + 0.5], 1), w) / safe[:, None]
     pos = surface_xyz.reshape(-1, 3)[idx]
+    nrm = normals.reshape(-1, 3)[idx]
     indent = np.zeros(k)
     if disp is not None:
         d = disp.reshape(3, -1)[:, idx].T
         pos = pos + d
         # the indenter's depth: the cluster's deepest point, not its force-weighted centroid
-        np.maximum.at(indent, lab, -np.einsum("ij,ij->i", d, normals.reshape(-1, 3)[idx]))
-    centroid = wmean(pos)
-    nsum = wmean(normals.reshape(-1, 3)[idx])
+        _max_per_label(indent, lab, -np.einsum("ij,ij->i", d, nrm))
+    centroid = per_cluster(pos, w) / safe[:, None]
+    nsum = per_cluster(nrm, w) / safe[:, None]
     nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
-    fvec = np.stack([np.bincount(lab, weights=force_px[i].ravel()[idx], minlength=k) for i in range(3)], 1)
-    core = labels.ravel()
-    area = np.bincount(core, weights=pixel_area.ravel(), minlength=k)
+    fvec = per_cluster(force_px.reshape(3, -1)[:, idx].T)
     perim, circ = _shape_metrics(binary, labels, k)
     out = []
     for j in range(1, k):
-        if stats[j, cv2.CC_STAT_AREA] < cfg.min_pixels:
+        if pixels[j] < cfg.min_pixels:
             continue
         out.append(Cluster(
             id=-1, uv_px=(float(uv[j, 0]), float(uv[j, 1])), position_mm=tuple(map(float, centroid[j])),
             normal=tuple(map(float, nsum[j])), area_mm2=float(area[j]), force_n=tuple(map(float, fvec[j])),
-            force_mag_n=float(np.linalg.norm(fvec[j])), pixels=int(stats[j, cv2.CC_STAT_AREA]),
+            force_mag_n=float(np.linalg.norm(fvec[j])), pixels=int(pixels[j]),
             perimeter_px=float(perim[j]), circularity=float(circ[j]), indentation_mm=float(indent[j])))
     return out
+
+
+def _max_per_label(out: np.ndarray, lab: np.ndarray, values: np.ndarray) -> None:
+    """out[j] = max(out[j], values where lab == j) for every label (np.maximum.at, without its slow path):
+    one masked pass per label when there are few, else one sort."""
+    if not len(lab):
+        return
+    if len(out) <= 8:
+        for j in range(1, len(out)):
+            sel = values[lab == j]
+            if len(sel):
+                out[j] = np.maximum(out[j], sel.max())
+        return
+    order = np.argsort(lab, kind="stable")
+    sl = lab[order]
+    starts = np.flatnonzero(np.concatenate([[True], sl[1:] != sl[:-1]]))
+    j = sl[starts]
+    out[j] = np.maximum(out[j], np.maximum.reduceat(values[order], starts))
 
 
 def merge_bridged(labels: np.ndarray, binary: np.ndarray, mag: np.ndarray, mask: np.ndarray,
@@ -162,6 +188,10 @@ def light_cores(force_px, mag, mask, strong, cfg: ContactConfig) -> np.ndarray |
     """Mask (uint8) of the weak components whose total force reaches cfg.min_total_n, or None (rule off)."""
     if cfg.weak_threshold_n <= 0 or cfg.min_total_n <= 0 or cfg.weak_threshold_n >= cfg.threshold_n:
         return None
+    # |a component's total force| <= the sum of its pixels' |force| <= that sum over all weak pixels: when
+    # even that is short of min_total_n (a rest frame), no component can qualify (margin for rounding)
+    if float(mag.sum(where=(mag > cfg.weak_threshold_n) & mask, dtype=np.float64)) < cfg.min_total_n * (1 - 1e-6):
+        return None
     labels, tot = weak_components(force_px, mag, mask, strong, cfg.weak_threshold_n)
     keep = tot >= cfg.min_total_n
     return keep[labels].astype(np.uint8) if keep.any() else None
@@ -169,16 +199,30 @@ def light_cores(force_px, mag, mask, strong, cfg: ContactConfig) -> np.ndarray |
 
 def _support_labels(labels: np.ndarray, mag: np.ndarray, cfg: ContactConfig) -> np.ndarray:
     """Core labels grown onto weaker nearby pixels (nearest core pixel within the support radius),
-    so a cluster's force includes the tails the detection threshold cuts off."""
+    so a cluster's force includes the tails the detection threshold cuts off.
+
+    The distance transform runs on the cores' bounding box grown by more than the radius: OpenCV's 5×5
+    chamfer distance is within 2 % of the Euclidean one and its shortest paths stay inside the box
+    spanned by a pixel and its core pixel, so every pixel it can keep gets the same distance and label
+    as on the whole image, and every pixel outside is farther than the radius."""
     if cfg.support_radius_px <= 0:
         return labels
-    dist, nearest = cv2.distanceTransformWithLabels((labels == 0).astype(np.uint8), cv2.DIST_L2, 5,
+    h, w = labels.shape
+    rows = np.flatnonzero(labels.any(axis=1))
+    cols = np.flatnonzero(labels.any(axis=0))
+    m = int(np.ceil(cfg.support_radius_px * 1.05)) + 3
+    r0, r1 = max(rows[0] - m, 0), min(rows[-1] + m + 1, h)
+    c0, c1 = max(cols[0] - m, 0), min(cols[-1] + m + 1, w)
+    sub = labels[r0:r1, c0:c1]
+    dist, nearest = cv2.distanceTransformWithLabels((sub == 0).astype(np.uint8), cv2.DIST_L2, 5,
                                                     labelType=cv2.DIST_LABEL_PIXEL)
-    flat = labels.ravel()
+    flat = sub.ravel()
     by_seed = np.concatenate([[0], flat[flat > 0]])  # DIST_LABEL_PIXEL numbers core pixels in raster order
     grown = by_seed[nearest]
-    keep = (labels > 0) | ((mag > cfg.support_floor_n) & (dist <= cfg.support_radius_px))
-    return np.where(keep, grown, 0).astype(np.int32)
+    keep = (sub > 0) | ((mag[r0:r1, c0:c1] > cfg.support_floor_n) & (dist <= cfg.support_radius_px))
+    out = np.zeros(labels.shape, np.int32)
+    out[r0:r1, c0:c1] = np.where(keep, grown, 0)
+    return out
 
 
 def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -190,7 +190,7 @@ def soak(cfg, seconds: float, log_every: float, log_path: Path, fps: float) -> d
     lat = _ProcLatency()
     hand = Hand(cfg, on_result=lat).start()
     rows = []
-    t_start = time.monotonic()
+    t_start, cpu_start = time.monotonic(), time.process_time()
     try:
         with open(log_path, "w") as log:
             last = {n: 0 for n in hand.fingers}
@@ -217,9 +217,11 @@ def soak(cfg, seconds: float, log_every: float, log_path: Path, fps: float) -> d
                 print(f"  soak t={row['t_s']:7.1f} s  RSS {row['rss_mb']:7.1f} MB  load {row['load1']:5.2f} cpu {row['cpu_share']:4.2f}  " + "  ".join(
                     f"{n} {v['hz']:5.1f} Hz p99 {v['p99_ms']:6.1f} ms" for n, v in row["fingers"].items()),
                     flush=True)
+        # the whole soak's CPU seconds per wall second (every thread of the process: decode, pipelines, zenoh)
+        cpu_total = (time.process_time() - cpu_start) / max(time.monotonic() - t_start, 1e-9)
     finally:
         hand.stop()
-    return summarize_soak(rows, fps, log_path)
+    return {**summarize_soak(rows, fps, log_path), "cpu_share_total": round(cpu_total, 3)}
 
 
 def read_soak_log(path: Path) -> list[dict]:
@@ -294,7 +296,8 @@ def _print_soak(s: dict) -> None:
           f"{s['p99_first_quarter_ms']:.1f} ms, last quarter {s['p99_last_quarter_ms']:.1f} ms; mean rate "
           + ", ".join(f"{v:.2f}" for v in s["mean_hz"].values()) + f" Hz (target {s['fps_target']:g}), "
           "frames behind at the end " + ", ".join(f"{v:.0f}" for v in s["behind_frames"].values())
-          + f", median load {s['load1_median']:.2f}, median CPU share {s['cpu_share_median']:.2f} CPU-s/s")
+          + f", median load {s['load1_median']:.2f}, median CPU share {s['cpu_share_median']:.2f} CPU-s/s"
+          + (f", whole soak {s['cpu_share_total']:.2f} CPU-s/s" if "cpu_share_total" in s else ""))
 
 
 def from_log(args) -> int:

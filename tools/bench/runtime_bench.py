@@ -121,6 +121,9 @@ def fp32_package(pkg, work: Path):
         run = pkg.manifest.get("training", {}).get("run")
         run = (ROOT / run) if run and not Path(run).is_absolute() else (Path(run) if run else None)
         if run is None or not (run / "best.pt").is_file():
+            half = _half_weights_package(pkg, folder, info)
+            if half is not None:
+                return half
             return None, f"fp32 graph neither in the build cache ({cached}) nor regenerable (fit run {run} has no best.pt); " + (
                 f"rebuild the package with its recipe: tensortouch train all --recipe {pkg.folder / 'manifest.json'}"
                 if pkg.manifest.get("training", {}).get("recipe") else
@@ -149,6 +152,64 @@ def fp32_package(pkg, work: Path):
     return load_package(folder), source
 
 
+KEEP_FIELDS = 100     # fields kept per configuration for the stage comparison
+
+
+def stage_ratios(fields: list[np.ndarray], cal, cfg, rounds: int = 5) -> dict:
+    """The stages changed for issue #44 before and now, on the same fields: ms per frame of the frozen
+    previous core (tools/bench/previous_stages.py) and of the current one, and previous / current.
+    Each frame runs through both, alternating, `rounds` times; a frame's time is its fastest round (load
+    from other processes only ever adds), and a stage's figure is the mean of those over the frames.
+    `contacts` = pixel forces + clustering (before tracking); `fields_encoding` = contracts.wire.encode_fields
+    (the bulk of `publish`)."""
+    from ...contracts import wire
+    from ...runtime.pipeline import contact_stage
+    from . import previous_stages as previous
+
+    if not fields:
+        return {"frames": 0}
+    pairs = {"contacts": (lambda f: previous.contact_stage(f, cal, cfg), lambda f: contact_stage(f, cal, cfg)),
+             "fields_encoding": (lambda f: previous.encode_fields(f, 0, 0.0, "bench-0"),
+                                 lambda f: wire.encode_fields(f, 0, 0.0, "bench-0"))}
+    out = {"frames": len(fields), "frames_with_clusters": sum(bool(contact_stage(f, cal, cfg)) for f in fields)}
+    for name, fns in pairs.items():
+        best = np.full((2, len(fields)), np.inf)
+        for r in range(rounds):
+            for i, f in enumerate(fields):
+                for j in ((0, 1) if r % 2 == 0 else (1, 0)):
+                    t0 = time.perf_counter()
+                    fns[j](f)
+                    best[j, i] = min(best[j, i], time.perf_counter() - t0)
+        before, now = 1e3 * best.mean(axis=1)
+        out[name] = {"previous_ms": round(float(before), 4), "current_ms": round(float(now), 4),
+                     "ratio": round(float(before / now), 2)}
+    return out
+
+
+def _half_weights_package(pkg, folder: Path, info: dict):
+    """(package, source) running the package's shipped fp32 graph with float16-stored weights
+    (`model.fp32-half.onnx`, tools/train/export.py `half_weights`) as its fp32 model, or None when it
+    ships none. Computed in float32 at fp32 speed; its outputs differ from the exact fp32 graph's by the
+    weight rounding, whose PSNR the export measured (manifest metrics.fp32_half)."""
+    import shutil
+
+    from ...runtime.stages.model import PRECISION_FILES, load_package
+    from ..train.package import FP32_HALF
+
+    if not (pkg.folder / FP32_HALF).is_file():
+        return None
+    shutil.copyfile(pkg.folder / FP32_HALF, folder / PRECISION_FILES["fp32"])
+    for name in (FP32_HALF, PRECISION_FILES["int8"]):
+        shutil.copyfile(pkg.folder / name, folder / name)
+    man = json.loads((pkg.folder / "manifest.json").read_text())
+    man["files"] = {**man["files"], PRECISION_FILES["fp32"]: dict(man["files"][FP32_HALF])}
+    (folder / "manifest.json").write_text(json.dumps(man))
+    psnr = man.get("metrics", {}).get("fp32_half", {}).get("vs_fp32_psnr_min")
+    return load_package(folder), ("the package's fp32 graph with float16-stored weights (computed in float32; "
+                                  + (f"min PSNR vs the exact fp32 graph at export {psnr:.1f} dB" if psnr is not None
+                                     else "identical to the exact fp32 graph at export") + f"; exact one: {info.get('regenerate', '')})")
+
+
 class _Config:
     """One (model, precision) frame loop of the benchmark, run in chunks alternating with the others."""
 
@@ -166,6 +227,12 @@ class _Config:
         self.loop.latency = LatencyWindow(10 ** 6)
         self.loop.frames = 0
         self.wall = self.cpu = self.cpu_all = 0.0
+        self.fields: list[np.ndarray] = []          # the first timed frames' fields (stage_ratios)
+        self.loop.on_result = self._keep
+
+    def _keep(self, result) -> None:
+        if result.fields is not None and len(self.fields) < KEEP_FIELDS:
+            self.fields.append(result.fields.copy())
 
     def chunk(self, n: int) -> None:
         t0, c0, p0 = time.perf_counter(), time.thread_time(), time.process_time()
@@ -193,7 +260,7 @@ def run(args) -> int:
     cv2.setNumThreads(1)           # as `tensortouch run` does: one core for the whole sensor loop
 
     sizes = [int(s) for s in args.sizes.split(",")]
-    results, notes = {}, []
+    results, notes, stages = {}, [], {}
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -220,6 +287,8 @@ def run(args) -> int:
                     for c in configs.values():
                         c.chunk(n)
                     done += n
+                q = configs[f"{size}/int8"]
+                stages[size] = stage_ratios(q.fields, q.pipe.cal, q.pipe.cfg.contacts)
                 for key, c in configs.items():
                     c.close()
                     results[key] = {**c.result(), "model": pkg.name, "synthetic": synthetic, "params": params}
@@ -255,12 +324,21 @@ def run(args) -> int:
             print(f"  {size}² int8, fields every {args.fields_every}th frame (wrench/contacts every frame): "
                   f"{r['hz']:.1f} frames/s, CPU/frame {r['cpu_ms_per_frame']:.2f} ms, publish p50 "
                   f"{r['stages']['publish']['p50_ms']:.3f} ms vs {q['stages']['publish']['p50_ms']:.3f} ms")
+    print("\nchanged stages, previous → current core on the same fields (int8 run's first "
+          f"{KEEP_FIELDS} frames, alternating, each frame's fastest of 5 rounds; tools/bench/previous_stages.py):")
+    for size, st in stages.items():
+        if not st["frames"]:
+            print(f"  {size}²: no frame with fields was kept (baseline never ready)")
+        for name in ("contacts", "fields_encoding") if st["frames"] else ():
+            v = st[name]
+            print(f"  {size}² {name:<16} {v['previous_ms']:.3f} → {v['current_ms']:.3f} ms/frame (×{v['ratio']:.2f}); "
+                  f"{st['frames']} frames, {st['frames_with_clusters']} with clusters")
     shipped = f"{max(sizes)}/int8"
     summary = {"config": shipped, "end_to_end_hz": round(results[shipped]["hz"], 2),
                "p99_ms": results[shipped]["stages"]["end_to_end"]["p99_ms"],
                "cpu_ms_per_frame": round(results[shipped]["cpu_ms_per_frame"], 3),
                "synthetic_weights": results[shipped]["synthetic"], "load_average": [load_before[0], load_after[0]],
-               "fp32_source": notes, "results": results}
+               "fp32_source": notes, "results": results, "stages_previous_vs_current": stages}
     if args.json:
         print(json.dumps(summary))
     return 0

@@ -28,7 +28,7 @@ import numpy as np
 from ...contracts.errors import ModelPackageError
 from ...contracts.names import confined
 from .model.network_input import IN_CHANS
-from .package import (FP32, INT8, atomic_copy, build_manifest, repo_relative, verify_package,
+from .package import (FP32, FP32_HALF, INT8, atomic_copy, build_manifest, repo_relative, verify_package,
                                  write_package)
 
 log = logging.getLogger(__name__)
@@ -56,6 +56,10 @@ class ExportConfig:
     hybrid_static_op_types: tuple[str, ...] = ("Conv",)       # static ops of scheme "hybrid"
     quantize_activation_matmul: bool = False   # attention q·kᵀ and p·v (no weight input) stay fp32
     with_fp32: bool = False              # ship model.fp32.onnx inside the package (default: build cache)
+    # ship model.fp32-half.onnx (the fp32 graph with float16-stored weights, half its size) when the exact
+    # fp32 graph is not shipped, so that `bench runtime` and the parity check run from a clean checkout
+    fp32_half: bool = True
+    half_min_elements: int = 1024        # initializers at least this large are stored as float16
     latency_runs: int = 50
     latency_warmup: int = 5
     latency_threads: int = 1
@@ -224,6 +228,49 @@ def regenerate_command(run: str | Path, data: str | Path, name: str, models_root
                        "--models-dir", repo_relative(Path(models_root)), "--with-fp32"])
 
 
+def half_weights(fp32_path: str | Path, out_path: str | Path,
+                 min_elements: int = ExportConfig.half_min_elements) -> dict:
+    """The fp32 graph with every float32 initializer of at least `min_elements` values stored as float16,
+    each followed by a Cast back to float32: the graph still computes in float32 (ONNX Runtime folds the
+    casts when the session starts, so it runs at fp32 speed) with weights rounded to float16 (relative
+    error ≤ 2⁻¹¹, far below int8's). An initializer that float16 cannot hold (|w| > 65504, or a nonzero
+    weight that would become 0) stays float32. Returns {"converted", "kept", "bytes"}."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    model = onnx.load(str(fp32_path))
+    g = model.graph
+    inits, casts, converted, kept = [], [], 0, 0
+    names = {i.name for i in g.initializer} | {n for node in g.node for n in node.output}
+    for init in g.initializer:
+        if init.data_type != TensorProto.FLOAT or int(np.prod(init.dims)) < min_elements:
+            inits.append(init)
+            continue
+        w = numpy_helper.to_array(init)
+        h = w.astype(np.float16)
+        if not np.isfinite(h).all() or np.any((h == 0) & (w != 0)):
+            inits.append(init)
+            kept += 1
+            continue
+        stored = f"{init.name}__float16"
+        while stored in names:
+            stored += "_"
+        names.add(stored)
+        inits.append(numpy_helper.from_array(h, stored))
+        casts.append(helper.make_node("Cast", [stored], [init.name], to=TensorProto.FLOAT,
+                                      name=f"{stored}__to_float32"))
+        converted += 1
+    del g.initializer[:]
+    g.initializer.extend(inits)
+    nodes = casts + list(g.node)
+    del g.node[:]
+    g.node.extend(nodes)
+    onnx.checker.check_model(model)
+    out_path = Path(out_path)
+    onnx.save(model, str(out_path))
+    return {"converted": converted, "kept": kept, "bytes": out_path.stat().st_size}
+
+
 def count_quantize_nodes(path: str | Path) -> int:
     """Quantization nodes (static QuantizeLinear and per-frame DynamicQuantizeLinear) in a graph."""
     import onnx
@@ -289,11 +336,26 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
                                     "quantization_pick": cfg.quantization_pick,
                                     "int8_vs_fp32_force_n": rep.get("int8_vs_fp32_force_n")}}
         shipped = (INT8, FP32) if cfg.with_fp32 else (INT8,)
+        made = {FP32: fp32, INT8: int8}
+        if cfg.fp32_half and not cfg.with_fp32:
+            half = Path(tmp) / FP32_HALF
+            info_half = half_weights(fp32, half, cfg.half_min_elements)
+            y32 = run_model(session(fp32, 2), x_va.astype(np.float32) / 255.0)
+            yh = run_model(session(half, 2), x_va.astype(np.float32) / 255.0)
+            from .model.metrics import psnr_per_modality
+
+            # identical outputs have an infinite PSNR: recorded as null (JSON has no infinity)
+            vs = {k: (float(v) if np.isfinite(v) else None) for k, v in psnr_per_modality(yh, y32).items()}
+            finite = [v for v in vs.values() if v is not None]
+            metrics["fp32_half"] = {**info_half, "fp32_bytes": fp32.stat().st_size, "vs_fp32_psnr": vs,
+                                    "vs_fp32_psnr_min": min(finite) if finite else None}
+            made[FP32_HALF] = half
+            shipped = (INT8, FP32_HALF)
         cache = None
         if not cfg.with_fp32:
             cache = fp32_cache_path(run, name)
             atomic_copy(fp32, cache)
-        man = build_manifest(name, size, bounds, {FP32: fp32, INT8: int8}, command, dhash, metrics,
+        man = build_manifest(name, size, bounds, made, command, dhash, metrics,
                              wall_time_s, shipped=shipped, run=run, fp32_cache=cache,
                              regenerate=regenerate_command(run, data, name, models_root))
         if previous and previous.get("command") != command:
@@ -301,8 +363,7 @@ def export_run(run: str | Path, data: str | Path, name: str, models_root: str | 
         places = run_places(run)          # device, precision, torch, threads of the runs behind the weights
         if places:
             man["training"]["run_place"] = places
-        folder = write_package(models_root, name, {k: p for k, p in ((FP32, fp32), (INT8, int8)) if k in shipped},
-                               man)
+        folder = write_package(models_root, name, {k: p for k, p in made.items() if k in shipped}, man)
     verify_package(folder)
     df = rep.get("int8_vs_fp32_force_n")
     log.info("packaged %s (%s): PSNR fp32 %.2f int8 %.2f dB, latency fp32 %.2f int8 %.2f ms%s%s", folder,

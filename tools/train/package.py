@@ -26,6 +26,9 @@ from ...contracts.files import atomic_write, atomic_write_json
 SCHEMA = "tensortouch.model"
 SCHEMA_VERSION = 1
 FP32, INT8 = "model.fp32.onnx", "model.int8.onnx"
+# the fp32 graph with its large weights stored as float16 and cast to float32 in the graph: what a package
+# ships so that int8 can be compared with fp32 from a clean checkout (tools/train/export.py `half_weights`)
+FP32_HALF = "model.fp32-half.onnx"
 
 
 def sha256_file(path: str | Path) -> str:
