@@ -25,7 +25,7 @@ def _doc(**sets):
 
 
 def _cli(*args, cwd=None):
-    r = subprocess.run([sys.executable, "-m", "tensortouch", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
+    r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
     return r.returncode, [ln for ln in r.stdout.splitlines() + r.stderr.splitlines() if ln.strip()]
 
 
@@ -57,14 +57,14 @@ def test_a_unit_in_two_sets_is_refused():
 
 def test_seed_ranges_and_seeds():
     with pytest.raises(P.ProtocolError, match="overlap"):
-        P.parse_protocol(_doc(sealed={"seeds": [150, 160], "units": [{"serial": "TWIN-Z01", "seed": 300, "pokes": 8}]}),
+        P.parse_protocol(_doc(sealed={"seeds": [150, 160], "units": [{"serial": "TWIN-Q01", "seed": 300, "pokes": 8}]}),
                          "p.toml")
     with pytest.raises(P.ProtocolError, match="outside the set's seed range"):
-        P.parse_protocol(_doc(sealed={"seeds": [7000, 7999], "units": [{"serial": "TWIN-Z01", "seed": 8000, "pokes": 8}]}),
+        P.parse_protocol(_doc(sealed={"seeds": [7000, 7999], "units": [{"serial": "TWIN-Q01", "seed": 8000, "pokes": 8}]}),
                          "p.toml")
-    with pytest.raises(P.ProtocolError, match="seed 7100 is used by TWIN-Z01 and by TWIN-Z02"):
+    with pytest.raises(P.ProtocolError, match="seed 7100 is used by TWIN-Q01 and by TWIN-Q02"):
         P.parse_protocol(_doc(sealed={"seeds": [7000, 7999], "units": [
-            {"serial": "TWIN-Z01", "seed": 7100, "pokes": 8}, {"serial": "TWIN-Z02", "seed": 7100, "pokes": 8}]}), "p.toml")
+            {"serial": "TWIN-Q01", "seed": 7100, "pokes": 8}, {"serial": "TWIN-Q02", "seed": 7100, "pokes": 8}]}), "p.toml")
     doc = _doc()
     doc["distribution"]["indenters"] = ["sphere5", "spoon"]
     with pytest.raises(P.ProtocolError, match="distribution.indenters"):
@@ -73,12 +73,13 @@ def test_seed_ranges_and_seeds():
 
 def test_recipes_against_the_protocol():
     p = P.load_protocol()
+    sealed = p.units["sealed"][0].serial          # named only by the protocol file
     ok = {"train": [{"serial": "TWIN-T01", "seed": 101}], "heldout": [{"serial": "TWIN-H01", "seed": 201},
                                                                        {"serial": "TWIN-S02", "seed": 12}]}
     P.check_recipe_sessions(p, ok, "r.toml")
     bad = [({"train": [{"serial": "TWIN-H02", "seed": 210}]}, "TWIN-H02 is a validation unit"),
            ({"heldout": [{"serial": "TWIN-T05", "seed": 108}]}, "TWIN-T05 is a train unit"),
-           ({"heldout": [{"serial": "TWIN-Z01", "seed": 250}]}, "TWIN-Z01 is a sealed unit"),
+           ({"heldout": [{"serial": sealed, "seed": 250}]}, f"{sealed} is a sealed unit"),
            ({"train": [{"serial": "TWIN-S01", "seed": 7500}]}, "in the sealed set's range"),
            ({"train": [{"serial": "TWIN-T01", "seed": 250}]}, "seed must be in [100, 199]")]
     for sessions, want in bad:
@@ -87,10 +88,11 @@ def test_recipes_against_the_protocol():
 
 
 def test_recipe_naming_a_sealed_unit_exits_2_one_line(tmp_path):
+    u = P.load_protocol().units["sealed"][2]
     r = tmp_path / "r.toml"
-    r.write_text('name = "n"\n[sessions]\ntrain = [{serial = "TWIN-Z03", seed = 7103, pokes = 5}]\n')
+    r.write_text(f'name = "n"\n[sessions]\ntrain = [{{serial = "{u.serial}", seed = 150, pokes = 5}}]\n')
     rc, lines = _cli("train", "all", "--recipe", str(r), "--root", str(tmp_path / "b"))
-    assert rc == 2 and len(lines) == 1 and "TWIN-Z03" in lines[0] and "sealed" in lines[0], lines
+    assert rc == 2 and len(lines) == 1 and u.serial in lines[0] and "sealed unit" in lines[0], lines
 
 
 def test_units_check_cli():
@@ -227,7 +229,7 @@ def test_fit_seed_spread_by_hand():
     hs = [{"force_mae_n": v, "miss_rate": 0.1} for v in (0.2, 0.3, 0.4)]
     s = S.fit_seed_spread(hs)
     assert s["force_mae_n"]["mean"] == pytest.approx(0.3) and s["force_mae_n"]["sd"] == pytest.approx(0.1)
-    assert s["force_mae_n"]["min"] == 0.2 and s["force_mae_n"]["max"] == 0.4 and s["miss_rate"]["sd"] == 0.0
+    assert s["force_mae_n"]["min"] == 0.2 and s["force_mae_n"]["max"] == 0.4 and s["miss_rate"]["sd"] == pytest.approx(0.0)
 
 
 def test_recipe_key_ignores_fit_seed_only():

@@ -115,6 +115,10 @@ def expand_units(spec, set_name: str, where: str) -> list[Unit]:
 def check_sets(units: dict[str, list[Unit]], ranges: dict[str, tuple[int, int]], where: str) -> None:
     """The sets as a whole: a unit in one set only, every seed used once and inside its set's range,
     the ranges pairwise disjoint. Raises ProtocolError naming the unit, seed or ranges."""
+    for a, b in itertools.combinations(ranges, 2):
+        (alo, ahi), (blo, bhi) = ranges[a], ranges[b]
+        if alo <= bhi and blo <= ahi:
+            raise ProtocolError(f"{where}: the seed ranges of {a!r} [{alo}, {ahi}] and {b!r} [{blo}, {bhi}] overlap")
     owner: dict[str, str] = {}
     seeds: dict[int, str] = {}
     for name, us in units.items():
@@ -130,10 +134,6 @@ def check_sets(units: dict[str, list[Unit]], ranges: dict[str, tuple[int, int]],
             if not lo <= u.seed <= hi:
                 raise ProtocolError(f"{where}: unit {u.serial} of set {name!r} has seed {u.seed}, outside the "
                                     f"set's seed range [{lo}, {hi}]")
-    for a, b in itertools.combinations(ranges, 2):
-        (alo, ahi), (blo, bhi) = ranges[a], ranges[b]
-        if alo <= bhi and blo <= ahi:
-            raise ProtocolError(f"{where}: the seed ranges of {a!r} [{alo}, {ahi}] and {b!r} [{blo}, {bhi}] overlap")
 
 
 def _check_distribution(dist, where: str) -> None:
