@@ -39,14 +39,23 @@ def test_shipped_protocol_sets_and_distribution():
     # one distribution: every session of every set has the same ranges, only the indenter pair differs
     for name in P.SET_NAMES:
         specs = p.sessions(name)
-        base = {k: v for k, v in specs[0].trajectory.items() if k != "indenters"}
-        assert all({k: v for k, v in s.trajectory.items() if k != "indenters"} == base for s in specs)
+        base = {k: v for k, v in specs[0]["trajectory"].items() if k != "indenters"}
+        assert all({k: v for k, v in s["trajectory"].items() if k != "indenters"} == base for s in specs)
         # six units in a row hold the six pairs of the four indenters: each indenter on three of them
-        pairs = [tuple(s.trajectory["indenters"]) for s in specs[:6]]
+        pairs = [tuple(s["trajectory"]["indenters"]) for s in specs[:6]]
         assert len(set(pairs)) == 6
         for ind in ("sphere5", "sphere3", "flat4", "cylinder3"):
             assert sum(ind in pr for pr in pairs) == 3
-    assert p.sessions("validation")[0].trajectory["p_two"] == 0.35
+    assert p.sessions("validation")[0]["trajectory"]["p_two"] == 0.35
+    # what a recipe's session takes, and what the twin records from it
+    from tensortouch.tools.train.build import config_from_dict
+    from tensortouch.tools.train.units import set_sessions
+
+    spec = set_sessions(p, "validation", first=1, pokes=3)[0]
+    assert spec.pokes == 3 and spec.world == "rig"
+    rc = spec.record_config("hertz-fallback", 64)
+    assert rc.trajectory.p_two == 0.35 and rc.trajectory.indenters == ("sphere5", "sphere3")
+    config_from_dict({"heldout": p.sessions("validation", first=2)}, "r.toml")
 
 
 def test_a_unit_in_two_sets_is_refused():

@@ -48,12 +48,12 @@ def unit_targets(protocol, name: str, root: Path, check_whole: bool) -> list[tup
     from ...contracts.errors import TensorTouchError
     from ...contracts.session import load_session
     from ...contracts.store import CalibrationStore
-    from .units import set_paths
+    from .units import set_paths, set_sessions
 
     sessions, store_root = set_paths(root, name)
     store = CalibrationStore(store_root)
     out = []
-    for spec in protocol.sessions(name):
+    for spec in set_sessions(protocol, name):
         path = sessions / spec.name
         if not (path / "session.json").is_file():
             if check_whole:

@@ -5,7 +5,7 @@ score log.
 - `load_protocol(path)` reads and checks the file: a unit in one set only, unique seeds, each unit's
   seed inside its set's declared range, the ranges pairwise disjoint, the distribution's fields those of
   tools.twin.trajectory.TrajectoryConfig. Any problem is one ProtocolError line (exit 2 in the CLI).
-- `Protocol.sessions(set)` → the set's `SessionSpec`s (tools/train/build.py): what `twin record` plays.
+- `Protocol.sessions(set)` → the set's sessions as SessionSpec fields (tools/train/build.py).
 - `check_recipe_sessions(protocol, sessions, where)`: a recipe trains on train units only, holds out
   validation units only, never names a sealed unit or a seed in the sealed range.
 - `log_sealed_score(package, ...)`: the sealed set is scored once per package (its weights' sha256);
@@ -63,19 +63,17 @@ class Protocol:
         dist["indenters"] = list(unit_pairs(dist["indenters"])[index % len(unit_pairs(dist["indenters"]))])
         return dist
 
-    def sessions(self, name: str, first: int | None = None, pokes: int | None = None) -> list:
-        """The set's sessions (SessionSpec): every unit, or the first `first`; `pokes` keeps only the first
-        that many pokes of each plan (a plan's first n pokes do not depend on its length)."""
-        from .build import SessionSpec
-
+    def sessions(self, name: str, first: int | None = None, pokes: int | None = None) -> list[dict]:
+        """The set's sessions as SessionSpec fields (tools/train/build.py): every unit, or the first
+        `first`; `pokes` keeps only the first that many pokes of each plan (a plan's first n pokes do not
+        depend on its length)."""
         if name not in self.units:
             raise ProtocolError(f"{self.source}: no set {name!r} (sets: {', '.join(SET_NAMES)})")
         qs = self.doc.get("qualities", [80])
-        out = []
-        for i, u in enumerate(self.units[name][:first]):
-            out.append(SessionSpec(u.serial, u.seed, min(u.pokes, pokes or u.pokes), self.doc.get("frames", "mjpg"),
-                                   int(qs[i % len(qs)]), self.trajectory(i), self.doc.get("world", "label")))
-        return out
+        return [{"serial": u.serial, "seed": u.seed, "pokes": min(u.pokes, pokes or u.pokes),
+                 "frames": self.doc.get("frames", "mjpg"), "quality": int(qs[i % len(qs)]),
+                 "trajectory": self.trajectory(i), "world": self.doc.get("world", "label")}
+                for i, u in enumerate(self.units[name][:first])]
 
 
 def unit_pairs(indenters) -> list[tuple[str, str]]:

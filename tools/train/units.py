@@ -42,6 +42,13 @@ def set_paths(root: Path, name: str) -> tuple[Path, Path]:
     return root / name / "sessions", root / name / "calibration_store"
 
 
+def set_sessions(protocol, name: str, first=None, pokes=None) -> list:
+    """The set's sessions as SessionSpec (tools/train/build.py)."""
+    from .build import SessionSpec
+
+    return [SessionSpec(**d) for d in protocol.sessions(name, first, pokes)]
+
+
 def record_set(protocol, name: str, root: Path, first=None, pokes=None, physics: str = "fe", size: int = 128) -> list[Path]:
     """Record the set's sessions (or the first units / pokes) with the twin; returns their folders."""
     from ..progress import stage_progress
@@ -54,7 +61,7 @@ def record_set(protocol, name: str, root: Path, first=None, pokes=None, physics:
         raise ProtocolError("units record sealed: the sealed set is recorded whole (no --first / --pokes)")
     sessions, store = set_paths(root, name)
     out = []
-    specs = protocol.sessions(name, first, pokes)
+    specs = set_sessions(protocol, name, first, pokes)
     for i, spec in enumerate(specs):
         path = sessions / spec.name
         rec = Recorder(spec.record_config(physics, size), path, progress=stage_progress(spec.name))
@@ -88,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{len(list(RECIPES_DIR.glob('*.toml')))} recipe(s) agree with it")
         elif args.action == "list":
             for name in ([args.set] if args.set else SET_NAMES):
-                for s in protocol.sessions(name):
+                for s in set_sessions(protocol, name):
                     print(f"{name:10s} {s.serial:10s} seed {s.seed:5d}  {s.pokes} pokes  "
                           f"{'+'.join(s.trajectory['indenters']):18s} q{s.quality}  world {s.world}")
         else:
