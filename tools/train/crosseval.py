@@ -95,9 +95,12 @@ def format_card(card: dict) -> str:
         return f"{s['mean'] * scale:.3g}{unit} [{lo * scale:.3g}, {hi * scale:.3g}]"
 
     def line(label, b):
+        if b["pokes"] < 2:      # one poke: no interval to speak of
+            b = {**b, **{k: {**v, "ci": [v.get("mean", 0.0)] * 2} for k, v in b.items() if isinstance(v, dict) and v.get("n")}}
+        note = "  (one poke: no CI)" if b["pokes"] < 2 else "  (one unit: CI over pokes only)" if b["units"] < 2 else ""
         return (f"  {label:18s} n={b['contacts']:<5d} units={b['units']:<3d} pokes={b['pokes']:<4d} "
                 f"miss {cell(b['miss_rate'], 100, '%')}  |F| MAE {cell(b['force_mae_n'], 1, ' N')}  "
-                f"dir {cell(b['direction_error_deg'], 1, '°')}  (misses as 0: {cell(b['force_mae_with_misses_n'], 1, ' N')})")
+                f"dir {cell(b['direction_error_deg'], 1, '°')}  (misses as 0: {cell(b['force_mae_with_misses_n'], 1, ' N')}){note}")
 
     o = card["overall"]
     out = [f"  {card['units']} units, {card['pokes']} pokes; phantoms {cell(o['phantom_rate'], 100, '%')} "
