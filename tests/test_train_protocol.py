@@ -283,3 +283,15 @@ def test_crosseval_scorecard_on_the_shipped_demo(tmp_path):
     assert doc["scorecards"][str(copy)]["overall"]["force_mae_n"] == o["force_mae_n"]
     (spread,) = doc["fit_seeds"].values()
     assert spread["force_mae_n"]["n"] == 2 and spread["force_mae_n"]["sd"] == 0.0
+
+
+def test_units_cli_bad_input_one_line(tmp_path):
+    for args, want in ((("record", "sealed", "--first", "2", "--root", str(tmp_path)), "recorded whole"),
+                       (("record", "validation", "--pokes", "0", "--root", str(tmp_path)), "--pokes 0"),
+                       (("list", "test"), "set 'test'")):
+        rc, lines = _cli("train", "units", *args)
+        assert rc == 2 and len(lines) == 1 and want in lines[0], (args, lines)
+    bad = tmp_path / "p.toml"
+    bad.write_text(P.PROTOCOL_FILE.read_text().replace("seeds = [200, 299]", "seeds = [150, 299]"))
+    rc, lines = _cli("train", "units", "check", "--protocol", str(bad))
+    assert rc == 2 and len(lines) == 1 and str(bad) in lines[0] and "overlap" in lines[0], lines

@@ -85,6 +85,9 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         protocol = load_protocol(args.protocol)
+        for flag, v in (("--first", args.first), ("--pokes", args.pokes), ("--size", args.size)):
+            if v is not None and v < 1:
+                raise TensorTouchError(f"units: {flag} {v}; expected a positive integer")
         if args.set is not None and args.set not in SET_NAMES:
             raise TensorTouchError(f"units: set {args.set!r}; expected one of {', '.join(SET_NAMES)}")
         if args.action == "check":
