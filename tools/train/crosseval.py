@@ -107,7 +107,8 @@ def format_card(card: dict) -> str:
            f"of {o['phantom_rate'].get('n', 0)} rest frames", line("all", o)]
     for group in ("by indenter", "by contacts", "by force"):
         for k, b in card[group].items():
-            out.append(line(k, b))
+            if b["contacts"]:
+                out.append(line(k, b))
     return "\n".join(out)
 
 
