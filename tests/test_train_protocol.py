@@ -295,3 +295,35 @@ def test_units_cli_bad_input_one_line(tmp_path):
     bad.write_text(P.PROTOCOL_FILE.read_text().replace("seeds = [200, 299]", "seeds = [150, 299]"))
     rc, lines = _cli("train", "units", "check", "--protocol", str(bad))
     assert rc == 2 and len(lines) == 1 and str(bad) in lines[0] and "overlap" in lines[0], lines
+
+
+def test_sealed_set_scored_once_end_to_end(tmp_path):
+    """A one-unit protocol (analytic twin physics, one poke): `units record sealed`, then `crosseval --units
+    sealed` scores a copy of the shipped package and logs it in the package; the second score is refused."""
+    import shutil
+
+    from tensortouch.contracts.paths import ROOT as REPO
+
+    model = REPO / "exported_models" / "hiera-qup-128"
+    if not (model / "manifest.json").is_file():
+        pytest.skip("no shipped model in this checkout")
+    proto = tmp_path / "p.toml"
+    proto.write_text('world = "label"\nframes = "png"\n[distribution]\nindenters = ["sphere5", "flat4"]\n'
+                     '[sets.train]\nseeds = [100, 199]\nunits = [{serial = "TWIN-QT1", seed = 101, pokes = 1}]\n'
+                     '[sets.validation]\nseeds = [200, 299]\nunits = [{serial = "TWIN-QV1", seed = 201, pokes = 1}]\n'
+                     '[sets.sealed]\nseeds = [7000, 7999]\nunits = [{serial = "TWIN-QS1", seed = 7001, pokes = 1}]\n')
+    root = tmp_path / "units"
+    rc, lines = _cli("train", "units", "record", "sealed", "--protocol", str(proto), "--root", str(root),
+                     "--physics", "hertz-fallback")
+    assert rc == 0, lines[-3:]
+    pkg = tmp_path / "pkg"
+    shutil.copytree(model, pkg)
+    args = ("train", "crosseval", "--package", str(pkg), "--units", "sealed", "--protocol", str(proto),
+            "--units-root", str(root), "--boot", "50")
+    rc, lines = _cli(*args)
+    assert rc == 0 and any("sealed score logged" in ln for ln in lines), lines[-5:]
+    (entry,) = json.loads((pkg / P.SEALED_LOG).read_text())
+    assert entry["units"] == ["TWIN-QS1-s7001"] and entry["protocol"] == P.load_protocol(proto).hash
+    assert set(entry["headline"]) == set(S.HEADLINE)
+    rc, lines = _cli(*args)
+    assert rc == 2 and len(lines) == 1 and "already scored on the sealed set" in lines[0], lines

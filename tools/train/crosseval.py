@@ -31,6 +31,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--package", action="append", required=True, help="model package folder (repeat)")
     ap.add_argument("--units", help="a protocol unit set as recorded by `train units record`: train | validation | sealed")
     ap.add_argument("--units-root", help="where recorded sets live (default <cache>/units)")
+    ap.add_argument("--protocol", help="protocol file of --units (default tools/train/protocol.toml)")
     ap.add_argument("--recipe", help="add this recipe build's held-out sessions (<cache>/train/<recipe name>/)")
     ap.add_argument("--session", action="append", default=[], help="a session folder (repeat, with --store)")
     ap.add_argument("--store", action="append", default=[], help="calibration store root for each --session")
@@ -134,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
             from .protocol import check_not_scored, load_protocol
             from .units import units_root
 
-            protocol = load_protocol()
+            protocol = load_protocol(args.protocol)
             targets += unit_targets(protocol, args.units, units_root(args.units_root), check_whole=sealed)
             if sealed:
                 for pk in args.package:
