@@ -8,6 +8,7 @@ score log.
 - `Protocol.sessions(set)` → the set's sessions as SessionSpec fields (tools/train/build.py).
 - `check_recipe_sessions(protocol, sessions, where)`: a recipe trains on train units only, holds out
   validation units only, never names a sealed unit or a seed in the sealed range.
+- `expand_recipe_sessions`: a recipe may take a set's sessions by name, `train = { set = "train", first = 12 }`.
 - `log_sealed_score(package, ...)`: the sealed set is scored once per package (its weights' sha256);
   the log is `<package>/sealed_scores.json`, a second score of the same package is refused.
 
@@ -214,6 +215,36 @@ def check_recipe_sessions(protocol: Protocol, sessions: dict, where: str) -> Non
             if owner != role.get(key):
                 raise ProtocolError(f"{at}: {serial} is a {owner} unit (tools/train/protocol.toml); "
                                     f"sessions.{key} takes {role.get(key, key)} units")
+
+
+RECIPE_SET_KEYS = {"set", "first", "pokes", "protocol"}
+
+
+def expand_recipe_sessions(protocol: Protocol, sessions: dict, where: str) -> dict:
+    """A recipe's [sessions] with each table form `{set = "train", first = 12, pokes = 8, protocol = HASH}`
+    replaced by that set's sessions (`Protocol.sessions`): `train` takes the train set, `heldout` the
+    validation set, never the sealed one; `protocol`, when given, must be the protocol file's hash (the
+    sessions it names are then the ones the recipe was written against). Lists pass unchanged."""
+    role = {"train": "train", "heldout": "validation"}
+    out = {}
+    for key, v in (sessions or {}).items():
+        if not isinstance(v, dict):
+            out[key] = v
+            continue
+        at = f"{where}: sessions.{key}"
+        if not set(v) <= RECIPE_SET_KEYS or "set" not in v:
+            raise ProtocolError(f"{at}: a table of sessions takes set (and optionally first, pokes, protocol), "
+                                f"got {sorted(v)}")
+        if v["set"] != role.get(key):
+            raise ProtocolError(f"{at}: set = {v['set']!r}; sessions.{key} takes the {role.get(key, key)} set")
+        for k in ("first", "pokes"):
+            if k in v and (not isinstance(v[k], int) or isinstance(v[k], bool) or v[k] < 1):
+                raise ProtocolError(f"{at}.{k}: expected a positive integer, got {v[k]!r}")
+        if "protocol" in v and v["protocol"] != protocol.hash:
+            raise ProtocolError(f"{at}.protocol = {v['protocol']!r}, but {protocol.source} is now {protocol.hash}: "
+                                "the unit sets changed since the recipe was written")
+        out[key] = protocol.sessions(v["set"], v.get("first"), v.get("pokes"))
+    return out
 
 
 # ----- the sealed set's score log -------------------------------------------------------------------

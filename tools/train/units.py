@@ -80,7 +80,7 @@ def record_set(protocol, name: str, root: Path, first=None, pokes=None, physics:
 
 def run(args: argparse.Namespace) -> int:
     from ...contracts.errors import TensorTouchError
-    from .protocol import SET_NAMES, check_recipe_sessions, load_protocol
+    from .protocol import SET_NAMES, check_recipe_sessions, expand_recipe_sessions, load_protocol
     from .recipe import RECIPES_DIR, load_recipe
 
     try:
@@ -92,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
             raise TensorTouchError(f"units: set {args.set!r}; expected one of {', '.join(SET_NAMES)}")
         if args.action == "check":
             for path in sorted(RECIPES_DIR.glob("*.toml")):
-                check_recipe_sessions(protocol, load_recipe(path).doc.get("sessions") or {}, str(path))
+                sessions = expand_recipe_sessions(protocol, load_recipe(path).doc.get("sessions") or {}, str(path))
+                check_recipe_sessions(protocol, sessions, str(path))
             n = {k: len(v) for k, v in protocol.units.items()}
             print(f"protocol {protocol.hash}: {n} units, seed ranges {protocol.seed_ranges}; "
                   f"{len(list(RECIPES_DIR.glob('*.toml')))} recipe(s) agree with it")
