@@ -114,7 +114,7 @@ def _sums(cid: np.ndarray, n: int, value: np.ndarray, mask: np.ndarray) -> tuple
 def force_bin(mag: float) -> str:
     for lo, hi in zip(FORCE_BINS[:-1], FORCE_BINS[1:]):
         if lo <= mag < hi:
-            return f"{lo:g}-{hi:g} N"
+            return f"{lo:g}-{hi:g} N" if np.isfinite(hi) else f">= {lo:g} N"
     return "below"
 
 
