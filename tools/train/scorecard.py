@@ -175,20 +175,17 @@ def session_table(unit: str, result: dict, names: dict[int, str], cfg: ScoreConf
     mags = np.array([f["meas_mags"] for f in fr], float).reshape(len(fr), -1)
     poke = poke_segments(t, (mags >= cfg.contact_n).any(1), cfg.merge_s)
     frame_poke = {f["frame"]: int(p) for f, p in zip(fr, poke)}
+    at = {f["frame"]: i for i, f in enumerate(fr)}
     rows = [r for r in result["rows"] if np.linalg.norm(r["meas_force"]) >= cfg.contact_n]
     contacts = {"unit": [unit] * len(rows), "poke": [frame_poke[r["frame"]] for r in rows],
                 "indenter": [names.get(r["indenter"], str(r["indenter"])) for r in rows],
-                "n_contact": [int((mags[_pos(fr, r["frame"])] >= cfg.contact_n).sum()) for r in rows],
+                "n_contact": [int((mags[at[r["frame"]]] >= cfg.contact_n).sum()) for r in rows],
                 "meas": [r["meas_force"] for r in rows], "pred": [r["pred_force"] for r in rows],
                 "miss": [r["miss"] for r in rows]}
     free = [(f, p) for f, p in zip(fr, poke) if f["fields"] and max(f["meas_mags"], default=0.0) < cfg.free_n]
     rest = {"unit": [unit] * len(free), "poke": [int(p) for _, p in free],
             "phantom": [max(f["cluster_forces"], default=0.0) > cfg.phantom_n for f, _ in free]}
     return contacts, rest
-
-
-def _pos(frames: list[dict], frame: int) -> int:
-    return next(i for i, f in enumerate(frames) if f["frame"] == frame)
 
 
 def concat_tables(tables: list[tuple[dict, dict]]) -> tuple[dict, dict]:
