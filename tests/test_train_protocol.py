@@ -74,6 +74,9 @@ def test_seed_ranges_and_seeds():
     with pytest.raises(P.ProtocolError, match="seed 7100 is used by TWIN-Q01 and by TWIN-Q02"):
         P.parse_protocol(_doc(sealed={"seeds": [7000, 7999], "units": [
             {"serial": "TWIN-Q01", "seed": 7100, "pokes": 8}, {"serial": "TWIN-Q02", "seed": 7100, "pokes": 8}]}), "p.toml")
+    with pytest.raises(P.ProtocolError, match="serial"):
+        P.parse_protocol(_doc(sealed={"seeds": [7000, 7999], "units": [{"serial": "../up", "seed": 7100, "pokes": 8}]}),
+                         "p.toml")
     doc = _doc()
     doc["distribution"]["indenters"] = ["sphere5", "spoon"]
     with pytest.raises(P.ProtocolError, match="distribution.indenters"):

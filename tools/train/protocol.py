@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...contracts.errors import TensorTouchError
+from ...contracts.names import check_name
 
 PROTOCOL_FILE = Path(__file__).resolve().parent / "protocol.toml"
 SET_NAMES = ("train", "validation", "sealed")
@@ -105,6 +106,7 @@ def expand_units(spec, set_name: str, where: str) -> list[Unit]:
     for i, u in enumerate(spec):
         if not isinstance(u, dict) or set(u) != {"serial", "seed", "pokes"} or not isinstance(u["serial"], str):
             raise ProtocolError(f"{where}[{i}]: expected {{serial, seed, pokes}}, got {u!r}"[:300])
+        check_name(u["serial"], f"{where}[{i}].serial (it names folders)", ProtocolError)
         if integer(u["pokes"], f"[{i}].pokes") < 1:
             raise ProtocolError(f"{where}[{i}].pokes: expected at least 1")
         out.append(Unit(u["serial"], integer(u["seed"], f"[{i}].seed"), u["pokes"], set_name))
