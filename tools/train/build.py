@@ -240,7 +240,8 @@ def tiny_config(name: str = "tiny-smoke", build: str = "tiny") -> BuildConfig:
 def config_from_dict(d: dict, where: str) -> BuildConfig:
     """BuildConfig from a recipe step's fields, checked before anything runs: unknown fields, every
     field by its type in BuildConfig / SessionSpec and its range in BUILD_LIMITS / SESSION_LIMITS,
-    the words of CHOICES, each session's trajectory ranges. Any problem is one RecipeError line."""
+    the words of CHOICES, each session's trajectory ranges, its units against the evaluation protocol's
+    sets (tools/train/protocol.py). Any problem is one RecipeError line."""
     from dataclasses import fields
 
     from ...contracts.schema import SchemaError, check_depth, check_fields
@@ -253,6 +254,13 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
     if unknown:
         raise RecipeError(f"{where}: unknown build field(s) {unknown}; expected some of {sorted(known)}")
     spec_keys = {f.name for f in fields(SessionSpec)}
+    from .protocol import ProtocolError, check_recipe_sessions, expand_recipe_sessions, load_protocol
+
+    try:    # sessions named by a protocol set (tools/train/protocol.py), then checked as any others
+        protocol = load_protocol()
+        d = {**d, **expand_recipe_sessions(protocol, {k: d[k] for k in ("train", "heldout") if k in d}, where)}
+    except ProtocolError as exc:
+        raise RecipeError(str(exc)) from None
     try:
         check_depth(d, where)
         for k, allowed in CHOICES.items():
@@ -275,6 +283,10 @@ def config_from_dict(d: dict, where: str) -> BuildConfig:
                     _check_trajectory(spec["trajectory"], f"sessions.{k}[{i}].trajectory")
     except SchemaError as exc:
         raise RecipeError(f"{where}: {exc}") from None
+    try:    # the evaluation protocol's unit sets: train units train, validation units are held out, sealed unseen
+        check_recipe_sessions(protocol, {k: d.get(k) for k in ("train", "heldout")}, where)
+    except ProtocolError as exc:
+        raise RecipeError(str(exc)) from None
     return BuildConfig.from_dict(d)
 
 

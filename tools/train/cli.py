@@ -26,7 +26,10 @@ TOOLS = (
     ("threshold", "tensortouch.tools.train.threshold",
      "measure a package's contact thresholds, light-touch rule and merging on sessions (--write), or --check them"),
     ("crosseval", "tensortouch.tools.train.crosseval",
-     "several packages side by side on held-out sessions through the runtime: detection, |F| MAE, phantoms"),
+     "packages side by side on held-out sessions or a protocol unit set through the runtime: detection, "
+     "phantoms, |F| MAE and direction with bootstrap CIs"),
+    ("units", "tensortouch.tools.train.units",
+     "the evaluation protocol's train / validation / sealed unit sets: check them and the recipes, list, record"),
     ("resolve-check", "tensortouch.tools.train.resolve_check",
      "twin-only check of stage 2: FE re-solved from measured keypoints against the twin's own solves"),
     ("rig-estimate", "tensortouch.tools.train.rig_estimate",

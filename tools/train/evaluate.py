@@ -94,7 +94,8 @@ def has_phantom(clusters: list, frame_rows: list[dict], cfg: EvalConfig = EvalCo
 
 def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalConfig(), keep_fields_at=None) -> dict:
     """Replay a session through the runtime (runtime.offline.replay_session); returns rows, rest
-    forces, per-frame traces."""
+    forces, per-frame traces, per frame the measured |F| per indenter and the clusters' |F| ("frames",
+    what tools.train.scorecard scores), and the indenter names by id."""
     from ...runtime.offline import replay_session
     from ...contracts.session import load_session
     from ..sessions.writer import read_frames
@@ -103,13 +104,16 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
     frames = ses.table("frames")
     meas = measured_at(ses, frames[:, 0])
     ids = sorted(meas)
-    rows, rest, trace, kept, phantoms = [], [], [], None, []
+    rows, rest, trace, kept, phantoms, per_frame = [], [], [], None, [], []
     for i, res in enumerate(replay_session(ses, package, calibration, precision=cfg.precision, threads=cfg.threads)):
         t = res.t
         tips = np.array([meas[k]["tip"][i] for k in ids])
         forces = np.array([meas[k]["force"][i] for k in ids])
         trace.append({"t": t, "meas": forces.sum(0).tolist(), "pred": res.force_n.tolist(),
                       "state": res.state, "n_clusters": len(res.clusters)})
+        per_frame.append({"frame": i, "t": t, "fields": res.fields is not None,
+                          "meas_mags": np.linalg.norm(forces, axis=1).tolist(),
+                          "cluster_forces": [float(c.force_mag_n) for c in res.clusters]})
         if res.fields is None:
             continue
         if keep_fields_at is not None and i == keep_fields_at:
@@ -124,7 +128,8 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
         for r in fr:
             r.update(t=t, frame=i)
             rows.append(r)
-    return {"rows": rows, "rest": rest, "trace": trace, "kept": kept, "sensor": ses.sensor_id, "phantoms": phantoms}
+    return {"rows": rows, "rest": rest, "trace": trace, "kept": kept, "sensor": ses.sensor_id, "phantoms": phantoms,
+            "frames": per_frame, "indenters": {int(k): v for k, v in (ses.streams.get("poses", {}).get("indenters") or {}).items()}}
 
 
 

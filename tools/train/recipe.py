@@ -134,9 +134,9 @@ def validate(doc: dict, where: str) -> None:
     sessions = doc.get("sessions", {})
     if not isinstance(sessions, dict) or set(sessions) - SESSION_KEYS:
         raise RecipeError(f"{where}: [sessions] takes only {sorted(SESSION_KEYS)}")
-    for k, v in sessions.items():
-        if not isinstance(v, list) or not all(isinstance(s, dict) for s in v):
-            raise RecipeError(f"{where}: sessions.{k} must be a list of tables")
+    for k, v in sessions.items():      # a list of sessions, or one table naming a protocol set (build.py expands it)
+        if not (isinstance(v, dict) or isinstance(v, list) and all(isinstance(s, dict) for s in v)):
+            raise RecipeError(f"{where}: sessions.{k} must be a list of tables or a table naming a protocol set")
     if not isinstance(doc.get("build", {}), dict):
         raise RecipeError(f"{where}: [build] must be a table")
     steps = doc.get("steps", [])
