@@ -13,15 +13,31 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import dataclass, field, fields as dc_fields
+from dataclasses import dataclass, field
+from dataclasses import fields as dc_fields
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 
 from .fields import CHANNEL_UNITS, CHANNELS
-from .wire_keys import (ALIVE, ENCODINGS, INFO, KEY_PREFIX, KINDS, MIME, SCHEMAS,  # noqa: F401 (the wire API)
-                               WIRE_VERSION, NonFiniteError, WireError, alive_key, check_sensor_id, info_key,
-                               key, parse_key, schema_of)
+from .wire_keys import (  # noqa: F401 (the wire API)
+    ALIVE,
+    ENCODINGS,
+    INFO,
+    KEY_PREFIX,
+    KINDS,
+    MIME,
+    SCHEMAS,
+    WIRE_VERSION,
+    NonFiniteError,
+    WireError,
+    alive_key,
+    check_sensor_id,
+    info_key,
+    key,
+    parse_key,
+    schema_of,
+)
 from .wire_keys import check_encoding as _check_encoding
 from .wire_keys import dumps as _dumps
 from .wire_keys import loads as _loads

@@ -27,8 +27,8 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-from .serial_port import close_serial, open_serial
 from ..contracts.errors import CaptureError, DeviceNotFoundError
+from .serial_port import close_serial, open_serial
 
 log = logging.getLogger(__name__)
 

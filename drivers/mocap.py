@@ -17,8 +17,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from .serial_port import close_serial, open_serial
 from ..contracts.errors import CaptureError, DeviceNotFoundError
+from .serial_port import close_serial, open_serial
 
 log = logging.getLogger(__name__)
 

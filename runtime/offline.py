@@ -29,12 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..contracts.files import atomic_write
+from ..contracts.session import load_session
+from ..contracts.store import Calibration, sha256_file
 from ..drivers.camera import camera_from_uri
 from ..drivers.camera.camera import EndOfStream
-from ..contracts.files import atomic_write
-from ..contracts.store import Calibration, sha256_file
-from .stages.contacts import Cluster
-from .stages.correction import ForceCorrection
 from .pipeline import (
     FrameResult,
     NetworkPass,
@@ -43,7 +42,8 @@ from .pipeline import (
     force_band,
     open_pipeline,
 )
-from ..contracts.session import load_session
+from .stages.contacts import Cluster
+from .stages.correction import ForceCorrection
 from .stages.temperature import TemperatureTrack
 
 log = logging.getLogger(__name__)

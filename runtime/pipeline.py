@@ -14,12 +14,12 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .stages.baseline import BaselineConfig, BaselineTracker
 from ..contracts.store import Calibration
+from .stages.baseline import BaselineConfig, BaselineTracker
 from .stages.contacts import Cluster, ContactConfig, ContactTracker, find_clusters, pixel_forces
 from .stages.correction import ForceCorrection
-from .stages.effects.stage import EffectStage
 from .stages.effects import EffectChain
+from .stages.effects.stage import EffectStage
 from .stages.geometry import sample_bilinear
 from .stages.model import FieldModel
 from .stages.preprocess import Preprocessor

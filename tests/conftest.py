@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.geometry import DomeProfile, equidistant_theta_phi, surface_tables
 

@@ -95,7 +95,6 @@ def hand_cfg(tmp: Path, package: Path, sources: dict, *, can: dict | None = None
 def make_session(folder: Path, sensor_id: str, frames, fps: float = 30.0) -> Path:
     """A session directory (session.json + frames.csv + frames.avi) holding `frames`."""
     import numpy as np
-
     from tensortouch.contracts.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
 
     folder.mkdir(parents=True)

@@ -9,16 +9,16 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
+from tensortouch.contracts.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
 from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.pipeline import SensorPipeline
 from tensortouch.runtime.stages.correction import ForceCorrection
 from tensortouch.runtime.stages.model import FieldModel, load_package
-from tensortouch.runtime.pipeline import SensorPipeline
-from tensortouch.contracts.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
-from tests.conftest import dome_calibration
 from tensortouch.tools.bench.models import write_difference_package
 from tensortouch.tools.recalib.gpr_geometry import model_to_camera
 from tensortouch.tools.recalib.pokes import suggest_next
+
+from tests.conftest import dome_calibration
 
 W, H, SIZE, SENSOR, FPS = 160, 120, 32, "TT-RECAL", 30.0
 

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from tensortouch.contracts.store import CalibrationStore, sha256_file
 from tensortouch.contracts.errors import TensorTouchError
-from tensortouch.runtime.stages.model import FieldModel, load_package
 from tensortouch.contracts.session import STREAM_COLUMNS, load_session, new_manifest, write_table
+from tensortouch.contracts.store import CalibrationStore, sha256_file
+from tensortouch.runtime.stages.model import FieldModel, load_package
+
 from tests.conftest import dome_calibration
 from tests.hand_util import make_package
 
@@ -334,7 +334,6 @@ def test_session_import_mis_typed_messages_and_maps(tmp_path):
     import io
 
     from mcap.writer import Writer
-
     from tensortouch.tools.sessions.bags import TopicMap, convert
 
     buf = io.BytesIO()                       # JSON messages whose fields have the wrong types

@@ -20,9 +20,9 @@ from typing import Callable
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import TensorTouchError
 from tensortouch.contracts.schema import Range
+
 from tests.conftest import dome_calibration
 from tests.hand_util import make_package
 
@@ -418,6 +418,7 @@ def _cell(v) -> str:
 
 def test_session_values(tmp_path, cli, capsys):
     from tensortouch.contracts.session import STREAM_COLUMNS
+
     from tests.test_bad_inputs import tiny_session
 
     poses = np.array([[0.0, 0, 1, 2, 3, 1, 0, 0, 0], [0.1, 0, 1, 2, 3, 1, 0, 0, 0]])
@@ -478,11 +479,11 @@ def test_named_recipe_files(tmp_path):
     for text, want in ((base % "18446744073709551616", "seed is 18446744073709551616"),
                        (base % "-1", "seed is -1"), (base % "1.5", "seed is 1.5"),
                        ("x = " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
-                       ('name = "n"\n[[steps]]\nname = "a"\nbuild = {epochs = 2}\n[[steps]]\nname = "b"\n'
-                        'after = "a"\nbuild = {lr = inf}\n', "(step b): lr is inf")):
+                       (('name = "n"\n[[steps]]\nname = "a"\nbuild = {epochs = 2}\n[[steps]]\nname = "b"\n'
+                        'after = "a"\nbuild = {lr = inf}\n'), "(step b): lr is inf")):
         path = tmp_path / "r.toml"
         path.write_text(text)
-        rc, lines = loader_outcome(lambda: step_configs(load_recipe(path)))
+        rc, lines = loader_outcome(lambda path=path: step_configs(load_recipe(path)))
         assert rc == 2 and len(lines) == 1 and want in lines[0], (text[:60], lines)
 
 

@@ -4,7 +4,6 @@ import json
 import cv2
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import SessionError
 from tensortouch.contracts.session import load_session
 from tensortouch.tools.sessions.bags import TopicMap, convert

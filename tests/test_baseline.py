@@ -3,10 +3,14 @@ import math
 
 import numpy as np
 import pytest
-
-from tensortouch.runtime.stages.baseline import (BaselineConfig, BaselineState, BaselineTracker, SEED_FORCE_CONTACT_N,
-                              SEED_MSE_THRESHOLD)
 from tensortouch.contracts.errors import TensorTouchError
+from tensortouch.runtime.stages.baseline import (
+    SEED_FORCE_CONTACT_N,
+    SEED_MSE_THRESHOLD,
+    BaselineConfig,
+    BaselineState,
+    BaselineTracker,
+)
 
 S = 32
 FPS = 120.0

@@ -1,11 +1,9 @@
 """Every `tensortouch bench` area registers its arguments when chosen; listing the areas imports none."""
+import argparse
 import subprocess
 import sys
 
-import argparse
-
 import pytest
-
 from tensortouch.tools.bench import cli
 
 

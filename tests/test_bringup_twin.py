@@ -17,13 +17,13 @@ import time
 
 import numpy as np
 import pytest
-
+from tensortouch.contracts.session import load_session, read_table
+from tensortouch.contracts.store import CalibrationStore
 from tensortouch.drivers.gauge import format_tt
 from tensortouch.drivers.mocap import format_pose
-from tensortouch.runtime.shells import commands
-from tensortouch.contracts.store import CalibrationStore
-from tensortouch.contracts.session import load_session, read_table
 from tensortouch.runtime.apps.subscriber import Subscriber
+from tensortouch.runtime.shells import commands
+
 from tests.test_e2e_runtime import free_port, stop
 from tests.test_record import LineServer
 

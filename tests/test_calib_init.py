@@ -8,12 +8,11 @@ import argparse
 
 import numpy as np
 import pytest
-
-from tensortouch.runtime.shells import commands
 from tensortouch.contracts import paths
-from tensortouch.runtime.calib.bringup import GelShape, LensModel, find_gel, nominal_tables
-from tensortouch.contracts.store import CalibrationStore
 from tensortouch.contracts.errors import CalibrationError, TensorTouchError
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.calib.bringup import GelShape, LensModel, find_gel, nominal_tables
+from tensortouch.runtime.shells import commands
 
 pytestmark = pytest.mark.skipif(not (paths.demo_dir() / "session.json").is_file(), reason="no demo recording")
 

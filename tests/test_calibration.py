@@ -2,9 +2,9 @@ import json
 import os
 
 import pytest
-
-from tensortouch.contracts.store import CalibrationStore
 from tensortouch.contracts.errors import CalibrationError
+from tensortouch.contracts.store import CalibrationStore
+
 from tests.conftest import dome_calibration
 
 

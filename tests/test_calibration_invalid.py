@@ -10,13 +10,13 @@ import threading
 
 import numpy as np
 import pytest
-
-from tensortouch.drivers.camera import camera_from_uri
 from tensortouch.contracts.store import CalibrationStore, sha256_file
+from tensortouch.drivers.camera import camera_from_uri
 from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
-from tensortouch.runtime.stages.model import FieldModel, load_package
-from tensortouch.runtime.pipeline import SensorPipeline
 from tensortouch.runtime.apps.publisher import Publisher
+from tensortouch.runtime.pipeline import SensorPipeline
+from tensortouch.runtime.stages.model import FieldModel, load_package
+
 from tests.hand_util import (
     free_endpoint,
     hand_cfg,

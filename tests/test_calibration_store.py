@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 import tensortouch.contracts.store as rc
-from tensortouch.contracts.store import CalibrationStore
 from tensortouch.contracts.errors import CalibrationError
+from tensortouch.contracts.store import CalibrationStore
+
 from tests.conftest import dome_calibration
 
 ROOT = Path(__file__).resolve().parents[1]

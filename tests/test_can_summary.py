@@ -7,10 +7,19 @@ import pytest
 
 can = pytest.importorskip("can")
 
-from tensortouch.drivers.can_bus import CanConfig, CanSummarySender, receive_summaries    # noqa: E402
-from tensortouch.contracts.can_frame import (FORCE_SCALE_N, POSITION_SCALE_MM, STATUS_BITS, FingerSummary,  # noqa: E402
-                                 SummaryDecoder, check_id_range, decode_frames, encode_finger,
-                                 frame_ids, summary_from_result)
+from tensortouch.contracts.can_frame import (  # noqa: E402
+    FORCE_SCALE_N,
+    POSITION_SCALE_MM,
+    STATUS_BITS,
+    FingerSummary,
+    SummaryDecoder,
+    check_id_range,
+    decode_frames,
+    encode_finger,
+    frame_ids,
+    summary_from_result,
+)
+from tensortouch.drivers.can_bus import CanConfig, CanSummarySender, receive_summaries  # noqa: E402
 
 
 def test_round_trip_within_one_lsb():
@@ -66,8 +75,8 @@ def test_decoder_ignores_foreign_ids_and_needs_pairs():
 
 
 def test_summary_from_pipeline_result_picks_strongest():
-    from tensortouch.runtime.stages.contacts import Cluster
     from tensortouch.runtime.pipeline import FrameResult
+    from tensortouch.runtime.stages.contacts import Cluster
 
     def cl(i, f, pos):
         return Cluster(id=i, uv_px=(0.0, 0.0), position_mm=pos, normal=(0, 0, 1), area_mm2=1.0,

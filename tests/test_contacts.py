@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-
 from tensortouch.runtime.stages.contacts import ContactConfig, ContactTracker, find_clusters, pixel_forces
 from tensortouch.runtime.stages.geometry import DomeProfile, equidistant_theta_phi, surface_tables
 

@@ -8,13 +8,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from tensortouch.contracts import wire
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.pipeline import PipelineConfig, contact_stage, open_pipeline
 from tensortouch.runtime.stages.contacts import ContactConfig, find_clusters, pixel_forces
 from tensortouch.runtime.stages.model import find_package
-
 from tensortouch.tools.bench import previous_stages as ref
 
 DEMO = Path(__file__).resolve().parents[1] / "runtime" / "demo" / "frames.avi"

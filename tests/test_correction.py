@@ -1,8 +1,7 @@
 import numpy as np
 import pytest
-
-from tensortouch.runtime.stages.correction import ForceCorrection, apply_output
 from tensortouch.contracts.errors import CalibrationError
+from tensortouch.runtime.stages.correction import ForceCorrection, apply_output
 
 
 def gain_model(path, n_in, gain):

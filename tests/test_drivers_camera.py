@@ -4,11 +4,17 @@ import time
 import cv2
 import numpy as np
 import pytest
-
-from tensortouch.drivers.camera import (EndOfStream, OpenCVCamera, OpenCVCameraConfig, ReplayCamera,
-                            ReplayCameraConfig, camera_from_uri, config_from_uri)
 from tensortouch.contracts.errors import CaptureError, DeviceNotFoundError, SessionError, TensorTouchError
 from tensortouch.contracts.session import new_manifest, write_manifest, write_table
+from tensortouch.drivers.camera import (
+    EndOfStream,
+    OpenCVCamera,
+    OpenCVCameraConfig,
+    ReplayCamera,
+    ReplayCameraConfig,
+    camera_from_uri,
+    config_from_uri,
+)
 
 H, W = 48, 64
 

@@ -2,10 +2,9 @@
 import os
 
 import pytest
-
 import tensortouch.drivers.usb as dusb
-from tensortouch.drivers.camera import camera_from_uri
 from tensortouch.contracts.errors import DeviceNotFoundError
+from tensortouch.drivers.camera import camera_from_uri
 
 
 def libusb_available():

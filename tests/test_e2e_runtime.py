@@ -14,10 +14,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from tensortouch.contracts.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
-from tests.conftest import dome_calibration
 from tensortouch.tools.bench.models import write_difference_package
+
+from tests.conftest import dome_calibration
 
 W, H, SIZE, SENSOR = 160, 120, 32, "TT-E2E"
 

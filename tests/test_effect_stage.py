@@ -1,14 +1,14 @@
 """The runtime applies the calibration's enabled effects to cluster forces (DESIGN §4), in order,
 before the force correction; a covariate the runtime lacks gives a status flag, not a crash."""
 import numpy as np
-
 from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.pipeline import SensorPipeline
 from tensortouch.runtime.stages.effects import EffectChain
 from tensortouch.runtime.stages.model import FieldModel, load_package
-from tensortouch.runtime.pipeline import SensorPipeline
-from tests.conftest import dome_calibration
-from tests.test_e2e_runtime import H, SENSOR, SIZE, W
 from tensortouch.tools.bench.models import write_difference_package
+
+from tests.conftest import dome_calibration
+from tests.test_e2e_runtime import SENSOR, SIZE, H, W
 
 
 def frames(n=60, poke_from=35):

@@ -5,7 +5,6 @@ import textwrap
 
 import numpy as np
 import pytest
-
 from tensortouch.runtime.stages.effects import CANONICAL, EffectChain, Registry
 from tensortouch.runtime.stages.effects.builtin import prony_history
 

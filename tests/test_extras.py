@@ -6,7 +6,6 @@ The base install itself (only `pip install -e .`, and the wheel) is exercised fo
 import argparse
 
 import pytest
-
 from tensortouch.contracts import extras
 from tensortouch.contracts.paths import ROOT
 from tensortouch.runtime.shells import cli

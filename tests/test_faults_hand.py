@@ -18,12 +18,23 @@ from collections import Counter, defaultdict
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import ModelPackageError
 from tensortouch.runtime.apps.hand import Hand
 from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info
-from tests.hand_util import (FlakyCamera, Plug, free_endpoint, hand_cfg, make_package, make_session,
-                             make_store, make_video, poke_frames, wait_until, write_frames)
+
+from tests.hand_util import (
+    FlakyCamera,
+    Plug,
+    free_endpoint,
+    hand_cfg,
+    make_package,
+    make_session,
+    make_store,
+    make_video,
+    poke_frames,
+    wait_until,
+    write_frames,
+)
 
 SERIALS = ("TT-A", "TT-B", "TT-C")
 SICK = "TT-B"

@@ -8,10 +8,10 @@ import scipy.sparse.linalg as sla
 
 fem = pytest.importorskip("felupe")
 
-from tensortouch.tools.fe.assembly import P1Assembly    # noqa: E402
-from tensortouch.tools.fe.errors import FEError    # noqa: E402
-from tensortouch.tools.fe.linsolve import PardisoFactor, SuperLUFactor, mkl_rt    # noqa: E402
-from tensortouch.tools.fe.materials import YeohUmat    # noqa: E402
+from tensortouch.tools.fe.assembly import P1Assembly  # noqa: E402
+from tensortouch.tools.fe.errors import FEError  # noqa: E402
+from tensortouch.tools.fe.linsolve import PardisoFactor, SuperLUFactor, mkl_rt  # noqa: E402
+from tensortouch.tools.fe.materials import YeohUmat  # noqa: E402
 
 try:
     mkl_rt()

@@ -12,9 +12,9 @@ pytest.importorskip("gmsh")
 trimesh = pytest.importorskip("trimesh")
 distributed = pytest.importorskip("distributed")
 
-from tensortouch.tools.fe import load_result, save_scenario    # noqa: E402
-from tensortouch.tools.fe.batch import run_batch    # noqa: E402
-from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario    # noqa: E402
+from tensortouch.tools.fe import load_result, save_scenario  # noqa: E402
+from tensortouch.tools.fe.batch import run_batch  # noqa: E402
+from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario  # noqa: E402
 
 PAD = GelGeometry(kind="flat_pad", size_x=10.0, size_y=10.0, thickness=4.0)
 MESH = MeshSettings(size_top=1.0, size_inside=1.5, refine_depth=0.5)

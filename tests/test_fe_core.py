@@ -6,14 +6,20 @@ import pytest
 
 pytest.importorskip("felupe")
 
-from tensortouch.tools.fe import (FEResultError, ScenarioError, load_result, load_scenario, save_result,  # noqa: E402
-                      save_scenario, standard_dome)
-from tensortouch.tools.fe import contact as fc    # noqa: E402
-from tensortouch.tools.fe.indenters import (BoxEdge, Cylinder, Flat, MeshShape, Sphere, Torus,  # noqa: E402
-                                pose_at, rotmat)
-from tensortouch.tools.fe.materials import YeohUmat, felupe_reference_umat    # noqa: E402
-from tensortouch.tools.fe.mesh import box_mesh    # noqa: E402
-from tensortouch.tools.fe.scenario import Material, scenario_from_dict    # noqa: E402
+from tensortouch.tools.fe import (  # noqa: E402
+    FEResultError,
+    ScenarioError,
+    load_result,
+    load_scenario,
+    save_result,
+    save_scenario,
+    standard_dome,
+)
+from tensortouch.tools.fe import contact as fc  # noqa: E402
+from tensortouch.tools.fe.indenters import BoxEdge, Cylinder, Flat, MeshShape, Sphere, Torus, pose_at, rotmat  # noqa: E402
+from tensortouch.tools.fe.materials import YeohUmat, felupe_reference_umat  # noqa: E402
+from tensortouch.tools.fe.mesh import box_mesh  # noqa: E402
+from tensortouch.tools.fe.scenario import Material, scenario_from_dict  # noqa: E402
 
 
 # ---------------------------------------------------------------- scenario contract
@@ -313,7 +319,6 @@ def test_docs_toml_example_is_a_valid_scenario():
 
 def test_mesh_shape_sign_at_edges_and_corners_of_a_box(tmp_path):
     import trimesh
-
     from tensortouch.tools.fe.indenters import _box_sdf, load_mesh_shape
 
     box = trimesh.creation.box([6.0, 4.0, 2.0])  # 12 large triangles: edges and corners dominate

@@ -8,10 +8,9 @@ import pytest
 
 pytest.importorskip("felupe")
 
-from tensortouch.tools.fe import FEConvergenceError, ScenarioError, load_result, save_result, solve    # noqa: E402
-from tensortouch.tools.fe.mesh import mesh_gel    # noqa: E402
-from tensortouch.tools.fe.scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings,  # noqa: E402
-                               Scenario)
+from tensortouch.tools.fe import FEConvergenceError, ScenarioError, load_result, save_result, solve  # noqa: E402
+from tensortouch.tools.fe.mesh import mesh_gel  # noqa: E402
+from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, Material, MeshSettings, Scenario  # noqa: E402
 
 PAD = GelGeometry(kind="flat_pad", size_x=16.0, size_y=16.0, thickness=6.0)
 

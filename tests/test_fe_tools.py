@@ -10,10 +10,9 @@ pytest.importorskip("felupe")
 pytest.importorskip("gmsh")
 trimesh = pytest.importorskip("trimesh")
 
-from tensortouch.tools.fe import load_result, save_scenario, solve    # noqa: E402
-from tensortouch.tools.fe.mesh import mesh_gel    # noqa: E402
-from tensortouch.tools.fe.scenario import (GelGeometry, Indenter, Keypoint, MeshSettings, Scenario,  # noqa: E402
-                               standard_dome)
+from tensortouch.tools.fe import load_result, save_scenario, solve  # noqa: E402
+from tensortouch.tools.fe.mesh import mesh_gel  # noqa: E402
+from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario, standard_dome  # noqa: E402
 
 SMALL_PAD = GelGeometry(kind="flat_pad", size_x=10.0, size_y=10.0, thickness=4.0)
 SMALL_MESH = MeshSettings(size_top=1.0, size_inside=1.5, refine_depth=0.5)

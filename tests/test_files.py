@@ -3,7 +3,6 @@ import json
 import os
 
 import pytest
-
 from tensortouch.contracts.files import atomic_write, atomic_write_json, finish_partial, partial_path
 
 

@@ -9,11 +9,11 @@ import struct
 from types import SimpleNamespace
 
 import pytest
-import usb.backend
-
 import tensortouch.drivers.usb as dusb
+import usb.backend
 from tensortouch.drivers import v4l2
 from tensortouch.runtime.shells import commands
+
 from tests.test_drivers_usb import fake_sysfs
 
 

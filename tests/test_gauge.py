@@ -5,9 +5,8 @@ import threading
 import time
 
 import pytest
-
-from tensortouch.drivers.gauge import ForceGauge, GaugeConfig, checksum, format_tt, parse_mark10, parse_tt
 from tensortouch.contracts.errors import CaptureError, DeviceNotFoundError
+from tensortouch.drivers.gauge import ForceGauge, GaugeConfig, checksum, format_tt, parse_mark10, parse_tt
 
 
 def test_tt_line_roundtrip_and_checksum():
@@ -122,7 +121,6 @@ def test_pty_mark10_request_reply():
 def test_twin_gauge_lines_through_a_pty_are_read_back():
     """tools.recalib.twin_gauge plays a force stream as tt lines; the driver reads the same |F|."""
     import numpy as np
-
     from tensortouch.tools.recalib.twin_gauge import gauge_lines, play
 
     t = np.arange(0, 1.0, 0.01)

@@ -1,5 +1,4 @@
 import numpy as np
-
 from tensortouch.runtime.stages.geometry import DomeProfile, equidistant_theta_phi, sample_bilinear, surface_tables
 
 

@@ -1,7 +1,6 @@
 """Contact graph (tools/grasp/graph.py): k-NN edges, Dijkstra, npz round trip."""
 import numpy as np
 import pytest
-
 from tensortouch.tools.grasp import graph
 
 

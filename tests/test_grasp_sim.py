@@ -9,7 +9,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
 from tensortouch.tools.grasp import graph as graph_mod
 from tensortouch.tools.grasp.controller import ControllerConfig, SelectiveGraspController
 from tensortouch.tools.grasp.dome_contact import DomeContactConfig, ObjectContact, displacement
@@ -379,9 +378,9 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
     """Twin render → SensorLoop (shipped int8 model, TWIN-DEMO calibration) → Publisher → a real
     Zenoh session on loopback → the controller's subscriber sees two clusters where the objects are."""
     from tensortouch.contracts.store import CalibrationStore
-    from tensortouch.runtime.stages.model import FieldModel, find_package
-    from tensortouch.runtime.pipeline import SensorPipeline
     from tensortouch.runtime.apps.publisher import open_session
+    from tensortouch.runtime.pipeline import SensorPipeline
+    from tensortouch.runtime.stages.model import FieldModel, find_package
     from tensortouch.tools.grasp.controller import ControllerNode
     from tensortouch.tools.grasp.sim_sensor import SimFingertip
     from tensortouch.tools.grasp.trial import free_endpoint

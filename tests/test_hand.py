@@ -4,12 +4,12 @@ import uuid
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import TensorTouchError
 from tensortouch.runtime.apps.hand import Hand
-from tensortouch.runtime.shells.hand_cli import register_hand
 from tensortouch.runtime.apps.hand_config import HandConfigError, load_hand_config, parse_hand_config
 from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info
+from tensortouch.runtime.shells.hand_cli import register_hand
+
 from tests.hand_util import hand_cfg, make_package, make_store, make_video, wait_until
 
 SERIALS = ("TT-A", "TT-B", "TT-C")

@@ -21,9 +21,9 @@ import time
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import paths
 from tensortouch.runtime.apps.subscriber import Subscriber
+
 from tests.test_e2e_runtime import free_port, stop
 
 
@@ -215,8 +215,8 @@ def test_robot_factory_reads_floats_and_frames(tmp_path, monkeypatch):
         cfg = draccus.parse(Command, args=[
             "--robot.type=tensortouch", "--robot.sensor_id=TWIN-DEMO", f"--robot.top_k={top_k}",
             "--robot.timeout_ms=15000", "--robot.max_age_ms=500", f"--robot.calibration_dir={tmp_path}",
-            "--robot.cameras={gel: {type: tensortouch, sensor_id: TWIN-DEMO, timeout_ms: 15000, "
-            "width: 128, height: 128, fps: 30}}"]).robot
+            ("--robot.cameras={gel: {type: tensortouch, sensor_id: TWIN-DEMO, timeout_ms: 15000, "
+            "width: 128, height: 128, fps: 30}}")]).robot
         assert isinstance(cfg, TensorTouchRobotConfig) and cfg.type == "tensortouch" and cfg.connect is None
         assert isinstance(cfg.cameras["gel"], TensorTouchCameraConfig)
         robot = make_robot_from_config(cfg)

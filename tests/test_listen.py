@@ -9,11 +9,10 @@ import time
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import wire
 from tensortouch.contracts.fields import CHANNELS
-from tensortouch.runtime.shells.listen import add_listen_parser, format_line
 from tensortouch.runtime.apps.publisher import Publisher
+from tensortouch.runtime.shells.listen import add_listen_parser, format_line
 
 
 def free_endpoint() -> str:
@@ -111,7 +110,6 @@ def test_listen_json_never_prints_a_message_holding_nan(running_sensor):
     """A forger (a client session of the sensor's peer) puts contacts and wrenches with NaN/Infinity: `listen --json`
     in another process prints only strict JSON (no NaN token) and says on stderr how many it dropped."""
     import zenoh
-
     from tensortouch.runtime.apps.publisher import zenoh_config
 
     forger = zenoh.open(zenoh_config(mode="client", connect=[running_sensor]))  # peers route for clients

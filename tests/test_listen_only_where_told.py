@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from tensortouch.tools.bench.models import write_difference_package
 
 from tests.conftest import dome_calibration
 from tests.test_e2e_runtime import (
@@ -22,7 +23,6 @@ from tests.test_e2e_runtime import (
     stop,
     write_poke_session,
 )
-from tensortouch.tools.bench.models import write_difference_package
 
 CLI = [sys.executable, "-m", "tensortouch.runtime.shells.cli"]
 pytestmark = pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net")

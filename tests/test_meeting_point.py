@@ -12,9 +12,9 @@ import sys
 import time
 
 import pytest
-
 from tensortouch.contracts.paths import ROOT
 from tensortouch.runtime.apps.subscriber import Subscriber, query_info
+
 from tests.test_e2e_runtime import free_port, stop
 
 MODEL = ROOT / "exported_models" / "hiera-qup-128"
@@ -80,9 +80,10 @@ def test_default_run_and_default_listen_meet_within_5_s():
 def test_default_run_loops_the_built_in_demo(tmp_path):
     """With no --source the run replays the built-in demo again and again (here a 10-frame one,
     through TENSORTOUCH_DEMO, with a test network, as fast as it can): 25 frames come out."""
+    from tensortouch.tools.bench.models import write_difference_package
+
     from tests.conftest import dome_calibration
     from tests.test_e2e_runtime import SENSOR, SIZE, H, W, write_poke_session
-    from tensortouch.tools.bench.models import write_difference_package
 
     demo = write_poke_session(tmp_path / "demo", n=10)
     write_difference_package(tmp_path / "models" / "difference-32", SIZE)

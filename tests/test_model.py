@@ -2,7 +2,6 @@ import json
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import ModelPackageError
 from tensortouch.contracts.fields import CHANNELS
 from tensortouch.runtime.stages.model import FieldModel, find_package, load_package

@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from tensortouch.contracts.errors import CalibrationError, ModelPackageError, SessionError, TensorTouchError
 from tensortouch.contracts.names import NAME_PATTERN, check_name, confined
 from tensortouch.contracts.store import CalibrationStore

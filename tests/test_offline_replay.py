@@ -16,18 +16,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import paths
+from tensortouch.contracts.session import load_session
 from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.offline import cache_key, network_passes, replay_session
 from tensortouch.runtime.stages.correction import ForceCorrection
 from tensortouch.runtime.stages.model import load_package
-from tensortouch.runtime.offline import cache_key, network_passes, replay_session
-from tensortouch.contracts.session import load_session
+from tensortouch.tools.bench.models import write_difference_package
+from tensortouch.tools.recalib.replay import collect_frames, corrected_frames
+
 from tests.conftest import dome_calibration
 from tests.test_correction import gain_model
 from tests.test_e2e_runtime import SENSOR, SIZE, H, W, free_port, write_poke_session
-from tensortouch.tools.bench.models import write_difference_package
-from tensortouch.tools.recalib.replay import collect_frames, corrected_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = "TWIN-DEMO"

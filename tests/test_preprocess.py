@@ -2,7 +2,6 @@
 import cv2
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import CalibrationError, CaptureError
 from tensortouch.runtime.stages.preprocess import Preprocessor, model_input, to_chw_float
 

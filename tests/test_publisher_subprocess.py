@@ -6,7 +6,6 @@ import textwrap
 import time
 
 import numpy as np
-
 from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS
 from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info, watch_alive
 

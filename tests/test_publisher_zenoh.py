@@ -9,13 +9,11 @@ import time
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import wire
 from tensortouch.contracts.errors import TensorTouchError
 from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS
 from tensortouch.runtime.apps.publisher import Publisher, open_session, zenoh_config
 from tensortouch.runtime.apps.subscriber import Subscriber, alive_sensors, query_info, watch_alive
-
 
 from tests.hand_util import free_endpoint
 from tests.hand_util import wait_until as _wait_until

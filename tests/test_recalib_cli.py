@@ -5,10 +5,10 @@ import json
 
 import numpy as np
 import pytest
-
 from tensortouch.runtime.shells import commands
-from tests.recalib_util import SENSOR, setup_env, true_gain, write_recording
 from tensortouch.tools.recalib import cli
+
+from tests.recalib_util import SENSOR, setup_env, true_gain, write_recording
 
 
 def parse(argv):

@@ -15,16 +15,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from tensortouch.drivers.gauge import ForceGauge, GaugeConfig, format_tt
-from tensortouch.contracts.store import CalibrationStore
-from tensortouch.runtime.stages.correction import ForceCorrection
 from tensortouch.contracts.errors import CalibrationError, DeviceNotFoundError, TensorTouchError
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.drivers.gauge import ForceGauge, GaugeConfig, format_tt
 from tensortouch.runtime.stages.contacts import Cluster
-from tests.conftest import dome_calibration
+from tensortouch.runtime.stages.correction import ForceCorrection
 from tensortouch.tools.recalib.fit import PokeSet, fit_correction
 from tensortouch.tools.recalib.session import GaugeReference, SessionConfig, run_guided
 from tensortouch.tools.recalib.store_ops import store_recalibration
+
+from tests.conftest import dome_calibration
 
 SENSOR = "TT-FAULT"
 ROOT = Path(__file__).resolve().parents[1]
@@ -190,16 +190,18 @@ def test_gauge_unplugged_mid_session_aborts_clearly_and_stores_nothing(store):
 
 def test_cli_gauge_unplugged_message_names_active_version(tmp_path):
     """Through `tensortouch recalibrate --gauge serial:<pty>`: the error says nothing was stored."""
-    from tests.recalib_util import SENSOR as S, setup_env, write_recording
-    from tests.test_recalib_cli import parse
     from tensortouch.tools.recalib import cli
+
+    from tests.recalib_util import SENSOR as S
+    from tests.recalib_util import setup_env, write_recording
+    from tests.test_recalib_cli import parse
 
     package, store = setup_env(tmp_path)
     session, _, _ = write_recording(tmp_path / "session", package, store, n_pokes=5)
     master, slave = os.openpty()
 
     def gauge_then_unplug():
-        for k in range(30):
+        for _k in range(30):
             os.write(master, format_tt(1.0))
             time.sleep(0.005)
         os.close(master)
@@ -251,9 +253,11 @@ def test_no_pickle_on_any_load_path(store, monkeypatch):
 
 def test_cli_silent_gauge_on_loop_url_times_out_clearly(tmp_path):
     """`--gauge loop://` with nothing talking: 'not responding' after the gauge timeout, nothing stored."""
-    from tests.recalib_util import SENSOR as S, setup_env, write_recording
-    from tests.test_recalib_cli import parse
     from tensortouch.tools.recalib import cli
+
+    from tests.recalib_util import SENSOR as S
+    from tests.recalib_util import setup_env, write_recording
+    from tests.test_recalib_cli import parse
 
     package, store = setup_env(tmp_path)
     session, _, _ = write_recording(tmp_path / "session", package, store, n_pokes=5)

@@ -1,11 +1,19 @@
 """Zero-constrained RF force correction on synthetic pokes (known true force vs a biased model)."""
 import numpy as np
 import pytest
-
-from tensortouch.runtime.stages.correction import ForceCorrection
 from tensortouch.contracts.errors import CalibrationError
-from tensortouch.tools.recalib.fit import (FitConfig, PokeSet, corrected_magnitude, decide, error_stats, fit_correction,
-                               fit_forest, gain_targets, to_onnx)
+from tensortouch.runtime.stages.correction import ForceCorrection
+from tensortouch.tools.recalib.fit import (
+    FitConfig,
+    PokeSet,
+    corrected_magnitude,
+    decide,
+    error_stats,
+    fit_correction,
+    fit_forest,
+    gain_targets,
+    to_onnx,
+)
 from tensortouch.tools.recalib.synthetic import SyntheticUnit
 
 STIFF_SHIFTED = SyntheticUnit(stiffness_ratio=1.2, center_shift=(0.06, -0.04), radial_bias=0.25)
@@ -131,7 +139,7 @@ def test_a_constant_gain_beats_a_forest_over_force_with_few_noisy_pokes():
     rng = np.random.default_rng(3)
     errs = {"constant": [], "fmag": []}
     chosen = []
-    for trial in range(20):
+    for _trial in range(20):
         n = 6
         pf = np.c_[np.zeros((n, 2)), -rng.uniform(0.5, 3.0, n)]
         tp = np.c_[rng.uniform(0.0, 0.6, n), rng.uniform(-3, 3, n)]

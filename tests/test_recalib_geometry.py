@@ -1,7 +1,6 @@
 """GPR refresh of θ/φ tables and gel centre from poke correspondences (seed §III.G) on synthetic fisheyes."""
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import CalibrationError
 from tensortouch.runtime.stages.preprocess import Preprocessor
 from tensortouch.tools.recalib.gpr_geometry import camera_to_model, model_to_camera, refresh_geometry, theta_phi_from_xyz

@@ -1,10 +1,17 @@
 """Poke detection, acceptance rules and position suggestions (pure cores)."""
 import numpy as np
 import pytest
-
 from tensortouch.runtime.stages.contacts import Cluster
-from tensortouch.tools.recalib.pokes import (Poke, PokeDetector, PokeRules, ascii_map, check_poke, describe,
-                                 reference_from_readings, suggest_next)
+from tensortouch.tools.recalib.pokes import (
+    Poke,
+    PokeDetector,
+    PokeRules,
+    ascii_map,
+    check_poke,
+    describe,
+    reference_from_readings,
+    suggest_next,
+)
 from tensortouch.tools.recalib.synthetic import SyntheticUnit
 
 

@@ -4,15 +4,15 @@ Real parts: replay camera on a synthetic recording, onnxruntime pipeline, calibr
 version is written by tools.recalib.store_ops while the loop runs (from its on_result callback)."""
 import numpy as np
 import pytest
-
 from tensortouch.drivers.camera import camera_from_uri
-from tensortouch.runtime.stages.contacts import find_clusters, pixel_forces
 from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
-from tensortouch.runtime.stages.model import FieldModel
 from tensortouch.runtime.pipeline import SensorPipeline
-from tests.recalib_util import SENSOR, setup_env, write_recording
+from tensortouch.runtime.stages.contacts import find_clusters, pixel_forces
+from tensortouch.runtime.stages.model import FieldModel
 from tensortouch.tools.recalib.fit import PokeSet, fit_correction
 from tensortouch.tools.recalib.store_ops import store_recalibration
+
+from tests.recalib_util import SENSOR, setup_env, write_recording
 
 GAIN = 2.0
 

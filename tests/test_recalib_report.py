@@ -7,11 +7,11 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from tensortouch.contracts.errors import TensorTouchError
+from tensortouch.tools.recalib import cli
+
 from tests.recalib_util import SENSOR, setup_env, write_recording
 from tests.test_recalib_cli import parse
-from tensortouch.tools.recalib import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -4,7 +4,6 @@ Real twin renderings (tools.twin: the unit's cv2.fisheye camera with its centre 
 scale, LED brightness and sensor noise) and synthetic images for the refusals."""
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import CalibrationError
 from tensortouch.tools.recalib.rim import RimConfig, crop_changes, fit_rim, recrop, rest_image
 

@@ -1,12 +1,12 @@
 """Guided-session logic on synthetic clusters: prompts, rejections with reasons, typed reference."""
 import numpy as np
 import pytest
-
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.contacts import Cluster
+from tensortouch.tools.recalib.session import SessionConfig, StreamReference, TypedReference, analyse, run_guided
+
 from tests.conftest import dome_calibration
 from tests.recalib_util import poke_positions
-from tensortouch.tools.recalib.session import SessionConfig, StreamReference, TypedReference, analyse, run_guided
 
 
 def cl(f, uv, xyz):

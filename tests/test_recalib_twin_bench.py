@@ -3,16 +3,23 @@ trained model: guided spots on the nominal twin calibration, the correction repl
 clusters (= the runtime's gain, zero stays zero), held-out poke pairing, the recording configs."""
 import numpy as np
 import pytest
-
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.contacts import Cluster
-from tests.conftest import dome_calibration
 from tensortouch.tools.recalib.fit import fit_correction
 from tensortouch.tools.recalib.pokes import PokeRules
 from tensortouch.tools.recalib.session import StreamReference
 from tensortouch.tools.recalib.synthetic import SyntheticUnit
-from tensortouch.tools.recalib.twin_bench import (UNITS, TwinBenchConfig, corrected_frames, guided_points, held_out_pokes,
-                                      nominal_calibration, record_configs)
+from tensortouch.tools.recalib.twin_bench import (
+    UNITS,
+    TwinBenchConfig,
+    corrected_frames,
+    guided_points,
+    held_out_pokes,
+    nominal_calibration,
+    record_configs,
+)
+
+from tests.conftest import dome_calibration
 
 
 @pytest.fixture(scope="module")

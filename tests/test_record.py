@@ -10,13 +10,12 @@ import time
 
 import numpy as np
 import pytest
-
-from tensortouch.drivers.camera import camera_from_uri
-from tensortouch.drivers.gauge import format_tt
-from tensortouch.drivers.mocap import format_pose, parse_pose
 from tensortouch.contracts import paths
 from tensortouch.contracts.errors import SessionError
 from tensortouch.contracts.session import load_session
+from tensortouch.drivers.camera import camera_from_uri
+from tensortouch.drivers.gauge import format_tt
+from tensortouch.drivers.mocap import format_pose, parse_pose
 from tensortouch.tools.sessions import cli
 
 pytestmark = pytest.mark.skipif(not (paths.demo_dir() / "session.json").is_file(), reason="no demo recording")

@@ -17,6 +17,7 @@ import pytest
 pytest.importorskip("rosbags.typesys")
 
 from rosbags.typesys import Stores, get_typestore
+from tensortouch.tools.bench.models import write_difference_package
 
 from tests.conftest import dome_calibration
 from tests.test_e2e_runtime import (
@@ -28,7 +29,6 @@ from tests.test_e2e_runtime import (
     stop,
     write_poke_session,
 )
-from tensortouch.tools.bench.models import write_difference_package
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = "7"

@@ -5,10 +5,10 @@ import time
 
 import pytest
 import zenoh
-
 from tensortouch.contracts import ros2_wire as rw
 from tensortouch.runtime.apps.publisher import open_session
 from tensortouch.runtime.apps.ros2_publisher import Ros2Config, Ros2Node
+
 from tests.test_e2e_runtime import free_port
 
 
@@ -77,9 +77,9 @@ def test_wall_stamps_and_closed_publisher_never_raises():
 
 def test_hand_config_ros2_table_and_two_fingers_on_ros2(tmp_path, monkeypatch):
     from rosbags.typesys import Stores, get_typestore
-
     from tensortouch.runtime.apps.hand import Hand
     from tensortouch.runtime.apps.hand_config import HandConfigError, parse_hand_config
+
     from tests.hand_util import (
         hand_cfg,
         make_package,

@@ -1,15 +1,15 @@
 """Bad inputs to `tensortouch run` and the frame loop: a clear message or a status flag, no traceback."""
 import numpy as np
 import pytest
-
-from tensortouch.runtime.shells import cli
 from tensortouch.contracts.errors import CaptureError
 from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
-from tensortouch.runtime.stages.model import FieldModel, load_package
 from tensortouch.runtime.pipeline import SensorPipeline
+from tensortouch.runtime.shells import cli
+from tensortouch.runtime.stages.model import FieldModel, load_package
+from tensortouch.tools.bench.models import write_difference_package
+
 from tests.conftest import dome_calibration
 from tests.test_e2e_runtime import SENSOR, SIZE, H, W, write_poke_session
-from tensortouch.tools.bench.models import write_difference_package
 
 
 @pytest.fixture

@@ -3,10 +3,10 @@ while contacts and status keep the frame rate — real runtime and listener proc
 import json
 
 import pytest
+from tensortouch.tools.bench.models import write_difference_package
 
 from tests.conftest import dome_calibration
-from tests.test_e2e_runtime import H, SENSOR, SIZE, W, run_and_listen, write_poke_session
-from tensortouch.tools.bench.models import write_difference_package
+from tests.test_e2e_runtime import SENSOR, SIZE, H, W, run_and_listen, write_poke_session
 
 
 @pytest.mark.parametrize("extra,ratio", [(["--fields-every", "3"], (2.0, 4.5)), (["--no-fields"], None)])

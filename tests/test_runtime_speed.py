@@ -6,7 +6,6 @@ import time
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import wire
 from tensortouch.runtime.stages.model import PRECISION_FILES, load_package
 from tensortouch.tools.bench.models import write_package

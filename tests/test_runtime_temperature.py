@@ -4,21 +4,21 @@ import json
 
 import numpy as np
 import pytest
-
-from tensortouch.drivers.camera.replay import ReplayCamera, ReplayCameraConfig
-from tensortouch.contracts.store import CalibrationStore
-from tensortouch.runtime.stages.effects import EffectChain
 from tensortouch.contracts.errors import SessionError
-from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
-from tensortouch.runtime.stages.model import FieldModel, load_package
-from tensortouch.runtime.pipeline import SensorPipeline
 from tensortouch.contracts.session import write_table
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.drivers.camera.replay import ReplayCamera, ReplayCameraConfig
+from tensortouch.runtime.apps.loop import LoopConfig, SensorLoop
+from tensortouch.runtime.pipeline import SensorPipeline
+from tensortouch.runtime.stages.effects import EffectChain
+from tensortouch.runtime.stages.model import FieldModel, load_package
 from tensortouch.runtime.stages.temperature import TemperatureTrack
+from tensortouch.tools.bench.models import write_difference_package
+
 from tests.conftest import dome_calibration
 from tests.hand_util import make_session
-from tests.test_e2e_runtime import H, SENSOR, SIZE, W
+from tests.test_e2e_runtime import SENSOR, SIZE, H, W
 from tests.test_effect_stage import frames
-from tensortouch.tools.bench.models import write_difference_package
 
 
 def test_track_interpolates_and_holds_ends():

@@ -16,7 +16,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-
 from tensortouch.contracts.errors import SessionError
 from tensortouch.runtime.stages.contacts import ContactConfig
 from tensortouch.tools.scoring import contact_config, ft_to_sensor, match_contacts, measured_at
@@ -153,6 +152,7 @@ def test_the_workbench_table_holds_measured_at_with_the_ft_sign():
 def _published(session: Path, package_dir: Path, store_root: Path, sensor: str) -> dict:
     """`tensortouch run` on a recording in its own process, its contacts received over Zenoh (loopback)."""
     from tensortouch.runtime.apps.subscriber import Subscriber
+
     from tests.test_e2e_runtime import free_port
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"

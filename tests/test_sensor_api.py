@@ -10,11 +10,11 @@ import threading
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import paths
 from tensortouch.contracts.errors import CaptureError
-from tensortouch.runtime.sensor import Sensor
 from tensortouch.runtime.apps.subscriber import Subscriber
+from tensortouch.runtime.sensor import Sensor
+
 from tests.test_e2e_runtime import free_port, stop
 
 FRAMES = 50   # the demo's first contact is at frame 35

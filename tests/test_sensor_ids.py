@@ -9,11 +9,11 @@ import time
 
 import pytest
 import zenoh
-
 from tensortouch.contracts import wire
 from tensortouch.contracts.errors import TensorTouchError
-from tensortouch.runtime.shells.listen import Saver, add_listen_parser, run_listen
 from tensortouch.runtime.apps.zenoh_session import zenoh_config
+from tensortouch.runtime.shells.listen import Saver, add_listen_parser, run_listen
+
 from tests.test_listen import free_endpoint
 
 BAD_IDS = ["..", ".", ".hidden", "a/b", "a b", "", "x" * 65, "*", "dome<script>", "-lead", "é"]

@@ -5,7 +5,6 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-
 from tensortouch.contracts.errors import SessionError
 from tensortouch.contracts.session import STREAM_COLUMNS, avi_frame_count, load_session, rewrite_in_units
 from tensortouch.contracts.units import convert, to_house

@@ -15,7 +15,6 @@ import time
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.paths import ROOT
 
 MODEL = ROOT / "exported_models" / "hiera-qup-128"
@@ -27,8 +26,8 @@ pytestmark = pytest.mark.skipif(not (MODEL / "manifest.json").is_file() or not (
 
 
 def _demo_calibration():
-    from tensortouch.contracts.store import CalibrationStore
     from tensortouch.contracts.session import load_session
+    from tensortouch.contracts.store import CalibrationStore
 
     return CalibrationStore(STORE).load(load_session(DEMO, check_frames=False).sensor_id)
 
@@ -52,6 +51,7 @@ def test_run_on_the_demo_publishes_plausible_forces_to_a_subscriber(tmp_path):
     """README's first command, with a separate listener process: fields of the right shape and contact
     forces in N on the recording's scale (peak within ×0.6–1.6 of the F/T peak)."""
     from tensortouch.contracts.session import load_session
+
     from tests.test_e2e_runtime import free_port, stop
 
     ses = load_session(DEMO, check_frames=False)

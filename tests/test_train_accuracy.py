@@ -3,7 +3,6 @@ FE node forces → field image → the runtime's contact clusters must keep the 
 import numpy as np
 import pytest
 from scipy import ndimage
-
 from tensortouch.runtime.stages.contacts import ContactConfig, find_clusters, pixel_forces
 from tensortouch.tools.train.dataset import FieldProjector
 from tensortouch.tools.train.fields import FieldConfig, contact_force_from_image, fe_to_fields, tributary_area
@@ -86,7 +85,6 @@ def test_runtime_clusters_keep_the_smoothed_tails():
 
 def test_total_force_error_is_the_integrated_contact_force_difference():
     import torch
-
     from tensortouch.contracts.fields import CHANNELS
     from tensortouch.tools.train.model.train import total_force_error
 
@@ -105,7 +103,6 @@ def test_total_force_error_is_the_integrated_contact_force_difference():
 
 def test_light_sample_weight_emphasises_light_contacts_only():
     import torch
-
     from tensortouch.contracts.fields import CHANNELS
     from tensortouch.tools.train.model.train import FitConfig, light_sample_weight
 
@@ -126,7 +123,6 @@ def test_light_sample_weight_emphasises_light_contacts_only():
 
 def test_fit_fine_tunes_from_a_state_dict_with_the_force_term(tmp_path):
     import torch
-
     from tensortouch.tools.train.model.data import write_synthetic_dataset
     from tensortouch.tools.train.model.train import FitConfig, fit
 

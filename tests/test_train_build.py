@@ -9,7 +9,6 @@ import time
 
 import numpy as np
 import pytest
-
 from tensortouch.tools.train.build import STAGES, Build, BuildConfig, stage_keys, tiny_config
 from tensortouch.tools.train.runner import run_build
 
@@ -176,9 +175,9 @@ def test_tiny_recipe_with_a_lineage_ships_a_package_that_names_and_rebuilds_its_
     """fit (step base) → fit from base's weights (step more) → export → evaluate on the tiny dataset; the
     package verifies and runs in the runtime; its manifest names the recipe and the lineage, and rebuilds."""
     from tensortouch.runtime.stages.model import FieldModel, load_package
-    from tensortouch.tools.train.runner import run_recipe
     from tensortouch.tools.train.export import verify_package
     from tensortouch.tools.train.recipe import RecipeError, apply_set, load_recipe
+    from tensortouch.tools.train.runner import run_recipe
 
     b, _ = tiny_build
     tiny = load_recipe("tiny")

@@ -1,7 +1,6 @@
 """Stages 3, 4 (dataset shell), 5 and 8 cores of `tensortouch train all` (tools/train/*)."""
 import numpy as np
 import pytest
-
 from tensortouch.contracts.fields import CHANNELS
 from tensortouch.tools.train.correspondence import image_change_centroid, project_to_cap, tables_from_theta_phi
 from tensortouch.tools.train.dataset import DatasetConfig, FieldProjector, select_frames, write_dataset
@@ -9,7 +8,6 @@ from tensortouch.tools.train.evaluate import frame_errors, has_phantom, summariz
 from tensortouch.tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
 from tensortouch.tools.train.model.data import load_split, read_index
 from tensortouch.tools.train.simreal import SimRealError, apply_ratios, fit_ratios
-
 
 # ---------------------------------------------------------------- stage 4 shell: sample selection
 

@@ -5,7 +5,6 @@ import json
 
 import pytest
 import torch
-
 from tensortouch.tools.train.model import device as dev
 from tensortouch.tools.train.model.data import DatasetError, data_hash, write_synthetic_dataset
 from tensortouch.tools.train.model.train import FitConfig, fit

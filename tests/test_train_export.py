@@ -13,11 +13,11 @@ torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-from tensortouch.contracts.errors import ModelPackageError    # noqa: E402
-from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS    # noqa: E402
-from tensortouch.contracts.paths import ROOT    # noqa: E402
-from tensortouch.tools.train.cli import register    # noqa: E402
-from tensortouch.tools.train.export import FP32, FP32_HALF, INT8, count_quantize_nodes, fp32_cache_path, verify_package    # noqa: E402
+from tensortouch.contracts.errors import ModelPackageError  # noqa: E402
+from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS  # noqa: E402
+from tensortouch.contracts.paths import ROOT  # noqa: E402
+from tensortouch.tools.train.cli import register  # noqa: E402
+from tensortouch.tools.train.export import FP32, FP32_HALF, INT8, count_quantize_nodes, fp32_cache_path, verify_package  # noqa: E402
 
 SIZE = 64
 
@@ -257,7 +257,7 @@ def test_tampered_package_is_rejected(package, tmp_path):
 
 
 def test_keypoints_cli_on_a_session(tmp_path):
-    from tensortouch.contracts.session import new_manifest, write_manifest, write_table, STREAM_COLUMNS
+    from tensortouch.contracts.session import STREAM_COLUMNS, new_manifest, write_manifest, write_table
 
     t = np.arange(0, 4, 1 / 120)
     z = 10 - 2.0 * np.clip(np.minimum(t - 0.5, 3.5 - t), 0, 1)

@@ -3,12 +3,24 @@ import json
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.fields import CHANNELS
-from tensortouch.tools.train.fields import (FieldConfig, FieldDataError, attribute_contacts, compute_bounds,
-                                contact_force_from_image, denormalize, fe_to_fields, interpolate_to_grid,
-                                normalize_global, normalize_per_image, read_bounds, surface_angles,
-                                transfer_nearest, tributary_area, write_bounds)
+from tensortouch.tools.train.fields import (
+    FieldConfig,
+    FieldDataError,
+    attribute_contacts,
+    compute_bounds,
+    contact_force_from_image,
+    denormalize,
+    fe_to_fields,
+    interpolate_to_grid,
+    normalize_global,
+    normalize_per_image,
+    read_bounds,
+    surface_angles,
+    transfer_nearest,
+    tributary_area,
+    write_bounds,
+)
 
 R = 16.0          # hemisphere radius, mm
 

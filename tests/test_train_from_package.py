@@ -9,10 +9,11 @@ import pytest
 torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 
-from tensortouch.contracts.errors import ModelPackageError    # noqa: E402
+from tensortouch.contracts.errors import ModelPackageError  # noqa: E402
+from tensortouch.tools.train.export import FP32, INT8  # noqa: E402
+from tensortouch.tools.train.from_package import assemble, dequantized, id_positions, state_dict_from_package  # noqa: E402
+
 from tests.test_train_export import SIZE, _cli, package  # noqa: E402,F401  (package: the tiny int8 package)
-from tensortouch.tools.train.export import FP32, INT8    # noqa: E402
-from tensortouch.tools.train.from_package import assemble, dequantized, id_positions, state_dict_from_package    # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +55,6 @@ def test_int8_graph_gives_the_weights_within_their_quantization_step(built):
 
 def test_the_network_from_the_package_computes_what_the_package_computes(built):
     import onnxruntime as ort
-
     from tensortouch.tools.train.model import build_model
 
     folder, _, run = built

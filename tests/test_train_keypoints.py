@@ -1,9 +1,15 @@
 """Stage 1 (seed §III.C): contact detection and keypoints on synthetic trajectories with known events."""
 import numpy as np
 import pytest
-
-from tensortouch.tools.train.keypoints import (KeypointConfig, detect_contacts, extract_keypoints, find_keypoints,
-                                   merge_intervals, relative_pose, smooth)
+from tensortouch.tools.train.keypoints import (
+    KeypointConfig,
+    detect_contacts,
+    extract_keypoints,
+    find_keypoints,
+    merge_intervals,
+    relative_pose,
+    smooth,
+)
 
 CFG = KeypointConfig()
 

@@ -6,13 +6,13 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tensortouch.tools.train.model import build_model    # noqa: E402
-from tensortouch.tools.train.model.hiera import Hiera, HieraConfig, HieraMAE    # noqa: E402
-from tensortouch.tools.train.model.layers import count_params    # noqa: E402
-from tensortouch.tools.train.model.metrics import evaluate, psnr_per_modality    # noqa: E402
-from tensortouch.tools.train.model.train import FitConfig, _Progress, fit, lr_at, load_trained    # noqa: E402
-from tensortouch.tools.train.model.data import data_hash, load_split, read_index, write_synthetic_dataset    # noqa: E402
-from tensortouch.contracts.fields import CHANNELS    # noqa: E402
+from tensortouch.contracts.fields import CHANNELS  # noqa: E402
+from tensortouch.tools.train.model import build_model  # noqa: E402
+from tensortouch.tools.train.model.data import data_hash, load_split, read_index, write_synthetic_dataset  # noqa: E402
+from tensortouch.tools.train.model.hiera import Hiera, HieraConfig, HieraMAE  # noqa: E402
+from tensortouch.tools.train.model.layers import count_params  # noqa: E402
+from tensortouch.tools.train.model.metrics import evaluate, psnr_per_modality  # noqa: E402
+from tensortouch.tools.train.model.train import FitConfig, _Progress, fit, load_trained, lr_at  # noqa: E402
 
 
 @pytest.mark.parametrize("size", [128, 96])
@@ -174,7 +174,6 @@ def test_heads_start_at_the_mean_target(arch):
 
 def test_photometric_jitter_scales_both_frames_alike_within_bounds():
     import torch
-
     from tensortouch.tools.train.model.train import photometric_jitter
 
     torch.manual_seed(0)

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from tensortouch.tools.train import protocol as P
 from tensortouch.tools.train import scorecard as S
 

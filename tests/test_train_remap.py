@@ -8,9 +8,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tensortouch.contracts.fields import CHANNELS    # noqa: E402
-from tensortouch.tools.train.fields import denormalize, read_bounds, write_bounds    # noqa: E402
-from tensortouch.tools.train.model.train import DatasetError, head_remap, load_any_bounds    # noqa: E402
+from tensortouch.contracts.fields import CHANNELS  # noqa: E402
+from tensortouch.tools.train.fields import denormalize, read_bounds, write_bounds  # noqa: E402
+from tensortouch.tools.train.model.train import DatasetError, head_remap, load_any_bounds  # noqa: E402
 
 
 def _bounds(seed: int) -> dict:

@@ -1,6 +1,5 @@
 """Training sessions with their own plan ranges (SessionSpec.trajectory) and the twin's with_ranges."""
 import pytest
-
 from tensortouch.tools.train.build import BuildConfig, SessionSpec, stage_keys
 from tensortouch.tools.twin.trajectory import TrajectoryConfig, with_ranges
 

@@ -3,12 +3,21 @@ frame labelling of the re-solved path (tools/train/labels.py). Synthetic pose tr
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-
 from tensortouch.tools.fe import GelGeometry
 from tensortouch.tools.fe.indenters import make_shape
 from tensortouch.tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share
-from tensortouch.tools.train.resolve import (PoseTrack, ResolveConfig, ResolveError, clearance, densify, fit_pose,
-                                 frame_sigma, interp_frames, period_scenario, surface_samples)
+from tensortouch.tools.train.resolve import (
+    PoseTrack,
+    ResolveConfig,
+    ResolveError,
+    clearance,
+    densify,
+    fit_pose,
+    frame_sigma,
+    interp_frames,
+    period_scenario,
+    surface_samples,
+)
 from tensortouch.tools.twin.geometry import GelSurface
 
 GEL = GelGeometry(kind="flattened_dome", radius=12.0, cap_height=6.0, skirt=2.0)

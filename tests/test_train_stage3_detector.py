@@ -2,7 +2,6 @@
 whole GPR calibration of twin units against their true lens (slow: records twin calibration sessions)."""
 import numpy as np
 import pytest
-
 from tensortouch.tools.train.pokes2d import FlowPredictor, dot_centers, fit_offset, track_dots
 from tensortouch.tools.twin.camera import CameraConfig, FisheyeModel
 from tensortouch.tools.twin.geometry import GelSurface

@@ -3,9 +3,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
-from tensortouch.runtime.stages.contacts import ContactConfig
 from tensortouch.runtime.pipeline import PipelineConfig
+from tensortouch.runtime.stages.contacts import ContactConfig
 from tensortouch.tools.train.support import SupportConfig, choose_support, score, support_sample
 from tensortouch.tools.train.threshold import choose
 

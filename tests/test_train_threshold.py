@@ -4,9 +4,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
-from tensortouch.runtime.stages.contacts import ContactConfig
 from tensortouch.runtime.pipeline import PipelineConfig
+from tensortouch.runtime.stages.contacts import ContactConfig
 from tensortouch.tools.train.threshold import ThresholdConfig, _has_core, choose, record, rest_frames
 
 

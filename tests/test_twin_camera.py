@@ -2,7 +2,6 @@
 import cv2
 import numpy as np
 import pytest
-
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.preprocess import Preprocessor
 from tensortouch.tools.twin.camera import CameraConfig, FisheyeModel

@@ -3,7 +3,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from tensortouch.tools.twin.effect_specs import CANONICAL, COVARIATES, SPECS, parse_effect_arg
 from tensortouch.tools.twin.effects import EFFECTS, build_effects
 

@@ -3,7 +3,6 @@ import json
 
 import numpy as np
 import pytest
-
 from tensortouch.tools.twin.bench import _densify
 from tensortouch.tools.twin.geometry import GelSurface
 from tensortouch.tools.twin.physics import HertzFallbackPhysics, PokeSolve, interpolate, keypoint_poses, motion_runs

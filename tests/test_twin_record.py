@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.session import load_session, read_table
 from tensortouch.tools.sessions.writer import read_frames
 from tensortouch.tools.twin.record import RecordConfig, Recorder, record
@@ -105,7 +104,7 @@ def test_zero_contact_frames_equal_rest_up_to_noise(fe_session):
     rest = rec.unit.renderer.render_float(None)
     nz = rec.unit.renderer.noise
     bound = 2.0 * np.sqrt(nz.read_sigma ** 2 + nz.shot_sigma ** 2) + 1 / 255
-    for i, f in read_frames(s, before):
+    for _i, f in read_frames(s, before):
         d = f.astype(np.float64) / 255 - rest
         assert abs(d.mean()) < 0.002 and d.std() < bound
     keys = read_table(rec.out / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
@@ -139,7 +138,7 @@ def test_deterministic_and_resumable(tmp_path):
     sa, sb = load_session(a), load_session(b)
     for name in ("poses", "wrench", "temperature", "frames"):
         np.testing.assert_array_equal(sa.table(name), sb.table(name))
-    for (i, fa), (_, fb) in zip(read_frames(sa), read_frames(sb)):
+    for (_i, fa), (_, fb) in zip(read_frames(sa), read_frames(sb)):
         np.testing.assert_array_equal(fa, fb)
     with pytest.raises(Exception, match="already holds a finished session"):
         record(_small(), tmp_path / "a")

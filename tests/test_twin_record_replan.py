@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts.session import load_session
 from tensortouch.tools.twin.record import RecordConfig, Recorder
 from tensortouch.tools.twin.trajectory import GuidedConfig, TrajectoryConfig, apply_replans, plan_guided, shorten

@@ -3,7 +3,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from tensortouch.tools.twin.geometry import GelSurface
 from tensortouch.tools.twin.trajectory import TrajectoryConfig, contact_points, plan_session
 

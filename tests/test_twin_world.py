@@ -8,15 +8,20 @@ import json
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-
 from tensortouch.contracts.errors import SessionError
-from tensortouch.contracts.session import (load_session, mocap_to_sensor, read_table, to_house_frame,
-                                           validate_manifest)
+from tensortouch.contracts.session import load_session, mocap_to_sensor, read_table, to_house_frame, validate_manifest
 from tensortouch.tools.train.rig_estimate import clock_lag, contact_onsets, estimate, fit_translation, write
 from tensortouch.tools.twin.geometry import GelSurface
 from tensortouch.tools.twin.record import RecordConfig, Recorder, make_physics, record
-from tensortouch.tools.twin.world import (WorldConfig, ar1_filter, calibrated_extrinsic, distort_ft, draw_world,
-                                          sensor_to_mocap, stamp)
+from tensortouch.tools.twin.world import (
+    WorldConfig,
+    ar1_filter,
+    calibrated_extrinsic,
+    distort_ft,
+    draw_world,
+    sensor_to_mocap,
+    stamp,
+)
 
 POSE_COLS = ["t", "indenter", "x", "y", "z", "qw", "qx", "qy", "qz"]
 

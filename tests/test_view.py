@@ -7,9 +7,9 @@ import urllib.request
 import cv2
 import numpy as np
 import pytest
-
 from tensortouch.contracts.wire import FieldsFrame
 from tensortouch.tools.view.render import DIVERGING, SEQUENTIAL, channel_data, colorize, downsample, frame_view, value_range
+
 from tests.hand_util import free_endpoint, hand_cfg, make_package, make_store, make_video, wait_until
 
 

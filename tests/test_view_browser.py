@@ -14,10 +14,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import numpy as np
 import pytest
 import zenoh
-
 from tensortouch.contracts import wire
 from tensortouch.runtime.apps.publisher import Publisher
 from tensortouch.runtime.apps.zenoh_session import open_session, zenoh_config
+
 from tests.test_listen import CONTACT, free_endpoint
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

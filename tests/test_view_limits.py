@@ -5,9 +5,9 @@ import socket
 import time
 
 import zenoh
-
 from tensortouch.contracts import wire
 from tensortouch.runtime.apps.zenoh_session import open_session, zenoh_config
+
 from tests.test_listen import free_endpoint
 
 
@@ -97,7 +97,6 @@ def test_hostile_publishers_and_slow_clients_leave_the_view_serving_the_genuine_
     import threading
 
     import numpy as np
-
     from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS
     from tensortouch.runtime.apps.publisher import Publisher
     from tensortouch.tools.view import server

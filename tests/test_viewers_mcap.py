@@ -9,12 +9,12 @@ pytest.importorskip("foxglove")
 mcap_reader = pytest.importorskip("mcap.reader")
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-
 from tensortouch.contracts import wire
+from tensortouch.tools.viewers.mcap_saver import McapSaver
+
 from tests import test_listen
 from tests.test_listen import CONTACT
 from tests.viewers_util import listen_save
-from tensortouch.tools.viewers.mcap_saver import McapSaver
 
 sensor_fixture = test_listen.running_sensor          # a publisher on loopback (its endpoint)
 

@@ -14,8 +14,8 @@ import sysconfig
 import zipfile
 
 import pytest
-
 from tensortouch.contracts.paths import ROOT
+
 from tests.test_e2e_runtime import free_port, stop
 from tests.test_meeting_point import _wait_for_line
 
@@ -63,8 +63,8 @@ def test_the_installed_wheel_runs_the_demo_and_listen_receives_it(installed):
     env = {k: v for k, v in os.environ.items() if not k.startswith("TENSORTOUCH_") and k != "PYTHONPATH"}
     env.update(PYTHONUNBUFFERED="1", TENSORTOUCH_ENDPOINT=f"tcp/127.0.0.1:{free_port()}", HOME=str(tmp))
     where = subprocess.run([str(venv / "bin" / "python"), "-c",
-                            "import tensortouch.runtime, tensortouch.contracts.paths as p; "
-                            "print(tensortouch.runtime.__file__); print(p.models_dir()); print(p.cache_dir())"],
+                            ("import tensortouch.runtime, tensortouch.contracts.paths as p; "
+                            "print(tensortouch.runtime.__file__); print(p.models_dir()); print(p.cache_dir())")],
                            env=env, cwd=tmp, check=True, capture_output=True, text=True).stdout.split()
     assert all(str(venv) in w or str(tmp) in w for w in where), where
     assert not any(str(ROOT) in w for w in where), where

@@ -3,7 +3,6 @@ import json
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import wire
 from tensortouch.contracts.errors import TensorTouchError
 from tensortouch.contracts.fields import CHANNEL_UNITS, CHANNELS

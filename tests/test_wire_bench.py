@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from tensortouch.contracts import wire
 from tensortouch.runtime.apps.publisher import Publisher
 from tensortouch.runtime.apps.subscriber import Subscriber

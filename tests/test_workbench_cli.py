@@ -7,9 +7,8 @@ import json
 
 import numpy as np
 import pytest
-
-from tensortouch.contracts.store import CalibrationStore
 from tensortouch.contracts.session import rewrite_in_units
+from tensortouch.contracts.store import CalibrationStore
 from tensortouch.tools.accept.alter import copy_without_truth
 from tensortouch.tools.workbench import cli
 from tensortouch.tools.workbench.scenarios import Scenario, fresh_store, record

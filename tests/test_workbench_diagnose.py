@@ -3,14 +3,14 @@ independent alteration script (tests/workbench_synth.py: e.g. viscoelasticity vi
 not by the model-side effect code the diagnosis fits."""
 import numpy as np
 import pytest
-
 from tensortouch.runtime.stages.effects import EffectChain, Registry
-from tensortouch.tools.accept.workbench import PLUGINS   # the harness's plugin
-from tests.conftest import hidden_effects
-from tests.workbench_synth import synth_table
+from tensortouch.tools.accept.workbench import PLUGINS  # the harness's plugin
 from tensortouch.tools.workbench.diagnose import DiagnoseConfig, add_to_chain, diagnose, holm, sign_flip_pvalue, time_blocks
 from tensortouch.tools.workbench.fit import refit_chain
 from tensortouch.tools.workbench.scan import covariate_score
+
+from tests.conftest import hidden_effects
+from tests.workbench_synth import synth_table
 
 HIDDEN = hidden_effects("synthetic")
 

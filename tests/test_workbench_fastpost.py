@@ -3,13 +3,13 @@
 calibration-baseline sign-flip test. Real scikit-learn forest -> real ONNX -> real onnxruntime."""
 import numpy as np
 import pytest
-
 from tensortouch.runtime.stages.correction import ForceCorrection
 from tensortouch.runtime.stages.effects import EffectChain, Registry
-from tests.workbench_synth import synth_table
 from tensortouch.tools.workbench.diagnose import DiagnoseConfig, diagnose, sign_flip_pvalue, time_blocks
 from tensortouch.tools.workbench.fastpost import memo_gain
 from tensortouch.tools.workbench.fit import Channels
+
+from tests.workbench_synth import synth_table
 
 
 @pytest.fixture(scope="module")

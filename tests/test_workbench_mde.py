@@ -4,14 +4,14 @@ import math
 
 import numpy as np
 import pytest
-
 from tensortouch.runtime.stages.effects import EffectChain, Registry
-from tests.workbench_mdecheck import draw, press_floor, rms, with_effect
-from tests.workbench_synth import alter, synth_table
 from tensortouch.tools.workbench.cli import ranking_lines
 from tensortouch.tools.workbench.diagnose import contact_of, diagnose, press_blocks
 from tensortouch.tools.workbench.mde import minimum_detectable_effect, presses, words
 from tensortouch.tools.workbench.table import SampleTable
+
+from tests.workbench_mdecheck import draw, press_floor, rms, with_effect
+from tests.workbench_synth import alter, synth_table
 
 
 @pytest.fixture(scope="module")

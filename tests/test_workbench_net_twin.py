@@ -13,7 +13,6 @@ import os
 from pathlib import Path
 
 import pytest
-
 from tensortouch.contracts.errors import ModelPackageError
 from tensortouch.tools.accept import workbench as acc
 

@@ -13,16 +13,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from tensortouch.contracts.store import CalibrationStore
-from tensortouch.runtime.stages.effects import Registry
 from tensortouch.contracts.errors import TensorTouchError
-from tensortouch.runtime.stages.model import load_package
-from tensortouch.runtime.pipeline import open_pipeline
 from tensortouch.contracts.session import load_session
+from tensortouch.contracts.store import CalibrationStore
+from tensortouch.runtime.pipeline import open_pipeline
+from tensortouch.runtime.stages.effects import Registry
+from tensortouch.runtime.stages.model import load_package
+from tensortouch.tools.scoring import match_contacts
 from tensortouch.tools.workbench import cli
 from tensortouch.tools.workbench.compare import run_compare
-from tensortouch.tools.scoring import match_contacts
 from tensortouch.tools.workbench.network import NetworkModel, replay, temperature_of
 
 pytest.importorskip("tensortouch.tools.twin.record")

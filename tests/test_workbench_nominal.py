@@ -1,7 +1,6 @@
 """The nominal correction's choices on synthetic calibration pokes (real scikit-learn forests):
 cross-fitting folds, input selection, and 'no correction' when no forest beats the raw network."""
 import numpy as np
-
 from tensortouch.tools.recalib.fit import PokeSet
 from tensortouch.tools.workbench.nominal import NominalConfig, choose_inputs, folds_of
 

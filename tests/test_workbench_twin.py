@@ -5,15 +5,15 @@ has effects switched on in the twin's truth (or measurements altered by tools/ac
 an independent script). Diagnosis reads sample tables built from measured streams only.
 """
 import pytest
-
 from tensortouch.contracts.store import CalibrationStore
 from tensortouch.runtime.stages.effects import EffectChain, Registry
 from tensortouch.tools.accept.alter import alter_session
-from tensortouch.tools.accept.workbench import PLUGINS   # the harness's plugin
+from tensortouch.tools.accept.workbench import PLUGINS  # the harness's plugin
 from tensortouch.tools.workbench.compare import load_table
 from tensortouch.tools.workbench.diagnose import add_to_chain, diagnose
 from tensortouch.tools.workbench.models import ContactLaw
 from tensortouch.tools.workbench.scenarios import Scenario, record, store_root
+
 from tests.conftest import hidden_effects
 
 pytestmark = pytest.mark.slow

@@ -3,7 +3,6 @@ stream only, scale with their amplitude, and the drag opposes the indenter's mot
 loaded session in memory gives the table of the altered copy; one diagnosed case end to end (slow)."""
 import numpy as np
 import pytest
-
 from tensortouch.contracts.session import load_session
 from tensortouch.tools.accept.alter_forms import FORMS, alter, contribution
 

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import pytest
 import zenoh
-
 from tensortouch.contracts import wire
 from tensortouch.contracts.paths import ROOT
 from tensortouch.runtime.apps.subscriber import Subscriber
+
 from tests.test_e2e_runtime import free_port, stop
 
 DOCS = ROOT / "docs" / "zenoh"

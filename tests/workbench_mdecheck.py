@@ -13,11 +13,11 @@ import argparse
 import json
 
 import numpy as np
-
 from tensortouch.runtime.stages.effects import Registry
-from tests.workbench_synth import alter, synth_table
 from tensortouch.tools.workbench.diagnose import diagnose
 from tensortouch.tools.workbench.table import SampleTable
+
+from tests.workbench_synth import alter, synth_table
 
 UNIT = {"strain_stiffening": ("k", {}), "temperature_softening": ("alpha", {"t_ref": 22.0}),
         "rim_stiffening": ("a", {"w": 3.0})}

@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 from scipy.special import erf
-
 from tensortouch.tools.workbench.table import SampleTable
 
 GEL_RADIUS = 12.0     # mm (dome radius of the synthetic gel)

@@ -20,7 +20,7 @@ class StageProgress:
     def __call__(self, stage: str, i: int, n: int) -> None:
         key = (stage, n)
         if key != self._key:
-            from tqdm import tqdm          # imported when a bar opens: registering a command needs none
+            from tqdm import tqdm  # imported when a bar opens: registering a command needs none
             from tqdm.contrib.logging import logging_redirect_tqdm
 
             self.close()

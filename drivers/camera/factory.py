@@ -17,10 +17,10 @@ import logging
 import os
 import typing
 
+from ...contracts.errors import CaptureError
 from .camera import Camera, CameraConfig
 from .opencv import OpenCVCamera, OpenCVCameraConfig
 from .replay import ReplayCamera, ReplayCameraConfig
-from ...contracts.errors import CaptureError
 
 log = logging.getLogger(__name__)
 

@@ -20,8 +20,8 @@ import threading
 import time
 from pathlib import Path
 
-from ...contracts.store import CalibrationStore
 from ...contracts.errors import CaptureError, TensorTouchError
+from ...contracts.store import CalibrationStore
 from ..stages.geometry import surface_grid
 from .hand_config import FingerConfig, HandConfig
 from .zenoh_session import default_endpoint, release
@@ -192,8 +192,8 @@ class Hand:
 
     def __init__(self, cfg: HandConfig, *, session=None, camera_factory=None, can_bus=None,
                  on_result=None, models_root: Path | None = None):
-        from ..stages.model import FieldModel, find_package
         from ..pipeline import open_pipeline
+        from ..stages.model import FieldModel, find_package
         from .publisher import open_session
 
         self.cfg = cfg

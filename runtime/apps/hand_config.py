@@ -45,13 +45,12 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ...drivers.can_bus import CanConfig
 from ...contracts import wire
 from ...contracts.errors import TensorTouchError
-from ...contracts.schema import Range, SchemaError, check_depth, check_fields, check_value
-from .ros2_publisher import Ros2Config
-from .ros2_publisher import resolve_router
 from ...contracts.ros2_wire import name_token as rw_name_token
+from ...contracts.schema import Range, SchemaError, check_depth, check_fields, check_value
+from ...drivers.can_bus import CanConfig
+from .ros2_publisher import Ros2Config, resolve_router
 
 log = logging.getLogger(__name__)
 

@@ -14,12 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...drivers.camera.camera import EndOfStream
-from ...contracts.store import CalibrationStore
 from ...contracts.errors import CaptureError, TensorTouchError
+from ...contracts.store import CalibrationStore
 from ...contracts.wire import CONTACT_FIELDS
-from ..stages.geometry import surface_grid
+from ...drivers.camera.camera import EndOfStream
 from ..pipeline import FrameResult, SensorPipeline
+from ..stages.geometry import surface_grid
 
 log = logging.getLogger(__name__)
 

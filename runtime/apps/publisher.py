@@ -15,10 +15,10 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 import zenoh
 
-from .. import __version__
 from ...contracts import wire
-from . import zenoh_session
 from ...contracts.errors import TensorTouchError
+from .. import __version__
+from . import zenoh_session
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +82,7 @@ class Publisher:
         self.config = config or PublisherConfig()
         self.status_extra = dict(status_extra or {})  # members every status carries (e.g. finger)
         self.stats = WireStats()
-        self._info = info or (lambda: {})
+        self._info = info or dict
         self._lock = threading.Lock()
         self._errors_at_last_status = 0
         self._clipped_at_last_status = 0

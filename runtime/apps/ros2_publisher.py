@@ -189,7 +189,7 @@ class _Topic:
     """One ROS 2 publisher: a Zenoh publisher on the data key and its MP liveliness token."""
 
     def __init__(self, node: Ros2Node, topic: str, ros_type: str, priority, express: bool):
-        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+        import zenoh  # here, not at import: `tensortouch --help` builds this module's options
 
         cfg = node.config
         self.node, self.topic, self.ros_type = node, topic, ros_type
@@ -220,7 +220,7 @@ class Ros2Node:
     per-sensor publishers made by `sensor()`. Not the owner of the session."""
 
     def __init__(self, session: zenoh.Session, config: Ros2Config | None = None):
-        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+        import zenoh  # here, not at import: `tensortouch --help` builds this module's options
 
         self.session = session
         self.config = config or Ros2Config()
@@ -270,7 +270,7 @@ class Ros2Sensor:
     (mm, N, N·mm, MPa), SI out. `calibration()` returns the active Calibration (for the surface)."""
 
     def __init__(self, node: Ros2Node, sensor_id: str, calibration: Callable[[], Any] | None = None):
-        import zenoh     # here, not at import: `tensortouch --help` builds this module's options
+        import zenoh  # here, not at import: `tensortouch --help` builds this module's options
 
         cfg = node.config
         self.node, self.sensor_id, self.calibration = node, sensor_id, calibration

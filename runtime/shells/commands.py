@@ -85,11 +85,11 @@ def register(sub) -> None:
 
 
 def _open_source(args):
-    from ...drivers.camera import config_from_uri, make_camera
-    from ...drivers.camera.replay import ReplayCameraConfig
     from ...contracts import paths
     from ...contracts.errors import CaptureError
     from ...contracts.session import load_session
+    from ...drivers.camera import config_from_uri, make_camera
+    from ...drivers.camera.replay import ReplayCameraConfig
 
     source = args.source
     loop = bool(args.loop)
@@ -131,14 +131,14 @@ def _temperature_source(args, cam):
 def cmd_run(args) -> int:
     import cv2
 
-    from ...contracts.store import CalibrationStore
     from ...contracts.errors import TensorTouchError
+    from ...contracts.store import CalibrationStore
+    from ...contracts.wire import check_sensor_id
     from ..apps.loop import LoopConfig, SensorLoop
-    from ..stages.model import find_package
-    from ..pipeline import open_pipeline
     from ..apps.publisher import Publisher
     from ..apps.ros2_publisher import Ros2Node, resolve_router, ros2_config_from_args
-    from ...contracts.wire import check_sensor_id
+    from ..pipeline import open_pipeline
+    from ..stages.model import find_package
 
     cv2.setNumThreads(1)                        # leave the cores to onnxruntime and other sensors
     package = find_package(args.model)          # clear message when no trained model is installed
@@ -222,12 +222,12 @@ def cmd_calib_rollback(args) -> int:
 def cmd_calib_init(args) -> int:
     from dataclasses import fields
 
+    from ...contracts.errors import CalibrationError, TensorTouchError
+    from ...contracts.store import ANY
     from ...drivers.camera import camera_from_uri
     from ...drivers.camera.camera import EndOfStream
     from ..calib.bringup import GelShape, LensModel, init_calibration
-    from ...contracts.errors import CalibrationError, TensorTouchError
     from ..stages.model import find_package
-    from ...contracts.store import ANY
 
     store = _store(args)
     if args.sensor in store.sensors() and not args.force:

@@ -290,7 +290,6 @@ def open_saver(path: Path):
     from importlib import metadata
 
     from ...contracts.errors import CommandError
-
     from ...contracts.extras import hint, missing
 
     suffix = Path(path).suffix.lower().lstrip(".")

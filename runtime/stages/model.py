@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts import paths
-from ...contracts.store import sha256_file
 from ...contracts.errors import ModelPackageError
 from ...contracts.fields import CHANNELS, N_CHANNELS
 from ...contracts.manifest_schema import check_manifest
+from ...contracts.store import sha256_file
 
 log = logging.getLogger(__name__)
 

@@ -3,7 +3,6 @@
 Drop this file in a folder and pass the folder with --plugins (or TENSORTOUCH_EFFECTS_PATH).
 """
 import numpy as np
-
 from tensortouch.runtime.stages.effects import Effect, Param, need
 
 

@@ -33,9 +33,8 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
-from ...contracts.session import load_session, rewrite_in_units, write_manifest
 from ...contracts.files import finish_partial
-from ...contracts.session import write_stream
+from ...contracts.session import load_session, rewrite_in_units, write_manifest, write_stream
 
 
 def copy_without_truth(src: Path, dst: Path) -> Path:

@@ -13,8 +13,8 @@ HARNESSES = {
     "workbench-generality": ("tensortouch.tools.accept.workbench_generality",
                              "twin-truth effects at parameters no acceptance case uses"),
     "workbench-synthetic-generality": ("tensortouch.tools.accept.synthetic_generality",
-                                       "the diagnosis on hidden effects of forms not in the library (synthetic "
-                                       "sessions, the nominal law as the model)"),
+                                       ("the diagnosis on hidden effects of forms not in the library (synthetic "
+                                       "sessions, the nominal law as the model)")),
     "workbench-twin-generality": ("tensortouch.tools.accept.twin_generality",
                                   "diagnosis on twin units with hidden effects in forms not in the library"),
     "recalib-generality": ("tensortouch.tools.accept.recalib_generality",

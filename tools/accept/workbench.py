@@ -28,11 +28,11 @@ import numpy as np
 
 from ...contracts.store import CalibrationStore
 from ...runtime.stages.effects import EffectChain, Registry
-from .alter import alter_session
 from ..workbench.compare import run_compare
 from ..workbench.diagnose import add_to_chain, diagnose
 from ..workbench.fit import refit_chain
 from ..workbench.scenarios import NET_TEST_SEED, net_scenario, record, store_root
+from .alter import alter_session
 
 log = logging.getLogger(__name__)
 SENSOR = "TWIN-WB01"
@@ -178,7 +178,7 @@ def run_all(bench: Bench, work: Path, nulls: int = 10, cases=CASES, parts=("two"
     out["floor_n"] = floor
     raw = bench.diagnose(null, corrected=False)
     out["raw_null"] = row_of(raw, "nothing (raw network, no correction)", {}, 0.0, floor)
-    for i, seed in enumerate([NET_TEST_SEED] + list(range(1, nulls))):
+    for _i, seed in enumerate([NET_TEST_SEED] + list(range(1, nulls))):
         d = floor_diag if seed == NET_TEST_SEED else bench.diagnose(null_session(seed))
         out["nulls"].append(dict(row_of(d, f"nothing (seed {seed})", {}, 0.0, floor), seed=seed))
         log.info("null seed %d: %s", seed, out["nulls"][-1]["verdict"])
@@ -245,8 +245,8 @@ def _fmt(x, f="{:.3f}"):
 
 
 def markdown(res: dict) -> str:
-    lines = ["| hidden | source | effect size / floor | rank-1 | held-out before → after | reduction | "
-             "p (corr.) | calib. session | verdict | fitted |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [("| hidden | source | effect size / floor | rank-1 | held-out before → after | reduction | "
+             "p (corr.) | calib. session | verdict | fitted |"), "|---|---|---|---|---|---|---|---|---|---|"]
     for r in [res["raw_null"]] + res["nulls"] + res["cases"]:
         fitted = ", ".join(f"{k} = {v:.3g}" for k, v in r["fitted"].items()) if r["verdict"] else ""
         unit = "" if r["channel"] == "force" else " (rel.)"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...contracts.fields import CHANNELS, CHANNEL_UNITS, INPUT_CHANNELS
+from ...contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
 
 
 def _conv(nodes, inits, rng, name, x, cin, cout, k=3, stride=1, act=True, pad=None):

@@ -100,9 +100,9 @@ def fp32_package(pkg, work: Path):
     deterministic, so the hash is checked again); the package is then assembled in `work`."""
     import shutil
 
+    from ...contracts.paths import ROOT
     from ...contracts.store import sha256_file
     from ...runtime.stages.model import PRECISION_FILES, load_package
-    from ...contracts.paths import ROOT
 
     if pkg.has("fp32"):
         return pkg, "shipped in the package"

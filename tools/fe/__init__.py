@@ -8,8 +8,18 @@ Heavy libraries (felupe, gmsh, trimesh) are imported lazily inside functions.
 """
 from .errors import FEConvergenceError, FEError, FEResultError, ScenarioError
 from .result import FEResult, load_result, save_result
-from .scenario import (GelGeometry, Indenter, Keypoint, Material, MeshSettings, Scenario,
-                               SolverSettings, load_scenario, save_scenario, standard_dome)
+from .scenario import (
+    GelGeometry,
+    Indenter,
+    Keypoint,
+    Material,
+    MeshSettings,
+    Scenario,
+    SolverSettings,
+    load_scenario,
+    save_scenario,
+    standard_dome,
+)
 
 
 def solve(scenario, progress=None, mesh=None, engine=None):

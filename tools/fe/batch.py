@@ -25,10 +25,10 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from .errors import FEError, ScenarioError
-from .scenario import load_scenario
 from ...contracts.files import atomic_write, atomic_write_json
 from ..progress import stage_progress
+from .errors import FEError, ScenarioError
+from .scenario import load_scenario
 
 log = logging.getLogger(__name__)
 CONNECT_TIMEOUT = "30s"  # to reach a Dask scheduler

@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.files import atomic_write_text
-
 from .indenters import rotmat
 from .scenario import Indenter, Scenario
 
@@ -301,7 +300,7 @@ def _export_abaqus(scenario: Scenario, path, mesh=None) -> Path:
     for j in range(scenario.n_keypoints):
         out += [f"*STEP, NAME=KEYPOINT_{j + 1}, NLGEOM=YES, INC=1000", "*STATIC", "0.05, 1., 1e-08, 0.25",
                 "*BOUNDARY"]
-        for name, ref, ind in refs:
+        for name, _ref, ind in refs:
             kp = ind.keypoints[j]
             for dof, val in enumerate(list(kp.translation) + list(kp.rotation), 1):
                 out.append(f"{name}_REF, {dof}, {dof}, {val}")

@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.files import atomic_write
-
 from .errors import FEResultError
 
 log = logging.getLogger(__name__)

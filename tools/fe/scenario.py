@@ -25,7 +25,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ...contracts.files import atomic_write_text
-
 from .errors import ScenarioError
 
 log = logging.getLogger(__name__)

@@ -23,9 +23,9 @@ import scipy.sparse as sp
 
 from . import contact as fc
 from .assembly import P1Assembly
-from .linsolve import ENGINES, make_factor
 from .errors import FEConvergenceError, ScenarioError
 from .indenters import make_shape, pose_at, rotmat
+from .linsolve import ENGINES, make_factor
 from .materials import YeohUmat, effective_bulk, make_umat
 from .mesh import GelMesh, mesh_gel
 from .result import FEResult

@@ -42,7 +42,6 @@ import numpy as np
 from .graph import ContactGraph, centre_line
 from .sensor_mount import SensorMount
 
-
 # an object's change from its per-gel changes
 WITNESS = {"both": lambda v: float(np.prod(v)) ** (1.0 / len(v)), "max": max, "min": min, "sum": sum}
 

@@ -6,8 +6,8 @@ import queue
 
 import numpy as np
 
-from ...drivers.camera.camera import EndOfStream, Frame
 from ...contracts.errors import CaptureError
+from ...drivers.camera.camera import EndOfStream, Frame
 
 
 class SimCamera:

@@ -23,14 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ...contracts import wire
+from ...contracts.files import atomic_write
 from . import graph as graph_mod
 from .controller import (
     ControllerConfig,
     ControllerNode,
     SelectiveGraspController,
 )
-from ...contracts import wire
-from ...contracts.files import atomic_write
 from .hand_model import HandSpec
 from .scene import PAIRS, Scene, SceneConfig
 from .sensor_mount import SensorMount
@@ -104,8 +104,8 @@ class Bench:
     def __init__(self, graph_path, urdf, cfg: TrialConfig | None = None, model=None, store=None,
                  ctrl_cfg: ControllerConfig | None = None, scene_cfg: SceneConfig | None = None):
         from ...contracts.store import CalibrationStore
-        from ...runtime.stages.model import find_package
         from ...runtime.apps.publisher import open_session
+        from ...runtime.stages.model import find_package
         from ..twin.unit import TwinUnit
 
         self.cfg = cfg or TrialConfig()

@@ -74,8 +74,8 @@ def run_units(units: dict, pokes=(5, 6, 7), repeats: int = 10, seed: int = 0, pr
 
 
 def markdown(rows: list[dict]) -> str:
-    out = ["| unit (synthetic) | pokes | held-out MAE before → after (N) | reduction median (worst of runs) "
-           "| LOO reduction median | stored |", "|---|---|---|---|---|---|"]
+    out = [("| unit (synthetic) | pokes | held-out MAE before → after (N) | reduction median (worst of runs) "
+           "| LOO reduction median | stored |"), "|---|---|---|---|---|---|"]
     for r in rows:
         out.append(f"| {r['unit']} | {r['pokes']} | {r['held_before_mae_n']:.3f} → {r['held_after_mae_n']:.3f} | "
                    f"{r['reduction_median']:.0%} ({r['reduction_min']:.0%}) | {r['loo_reduction_median']:.0%} | "

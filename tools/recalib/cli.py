@@ -69,8 +69,8 @@ def _frames(camera, pipeline, restamp: bool = False):
 def _recentre(camera, pipeline, cal, n: int, say):
     """Geometry first: the gel rim in `n` rest frames → (calibration with the re-crop, crop changes,
     rim report, the rest frames). The frames also start the pipeline's baseline (fed by the caller)."""
-    from ...drivers.camera.camera import EndOfStream
     from ...contracts.errors import CalibrationError
+    from ...drivers.camera.camera import EndOfStream
     from .rim import crop_changes, fit_rim, recrop, rest_image
 
     say(f"keep the gel untouched: reading {n} frames to find the gel rim")
@@ -137,13 +137,13 @@ def _print_errors(an, say) -> None:
 
 
 def cmd_recalibrate(args, say=None) -> int:
-    from ...drivers.camera import camera_from_uri
-    from ...contracts.store import CalibrationStore
-    from ...runtime.stages.correction import ForceCorrection
     from ...contracts.errors import TensorTouchError
-    from ...runtime.stages.model import find_package
-    from ...runtime.pipeline import open_pipeline
     from ...contracts.session import load_session
+    from ...contracts.store import CalibrationStore
+    from ...drivers.camera import camera_from_uri
+    from ...runtime.pipeline import open_pipeline
+    from ...runtime.stages.correction import ForceCorrection
+    from ...runtime.stages.model import find_package
     from .pokes import PokeRules
     from .session import (
         SessionConfig,

@@ -15,11 +15,11 @@ import logging
 
 import numpy as np
 
+from ...contracts.session import load_session
 from ...contracts.store import Calibration
+from ...runtime.offline import replay_session
 from ...runtime.stages.correction import ForceCorrection
 from ...runtime.stages.model import ModelPackage
-from ...runtime.offline import replay_session
-from ...contracts.session import load_session
 from .pokes import PokeDetector, PokeRules
 from .session import StreamReference
 

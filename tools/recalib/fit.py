@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from ...runtime.stages.correction import FEATURES, feature_matrix
 from ...contracts.errors import CalibrationError
+from ...runtime.stages.correction import FEATURES, feature_matrix
 
 log = logging.getLogger(__name__)
 

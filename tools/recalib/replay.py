@@ -20,8 +20,8 @@ def collect_frames(session_dir: Path, cal, package, precision: str, cache: Path 
     """(t, clusters) of every frame of a replayed recording as `tensortouch run` publishes them with the
     correction off: the raw model force after the calibration's enabled effects
     (runtime.offline.replay_session; `cache`: its network-pass cache folder)."""
-    from ...runtime.stages.correction import ForceCorrection
     from ...runtime.offline import replay_session
+    from ...runtime.stages.correction import ForceCorrection
 
     return [(r.t, r.clusters) for r in replay_session(session_dir, package, cal, cache=cache, precision=precision,
                                                       correction=ForceCorrection(None, None))]

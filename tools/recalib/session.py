@@ -17,14 +17,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...contracts.store import Calibration
 from ...contracts.errors import CalibrationError
+from ...contracts.store import Calibration
 from ...runtime.stages.geometry import sample_bilinear
 from .fit import CorrectionFit, Decision, FitConfig, PokeSet, decide, error_stats, fit_correction
-from .gpr_geometry import (GeometryFit, GeometryFitConfig, camera_to_model, model_to_camera,
-                                        refresh_geometry, theta_phi_from_xyz)
-from .pokes import (Poke, PokeDetector, PokeRules, ascii_map, check_poke, describe,
-                                 reference_from_readings, suggest_next)
+from .gpr_geometry import GeometryFit, GeometryFitConfig, camera_to_model, model_to_camera, refresh_geometry, theta_phi_from_xyz
+from .pokes import Poke, PokeDetector, PokeRules, ascii_map, check_poke, describe, reference_from_readings, suggest_next
 from .store_ops import active_magnitudes
 
 log = logging.getLogger(__name__)

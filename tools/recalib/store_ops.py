@@ -13,9 +13,9 @@ import time
 
 import numpy as np
 
+from ...contracts.errors import CalibrationError, TensorTouchError
 from ...contracts.store import TABLES, Calibration, CalibrationStore
 from ...runtime.stages.correction import ForceCorrection
-from ...contracts.errors import CalibrationError, TensorTouchError
 from ...runtime.stages.geometry import DomeProfile, surface_tables
 
 log = logging.getLogger(__name__)

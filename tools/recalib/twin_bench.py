@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from .fit import chosen_inputs
-from .replay import collect_frames, corrected_frames, held_out_pokes, mae    # noqa: F401 (re-exported)
-from .twin_report import markdown, summary    # noqa: F401 (re-exported)
+from .replay import collect_frames, corrected_frames, held_out_pokes, mae  # noqa: F401 (re-exported)
+from .twin_report import markdown, summary  # noqa: F401 (re-exported)
 from .twin_variants import geometry_stage, input_variants
 
 log = logging.getLogger(__name__)
@@ -189,9 +189,9 @@ def evaluate_unit(unit: BenchUnit, cfg: TwinBenchConfig, package, fit_dir: Path,
     {name: session dir}. Each session goes through the runtime pipeline once (raw model force);
     each calibration version's correction is then applied by `corrected_frames`. With
     `runtime_check`, the 7-poke version is also measured through the full pipeline (measure_pokes)."""
-    from ...contracts.store import CalibrationStore
     from ...contracts.errors import TensorTouchError
     from ...contracts.session import load_session
+    from ...contracts.store import CalibrationStore
     from .evaluate import measure_pokes
     from .pokes import PokeRules
     from .rim import crop_changes, fit_rim, recrop, rest_image

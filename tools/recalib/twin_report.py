@@ -7,8 +7,8 @@ log = logging.getLogger(__name__)
 
 
 def markdown(res: dict, held: str = "probe") -> str:
-    lines = ["| unit | variation (unknown to model + calibration) | held-out pokes | mean \\|F\\| (N) | pokes | "
-             "held-out \\|F\\| MAE before → after (N) | reduction | forced | re-crop only (N) | LOO MAE before → after (N) | stored |",
+    lines = [("| unit | variation (unknown to model + calibration) | held-out pokes | mean \\|F\\| (N) | pokes | "
+             "held-out \\|F\\| MAE before → after (N) | reduction | forced | re-crop only (N) | LOO MAE before → after (N) | stored |"),
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in res["units"]:
         h = r["held_out"].get(held)

@@ -19,8 +19,8 @@ def geometry_stage(unit, cfg, package, fit_dir, held, pokes, base, row, rules, e
     points (recalibrate --geometry; twin truth/contact.csv, or mocap/jig positions in the field),
     stored first; then the fit session replayed through the re-centred crop and the force
     correction fitted on those forces (5/6/7 pokes). Held-out errors vs the nominal 'before'."""
-    from ...contracts.store import CalibrationStore
     from ...contracts.session import load_session
+    from ...contracts.store import CalibrationStore
     from .session import SessionConfig, StreamReference, analyse, run_guided, session_truth_xyz
     from .store_ops import store_recalibration
 

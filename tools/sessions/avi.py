@@ -18,7 +18,6 @@ from ...contracts.errors import SessionError
 from ...contracts.files import atomic_write
 
 
-
 def _chunk(cid: bytes, data: bytes) -> bytes:
     return cid + struct.pack("<I", len(data)) + data + (b"\0" if len(data) & 1 else b"")
 

@@ -219,7 +219,7 @@ def iter_rosbag(path: Path, topics: set[str]):
 def iter_mcap(path: Path, topics: set[str]):
     """(topic, log_ns, msg) from an MCAP file (cdr / ros1 / json message encodings)."""
     from mcap.reader import make_reader
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
     with open(path, "rb") as fh:

@@ -34,10 +34,10 @@ def _record(args) -> int:
     import signal
     import threading
 
+    from ...contracts.errors import TensorTouchError
     from ...drivers.camera import camera_from_uri
     from ...drivers.gauge import ForceGauge, GaugeConfig
     from ...drivers.mocap import MocapConfig, PoseStream
-    from ...contracts.errors import TensorTouchError
     from .record import RecordLimits, record
 
     if args.frames is not None and args.frames < 1 or args.duration is not None and args.duration <= 0:

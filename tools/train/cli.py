@@ -16,6 +16,7 @@ import logging
 import shlex
 import time
 from pathlib import Path
+
 from ...contracts.files import atomic_write_json
 from ..command_group import LazySubcommands
 
@@ -26,8 +27,8 @@ TOOLS = (
     ("threshold", "tensortouch.tools.train.threshold",
      "measure a package's contact thresholds, light-touch rule and merging on sessions (--write), or --check them"),
     ("crosseval", "tensortouch.tools.train.crosseval",
-     "packages side by side on held-out sessions or a protocol unit set through the runtime: detection, "
-     "phantoms, |F| MAE and direction with bootstrap CIs"),
+     ("packages side by side on held-out sessions or a protocol unit set through the runtime: detection, "
+     "phantoms, |F| MAE and direction with bootstrap CIs")),
     ("units", "tensortouch.tools.train.units",
      "the evaluation protocol's train / validation / sealed unit sets: check them and the recipes, list, record"),
     ("resolve-check", "tensortouch.tools.train.resolve_check",

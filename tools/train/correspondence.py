@@ -116,9 +116,9 @@ def poke_moments(session, cfg: CorrespondenceConfig, gel_surface, catalog=None) 
     moment t_peak (smallest clearance of the smoothed mocap pose to the rest gel), the tip there."""
     from ..fe import Indenter
     from ..fe.indenters import make_shape
+    from ..twin.trajectory import INDENTER_SET
     from .keypoints import KeypointConfig, extract_keypoints
     from .resolve import PoseTrack, ResolveConfig, clearance, fit_pose, surface_samples
-    from ..twin.trajectory import INDENTER_SET
 
     catalog = catalog or INDENTER_SET
     rcfg = ResolveConfig()
@@ -197,13 +197,11 @@ def _calibration_fe(b, name: str, moments: list[dict], gel) -> list:
     """FE displacement of each calibration poke at its deepest moment: scenario from the measured
     poses (clear initial pose → one FE frame at t_peak), solved through the tools.fe batch runner
     (shared cache); hertz-fallback builds use the analytic stand-in. None where it failed."""
-    from ..fe import GelGeometry, save_scenario
+    from ..fe import GelGeometry, load_result, save_scenario
     from ..fe.batch import run_batch
+    from ..twin.trajectory import INDENTER_SET
     from .resolve import ResolveError, period_scenario
     from .sources import fallback_solve, fe_cache_dir, label_solver
-    from ..twin.trajectory import INDENTER_SET
-
-    from ..fe import load_result
 
     fe_gel = GelGeometry(kind="flattened_dome", radius=gel.radius, cap_height=gel.cap_height, skirt=gel.skirt)
     items = []

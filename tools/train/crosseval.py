@@ -104,8 +104,8 @@ def format_card(card: dict) -> str:
                 f"dir {cell(b['direction_error_deg'], 1, '°')}  (misses as 0: {cell(b['force_mae_with_misses_n'], 1, ' N')}){note}")
 
     o = card["overall"]
-    out = [f"  {card['units']} units, {card['pokes']} pokes; phantoms {cell(o['phantom_rate'], 100, '%')} "
-           f"of {o['phantom_rate'].get('n', 0)} rest frames", line("all", o)]
+    out = [(f"  {card['units']} units, {card['pokes']} pokes; phantoms {cell(o['phantom_rate'], 100, '%')} "
+           f"of {o['phantom_rate'].get('n', 0)} rest frames"), line("all", o)]
     for group in ("by indenter", "by contacts", "by force"):
         for k, b in card[group].items():
             if b["contacts"]:
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     from ...contracts.store import CalibrationStore
     from ...runtime.stages.model import load_package
     from .evaluate import EvalConfig, evaluate_session, summarize
-    from .scorecard import (ScoreConfig, concat_tables, fit_seed_spread, headline, scorecard, session_table)
+    from .scorecard import ScoreConfig, concat_tables, fit_seed_spread, headline, scorecard, session_table
 
     out: dict = {}
     try:

@@ -122,8 +122,8 @@ def frame_fields(view, poke, t: float, ratios: np.ndarray, stress_scale: float, 
     """(15, S, S) physical fields of one frame at session time t inside the poke's keypoint span.
 
     ratios (K, 3): sim-to-real ratios of the poke's indenters (k-th indenter of the poke)."""
-    from .fields import attribute_contacts, fe_to_fields
     from ..twin.physics import interpolate
+    from .fields import attribute_contacts, fe_to_fields
 
     tt = np.array([float(t)])
     u, s = interpolate(view, poke, tt, "U")[0], interpolate(view, poke, tt, "S")[0] * stress_scale
@@ -162,8 +162,8 @@ def session_samples(session_dir: Path, calibration, plan, fe_results, slot_of_po
 
     calibration: contracts.store.Calibration of the unit (tables + crop); fe_results[p]: the FEResult
     of poke p; slot_of_poke[p]: session indenter id per poke indenter; ratios: {slot: {'ratio': [3], ...}}."""
-    from ...runtime.stages.preprocess import Preprocessor
     from ...contracts.session import load_session, read_table
+    from ...runtime.stages.preprocess import Preprocessor
     from .fields import FieldConfig
     from .simreal import slot_ratios
 

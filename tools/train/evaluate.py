@@ -96,8 +96,8 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
     """Replay a session through the runtime (runtime.offline.replay_session); returns rows, rest
     forces, per-frame traces, per frame the measured |F| per indenter and the clusters' |F| ("frames",
     what tools.train.scorecard scores), and the indenter names by id."""
-    from ...runtime.offline import replay_session
     from ...contracts.session import load_session
+    from ...runtime.offline import replay_session
     from ..sessions.writer import read_frames
 
     ses = load_session(session_dir)
@@ -203,9 +203,8 @@ def session_label_samples(b, spec, stride: int = 1):
         d = session_samples(b.session(spec), cal, [s.poke for s in src], [s.result for s in src],
                             [s.slots for s in src], ratios, dcfg)
     else:
-        from .labels import LabelConfig, session_samples_measured
-
         from ...contracts.session import load_session
+        from .labels import LabelConfig, session_samples_measured
 
         d = session_samples_measured(b.session(spec), cal, src, ratios, dcfg,
                                      LabelConfig(frames=b.cfg.label_frames, sigma=b.cfg.label_sigma))
@@ -311,8 +310,8 @@ def _predictor(run: str | None, package: str | None, precision: str = "int8", bo
         bounds = read_bounds(bounds_file)
         return lambda x: np.stack([denormalize(y, bounds) for y in predict(model, x)])
     if package:
-        from ...runtime.stages.model import FieldModel, load_package
         from ...contracts.paths import models_dir
+        from ...runtime.stages.model import FieldModel, load_package
 
         m = FieldModel(load_package(Path(package) if "/" in package else models_dir() / package), precision, 2)
         return lambda x: np.stack([m(xi.astype(np.float32) / 255.0) for xi in x])

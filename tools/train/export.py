@@ -28,8 +28,7 @@ import numpy as np
 from ...contracts.errors import ModelPackageError
 from ...contracts.names import confined
 from .model.network_input import IN_CHANS
-from .package import (FP32, FP32_HALF, INT8, atomic_copy, build_manifest, repo_relative, verify_package,
-                                 write_package)
+from .package import FP32, FP32_HALF, INT8, atomic_copy, build_manifest, repo_relative, verify_package, write_package
 
 log = logging.getLogger(__name__)
 
@@ -110,8 +109,7 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration: np.
                   cfg: ExportConfig = ExportConfig()) -> Path:
     """int8 model of `fp32_path` with the scheme of `cfg` (see the module docstring)."""
     import onnx
-    from onnxruntime.quantization import (CalibrationDataReader, QuantFormat, QuantType, quantize_dynamic,
-                                          quantize_static)
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_dynamic, quantize_static
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     if cfg.scheme not in ("hybrid", "static"):

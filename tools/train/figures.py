@@ -104,8 +104,8 @@ def fig10(fields: np.ndarray, image: np.ndarray, title: str, out: Path) -> Path:
 
 def write_figures(b, package, docs: Path | None = None) -> list[Path]:
     """Fig. 11 and Fig. 10 for the build's first held-out session."""
-    from .evaluate import evaluate_session
     from .build import unit_calibration
+    from .evaluate import evaluate_session
 
     docs = docs or _docs()
     spec = b.cfg.heldout[0]

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...contracts.store import sha256_file
 from ...contracts.errors import ModelPackageError
 from ...contracts.files import atomic_write, atomic_write_json
+from ...contracts.store import sha256_file
 from .package import FP32, INT8
 
 log = logging.getLogger(__name__)

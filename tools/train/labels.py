@@ -190,9 +190,9 @@ def session_samples_measured(session_dir: Path, calibration, sources: list, rati
                              lcfg: LabelConfig = LabelConfig(), rcfg=None, progress=None) -> dict:
     """All samples of one session from re-solved FE (same output as dataset.session_samples):
     {'input' (n,6,S,S) u8, 'target' (n,15,S,S) f32 physical, 'frame', 'baseline', 'poke' (n,)}."""
-    from ..scoring import measured_at
-    from ...runtime.stages.preprocess import Preprocessor
     from ...contracts.session import load_session
+    from ...runtime.stages.preprocess import Preprocessor
+    from ..scoring import measured_at
     from .dataset import FieldProjector, crops, select_frames, surface_view
     from .fields import FieldConfig
     from .resolve import PoseTrack

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.errors import ModelPackageError
-from ...contracts.names import confined
 from ...contracts.fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
 from ...contracts.files import atomic_write, atomic_write_json
+from ...contracts.names import confined
 
 SCHEMA = "tensortouch.model"
 SCHEMA_VERSION = 1

@@ -104,7 +104,7 @@ def load_recipe(ref: str | Path, sets: list[str] | tuple = ()) -> Recipe:
         else:
             doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except (KeyError, TypeError):
-        raise RecipeError(f"{path}: a package manifest without training.recipe (it was not built from a recipe)")
+        raise RecipeError(f"{path}: a package manifest without training.recipe (it was not built from a recipe)") from None
     except (ValueError, UnicodeDecodeError) as exc:
         raise RecipeError(f"{path}: not a readable recipe ({str(exc)[:200]})") from None
     except RecursionError:

@@ -26,11 +26,11 @@ def compare_session(b, spec, reference: str = "recorded") -> list[dict]:
     import json as _json
 
     from ..fe import load_result
-    from .sources import recorder, resolved_sources
     from ..twin.fe_physics import from_fe_result
     from ..twin.geometry import GelSurface
     from ..twin.physics import interpolate
     from ..twin.record import make_physics
+    from .sources import recorder, resolved_sources
 
     rec = recorder(b, spec)
     physics = make_physics(rec.cfg, rec.unit)

@@ -36,8 +36,8 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
     """[(period index, PeriodScenario | None, error str)] of one session; `solver`: tools.fe SolverSettings
     of the label solves (None: the default)."""
     from ...contracts.session import load_session
-    from .resolve import PoseTrack, ResolveConfig, ResolveError, period_scenario
     from ..twin.trajectory import INDENTER_SET
+    from .resolve import PoseTrack, ResolveConfig, ResolveError, period_scenario
 
     cfg = cfg or ResolveConfig()
     catalog = catalog or INDENTER_SET
@@ -66,10 +66,10 @@ def session_scenarios(session_dir: Path, keypoint_file: Path, calibration_meta: 
 
 def stage_fe_resolve(b, cfg=None) -> dict:
     """Stage 2 (resolve) over every session of the build; returns counts for the stamp."""
+    from ...contracts.files import atomic_write_json
     from ..fe import save_scenario
     from ..fe.batch import run_batch
     from .resolve import ResolveConfig
-    from ...contracts.files import atomic_write_json
 
     cfg = cfg or ResolveConfig()
     docs, jobs = {}, []
@@ -100,7 +100,7 @@ def stage_fe_resolve(b, cfg=None) -> dict:
         cluster = b.cfg.fe_cluster or None
         run_batch([str(f) for _, _, f, _ in jobs], cache, workers=cfg.workers, cluster=cluster)
         retry = []
-        for name, j, f, ps in jobs:
+        for name, j, _f, _ps in jobs:
             h = ps.scenario.hash()
             if not (cache / f"{h}.npz").is_file():   # one retry with smaller increments (new hash)
                 sc = ps.scenario
@@ -114,7 +114,7 @@ def stage_fe_resolve(b, cfg=None) -> dict:
             log.warning("stage fe: %d scenario(s) failed; retrying with smaller increments", len(retry))
             run_batch([str(f2) for _, _, f2, _, _ in retry], cache, workers=cfg.workers, cluster=cluster)
         fixed = {(n, j): (f2, h2, h) for n, j, f2, h2, h in retry}
-        for name, j, f, ps in jobs:
+        for name, j, _f, _ps in jobs:
             per = docs[name]["periods"][j]
             if (name, j) in fixed:
                 f2, h2, h = fixed[(name, j)]
@@ -126,7 +126,7 @@ def stage_fe_resolve(b, cfg=None) -> dict:
                     continue
             per["status"] = "solved"
     else:
-        for name, j, f, ps in jobs:
+        for name, j, _f, _ps in jobs:
             docs[name]["periods"][j]["status"] = "solved"
     out = {}
     for name, doc in docs.items():

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.files import atomic_write, atomic_write_json
-
 from .build import fit_dir, pretrain_dir, unit_calibration
 from .package import update_manifest
 from .sources import fe_mode, fe_results, label_sources, recorder
@@ -162,7 +161,7 @@ def stage_dataset(b) -> dict:
             ratios = json.loads((b.root / "simreal" / f"{spec.name}.json").read_text())["ratios"]
             last = [0.0]
 
-            def prog(i, n, name=spec.name):
+            def prog(i, n, name=spec.name, last=last):
                 if time.monotonic() - last[0] > 10 or i == n:
                     last[0] = time.monotonic()
                     log.info("dataset %s: %d/%d samples", name, i, n)
@@ -177,7 +176,7 @@ def stage_dataset(b) -> dict:
                                              label_sources(b, spec), rat, dcfg,
                                              LabelConfig(frames=b.cfg.label_frames, sigma=b.cfg.label_sigma),
                                              progress=prog)
-            atomic_write(part, lambda fh: np.savez(fh, **d))
+            atomic_write(part, lambda fh, d=d: np.savez(fh, **d))
             log.info("dataset %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
         with np.load(part) as z:
             d = {k: z[k] for k in z.files}
@@ -292,9 +291,9 @@ def _set_wall_time(folder: Path, seconds: float) -> None:
 
 def stage_evaluate(b) -> dict:
     """Stage 8 of a build: held-out sessions (+ the shipped demo) → eval/*.json, docs figures."""
+    from ...contracts.paths import demo_dir, models_dir
     from ...contracts.store import CalibrationStore
     from ...runtime.stages.model import load_package
-    from ...contracts.paths import demo_dir, models_dir
     from .evaluate import EvalConfig, evaluate_session, summarize
 
     root = Path(b.cfg.models_dir) if b.cfg.models_dir else models_dir()

@@ -98,10 +98,10 @@ def weak_totals(fp: np.ndarray, mag: np.ndarray, mask: np.ndarray, grid) -> list
 def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = ThresholdConfig()) -> dict:
     """Per grid value: rest frames with a cluster core, contact frames with one (counts); per weak
     threshold the largest component total on a rest frame; the light-contact frames' cores and totals."""
-    from ...runtime.stages.contacts import pixel_forces
-    from ...runtime.offline import replay_session
-    from ..scoring import measured_at
     from ...contracts.session import load_session
+    from ...runtime.offline import replay_session
+    from ...runtime.stages.contacts import pixel_forces
+    from ..scoring import measured_at
 
     ses = load_session(session_dir)
     frames = ses.table("frames")
@@ -272,11 +272,11 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
     """The package's detection (its manifest's values) on other sessions, e.g. held-out ones: per
     measured |F| band the frames with a core by the strong threshold alone and with the light-touch
     rule, and the rest frames (`rest_frames`) with a core. Same frames and fields for both."""
+    from ...contracts.session import load_session
+    from ...runtime.offline import replay_session
     from ...runtime.stages.contacts import light_cores, pixel_forces
     from ...runtime.stages.model import load_package
-    from ...runtime.offline import replay_session
     from ..scoring import contact_config, measured_at
-    from ...contracts.session import load_session
 
     package = load_package(package_dir)
     cc = contact_config(package)
@@ -323,9 +323,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ...contracts.store import CalibrationStore
     from ...contracts.errors import TensorTouchError
     from ...contracts.session import load_session
+    from ...contracts.store import CalibrationStore
 
     pairs = []
     for item in args.session:

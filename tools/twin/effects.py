@@ -17,6 +17,7 @@ and write `forward`; decorate with @register.
 from __future__ import annotations
 
 import logging
+
 import numpy as np
 from scipy.special import erf
 

@@ -18,10 +18,10 @@ import numpy as np
 
 from ...contracts import paths
 from ...contracts.errors import TensorTouchError
+from ...contracts.files import atomic_write_json
 from .geometry import GelSurface
 from .physics import PokeSolve
 from .trajectory import INDENTER_SET, Poke
-from ...contracts.files import atomic_write_json
 
 log = logging.getLogger(__name__)
 

@@ -24,12 +24,20 @@ from ...contracts.session import write_table
 from ..sessions.writer import SessionWriter
 from .camera import NoiseConfig
 from .effects import FrictionMismatch, apply_stage, build_effects
-from .physics import HertzFallbackPhysics, interpolate
-from .signals import (Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track,
-                                temperature)
 from .fe_physics import PokeSolveFailed
-from .trajectory import (GuidedConfig, TrajectoryConfig, apply_replans, module_indenters, plan_guided,
-                                   plan_session, segment_phase, session_duration, shorten)
+from .physics import HertzFallbackPhysics, interpolate
+from .signals import Hysteresis, RigConfig, ft_reading, mocap_noise, quat_wxyz, slot_track, temperature
+from .trajectory import (
+    GuidedConfig,
+    TrajectoryConfig,
+    apply_replans,
+    module_indenters,
+    plan_guided,
+    plan_session,
+    segment_phase,
+    session_duration,
+    shorten,
+)
 from .unit import TwinUnit
 from .world import WORLDS, WorldConfig, ar1_filter, distort_ft, draw_world, quat_wxyz_of, sensor_to_mocap, stamp
 

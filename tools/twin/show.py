@@ -10,7 +10,6 @@ import cv2
 import numpy as np
 
 from ...contracts.files import atomic_write
-
 from ...contracts.session import load_session
 from ..sessions.writer import read_frames
 

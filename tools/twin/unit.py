@@ -14,8 +14,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from .camera import CameraConfig, FisheyeModel, LEDConfig, NoiseConfig, PatternConfig, Renderer
 from ...runtime.calib.bringup import GelShape
+from .camera import CameraConfig, FisheyeModel, LEDConfig, NoiseConfig, PatternConfig, Renderer
 from .geometry import GelSurface
 
 log = logging.getLogger(__name__)

@@ -23,8 +23,8 @@ def store_of(args):
 
 
 def registry_of(args):
-    from ...runtime.stages.effects import Registry
     from ...contracts.errors import TensorTouchError
+    from ...runtime.stages.effects import Registry
 
     try:
         return Registry.default(plugin_dirs=args.plugins)
@@ -47,17 +47,15 @@ def sensor_of(args) -> str:
 
 
 def default_model_path(sensor: str) -> Path:
-    from .compare import cache_root
-
     from ...contracts.names import check_name
+    from .compare import cache_root
 
     return cache_root() / "models" / f"{check_name(sensor, 'sensor id')}.json"
 
 
 def last_diagnosis_path(sensor: str) -> Path:
-    from .compare import cache_root
-
     from ...contracts.names import check_name
+    from .compare import cache_root
 
     return cache_root() / f"diagnosis-{check_name(sensor, 'sensor id')}.json"
 

@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ...contracts.files import atomic_write
 from ...contracts import paths
+from ...contracts.errors import TensorTouchError
+from ...contracts.files import atomic_write
+from ...contracts.session import Session, load_session
 from ...contracts.store import CalibrationStore
 from ...runtime.stages.effects import EffectChain, Registry
-from ...contracts.errors import TensorTouchError
-from ...contracts.session import Session, load_session
 from .fit import deployed_prediction
 from .samples import SampleConfig, build_table
 from .table import SampleTable

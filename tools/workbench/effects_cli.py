@@ -4,8 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .cli_common import (last_diagnosis_path, model_of, progress, registry_of, sensor_of,
-                                        session_args, store_of)
+from .cli_common import last_diagnosis_path, model_of, progress, registry_of, sensor_of, session_args, store_of
 
 
 def register_effects(sub) -> None:
@@ -46,8 +45,8 @@ def cmd_effects_list(args) -> int:
 
 
 def cmd_effects_add(args) -> int:
-    from ...runtime.stages.effects import EnabledEffect
     from ...contracts.errors import TensorTouchError
+    from ...runtime.stages.effects import EnabledEffect
 
     reg = registry_of(args)
     sensor = sensor_of(args)
@@ -93,8 +92,8 @@ def cmd_effects_add(args) -> int:
 def _refit(args, sensor, store, reg, current, entry, session):
     """Joint refit of the enabled effects + the new one on the diagnosed session (same model and
     deployed order as compare/diagnose: force-stage effects, then the sensor's correction)."""
-    from ...runtime.stages.effects import EffectChain
     from ...contracts.errors import TensorTouchError
+    from ...runtime.stages.effects import EffectChain
     from .compare import run_compare
     from .fit import refit_chain
 

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from ...contracts.files import atomic_write_json
 from ...contracts.errors import TensorTouchError
+from ...contracts.files import atomic_write_json
 from .scan import hat_basis
 from .table import SampleTable
 

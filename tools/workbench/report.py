@@ -22,6 +22,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
+
 from ...contracts.files import atomic_write, atomic_write_json, atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -237,9 +238,9 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
     pics.append(wname)
     comp.summary["worst_samples"] = wrows
     parts = [f"<h1>TensorTouch compare: {html.escape(str(comp.summary.get('session', '')))}</h1>",
-             f"<p>sensor {html.escape(str(comp.summary.get('sensor_id', '')))}, calibration "
+             (f"<p>sensor {html.escape(str(comp.summary.get('sensor_id', '')))}, calibration "
              f"{html.escape(str(comp.summary.get('calibration_version', '')))}, model "
-             f"{html.escape(json.dumps(comp.summary.get('model', {})))}</p>",
+             f"{html.escape(json.dumps(comp.summary.get('model', {})))}</p>"),
              f"<p>enabled effects: {html.escape(', '.join(e['name'] for e in comp.summary['effects']) or 'none')}</p>",
              "<h2>Force error, all samples (N)</h2>", _table_html(comp.summary["force_error"]),
              "<h2>Force error, contact samples (N)</h2>", _table_html(comp.summary["force_error_contact"])]
@@ -252,8 +253,8 @@ def write_report(comp, out: Path, session_path: Path | None = None, previous: di
                        f"<td>{100 * (v / previous['force_error'][k] - 1):+.0f} %</td></tr>"
                        for k, v in comp.summary["force_error"].items()
                        if isinstance(v, float) and previous["force_error"].get(k))
-        parts += ["<h2>Before / after</h2><table border=1 cellpadding=3><tr><th>error</th><th>before</th>"
-                  f"<th>after</th><th>change</th></tr>{rows}</table>"]
+        parts += [("<h2>Before / after</h2><table border=1 cellpadding=3><tr><th>error</th><th>before</th>"
+                  f"<th>after</th><th>change</th></tr>{rows}</table>")]
     parts += [f'<h2>{html.escape(p.rsplit(".", 1)[0].replace("_", " "))}</h2><img src="{p}">' for p in pics]
     page = "<!doctype html><meta charset=utf-8><title>compare</title>" + "\n".join(parts)
     atomic_write_text(out / "report.html", page)

@@ -25,6 +25,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+
 from ...contracts.errors import CalibrationError, SessionError
 from ...contracts.session import Session
 from ..scoring import measured_at

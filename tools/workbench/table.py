@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...contracts.files import atomic_write
 from ...contracts.errors import SessionError
+from ...contracts.files import atomic_write
 
 log = logging.getLogger(__name__)
 

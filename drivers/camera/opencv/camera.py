@@ -19,9 +19,9 @@ import time
 import cv2
 import numpy as np
 
+from ....contracts.errors import CaptureError, DeviceNotFoundError
 from ..camera import Camera, Frame, to_rgb
 from .config import V4L2_EXPOSURE_UNIT_S, OpenCVCameraConfig
-from ....contracts.errors import CaptureError, DeviceNotFoundError
 
 log = logging.getLogger(__name__)
 

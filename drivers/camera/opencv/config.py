@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..camera import CameraConfig
 from ....contracts.errors import CaptureError
+from ..camera import CameraConfig
 
 V4L2_EXPOSURE_UNIT_S = 100e-6
 """V4L2 `exposure_time_absolute` (OpenCV CAP_PROP_EXPOSURE on CAP_V4L2) counts 100 µs steps."""

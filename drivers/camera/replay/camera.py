@@ -18,10 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..camera import Camera, EndOfStream, Frame, to_rgb
-from .config import DEFAULT_VIDEO_FPS, ReplayCameraConfig
 from ....contracts.errors import CaptureError
 from ....contracts.session import load_session
+from ..camera import Camera, EndOfStream, Frame, to_rgb
+from .config import DEFAULT_VIDEO_FPS, ReplayCameraConfig
 
 log = logging.getLogger(__name__)
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..camera import CameraConfig
 from ....contracts.errors import CaptureError
+from ..camera import CameraConfig
 
 DEFAULT_VIDEO_FPS = 30.0
 """Clock of a plain video file whose container does not state a frame rate (frames/s)."""

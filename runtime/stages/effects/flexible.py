@@ -19,8 +19,7 @@ from typing import ClassVar
 import numpy as np
 
 from .base import Effect, Param, need, scale_rows
-from .builtin import (MIN_GAIN, MullinsSoftening, RimStiffening, StrainStiffening, TemperatureSoftening,
-                      prony_history, unilateral)
+from .builtin import MIN_GAIN, MullinsSoftening, RimStiffening, StrainStiffening, TemperatureSoftening, prony_history, unilateral
 
 
 def ramps(c: np.ndarray, knots: tuple) -> np.ndarray:

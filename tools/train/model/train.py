@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ....contracts.files import atomic_write, atomic_write_json
 from . import build_model
 from .data import DatasetError, load_split, read_index
 from .device import Precision, cpu_state, resolve_device
 from .metrics import evaluate
-from ....contracts.files import atomic_write, atomic_write_json
 
 log = logging.getLogger(__name__)
 
