@@ -20,10 +20,8 @@ Every problem is one CalibrationError naming the file and the field.
 """
 from __future__ import annotations
 
-import math
-
 from .errors import CalibrationError
-from .schema import MAX_DEPTH, Range, SchemaError, check_depth, integer, number, numbers, text
+from .schema import MAX_DEPTH, Range, SchemaError, check_depth, finite_everywhere, integer, number, numbers, text
 
 CAMERA_PX = Range(16, 16384)            # camera image width / height, px
 MODEL_PX = Range(8, 2048)               # model_size (table grid) H / W
@@ -44,21 +42,11 @@ def check_calibration(meta: dict, where: str) -> None:
         raise CalibrationError(f"{where}: {exc}") from None
 
 
-def _finite_everywhere(obj, path: str) -> None:
-    stack = [(obj, path)]
-    while stack:
-        o, p = stack.pop()
-        if isinstance(o, float) and not math.isfinite(o):
-            raise SchemaError(f"{p} is {o!r}, expected a finite number")
-        if isinstance(o, dict):
-            stack.extend((v, f"{p}.{k}" if p else str(k)) for k, v in o.items())
-        elif isinstance(o, list):
-            stack.extend((v, f"{p}[{i}]") for i, v in enumerate(o))
 
 
 def _check(meta: dict) -> None:
     check_depth(meta, "calibration.json", MAX_DEPTH)
-    _finite_everywhere(meta, "")
+    finite_everywhere(meta, "")
     if "schema_version" in meta:
         integer(meta["schema_version"], "schema_version", Range(0, None), what="a version number >= 0")
     for key in ("created", "version"):

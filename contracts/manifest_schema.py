@@ -15,11 +15,9 @@ Every problem is one ModelPackageError naming the manifest and the field.
 """
 from __future__ import annotations
 
-import math
-
 from .errors import ModelPackageError
 from .fields import CHANNEL_UNITS, CHANNELS, INPUT_CHANNELS
-from .schema import MAX_DEPTH, Range, SchemaError, check_depth, integer, number, text
+from .schema import MAX_DEPTH, Range, SchemaError, check_depth, finite_everywhere, integer, number, text
 
 INPUT_PX = Range(8, 2048)           # model input H / W (the calibration tables' grid)
 BOUND_LIMIT = 1e6                   # |bound| in mm or MPa: far beyond any gel
@@ -35,16 +33,6 @@ def check_manifest(m: dict, where) -> None:
         raise ModelPackageError(f"{where}: {exc}") from None
 
 
-def _finite_everywhere(obj) -> None:
-    stack = [(obj, "")]
-    while stack:
-        o, p = stack.pop()
-        if isinstance(o, float) and not math.isfinite(o):
-            raise SchemaError(f"{p} is {o!r}, expected a finite number")
-        if isinstance(o, dict):
-            stack.extend((v, f"{p}.{k}" if p else str(k)) for k, v in o.items())
-        elif isinstance(o, list):
-            stack.extend((v, f"{p}[{i}]") for i, v in enumerate(o))
 
 
 def _exact_list(v, path: str, names: tuple) -> None:
@@ -55,7 +43,7 @@ def _exact_list(v, path: str, names: tuple) -> None:
 
 def _check(m: dict) -> None:
     check_depth(m, "manifest", MAX_DEPTH)
-    _finite_everywhere(m)
+    finite_everywhere(m)
     integer(m.get("schema_version"), "schema_version", Range(1, None), what="a version number >= 1")
     if "name" in m:
         text(m["name"], "name", max_len=200)

@@ -132,6 +132,19 @@ def check_depth(obj, path: str, limit: int = MAX_DEPTH) -> None:
         stack.extend((c, d + 1, p) for c, p in children)
 
 
+def finite_everywhere(obj, path: str = "") -> None:
+    """Every float anywhere in a JSON-like tree (dicts, lists) is finite; else a SchemaError naming where."""
+    stack = [(obj, path)]
+    while stack:
+        o, p = stack.pop()
+        if isinstance(o, float) and not math.isfinite(o):
+            raise SchemaError(f"{p} is {o!r}, expected a finite number")
+        if isinstance(o, dict):
+            stack.extend((v, f"{p}.{k}" if p else str(k)) for k, v in o.items())
+        elif isinstance(o, list):
+            stack.extend((v, f"{p}[{i}]") for i, v in enumerate(o))
+
+
 def _union_args(tp) -> tuple | None:
     if isinstance(tp, types.UnionType) or typing.get_origin(tp) is typing.Union:
         return typing.get_args(tp)

@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from .errors import SessionError
-from .schema import MAX_DEPTH, Range, SchemaError, check_depth, number, numbers
+from .schema import MAX_DEPTH, Range, SchemaError, check_depth, finite_everywhere, number, numbers
 
 MAX_MM = 10_000.0                    # 10 m: no mocap volume or F/T offset is larger
 QUAT_NORM = Range(0.99, 1.01)        # a unit quaternion, as written to 9 significant digits or a bit looser
@@ -42,7 +42,7 @@ def check_manifest_values(manifest: dict, where: str) -> None:
     """The numbers of session.json (already shape-checked by validate_manifest)."""
     try:
         check_depth(manifest, "session.json", MAX_DEPTH)
-        _finite_everywhere(manifest)
+        finite_everywhere(manifest)
         clock = manifest.get("clock")
         if isinstance(clock, dict) and "t0" in clock:
             number(clock["t0"], "clock.t0", TIME_S)
@@ -64,16 +64,6 @@ def check_ft_to_indenter(tf, path: str) -> None:
     numbers(tf.get("translation_mm"), f"{path}.translation_mm", 3, RANGES["length"], "numbers (mm)")
 
 
-def _finite_everywhere(obj) -> None:
-    stack = [(obj, "")]
-    while stack:
-        o, p = stack.pop()
-        if isinstance(o, float) and not math.isfinite(o):
-            raise SchemaError(f"{p} is {o!r}, expected a finite number")
-        if isinstance(o, dict):
-            stack.extend((v, f"{p}.{k}" if p else str(k)) for k, v in o.items())
-        elif isinstance(o, list):
-            stack.extend((v, f"{p}[{i}]") for i, v in enumerate(o))
 
 
 def check_rows(stream: str, table: np.ndarray, columns: list[str], where) -> None:
