@@ -13,6 +13,8 @@ HARNESSES = {
                              "twin-truth effects at parameters no acceptance case uses"),
     "workbench-twin-generality": ("tensortouch.tools.accept.twin_generality",
                                   "diagnosis on twin units with hidden effects in forms not in the library"),
+    "workbench-paths": ("tensortouch.tools.accept.workbench_paths",
+                        "diagnosis on each model path (network output, contact law, FE at keypoints) with its floor"),
     "recalib-generality": ("tensortouch.tools.accept.recalib_generality",
                            "field recalibration on randomly drawn twin units"),
 }
