@@ -57,6 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--forms", nargs="+", choices=sorted(EXPECTED), help="hidden forms (default: all)")
     p.add_argument("--model", default="exported_models/hiera-qup-128", help="the shipped model package (output path)")
     p.add_argument("--no-own-error", action="store_true", help="diagnose against the model alone")
+    p.add_argument("--raw-nulls", nargs="*", choices=PATHS, default=["output"],
+                   help="on these paths also diagnose each null against the model alone (the own error's effect)")
     p.add_argument("--work", help="work folder (default: cache/workbench/paths)")
     p.add_argument("--progress", help="append one line per finished row here")
     p.add_argument("--out", help="write every row and the summary as JSON here")
@@ -66,6 +68,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _rms(x) -> float:
     x = np.asarray(x)
     return float(np.sqrt(np.mean(np.sum(x ** 2, axis=1)))) if len(x) else float("nan")
+
+
+def record(sc):
+    """The scenario's session (tools.workbench.scenarios.record), under a lock per scenario: runs of
+    this harness on different paths share their recordings and may meet on one."""
+    import fcntl
+
+    from ..workbench.scenarios import record as _record
+    from ..workbench.scenarios import root
+
+    root().mkdir(parents=True, exist_ok=True)
+    with open(root() / f".lock-{sc.key()}", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        return _record(sc)
 
 
 def _scenario(seed: int, unit: str):
@@ -80,7 +96,7 @@ class PathLab:
     def __init__(self, path: str, unit: str, work: Path, model_dir: str, own: bool = True):
         from ...contracts.store import CalibrationStore
         from ...runtime.stages.effects import Registry
-        from ..workbench.scenarios import record, store_root
+        from ..workbench.scenarios import store_root
 
         self.path, self.unit, self.work = path, unit, Path(work)
         self.store = CalibrationStore(store_root(unit, 128))
@@ -196,7 +212,6 @@ def _diag(d) -> dict:
 
 def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
     from ...runtime.stages.effects import EffectChain, EnabledEffect
-    from ..workbench.scenarios import record
 
     i = list(EXPECTED).index(form)
     base = record(_scenario(TEST_SEED + 10 * i + draw, lab.unit))
@@ -228,13 +243,11 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
     return row
 
 
-def run_null(lab: PathLab, k: int) -> dict:
-    from ..workbench.scenarios import record
-
+def run_null(lab: PathLab, k: int, raw: bool = True) -> dict:
     t, _ = lab.table(record(_scenario(NULL_SEED + k, lab.unit)))
     row = {"path": lab.path, "null": k, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)), "rows": len(t),
            **_diag(lab.diagnose(t))}
-    if lab.own is not None:
+    if lab.own is not None and raw:
         raw = _diag(lab.diagnose(t, own=False))
         row["without_own_error"] = {k2: raw[k2] for k2 in ("verdict", "p", "best", "best_p", "top_covariate",
                                                            "covariate_p", "diag_floor", "mde")}
@@ -287,15 +300,14 @@ def run(a: argparse.Namespace) -> int:
     rows = []
     if not a.summarize:
         labs: dict = {}
-        tasks = []
-        for path in a.paths:       # per path: the acceptance sizes first, interleaved with the nulls
-            for k in range(max(a.nulls, a.draws * len(forms) * len(a.sizes))):
+        per = [(s, d, f) for s in sorted(a.sizes) for d in range(a.draws) for f in forms]
+        tasks = []                 # cases and nulls interleaved, the paths taking turns
+        for k in range(max(a.nulls, len(per))):
+            for path in a.paths:
+                if k < len(per):
+                    tasks.append((path, "case", per[k]))
                 if k < a.nulls:
                     tasks.append((path, "null", k))
-                j = k
-                per = [(s, d, f) for s in sorted(a.sizes) for d in range(a.draws) for f in forms]
-                if j < len(per):
-                    tasks.append((path, "case", per[j]))
         for path, kind, arg in tasks:
             name = (f"{path}-null-{arg}" if kind == "null" else f"{path}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
             f = work / "rows" / f"{name}.json"
@@ -307,7 +319,8 @@ def run(a: argparse.Namespace) -> int:
                 if (path, unit) not in labs:
                     labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error)
                 lab = labs[path, unit]
-                row = run_null(lab, arg) if kind == "null" else run_case(lab, arg[2], arg[0], arg[1])
+                row = (run_null(lab, arg, path in (a.raw_nulls or [])) if kind == "null"
+                       else run_case(lab, arg[2], arg[0], arg[1]))
             except Exception as exc:    # a row that fails is reported, the run goes on
                 log.exception("%s failed", name)
                 note(f"{name}: FAILED {type(exc).__name__}: {exc}")
