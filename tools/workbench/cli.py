@@ -90,13 +90,25 @@ def cmd_paths(args, diagnosis: bool) -> int:
                 print("  " + line)
     for line in floors_lines(results):
         print(line)
+    from ...contracts.files import atomic_write_json
+
+    per = {}
+    for r in results:     # each path's diagnosis, as `effects add --from-diagnosis --path P` reads it
+        d = r.diagnosis.to_json()
+        d.update({"session": str(Path(args.session).resolve()), "sensor_id": r.comparison.summary["sensor_id"],
+                  "path": r.path, "floor": r.floor(), "mde_n": r.mde()})
+        if r.own_error is not None:
+            d["own_error"] = r.own_error.to_json()
+        per[r.path] = d
+    found = [r for r in results if r.diagnosis.verdict is not None]
+    lead = min(found, key=lambda r: r.mde()) if found else results[0]
+    doc = json.loads(json.dumps(dict(per[lead.path], paths=per), default=float))
+    atomic_write_json(last_diagnosis_path(results[0].comparison.summary["sensor_id"]), doc, indent=1)
     out = getattr(args, "out", None)
     if out:
-        from ...contracts.files import atomic_write_json
-
         path = Path(out) / "paths.json" if not diagnosis else Path(out)
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(path, json.loads(json.dumps([r.to_json() for r in results], default=float)), indent=1)
+        atomic_write_json(path, doc, indent=1)
     return 0
 
 
@@ -157,13 +169,16 @@ def cmd_diagnose(args) -> int:
         cfg = replace(cfg, alpha=args.alpha)
     registry = registry_of(args)
     baseline = (store_cal_correction(comp) or {}).get("nominal_reductions")
-    post = comp.post
+    post, own = comp.post, None
     if args.own_error_from:
         own = own_error_of(args, comp)
         post = own.post(comp.table.cov(), comp.post)
         print(f"against the model's own error ({own.describe()}; {own.source})")
     diag = diagnose(comp.table, registry, comp.chain, cfg, post=post, baseline=baseline)
     result = diag.to_json()
+    result["path"] = "contact-law" if comp.summary["model"]["name"] == "contact-law" else "output"
+    if own is not None:
+        result["own_error"] = own.to_json()
     result.update({"session": str(Path(args.session).resolve()), "sensor_id": comp.summary["sensor_id"],
                    "enabled": diag.enabled, "n_samples": diag.n_samples, "n_blocks": diag.n_blocks,
                    "seconds": round(diag.seconds, 2)})
