@@ -113,3 +113,30 @@ def test_own_error_fits_nothing_on_structureless_residuals():
     back = OwnError.from_json(own.to_json())
     x = tables[0].model
     assert np.allclose(back.apply(x, tables[0].cov()), own.apply(x, tables[0].cov()))
+
+
+def test_floors_of_two_paths_side_by_side():
+    """Two model paths of one session: the one with the larger error has the larger floor and MDE, and
+    the table names both with their numbers."""
+    from tensortouch.runtime.stages.effects import EffectChain
+    from tensortouch.tools.workbench.compare import compare_table
+    from tensortouch.tools.workbench.model_paths import PathResult, floors_lines
+
+    reg = Registry.default(entry_points=False)
+    s = session(31)
+    rng = np.random.default_rng(3)
+    out = []
+    for name, sd in (("contact-law", 0.0), ("output", 0.15)):
+        model = s["model"] * (1.0 + rng.normal(0.0, sd, len(s["model"])))[:, None]
+        t = SampleTable(dict(s["cols"]), s["meas"], model, {"normal": s["normal"]}, {})
+        comp = compare_table(t, EffectChain())
+        comp.summary["model"] = {"name": name}
+        d = diagnose(t, reg, cfg=QUICK, candidates=FAMILIES)
+        out.append(PathResult(name, comp, d))
+    lines = floors_lines(out)
+    law, net = out
+    assert law.floor() < net.floor() and law.mde() < net.mde()
+    assert any(line.strip().startswith("contact-law") and f"{law.floor():.4f}" in line for line in lines)
+    assert any(line.strip().startswith("output") and f"{net.mde():.4f}" in line for line in lines)
+    assert "the contact-law path sees the smallest" in lines[-1]
+    assert net.to_json()["floor"] == pytest.approx(net.floor())
