@@ -63,6 +63,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--progress", help="append one line per finished row here")
     p.add_argument("--out", help="write every row and the summary as JSON here")
     p.add_argument("--summarize", action="store_true", help="only summarize the rows in the work folder")
+    p.add_argument("--reverse", action="store_true", help="take the rows last to first (a second run on the "
+                   "same work folder then meets the first one in the middle)")
 
 
 def _rms(x) -> float:
@@ -308,7 +310,7 @@ def run(a: argparse.Namespace) -> int:
                     tasks.append((path, "case", per[k]))
                 if k < a.nulls:
                     tasks.append((path, "null", k))
-        for path, kind, arg in tasks:
+        for path, kind, arg in (tasks[::-1] if a.reverse else tasks):
             name = (f"{path}-null-{arg}" if kind == "null" else f"{path}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
             f = work / "rows" / f"{name}.json"
             if f.is_file():
