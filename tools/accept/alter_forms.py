@@ -15,6 +15,13 @@ nominal geometry (params "radius", "center_z", "skirt" of the cap sphere, mm):
   temperature_onset      F (1 - amp ((T - 24 °C)₊ / 5 °C)²)          library: 1 - α (T - T_ref)
   velocity_drag          F - amp v: v the indenter's velocity (smoothed mocap, sensor frame, mm/s)
                          turned into the F/T frame, in and out of contact   not in the library
+  log_stiffening         F (1 + amp ln(1 + d / 0.5 mm))              library: 1 + k (d/h)²
+  exp_temperature        F exp(-amp (T - T_start) / 5 °C), T_start the session's first reading
+                                                                   library: 1 - α (T - T_ref)
+  ft_offset_ramp         f_FT + amp (t / 100 s)^1.5 (0.4, -0.3, 1) N, a reference offset creeping
+                         in the F/T frame, in and out of contact     library: linear in time
+  sector_stiffening      F (1 + amp max(cos(φ - 0.7), 0)²), φ the tip's azimuth   not in the library
+(the last four are used by `tensortouch accept workbench-paths` only)
 """
 from __future__ import annotations
 
@@ -28,7 +35,8 @@ from ...contracts.files import atomic_write_json
 from ...contracts.session import Session, as_written, load_session, write_stream
 from .alter import _quat_matrix, copy_without_truth
 
-FORMS = ("saturating_stiffening", "two_term_relaxation", "rim_profile", "temperature_onset", "velocity_drag")
+FORMS = ("saturating_stiffening", "two_term_relaxation", "rim_profile", "temperature_onset", "velocity_drag",
+         "log_stiffening", "exp_temperature", "ft_offset_ramp", "sector_stiffening")
 
 
 def _lowpass(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
@@ -98,6 +106,18 @@ def contribution(session, kind: str, amp: float, gel: dict) -> np.ndarray:
             rot = _quat_matrix(p[j, 5:9]) @ r_mount                     # F/T frame -> sensor frame
             vel = _velocity(p, t)
             f = f - amp * np.einsum("nji,nj->ni", rot, vel)             # the drag, in the F/T frame
+        elif kind == "log_stiffening":
+            f = f * (1.0 + amp * np.log1p(d / 0.5))[:, None]
+        elif kind == "exp_temperature":
+            tt = session.table("temperature")
+            T = np.interp(t, tt[:, 0], tt[:, 1])
+            f = f * np.exp(-amp * (T - tt[0, 1]) / 5.0)[:, None]
+        elif kind == "ft_offset_ramp":
+            t0 = float(w[0, 0])
+            f = f + amp * (np.clip(t - t0, 0.0, None) / 100.0)[:, None] ** 1.5 * np.array([0.4, -0.3, 1.0])
+        elif kind == "sector_stiffening":
+            phi = np.arctan2(v[:, 1], v[:, 0])
+            f = f * (1.0 + amp * np.clip(np.cos(phi - 0.7), 0.0, None) ** 2)[:, None]
         else:
             raise ValueError(f"hidden form {kind!r}: expected one of {FORMS}")
         out[m] = f

@@ -17,6 +17,8 @@ HARNESSES = {
                                        "sessions, the nominal law as the model)")),
     "workbench-twin-generality": ("tensortouch.tools.accept.twin_generality",
                                   "diagnosis on twin units with hidden effects in forms not in the library"),
+    "workbench-paths": ("tensortouch.tools.accept.workbench_paths",
+                        "diagnosis on each model path (network output, contact law, FE at keypoints) with its floor"),
     "recalib-generality": ("tensortouch.tools.accept.recalib_generality",
                            "field recalibration on randomly drawn twin units"),
 }

@@ -35,13 +35,23 @@ def _model_args(p) -> None:
                         "installed one when the calibration matches its size and the session has frames), "
                         "'contact-law' (the sensor's stored nominal contact law) or a contact-law JSON file")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision (default int8)")
-    p.add_argument("--model-from", metavar="CALIB_SESSION",
-                   help="contact law: fit it on this calibration session and make it the sensor's default")
+    p.add_argument("--model-from", metavar="CALIB_SESSION", nargs="+",
+                   help="contact law: fit it on these calibration sessions (together they must press with every "
+                        "indenter the compared sessions use) and make it the sensor's default")
     p.add_argument("--correction-from", metavar="CALIB_SESSION", nargs="+",
                    help="network: fit the sensor's force correction (zero-constrained gain forest, as "
                         "`tensortouch recalibrate` stores) on these calibration sessions (several short "
                         "sessions covering the gel are best), store it as a new calibration version, then compare")
     p.add_argument("--no-cache", action="store_true", help="rebuild the sample table and predictions")
+    p.add_argument("--paths", nargs="+", metavar="PATH", choices=("output", "contact-law", "fe"),
+                   help="compare/diagnose on each of these model paths and print their floors and minimum "
+                        "detectable effects side by side: output (network + effects + correction), contact-law "
+                        "(the law fitted with --model-from), fe (FE solved at the session's measured keypoints)")
+    p.add_argument("--own-error-from", metavar="CALIB_SESSION", nargs="+",
+                   help="fit the model's own residual structure on these clean calibration sessions and diagnose "
+                        "only what is new against it")
+    p.add_argument("--fe-physics", choices=("fe", "hertz-fallback"), default="fe",
+                   help="fe path: solve with tools.fe (default) or the analytic stand-in (analytic twin units only)")
 
 
 def register(sub) -> None:
@@ -67,7 +77,42 @@ def register(sub) -> None:
 
 
 # ----- commands --------------------------------------------------------------------------------
+def cmd_paths(args, diagnosis: bool) -> int:
+    from .model_paths import floors_lines, run_paths
+
+    results = run_paths(args, args.paths, with_diagnosis=True)
+    for r in results:
+        if diagnosis and r.diagnosis is not None:
+            print(f"[{r.path}]")
+            for line in r.diagnosis.words():
+                print("  " + line)
+    for line in floors_lines(results):
+        print(line)
+    from ...contracts.files import atomic_write_json
+
+    per = {}
+    for r in results:     # each path's diagnosis, as `effects add --from-diagnosis --path P` reads it
+        d = r.diagnosis.to_json()
+        d.update({"session": str(Path(args.session).resolve()), "sensor_id": r.comparison.summary["sensor_id"],
+                  "path": r.path, "floor": r.floor(), "mde_n": r.mde()})
+        if r.own_error is not None:
+            d["own_error"] = r.own_error.to_json()
+        per[r.path] = d
+    found = [r for r in results if r.diagnosis.verdict is not None]
+    lead = min(found, key=lambda r: r.mde()) if found else results[0]
+    doc = json.loads(json.dumps(dict(per[lead.path], paths=per), default=float))
+    atomic_write_json(last_diagnosis_path(results[0].comparison.summary["sensor_id"]), doc, indent=1)
+    out = getattr(args, "out", None)
+    if out:
+        path = Path(out) / "paths.json" if not diagnosis else Path(out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(path, doc, indent=1)
+    return 0
+
+
 def cmd_compare(args) -> int:
+    if args.paths:
+        return cmd_paths(args, diagnosis=False)
     from .report import write_report
     from .table import write_residuals_csv
 
@@ -112,6 +157,8 @@ def cmd_diagnose(args) -> int:
 
     from .diagnose import DiagnoseConfig, diagnose
 
+    if args.paths:
+        return cmd_paths(args, diagnosis=True)
     comp = compare_session(args)
     cfg = DiagnoseConfig()
     if args.blocks:
@@ -120,8 +167,16 @@ def cmd_diagnose(args) -> int:
         cfg = replace(cfg, alpha=args.alpha)
     registry = registry_of(args)
     baseline = (store_cal_correction(comp) or {}).get("nominal_reductions")
-    diag = diagnose(comp.table, registry, comp.chain, cfg, post=comp.post, baseline=baseline)
+    post, own = comp.post, None
+    if args.own_error_from:
+        own = own_error_of(args, comp)
+        post = own.post(comp.table.cov(), comp.post)
+        print(f"against the model's own error ({own.describe()}; {own.source})")
+    diag = diagnose(comp.table, registry, comp.chain, cfg, post=post, baseline=baseline)
     result = diag.to_json()
+    result["path"] = "contact-law" if comp.summary["model"]["name"] == "contact-law" else "output"
+    if own is not None:
+        result["own_error"] = own.to_json()
     result.update({"session": str(Path(args.session).resolve()), "sensor_id": comp.summary["sensor_id"],
                    "enabled": diag.enabled, "n_samples": diag.n_samples, "n_blocks": diag.n_blocks,
                    "seconds": round(diag.seconds, 2)})
@@ -147,6 +202,20 @@ def cmd_diagnose(args) -> int:
     if args.json:
         print(text)
     return 0
+
+
+def own_error_of(args, comp):
+    """The model's own error fitted on --own-error-from, compared with the same model as `comp`."""
+    from types import SimpleNamespace
+
+    from .model_paths import fit_own_error
+
+    calib = []
+    for s in args.own_error_from:
+        sub = SimpleNamespace(**vars(args))
+        sub.session, sub.model_from, sub.correction_from = s, None, None
+        calib.append(compare_session(sub))
+    return fit_own_error(calib, args.own_error_from)
 
 
 def ranking_lines(diag) -> list[str]:

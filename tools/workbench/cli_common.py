@@ -66,10 +66,13 @@ def contact_law(args, sensor: str, store, path=None):
     from .models import ContactLaw
 
     if getattr(args, "model_from", None):
-        table, _ = load_table(args.model_from, store.load(sensor), cache=not args.no_cache)
-        law = ContactLaw.fit(table, source=f"fitted on {args.model_from}")
+        sources = [args.model_from] if isinstance(args.model_from, str) else list(args.model_from)
+        cal = store.load(sensor)
+        tables = [load_table(s, cal, cache=not args.no_cache)[0] for s in sources]
+        law = ContactLaw.fit_sessions(tables, sources)
         law.save(default_model_path(sensor))
-        print(f"nominal contact law fitted on {args.model_from} -> {default_model_path(sensor)}")
+        print(f"nominal contact law ({', '.join(sorted(law.laws))}) fitted on {', '.join(sources)} -> "
+              f"{default_model_path(sensor)}")
         return law
     path = Path(path) if path else default_model_path(sensor)
     if not path.is_file():

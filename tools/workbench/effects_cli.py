@@ -24,6 +24,9 @@ def register_effects(sub) -> None:
                     help="keep the enabled effects' parameters (default with --from-diagnosis: refit all "
                          "enabled effects jointly with the new one on the diagnosed session)")
     ea.add_argument("--model", metavar="PATH|NAME|contact-law", help="the model for the refit (as compare)")
+    ea.add_argument("--path", choices=("output", "contact-law", "fe"),
+                    help="with a diagnosis of several model paths (diagnose --paths): take the verdict of this "
+                         "path (default: the one with a verdict and the smallest MDE)")
     ea.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision of the replay the fit uses")
     ea.set_defaults(func=cmd_effects_add, extra="train")
     er = esub.add_parser("remove", help="disable an effect for a sensor (new calibration version)")
@@ -60,6 +63,14 @@ def cmd_effects_add(args) -> int:
         if not path.is_file():
             raise TensorTouchError(f"{path}: no diagnosis to take parameters from (run diagnose first)")
         diag = json.loads(path.read_text())
+        if getattr(args, "path", None):
+            if args.path not in diag.get("paths", {}):
+                raise TensorTouchError(f"{path}: no diagnosis on the {args.path} path (has: "
+                                       f"{', '.join(diag.get('paths', {})) or diag.get('path', 'one path')})")
+            diag = diag["paths"][args.path]
+        if diag.get("path"):
+            print(f"from the diagnosis on the {diag['path']} path"
+                  + (" (against the model's own error)" if diag.get("own_error") else ""))
         row = next((r for r in diag.get("ranking", []) if r["effect"] == args.name), None)
         if row is None:
             raise TensorTouchError(f"{path}: effect {args.name} not in that diagnosis' ranking")
@@ -76,8 +87,8 @@ def cmd_effects_add(args) -> int:
         base = store.load(sensor)
         current = [e for e in base.effects if e.get("name") != args.name]
         entry = EnabledEffect(eff, params).to_dict(source)
-        if args.from_diagnosis is not None and not args.no_refit and current:
-            current, entry = _refit(args, sensor, store, reg, current, entry, diag.get("session"))
+        if args.from_diagnosis is not None and not args.no_refit and current and diag.get("path") != "fe":
+            current, entry = _refit(args, sensor, store, reg, current, entry, diag.get("session"), diag.get("own_error"))
         version = store.derive(sensor, {"effects": current + [entry]}, base_version=base.version,
                                provenance={"method": "workbench effects add", "effect": args.name, "source": source})
     params = entry["params"]
@@ -89,7 +100,7 @@ def cmd_effects_add(args) -> int:
     return 0
 
 
-def _refit(args, sensor, store, reg, current, entry, session):
+def _refit(args, sensor, store, reg, current, entry, session, own_error=None):
     """Joint refit of the enabled effects + the new one on the diagnosed session (same model and
     deployed order as compare/diagnose: force-stage effects, then the sensor's correction)."""
     from ...contracts.errors import TensorTouchError
@@ -108,7 +119,12 @@ def _refit(args, sensor, store, reg, current, entry, session):
         print(f"note: parameters not refitted jointly ({exc})")
         return current, entry
     chain = EffectChain.from_list(current + [entry], reg)
-    new, before, after = refit_chain(comp.table, chain, post=comp.post)
+    post = comp.post
+    if own_error:      # fitted as diagnosed: against the model's own error
+        from .own_error import OwnError
+
+        post = OwnError.from_json(own_error).post(comp.table.cov(), comp.post)
+    new, before, after = refit_chain(comp.table, chain, post=post)
     print(f"joint refit of {', '.join(chain.names)} on {session}: rms |r| {before:.4f} -> {after:.4f} N")
     for old_it, it in zip(chain.items, new.items):
         if old_it.params != it.params:

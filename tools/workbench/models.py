@@ -9,7 +9,11 @@ contact mechanics of each indenter fitted once on a calibration session (no effe
     g  = piecewise-linear positive gain over the contact angle θ (FE gels are stiffer near the rim)
 
 per indenter name (Hertz/Mindlin-like, but the force-depth curve is learned, so an FE-made or a
-real gel's curve fits too). Stored as JSON; the workbench caches raw predictions by fingerprint.
+real gel's curve fits too). `fit_sessions` fits it on several calibration sessions at once (their
+rows pooled per indenter name), so sessions that each press with some of the indenters together
+cover them all; a session pressing with an indenter no calibration session used is refused by
+`predict` (one line naming the indenter and the sessions it was fitted on). Stored as JSON; the
+workbench caches raw predictions by fingerprint.
 """
 from __future__ import annotations
 
@@ -100,6 +104,19 @@ class ContactLaw:
             raise TensorTouchError("contact law: no indenter has enough contact samples to fit")
         return cls(laws, cfg.mu, source)
 
+    @classmethod
+    def fit_sessions(cls, tables: list, sources: list, cfg: LawConfig | None = None) -> "ContactLaw":
+        """One law per indenter name over the rows of several sessions' tables (pooled)."""
+        if not tables:
+            raise TensorTouchError("contact law: no calibration session given")
+        return cls.fit(pool_tables(tables), cfg, source="fitted on " + ", ".join(str(s) for s in sources))
+
+    def covers(self, table: SampleTable) -> list[str]:
+        """The indenter names the table presses with that the law has no curve for."""
+        kinds = self._kinds(table)
+        pressed = np.unique(kinds[table.cols["depth"] > 0]) if len(kinds) else []
+        return sorted(str(k) for k in pressed if str(k) not in self.laws)
+
     def predict(self, table: SampleTable) -> np.ndarray:
         kinds = self._kinds(table)
         d = table.cols["depth"]
@@ -108,8 +125,9 @@ class ContactLaw:
         out = np.zeros((len(table), 3))
         for kind in np.unique(kinds):
             if kind not in self.laws:
-                raise TensorTouchError(f"contact law ({self.source}): no law for indenter {kind!r} "
-                                       f"(fitted: {sorted(self.laws)})")
+                raise TensorTouchError(f"contact law ({self.source}): the session presses with indenter {kind!r}, "
+                                       f"which none of its calibration sessions used (it knows {sorted(self.laws)}); "
+                                       f"add a calibration session with {kind} to --model-from")
             law = self.laws[kind]
             m = kinds == kind
             knots = np.asarray(law["knots"])
@@ -143,3 +161,22 @@ class ContactLaw:
         if data.get("schema") != "tensortouch.contact_law":
             raise TensorTouchError(f"{path}: schema {data.get('schema')!r}, expected 'tensortouch.contact_law'")
         return cls(data["laws"], float(data["mu"]), data.get("source", str(path)))
+
+
+def pool_tables(tables: list) -> SampleTable:
+    """The rows of several sessions' tables as one table for the contact-law fit: the columns and
+    vectors all of them have, series renumbered so each keeps its indenter name."""
+    cols = set.intersection(*(set(t.cols) for t in tables))
+    vecs = set.intersection(*(set(t.vec) for t in tables))
+    names, series = {}, []
+    for i, t in enumerate(tables):
+        own = t.meta.get("indenters", {})
+        s = np.asarray(t.cols["series"]).astype(int)
+        new = 1000 * i + s
+        for old in np.unique(s):
+            names[str(int(1000 * i + old))] = own.get(str(int(old)), f"indenter{int(old)}")
+        series.append(new)
+    c = {k: np.concatenate([np.asarray(t.cols[k]) for t in tables]) for k in cols}
+    c["series"] = np.concatenate(series)
+    return SampleTable(c, np.concatenate([t.meas for t in tables]), np.concatenate([t.model for t in tables]),
+                       {k: np.concatenate([t.vec[k] for t in tables]) for k in vecs}, {"indenters": names})

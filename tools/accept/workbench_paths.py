@@ -1,0 +1,341 @@
+"""The workbench on each model path: hidden effects in forms no test uses, on twin units no test or
+recipe uses, diagnosed through the shipped network's output, the contact law fitted on several
+calibration sessions, and FE solved at each session's measured keypoints (issue 45's acceptance).
+
+    tensortouch accept workbench-paths [--paths contact-law output fe] [--draws 1] [--sizes 1 3]
+                                       [--nulls 10] [--forms NAME ...] [--model exported_models/hiera-qup-128]
+                                       [--work DIR] [--progress FILE] [--out FILE]
+
+Units TWIN-P01..P03 (draw k, null k: unit k mod 3), analytic twin physics (hertz-fallback), 30-poke
+plans with frames at 2 fps rendered at the shipped model's size (128 px). Per unit, two calibration
+sessions without hidden physics: the contact law is fitted on both together
+(`ContactLaw.fit_sessions`), and on every path the model's own error (own_error.py) is fitted on
+both and every diagnosis runs against it. Paths: "output" = the shipped network's raw force over
+the session's frames (no correction: the nominal correction did nothing on these units); "contact-law";
+"fe" = the recipe's stage 1-2 on the session (keypoints from its own poses and F/T, one scenario per
+contact period) solved by the recipe's analytic stand-in of tools.fe (hertz-fallback units; the FE
+backend is the same pipeline, far slower).
+
+Hidden forms (tools/accept/alter_forms.py; no test uses them): log_stiffening (expected verdict:
+strain_stiffening), exp_temperature (temperature_softening), ft_offset_ramp (ft_bias_drift),
+sector_stiffening (not in the library: right = no verdict and the azimuth φ named, significant, as
+what remains). Each is scaled so its own contribution on the path's rows is `size` × the path's
+floor (rms |r| of the unaltered session against the model + its own error). Per row: the verdict,
+"right", and on a second session of the unit altered the same way, with the verdict added, the share
+of the effect's own contribution removed: (before - after) / (before - unaltered). Nulls: unaltered
+sessions of new plans, diagnosed with and without the own-error model. Rows are kept under
+WORK/rows; a rerun resumes.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+UNITS = ("TWIN-P01", "TWIN-P02", "TWIN-P03")
+POKES = 30
+CALIB_SEEDS = (6100, 6150)     # + unit index
+TEST_SEED = 6200               # + 10 * form index + draw
+SECOND_SEED = 6300
+NULL_SEED = 6400
+EXPECTED = {"log_stiffening": "strain_stiffening", "exp_temperature": "temperature_softening",
+            "ft_offset_ramp": "ft_bias_drift", "sector_stiffening": "phi"}
+PATHS = ("contact-law", "output", "fe")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--paths", nargs="+", choices=PATHS, default=list(PATHS), help="model paths to run")
+    p.add_argument("--draws", type=int, default=1, help="test sessions per form and size")
+    p.add_argument("--sizes", type=float, nargs="+", default=[1.0, 3.0], help="effect sizes (× the path's floor)")
+    p.add_argument("--nulls", type=int, default=10, help="sessions without a hidden effect")
+    p.add_argument("--forms", nargs="+", choices=sorted(EXPECTED), help="hidden forms (default: all)")
+    p.add_argument("--model", default="exported_models/hiera-qup-128", help="the shipped model package (output path)")
+    p.add_argument("--no-own-error", action="store_true", help="diagnose against the model alone")
+    p.add_argument("--raw-nulls", nargs="*", choices=PATHS, default=["output"],
+                   help="on these paths also diagnose each null against the model alone (the own error's effect)")
+    p.add_argument("--work", help="work folder (default: cache/workbench/paths)")
+    p.add_argument("--progress", help="append one line per finished row here")
+    p.add_argument("--out", help="write every row and the summary as JSON here")
+    p.add_argument("--summarize", action="store_true", help="only summarize the rows in the work folder")
+    p.add_argument("--reverse", action="store_true", help="take the rows last to first (a second run on the "
+                   "same work folder then meets the first one in the middle)")
+
+
+def _rms(x) -> float:
+    x = np.asarray(x)
+    return float(np.sqrt(np.mean(np.sum(x ** 2, axis=1)))) if len(x) else float("nan")
+
+
+def record(sc):
+    """The scenario's session (tools.workbench.scenarios.record), under a lock per scenario: runs of
+    this harness on different paths share their recordings and may meet on one."""
+    import fcntl
+
+    from ..workbench.scenarios import record as _record
+    from ..workbench.scenarios import root
+
+    root().mkdir(parents=True, exist_ok=True)
+    with open(root() / f".lock-{sc.key()}", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        return _record(sc)
+
+
+def _scenario(seed: int, unit: str):
+    from ..workbench.scenarios import Scenario
+
+    return Scenario(seed, pokes=POKES, unit=unit, model_size=128)
+
+
+class PathLab:
+    """One unit on one model path: its store, model, own error; tables of (altered) sessions."""
+
+    def __init__(self, path: str, unit: str, work: Path, model_dir: str, own: bool = True):
+        from ...contracts.store import CalibrationStore
+        from ...runtime.stages.effects import Registry
+        from ..workbench.scenarios import store_root
+
+        self.path, self.unit, self.work = path, unit, Path(work)
+        self.store = CalibrationStore(store_root(unit, 128))
+        self.cal = self.store.load(unit)
+        self.reg = Registry.default(entry_points=False)
+        self.gel = _gel_128(unit)
+        self.loaded: dict = {}
+        self.calib = [record(_scenario(s + UNITS.index(unit), unit)) for s in CALIB_SEEDS]
+        if path == "contact-law":
+            self.law = self._law()
+        if path == "output":
+            from ...runtime.stages.model import find_package
+            from ..workbench.network import NetworkConfig, NetworkModel
+
+            self.net = NetworkModel(find_package(model_dir), NetworkConfig())
+        self.own = self._own() if own else None
+
+    def _law(self):
+        from ..workbench.compare import load_table
+        from ..workbench.models import ContactLaw
+
+        f = self.work / f"law-{self.unit}.json"
+        if f.is_file():
+            return ContactLaw.load(f)
+        law = ContactLaw.fit_sessions([load_table(c, self.cal)[0] for c in self.calib], self.calib)
+        law.save(f)
+        return law
+
+    def _own(self):
+        from ..workbench.diagnose import DiagnoseConfig, blocks_of
+        from ..workbench.own_error import OwnError
+
+        f = self.work / f"own-{self.path}-{self.unit}.json"
+        if f.is_file():
+            return OwnError.from_json(json.loads(f.read_text()))
+        parts = []
+        for c in self.calib:
+            t, _ = self.table(c)
+            parts.append((t.cov(), t.model, t.meas, blocks_of(t, DiagnoseConfig())[0]))
+        own = OwnError.fit(parts, source="calibration sessions " + ", ".join(Path(c).name for c in self.calib))
+        from ...contracts.files import atomic_write_json
+
+        atomic_write_json(f, own.to_json())
+        return own
+
+    def session(self, base: Path):
+        from ...contracts.session import load_session
+
+        if base not in self.loaded:
+            self.loaded[base] = load_session(base, check_frames=False)
+        return self.loaded[base]
+
+    def table(self, base: Path, form: str | None = None, amp: float = 0.0):
+        """(table with the path's raw prediction in `model`, the unaltered session's measured force on
+        the same rows); the FE path solves the (altered) session's own keypoints."""
+        from ..workbench.compare import load_table
+        from .alter_forms import altered_session
+
+        base = Path(base)
+        t0 = load_table(base, self.cal)[0]
+        if form:
+            ses = altered_session(self.session(base), form, amp, self.gel)
+            tb = load_table(base, self.cal, cache=False, session=ses)[0]
+        else:
+            ses, tb = None, t0
+        if self.path == "contact-law":
+            return tb.with_model(self.law.predict(tb)), t0.meas
+        if self.path == "output":
+            from ..workbench.compare import cache_root
+
+            net = cache_root() / "net"
+            clean = self.net.build_table(self.session(base), self.cal, t0, None, net)
+            t = self.net.build_table(ses, self.cal, tb, None, net) if form else clean
+            return t, clean.meas
+        from ..workbench.fe_path import FEModel, take_rows
+
+        pred = FEModel(base, self.cal.meta, "hertz-fallback", session=ses).predict(tb)
+        keep = np.all(np.isfinite(pred), axis=1)
+        return take_rows(tb.with_model(pred), keep), t0.meas[keep]
+
+    def post(self, table, chain=None):
+        return self.own.post(table.cov()) if self.own is not None else None
+
+    def base(self, table, chain=None) -> np.ndarray:
+        from ...runtime.stages.effects import EffectChain
+        from ..workbench.fit import Channels
+
+        return Channels(table, chain or EffectChain(), self.post(table)).base_force
+
+    def diagnose(self, table, own: bool = True):
+        from ..workbench.diagnose import diagnose
+
+        return diagnose(table, self.reg, None, post=self.post(table) if own else None)
+
+
+def _gel_128(unit: str) -> dict:
+    from ...contracts.store import CalibrationStore
+    from ..workbench.scenarios import store_root
+
+    gel = CalibrationStore(store_root(unit, 128)).load(unit).meta["gel"]
+    return {"radius": gel["radius_mm"], "center_z": gel["center_z_mm"], "skirt": gel["skirt_mm"]}
+
+
+def _diag(d) -> dict:
+    v, u = d.verdict, d.unexplained
+    return {"verdict": v.effect.name if v else None, "family": (v.effect.family or v.effect.name) if v else None,
+            "pair": v.pair is not None if v else False, "p": v.p_adjusted if v else None,
+            "best": d.ranking[0].effect.name if d.ranking else None,
+            "best_p": d.ranking[0].p_adjusted if d.ranking else None,
+            "top_covariate": u.get("covariate"), "covariate_p": u.get("p_adjusted"),
+            "diag_floor": d.mde["floor"] if d.mde else None, "mde": d.mde["mde"] if d.mde else None}
+
+
+def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
+    from ...runtime.stages.effects import EffectChain, EnabledEffect
+
+    i = list(EXPECTED).index(form)
+    base = record(_scenario(TEST_SEED + 10 * i + draw, lab.unit))
+    t0, _ = lab.table(base)
+    floor = _rms(t0.meas - lab.base(t0))
+    t1, clean = lab.table(base, form, 1.0)
+    got1 = _rms(t1.meas - clean)
+    amp = size * floor / max(got1, 1e-12)
+    t, clean = lab.table(base, form, amp)
+    got = _rms(t.meas - clean)
+    d = lab.diagnose(t)
+    row = {"path": lab.path, "form": form, "unit": lab.unit, "draw": draw, "size_floor": size, "floor": floor,
+           "size_n": got, "amp": amp, "rows": len(t), **_diag(d)}
+    fam = EXPECTED[form]
+    if fam == "phi":
+        row["right"] = bool(row["verdict"] is None and row["top_covariate"] == "phi" and (row["covariate_p"] or 1) <= 0.05)
+    else:
+        row["right"] = bool(row["family"] == fam and not row["pair"])
+    v = d.verdict
+    if v is not None and v.pair is None and v.channel == "force":
+        second = record(_scenario(SECOND_SEED + 10 * i + draw, lab.unit))
+        a2, clean2 = lab.table(second, form, amp)
+        chain = EffectChain([EnabledEffect(v.effect, dict(v.params))])
+        base2 = lab.base(a2)
+        before, after = _rms(a2.meas - base2), _rms(a2.meas - lab.base(a2, chain))
+        unaltered = _rms(clean2 - base2)
+        row.update({"second_before": before, "second_after": after, "second_unaltered": unaltered,
+                    "removed": (before - after) / max(before - unaltered, 1e-12)})
+    return row
+
+
+def run_null(lab: PathLab, k: int, raw: bool = True) -> dict:
+    t, _ = lab.table(record(_scenario(NULL_SEED + k, lab.unit)))
+    row = {"path": lab.path, "null": k, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)), "rows": len(t),
+           **_diag(lab.diagnose(t))}
+    if lab.own is not None and raw:
+        raw = _diag(lab.diagnose(t, own=False))
+        row["without_own_error"] = {k2: raw[k2] for k2 in ("verdict", "p", "best", "best_p", "top_covariate",
+                                                           "covariate_p", "diag_floor", "mde")}
+    return row
+
+
+def summarize(rows: list) -> dict:
+    out = {}
+    for path in PATHS:
+        cases = [r for r in rows if r["path"] == path and "form" in r]
+        nulls = [r for r in rows if r["path"] == path and "null" in r]
+        if not cases and not nulls:
+            continue
+        big = [r for r in cases if r["size_floor"] >= 1.0]
+        removed = [r["removed"] for r in big if r["right"] and "removed" in r]
+        lib = [r for r in big if EXPECTED[r["form"]] != "phi"]
+        floors = [r["floor"] for r in cases + nulls]
+        out[path] = {
+            "floor_n": [float(np.min(floors)), float(np.max(floors))] if floors else None,
+            "mde_n": [float(np.nanmin([r["mde"] or np.nan for r in nulls])),
+                      float(np.nanmax([r["mde"] or np.nan for r in nulls]))] if nulls else None,
+            "right_at_or_above_floor": f"{sum(r['right'] for r in big)}/{len(big)}",
+            "right_library_forms": f"{sum(r['right'] for r in lib)}/{len(lib)}",
+            "per_form": {f: f"{sum(r['right'] for r in big if r['form'] == f)}/{sum(r['form'] == f for r in big)}"
+                         for f in EXPECTED if any(r["form"] == f for r in big)},
+            "removed_at_least_70": f"{sum(x >= 0.7 for x in removed)}/{len(removed)}",
+            "removed_median": float(np.median(removed)) if removed else None,
+            "null_false_alarms": f"{sum(n['verdict'] is not None for n in nulls)}/{len(nulls)}",
+            "null_false_alarms_without_own_error": (
+                f"{sum(n['without_own_error']['verdict'] is not None for n in nulls if 'without_own_error' in n)}/"
+                f"{sum('without_own_error' in n for n in nulls)}")}
+    return out
+
+
+def run(a: argparse.Namespace) -> int:
+    from ...contracts import paths
+    from ...contracts.files import atomic_write_json
+
+    logging.basicConfig(level=logging.WARNING)
+    work = Path(a.work) if a.work else paths.cache_dir() / "workbench" / "paths"
+    (work / "rows").mkdir(parents=True, exist_ok=True)
+    forms = a.forms or list(EXPECTED)
+    prog = Path(a.progress) if a.progress else None
+
+    def note(text: str) -> None:
+        if prog is not None:
+            with open(prog, "a") as fh:
+                fh.write(f"{time.strftime('%H:%M:%S')} {text}\n")
+
+    rows = []
+    if not a.summarize:
+        labs: dict = {}
+        per = [(s, d, f) for s in sorted(a.sizes) for d in range(a.draws) for f in forms]
+        tasks = []                 # cases and nulls interleaved, the paths taking turns
+        for k in range(max(a.nulls, len(per))):
+            for path in a.paths:
+                if k < len(per):
+                    tasks.append((path, "case", per[k]))
+                if k < a.nulls:
+                    tasks.append((path, "null", k))
+        for path, kind, arg in (tasks[::-1] if a.reverse else tasks):
+            name = (f"{path}-null-{arg}" if kind == "null" else f"{path}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
+            f = work / "rows" / f"{name}.json"
+            if f.is_file():
+                continue
+            unit = UNITS[(arg if kind == "null" else arg[1]) % len(UNITS)]
+            t0 = time.perf_counter()
+            try:
+                if (path, unit) not in labs:
+                    labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error)
+                lab = labs[path, unit]
+                row = (run_null(lab, arg, path in (a.raw_nulls or [])) if kind == "null"
+                       else run_case(lab, arg[2], arg[0], arg[1]))
+            except Exception as exc:    # a row that fails is reported, the run goes on
+                log.exception("%s failed", name)
+                note(f"{name}: FAILED {type(exc).__name__}: {exc}")
+                continue
+            row["seconds"] = time.perf_counter() - t0
+            atomic_write_json(f, json.loads(json.dumps(row, default=float)))
+            note(f"{name}: verdict {row['verdict']} right {row.get('right', '-')} floor {row['floor']:.4g} "
+                 f"removed {row.get('removed', '-')} ({row['seconds']:.0f} s)")
+            print(json.dumps(row, default=float), flush=True)
+    rows = [json.loads(f.read_text()) for f in sorted((work / "rows").glob("*.json"))]
+    summary = summarize(rows)
+    print(json.dumps(summary, indent=1))
+    note("summary " + json.dumps(summary))
+    if a.out:
+        atomic_write_json(a.out, json.loads(json.dumps({"rows": rows, "summary": summary}, default=float)), indent=1)
+    return 0
