@@ -94,7 +94,8 @@ def check(command: str, form: str, timeout: float, scratch: Path) -> str | None:
         return None
     exe = Path(sys.executable).with_name("tensortouch")
     env = dict(os.environ, TENSORTOUCH_ENDPOINT=f"tcp/127.0.0.1:{free_port()}",
-               TENSORTOUCH_CALIBRATION=str(scratch / "calibration_store"), TENSORTOUCH_CACHE=str(scratch / "cache"))
+               TENSORTOUCH_CALIBRATION=str(scratch / "calibration_store"), TENSORTOUCH_CACHE=str(scratch / "cache"),
+               XDG_DATA_HOME=str(scratch / "data"), XDG_CACHE_HOME=str(scratch / "xdg-cache"))
     work = Path(tempfile.mkdtemp(dir=scratch))
     proc = subprocess.Popen([str(exe), *argv[1:]], cwd=work, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -141,7 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     before = untracked()
     with tempfile.TemporaryDirectory(prefix="tt-doc-commands-") as scratch:
         # the calibration store and cache the commands may write: copies in the scratch folder
-        shutil.copytree(calibration_dir(), Path(scratch) / "calibration_store")
+        # (a wheel's writable store may not exist yet: its shipped calibrations stay in the package)
+        if calibration_dir().is_dir():
+            shutil.copytree(calibration_dir(), Path(scratch) / "calibration_store")
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             problems = list(pool.map(lambda c: (c, check(c, args.form, args.timeout, Path(scratch))), commands))
     bad = [(c, why) for c, why in problems if why]
