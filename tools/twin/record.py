@@ -362,6 +362,8 @@ class Recorder:
             depth = interpolate(sol, poke, t, "depth").max(axis=1)
             deep = t[depth >= depth.max() - STILL_DEPTH_MM]
             keep |= (t_cam >= deep.min() - STILL_MARGIN_S) & (t_cam <= deep.max() + STILL_MARGIN_S)
+        if len(keep) and not keep.any():   # no poke left: one rest still, so the session has an image stream
+            keep[0] = True
         return keep
 
     def _frames(self, writer, t_cam, t_wr, shear, t_tmp, temp, solves, keep) -> int:
