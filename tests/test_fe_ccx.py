@@ -79,18 +79,6 @@ def test_deck_increment_cap_for_c3d10(tmp_path):
         export_inp_ccx(sc, tmp_path / "f.inp", max_increment_mm=0.0)
 
 
-def test_frictional_decks_take_quarter_millimetre_increments(tmp_path):
-    """With friction the deck steps at most FRICTION_MAX_INCREMENT_MM (ccx's friction depends on the
-    increment where ours does not); frictionless decks and an explicit cap keep their increments."""
-    from tensortouch.tools.fe.inp import FRICTION_MAX_INCREMENT_MM
-
-    assert FRICTION_MAX_INCREMENT_MM == 0.25
-    quarter, fifth = "*STATIC\n0.11111111, 1., 1.11e-06, 0.11111111\n", "*STATIC\n0.2, 1., 2e-06, 0.2\n"
-    assert quarter in export_inp_ccx(coarse_press(depth=2.0, mu=2.2), tmp_path / "mu.inp").read_text()
-    assert fifth in export_inp_ccx(coarse_press(depth=2.0), tmp_path / "no.inp").read_text()
-    assert fifth in export_inp_ccx(coarse_press(depth=2.0, mu=2.2), tmp_path / "cap.inp", max_increment_mm=0.5).read_text()
-
-
 def test_richardson_recovers_a_known_limit_and_refuses_oscillation():
     from tensortouch.tools.fe.study import richardson
 

@@ -9,8 +9,7 @@ surface-to-surface pair a frictionless 1.5 mm press read 6 % apart, node-to-surf
 pressure-overclosure slope, and the stick slope of *FRICTION, set to the values tools.fe uses (ccx's
 default penalty reads forces 7-10 % low); no *FRICTION when mu = 0; the bulk modulus is the one
 tools.fe uses (`bulk="solver"`: capped for P1, docs/fe.md "Volumetric locking") or the material's D1
-(`bulk="material"`); increments per step as in tools.fe (or at most `max_increment_mm`; with friction
-at most FRICTION_MAX_INCREMENT_MM, where ccx's friction still depends on the increment); the reaction
+(`bulk="material"`); increments per step as in tools.fe (or at most `max_increment_mm`); the reaction
 at each reference node printed to the .dat file (`tools.fe.ccx` reads it).
 
 `dialect="abaqus"`: gel our gmsh mesh as C3D4H (hybrid linear tets), base encastre, Yeoh/NH/MR hyperelastic with the
@@ -82,11 +81,6 @@ CCX_MIN_INCREMENT = 1e-5  # fraction of a step
 # mesh diverges in the press from 1.5 to 2 mm (residual 1e8 in the first iterations of the
 # increment, then stalls); at 0.25 mm it converges in <= 8 iterations per increment (docs/fe.md).
 C3D10_MAX_INCREMENT_MM = 0.25
-# mm: increments of decks with friction (when not told otherwise). ccx's frictional contact depends on
-# its increment size where tools.fe's (first-touch anchor) does not: on the standard dome (top 1.2 mm,
-# press 2 mm then slide 1 mm, mu 2.2) ccx at 0.5 mm read the end-of-slide friction force 1.6 % and
-# the 2 mm mu-press 2.5 % above ours, at 0.25 mm 0.15 % and 1.9 % (docs/BENCHMARKS.md).
-FRICTION_MAX_INCREMENT_MM = 0.25
 
 
 def export_inp(scenario: Scenario, path, mesh=None, dialect: str = "ccx", bulk: str = "solver",
@@ -201,8 +195,6 @@ def export_inp_ccx(scenario: Scenario, path, mesh=None, bulk: str = "solver",
     if max_increment_mm is not None and not max_increment_mm > 0:
         raise ValueError(f"max_increment_mm: expected > 0, got {max_increment_mm!r}")
     scenario.validate()
-    if max_increment_mm is None and scenario.friction > 0:
-        max_increment_mm = min(scenario.solver.max_increment_mm, FRICTION_MAX_INCREMENT_MM)
     gm = mesh if mesh is not None else build_mesh(scenario)
     order = 2 if gm.tets.shape[1] == 10 else 1
     m, sv = scenario.material, scenario.solver
