@@ -55,7 +55,7 @@ DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso")
 # e.g. press -> slide, where the whole contact patch goes from stick towards slip) the predictor cannot
 # extrapolate and Newton needed 16 iterations for the first slide increment of `tensortouch bench fe`;
 # that increment is shortened to this fraction (the rest of the step follows as usual): 7 + 4
-# iterations instead of 16, final forces 4e-8 apart (docs/fe.md). Module constant like
+# iterations instead of 16, final forces 5e-8 apart (docs/fe.md). Module constant like
 # FIRST_TOUCH_ANCHOR (the scenario hashes stay as they are); solver_info records it.
 TURN_INCREMENT_FRACTION = 0.5
 
