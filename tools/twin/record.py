@@ -1,8 +1,8 @@
 """`twin record`: simulate a session of one twin unit -- deterministic for a seed, resumable.
 
 Stages: plan (trajectory.py) -> physics per poke (FE by default, cached) -> signals at the rig's
-rates (signals.py) with the truth effects (effects.py) -> frames rendered at camera rate
-(camera.py) into numbered staged frames (resume skips the ones already on disk) -> streams, truth/ and the
+rates (signals.py) with the truth effects (effects.py) -> frames rendered at camera rate (or, camera
+"stills", only those around each poke's start and deepest moment) (camera.py) into numbered staged frames (resume skips the ones already on disk) -> streams, truth/ and the
 manifest last (tools.sessions.writer). Everything random comes from generators seeded by
 (seed, stream), so a resumed recording equals an uninterrupted one.
 """
