@@ -157,3 +157,29 @@ def test_engines_give_the_same_solve_and_pardiso_repeats_bit_for_bit(mu):
     assert np.array_equal(again.RF, new.RF) and np.array_equal(again.U, new.U)
     if mu == 0.0:  # no friction: only the plowing slope of the pressed surface pushes back in x
         assert abs(new.RF[-1, 0, 0]) < 0.03 * abs(new.RF[-1, 0, 2])
+
+
+def test_a_turn_of_the_motion_starts_with_a_shorter_increment(monkeypatch):
+    """Press then slide on a small pad: where the motion turns the first increment is shortened to
+    TURN_INCREMENT_FRACTION (one increment more than plain stepping, recorded in solver_info), and
+    the forces are those of plain stepping (a shorter step, not another model)."""
+    import json
+
+    from tensortouch.tools.fe import solver
+    from tensortouch.tools.fe.mesh import mesh_gel
+    from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario
+
+    pad = GelGeometry(kind="flat_pad", size_x=12.0, size_y=12.0, thickness=5.0)
+    ms = MeshSettings(size_top=1.2, size_inside=1.5)
+    ind = Indenter(name="s", shape="sphere", params={"radius": 4.0}, position=[0.0, 0.0, 5.0],
+                   keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in [(0, 0, -0.6), (0.45, 0, -0.6)]])
+    sc = Scenario(gel=pad, mesh=ms, indenters=[ind], friction=0.6)
+    gm = mesh_gel(pad, ms)
+    monkeypatch.setattr(solver, "TURN_INCREMENT_FRACTION", 1.0)
+    plain = solver.solve(sc, mesh=gm)
+    monkeypatch.setattr(solver, "TURN_INCREMENT_FRACTION", 0.5)
+    turned = solver.solve(sc, mesh=gm)
+    a, b = json.loads(plain.solver_info), json.loads(turned.solver_info)
+    assert b["turn_increment_fraction"] == 0.5 and b["increments"] == a["increments"] + 1
+    assert np.array_equal(turned.RF[0], plain.RF[0])                      # the press is stepped as before
+    assert np.linalg.norm(turned.RF[-1] - plain.RF[-1]) < 2e-3 * np.linalg.norm(plain.RF[-1])

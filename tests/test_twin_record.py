@@ -217,3 +217,47 @@ def test_recorded_gel_returns_to_rest_slowly(tmp_path):
     assert slow[0] > 2 * noise_floor           # still visibly deformed after the release
     assert slow[-1] < slow[0]                  # and relaxing
     assert max(none) - min(none) < 0.002       # no slow part: at rest (noise only) right away
+
+
+def test_stills_are_the_videos_frames_around_each_pokes_start_and_deepest_moment(tmp_path):
+    """camera "stills" renders a subset of the camera clock: each still is pixel for pixel the video's
+    frame at that time (same state, same noise), every poke has a rest frame before its start and frames
+    at its deepest planned moment, and an interrupted stills recording resumes to the same session."""
+    from tensortouch.contracts.errors import SessionError
+
+    video = record(_small(), tmp_path / "video")
+    rec = Recorder(_small(camera="stills"), tmp_path / "stills")
+    stills = rec.run()
+    fv, fs = load_session(video).table("frames"), load_session(stills).table("frames")
+    assert 0 < len(fs) < 0.6 * len(fv)
+    assert np.array_equal(fs[:, 1], np.arange(len(fs)))
+    at = np.searchsorted(fv[:, 0], fs[:, 0])
+    assert np.array_equal(fv[at, 0], fs[:, 0])                       # stills lie on the camera clock
+    img_v = dict(read_frames(load_session(video), fv[at, 1].astype(int)))
+    for (i, img), j in zip(read_frames(load_session(stills)), fv[at, 1].astype(int)):
+        assert np.array_equal(img, img_v[j])
+    kv = read_table(video / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
+    ks = read_table(stills / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
+    assert np.array_equal(ks[:, [0, 2, 3]], kv[at][:, [0, 2, 3]]) and np.array_equal(ks[:, 1], fs[:, 1])
+    contact = read_table(stills / "truth" / "contact.csv", ["t", "indenter", "depth", "x", "y", "z", "area", "touching"])
+    for p in rec.plan:
+        assert np.any((fs[:, 0] < p.t_start) & (fs[:, 0] > p.t_start - 0.2))
+        c = contact[(contact[:, 0] >= p.t_start) & (contact[:, 0] <= p.t_end)]
+        deepest = c[np.argmax(c[:, 2]), 0]
+        assert np.abs(fs[:, 0] - deepest).min() <= 0.5 / rec.cfg.rig.camera_fps + 1e-9
+
+    class Stop(Exception):
+        pass
+
+    def interrupt(stage, i, n):
+        if stage == "frames" and i >= 12:
+            raise Stop
+
+    with pytest.raises(Stop):
+        Recorder(_small(camera="stills"), tmp_path / "resumed", progress=interrupt).run()
+    resumed = Recorder(_small(camera="stills"), tmp_path / "resumed").run()
+    assert np.array_equal(load_session(resumed).table("frames"), fs)
+    for (_, a), (_, b) in zip(read_frames(load_session(resumed)), read_frames(load_session(stills))):
+        assert np.array_equal(a, b)
+    with pytest.raises(SessionError, match="camera"):
+        Recorder(_small(camera="film"), tmp_path / "bad")

@@ -2,7 +2,10 @@
 
 Per unit a short calibration session is recorded with the twin: light single-indenter pokes
 (sphere R3, 0.8–1.2 mm, < 1 N) at random places of the cap. The poke plan is the same for every unit
-(so its FE solves are shared through the FE cache); each unit renders it with its own camera. For each
+(so its FE solves, and the label re-solves from the measured poses, are shared through the FE cache);
+each unit renders it with its own camera, as stills (`RecordConfig.camera`): only the frames around
+each poke's start and deepest moment, the ones the detector reads, each equal to the video's frame at
+that time (rendering all 783 frames of the 9 pokes was most of a unit's time). For each
 contact found on the measured F/T (stage 1 with the calibration thresholds `contact_force_n` /
 `detach_force_n`: light pokes never reach the seed's 1.5 N):
 - 3D point: the mocap tip (smoothed, `resolve.fit_pose`) at the deepest moment of the poke (smallest
@@ -46,6 +49,8 @@ class CorrespondenceConfig:
     quality: int = 90                # MJPG quality of the calibration recordings
     contact_force_n: float = 0.3     # stage-1 thresholds for the light calibration pokes (F/T noise 0.02 N)
     detach_force_n: float = 0.2
+    camera: str = "stills"           # twin camera of the calibration session: "stills" renders only the frames
+                                     # the detector can read (around each poke's start and deepest moment); "video" all
 
 
 def image_change_centroid(base: np.ndarray, cur: np.ndarray, cfg: CorrespondenceConfig = CorrespondenceConfig()
@@ -95,7 +100,7 @@ def record_calibration_session(b, serial: str, cfg: CorrespondenceConfig):
 
     path = b.root / "correspondence" / "sessions" / f"{serial}-calib"
     rcfg = RecordConfig(serial=serial, pokes=cfg.pokes, seed=cfg.seed, physics=b.cfg.physics,
-                        frame_format="mjpg", mjpg_quality=cfg.quality, model_size=b.cfg.size)
+                        frame_format="mjpg", mjpg_quality=cfg.quality, model_size=b.cfg.size, camera=cfg.camera)
     rcfg.trajectory = replace(rcfg.trajectory, kinds=("poke",), indenters=(cfg.indenter,), p_two=0.0,
                               depth_poke=cfg.depth)
     if not (path / "session.json").is_file():
@@ -157,6 +162,7 @@ def correspondences(b, session_dir, gel, cfg: CorrespondenceConfig = Corresponde
 
     ses = load_session(session_dir)
     frames = ses.table("frames")
+    period = 1.0 / float(ses.streams["frames"].get("fps", 30.0))
     moments = poke_moments(ses, cfg, gel)
     sources = _calibration_fe(b, Path(session_dir).name, moments, gel)
     lens = nominal_lens()
@@ -168,6 +174,10 @@ def correspondences(b, session_dir, gel, cfg: CorrespondenceConfig = Corresponde
         peak = int(np.argmin(np.abs(frames[:, 0] - m["t_peak"])))
         base = int(np.searchsorted(frames[:, 0], src["t_init"])) - 1
         if base < 0:
+            continue
+        if abs(frames[peak, 0] - m["t_peak"]) > period:   # stills that miss the measured deepest moment
+            log.warning("%s: no frame within %.3f s of the poke's deepest moment t %.2f s; poke left out",
+                        session_dir, period, m["t_peak"])
             continue
         pairs.append((int(frames[base, 1]), int(frames[peak, 1]), m, src))
     imgs = dict(read_frames(ses, sorted({i for a, c, _, _ in pairs for i in (a, c)})))

@@ -1,8 +1,8 @@
 """`twin record`: simulate a session of one twin unit -- deterministic for a seed, resumable.
 
 Stages: plan (trajectory.py) -> physics per poke (FE by default, cached) -> signals at the rig's
-rates (signals.py) with the truth effects (effects.py) -> frames rendered at camera rate
-(camera.py) into numbered staged frames (resume skips the ones already on disk) -> streams, truth/ and the
+rates (signals.py) with the truth effects (effects.py) -> frames rendered at camera rate (or, camera
+"stills", only those around each poke's start and deepest moment) (camera.py) into numbered staged frames (resume skips the ones already on disk) -> streams, truth/ and the
 manifest last (tools.sessions.writer). Everything random comes from generators seeded by
 (seed, stream), so a resumed recording equals an uninterrupted one.
 """
@@ -43,6 +43,12 @@ from .world import WORLDS, WorldConfig, ar1_filter, distort_ft, draw_world, quat
 
 log = logging.getLogger(__name__)
 PHYSICS = ("fe", "hertz-fallback")
+CAMERAS = ("video", "stills")
+# camera "stills": the camera-clock frames rendered per poke (s): STILL_BEFORE_S before to STILL_AFTER_S after
+# the poke's start (the rest frame before contact), and those where its planned depth is within
+# STILL_DEPTH_MM of the deepest, widened by STILL_MARGIN_S (the moment the mocap finds deepest)
+STILL_BEFORE_S, STILL_AFTER_S = 0.12, 0.08
+STILL_DEPTH_MM, STILL_MARGIN_S = 0.05, 0.07
 
 
 @dataclass
@@ -64,6 +70,8 @@ class RecordConfig:
     guided: GuidedConfig | None = None  # guided presses at given points instead of a random plan (pokes ignored)
     world: str = "label"             # "label": the labels' own physics and an ideal rig; "rig": tools.twin.world
     world_params: dict | None = None  # WorldConfig fields that differ from its defaults (world "rig")
+    camera: str = "video"            # "video": every frame at camera_fps; "stills": only the frames around each
+                                     # poke's start and deepest moment (a calibration jig's triggered stills)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -73,6 +81,8 @@ class RecordConfig:
                 d.pop(k)
         if d["world"] == "label":
             d.pop("world")
+        if d["camera"] == "video":
+            d.pop("camera")
         return json.loads(json.dumps(d))
 
     def key(self) -> str:
@@ -130,6 +140,8 @@ class Recorder:
         self.progress = progress or (lambda stage, i, n: None)
         if cfg.world not in WORLDS:
             raise SessionError(f"world {cfg.world!r}: expected one of {WORLDS}")
+        if cfg.camera not in CAMERAS:
+            raise SessionError(f"camera {cfg.camera!r}: expected one of {CAMERAS}")
         if cfg.world_params and cfg.world == "label":
             raise SessionError("world_params: only world 'rig' takes world parameters")
         self.world = (draw_world(cfg.serial, WorldConfig.with_overrides(cfg.world_params, "world_params"))
@@ -268,10 +280,13 @@ class Recorder:
         self._truth(t_pose, true_pose, t_wr, truth_rows, fe_rows, contact_rows, solves)
         # frames ------------------------------------------------------------------------------
         t0 = time.perf_counter()
-        rendered = self._frames(writer, t_cam, t_wr, shear, t_tmp, temp, solves)
+        keep = self._still_frames(t_cam, solves) if cfg.camera == "stills" else np.ones(len(t_cam), bool)
+        rendered = self._frames(writer, t_cam, t_wr, shear, t_tmp, temp, solves, keep)
         self.timing["render_s"] = time.perf_counter() - t0
         self.timing["frames_rendered"] = rendered
-        writer.finish_frames(t_cam, rig.camera_fps, quality=cfg.mjpg_quality)
+        extra = {} if cfg.camera == "video" else {
+            "camera": "stills: frames around each poke's start and deepest moment only (t in frames.csv)"}
+        writer.finish_frames(t_cam[keep], rig.camera_fps, quality=cfg.mjpg_quality, **extra)
         self.timing["total_s"] = time.perf_counter() - t_start
         prov = {"source": "twin", "unit": cfg.serial, "seed": cfg.seed, "pokes": len(self.plan),
                 "planned_pokes": len(self.planned),
@@ -343,7 +358,26 @@ class Recorder:
                              "note": "truth/ is on the camera clock, in the sensor frame, without F/T bias or noise"}
         atomic_write_json(d / "truth.json", info, indent=2)
 
-    def _frames(self, writer, t_cam, t_wr, shear, t_tmp, temp, solves) -> int:
+    def _still_frames(self, t_cam: np.ndarray, solves) -> np.ndarray:
+        """Camera-clock frames a "stills" recording keeps (bool per frame of t_cam): per poke, the rest
+        frames just before its start and the frames around its deepest planned moment."""
+        keep = np.zeros(len(t_cam), bool)
+        for poke, sol in zip(self.plan, solves):
+            keep |= (t_cam >= poke.t_start - STILL_BEFORE_S) & (t_cam <= poke.t_start + STILL_AFTER_S)
+            t = t_cam[(t_cam >= poke.t_start) & (t_cam <= poke.t_end)]
+            if not len(t):
+                continue
+            depth = interpolate(sol, poke, t, "depth").max(axis=1)
+            deep = t[depth >= depth.max() - STILL_DEPTH_MM]
+            keep |= (t_cam >= deep.min() - STILL_MARGIN_S) & (t_cam <= deep.max() + STILL_MARGIN_S)
+        if len(keep) and not keep.any():   # no poke left: one rest still, so the session has an image stream
+            keep[0] = True
+        return keep
+
+    def _frames(self, writer, t_cam, t_wr, shear, t_tmp, temp, solves, keep) -> int:
+        """Render the frames of t_cam where `keep` (the camera state, hysteresis, runs through all of
+        them; frame i's noise is seeded by i, so a still equals the video's frame at that time); kept
+        frames are numbered 0, 1, ... in the image stream."""
         cfg, rig = self.cfg, self.cfg.rig
         r = self.unit.renderer
         mask = r.view.mask
@@ -355,8 +389,9 @@ class Recorder:
         n_nodes = solves[0].nodes.shape[0] if solves else 0
         rendered = 0
         keys = np.full((len(t_cam), 4), -1.0)  # t, index, poke, keypoint parameter sigma = j + s
+        index = np.cumsum(keep) - 1
         for i, t in enumerate(t_cam):
-            keys[i, :2] = t, i
+            keys[i, :2] = t, index[i]
             u = np.zeros((n_nodes, 3))
             nodes = solves[0].nodes if solves else np.zeros((0, 3))
             for pi, (poke, sol) in enumerate(zip(self.plan, solves)):
@@ -374,7 +409,7 @@ class Recorder:
             if hyst is None:
                 hyst = Hysteresis(rig.hysteresis_fraction, rig.hysteresis_tau_s, u.shape)
             u_vis = hyst.step(float(t), u)
-            if writer.has_frame(i):
+            if not keep[i] or writer.has_frame(int(index[i])):
                 continue
             if n_nodes and np.any(u_vis):
                 key = nodes.shape[0], float(nodes[:7].sum())
@@ -385,10 +420,10 @@ class Recorder:
             else:
                 u_pix = None
             img = r.render(u_pix, float(gains[i]), _rng(cfg, 4, i))
-            writer.frame(i, img)
+            writer.frame(int(index[i]), img)
             rendered += 1
             self.progress("frames", i + 1, len(t_cam))
-        write_table(self.out / "truth" / "frames.csv", ["t", "index", "poke", "sigma"], keys)
+        write_table(self.out / "truth" / "frames.csv", ["t", "index", "poke", "sigma"], keys[keep])
         return rendered
 
 
