@@ -234,7 +234,7 @@ def test_stills_are_the_videos_frames_around_each_pokes_start_and_deepest_moment
     at = np.searchsorted(fv[:, 0], fs[:, 0])
     assert np.array_equal(fv[at, 0], fs[:, 0])                       # stills lie on the camera clock
     img_v = dict(read_frames(load_session(video), fv[at, 1].astype(int)))
-    for (i, img), j in zip(read_frames(load_session(stills)), fv[at, 1].astype(int)):
+    for (_i, img), j in zip(read_frames(load_session(stills)), fv[at, 1].astype(int)):
         assert np.array_equal(img, img_v[j])
     kv = read_table(video / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
     ks = read_table(stills / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
