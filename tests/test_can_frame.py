@@ -1,5 +1,4 @@
 """CAN summary frames (contracts/can_frame.py): layout round trip, scaling, saturation, id range, decoding."""
-
 import numpy as np
 import pytest
 from tensortouch.contracts.can_frame import (

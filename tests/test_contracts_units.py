@@ -1,5 +1,4 @@
 """Unit spellings and conversions (contracts/units.py)."""
-
 import pytest
 from tensortouch.contracts.units import convert, to_house
 

@@ -1,5 +1,4 @@
 """The built-in effect library (runtime/stages/effects/builtin.py): identity values, agreement with the twin, Prony filter, bounds."""
-
 import numpy as np
 import pytest
 from tensortouch.runtime.stages.effects import CANONICAL, Registry

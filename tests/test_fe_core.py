@@ -1,5 +1,4 @@
 """tools.fe core: element forces/tangents against an independent energy, and contact (fast, no full solves)."""
-
 import numpy as np
 import pytest
 

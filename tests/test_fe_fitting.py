@@ -1,5 +1,4 @@
 """Material fitting (tools/fe/fitting.py): Yeoh ranks over neo-Hookean."""
-
 import numpy as np
 import pytest
 

@@ -1,5 +1,4 @@
 """Indenter shapes and poses (tools/fe/indenters.py): pose interpolation, SDF gradients, mesh shapes."""
-
 import numpy as np
 import pytest
 

@@ -1,5 +1,4 @@
 """Closed-form hyperelastic materials (tools/fe/materials.py) against felupe's automatic differentiation."""
-
 import numpy as np
 import pytest
 

@@ -1,5 +1,4 @@
 """gmsh meshing of the gel (tools/fe/mesh.py): every gel kind, refinement, STL gels, SIGPIPE left alone."""
-
 import numpy as np
 import pytest
 

@@ -1,5 +1,4 @@
 """The FE result contract (tools/fe/result.py): round trip without pickle, unconverged and corrupt files refused."""
-
 import numpy as np
 import pytest
 

@@ -1,5 +1,4 @@
 """Object placement in the grasp scene (tools/grasp/scene.py)."""
-
 import numpy as np
 import pytest
 

@@ -1,5 +1,4 @@
 """The fingertip sensor mount (tools/grasp/sensor_mount.py): pad axis to dome apex and back."""
-
 import numpy as np
 import pytest
 from tensortouch.tools.grasp.sensor_mount import SensorMount

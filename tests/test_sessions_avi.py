@@ -1,5 +1,4 @@
 """The MJPG AVI writer (tools/sessions/avi.py): quality is honoured and the frame count is readable."""
-
 import cv2
 import numpy as np
 from tensortouch.contracts.session import avi_frame_count

@@ -1,5 +1,4 @@
 """Field metrics (tools/train/model/metrics.py) follow the seed's definitions."""
-
 import numpy as np
 import pytest
 from tensortouch.contracts.fields import CHANNELS

@@ -1,5 +1,4 @@
 """The twin's effect specs (tools/twin/effect_specs.py) are the runtime's definitions."""
-
 import pytest
 from tensortouch.runtime.stages.effects import CANONICAL, Registry
 

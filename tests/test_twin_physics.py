@@ -1,5 +1,4 @@
 """Twin physics: keypoint runs, interpolation between solved keypoints, Hertz fallback, trajectories."""
-
 import numpy as np
 from tensortouch.tools.twin.bench import _densify
 from tensortouch.tools.twin.geometry import GelSurface
