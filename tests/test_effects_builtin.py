@@ -1,4 +1,5 @@
-"""The built-in effect library (runtime/stages/effects/builtin.py): identity values, agreement with the twin, Prony filter, bounds."""
+"""The built-in effect library (runtime/stages/effects/builtin.py): identity values, agreement with the
+twin, Prony filter, bounds."""
 import numpy as np
 import pytest
 from tensortouch.runtime.stages.effects import CANONICAL, Registry

@@ -1,4 +1,5 @@
-"""The effect chain (runtime/stages/effects/chain.py): built from a calibration store, streaming equals batch."""
+"""The effect chain (runtime/stages/effects/chain.py): built from a calibration store, streaming equals
+batch."""
 import json
 
 import numpy as np

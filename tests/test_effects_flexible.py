@@ -1,4 +1,5 @@
-"""The flexible effect members (runtime/stages/effects/flexible.py): identities when off, streaming equals batch."""
+"""The flexible effect members (runtime/stages/effects/flexible.py): identities when off, streaming equals
+batch."""
 import numpy as np
 import pytest
 from tensortouch.runtime.stages.effects import Registry

@@ -1,4 +1,5 @@
-"""The effect registry (runtime/stages/effects/registry.py): plugin folders, entry points, bad plugins refused."""
+"""The effect registry (runtime/stages/effects/registry.py): plugin folders, entry points, bad plugins
+refused."""
 import sys
 import textwrap
 

@@ -1,4 +1,5 @@
-"""tools.fe core: element forces/tangents against an independent energy, and contact (fast, no full solves)."""
+"""tools.fe core: element forces/tangents against an independent energy, and contact (fast, no full
+solves)."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,5 @@
-"""Sparse solvers (tools/fe/linsolve.py): PARDISO keeps its symbolic analysis, singular matrices, engines agree."""
+"""Sparse solvers (tools/fe/linsolve.py): PARDISO keeps its symbolic analysis, singular matrices, engines
+agree."""
 import numpy as np
 import pytest
 import scipy.sparse as sp

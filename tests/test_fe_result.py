@@ -1,4 +1,5 @@
-"""The FE result contract (tools/fe/result.py): round trip without pickle, unconverged and corrupt files refused."""
+"""The FE result contract (tools/fe/result.py): round trip without pickle, unconverged and corrupt files
+refused."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,5 @@
-"""The FE scenario contract (tools/fe/scenario.py): JSON/TOML round trip, bad scenarios and indenters name the field."""
+"""The FE scenario contract (tools/fe/scenario.py): JSON/TOML round trip, bad scenarios and indenters name
+the field."""
 import json
 
 import pytest

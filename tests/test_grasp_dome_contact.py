@@ -1,4 +1,5 @@
-"""Gel line contact (tools/grasp/dome_contact.py): depth profile, shear, hand-worked values, FE of the twin dome."""
+"""Gel line contact (tools/grasp/dome_contact.py): depth profile, shear, hand-worked values, FE of the twin
+dome."""
 import numpy as np
 import pytest
 from tensortouch.tools.grasp.dome_contact import DomeContactConfig, ObjectContact, displacement

@@ -1,4 +1,5 @@
-"""Hand config files (runtime/apps/hand_config.py): round trip, errors that name the problem, the documented example."""
+"""Hand config files (runtime/apps/hand_config.py): round trip, errors that name the problem, the
+documented example."""
 import pytest
 from tensortouch.runtime.apps.hand_config import HandConfigError, load_hand_config, parse_hand_config
 

@@ -1,4 +1,5 @@
-"""Cross-evaluation (tools/train/crosseval.py): recipe keys, the sealed set scored whole and alone, the shipped demo."""
+"""Cross-evaluation (tools/train/crosseval.py): recipe keys, the sealed set scored whole and alone, the
+shipped demo."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,5 @@
-"""The exported graph's rewrites (tools/train/export_graph.py): conv + pixel shuffle as one transposed conv, fused heads."""
+"""The exported graph's rewrites (tools/train/export_graph.py): conv + pixel shuffle as one transposed
+conv, fused heads."""
 import pytest
 
 torch = pytest.importorskip("torch")

@@ -1,4 +1,5 @@
-"""Frame labels of the re-solved path (tools/train/labels.py): contact, busy and rest frames, keypoint share, checked frames, sigma words."""
+"""Frame labels of the re-solved path (tools/train/labels.py): contact, busy and rest frames, keypoint
+share, checked frames, sigma words."""
 import numpy as np
 import pytest
 from tensortouch.tools.train.labels import BUSY_ID, frame_labels, keypoint_frame_share

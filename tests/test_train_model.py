@@ -1,4 +1,5 @@
-"""Stage 6 (seed §III.J, §IV-C): baselines, learning-rate schedule, dataset contract, training loop and resume."""
+"""Stage 6 (seed §III.J, §IV-C): baselines, learning-rate schedule, dataset contract, training loop and
+resume."""
 import json
 
 import numpy as np

@@ -1,4 +1,5 @@
-"""Hiera (tools/train/model/hiera.py): shipped shapes and parameter budget, mask-unit locality in stage one, MAE masking."""
+"""Hiera (tools/train/model/hiera.py): shipped shapes and parameter budget, mask-unit locality in stage
+one, MAE masking."""
 import pytest
 
 torch = pytest.importorskip("torch")

@@ -1,4 +1,5 @@
-"""`tensortouch train units` (tools/train/units.py): check agrees with every recipe, bad input is one line and exit 2."""
+"""`tensortouch train units` (tools/train/units.py): check agrees with every recipe, bad input is one line
+and exit 2."""
 from __future__ import annotations
 
 import subprocess

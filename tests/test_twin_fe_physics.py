@@ -1,4 +1,5 @@
-"""Twin FE physics (tools/twin/fe_physics.py): scenario mapping, result conversion, non-convergence retries."""
+"""Twin FE physics (tools/twin/fe_physics.py): scenario mapping, result conversion, non-convergence
+retries."""
 import json
 
 import numpy as np

@@ -1,4 +1,5 @@
-"""`tensortouch view` server (tools/view/server.py): the page's JSON API fed by a real hand over real Zenoh."""
+"""`tensortouch view` server (tools/view/server.py): the page's JSON API fed by a real hand over real
+Zenoh."""
 import base64
 import json
 import urllib.error

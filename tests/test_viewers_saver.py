@@ -1,4 +1,5 @@
-"""The savers' shared base (tools/viewers/saver.py): a `.partial` file moved into place once, per-topic counts."""
+"""The savers' shared base (tools/viewers/saver.py): a `.partial` file moved into place once, per-topic
+counts."""
 import pytest
 from tensortouch.tools.viewers.saver import Saver
 
