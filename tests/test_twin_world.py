@@ -115,18 +115,6 @@ def test_each_unit_draws_its_own_world_within_its_sizes():
     assert WorldConfig.with_overrides({"clock_ft_s": 0, "fe_order": 2}).fe_order == 2
 
 
-def test_a_rig_units_calibration_names_the_gel_design_not_its_own_gel():
-    """The label FE reads the gel from the calibration's meta: it must stay the design (no truth leak)."""
-    from tensortouch.tools.twin.unit import TwinUnit, calibration_meta, true_tables
-
-    w = draw_world("TWIN-W1")
-    rig, label = TwinUnit("TWIN-W1", world=w), TwinUnit("TWIN-W1")
-    m = calibration_meta(rig, 32)
-    assert m["gel"] == calibration_meta(label, 32)["gel"] and m["gel"]["base_radius_mm"] == 12.0
-    assert m["provenance"]["unit_gel"]["base_radius_mm"] == w.gel.radius
-    assert not np.array_equal(true_tables(rig, 32)["theta"], true_tables(label, 32)["theta"])   # the images differ
-
-
 def test_the_rig_world_fe_is_the_units_own_gel_yeoh_and_finer_mesh():
     rec = Recorder(RecordConfig(serial="TWIN-W1", world="rig", physics="fe"), "/nonexistent-not-written")
     fe = make_physics(rec.cfg, rec.unit)
