@@ -79,32 +79,6 @@ def test_deck_increment_cap_for_c3d10(tmp_path):
         export_inp_ccx(sc, tmp_path / "f.inp", max_increment_mm=0.0)
 
 
-def test_richardson_recovers_a_known_limit_and_refuses_oscillation():
-    from tensortouch.tools.fe.study import richardson
-
-    h = [1.4, 1.0, 0.7]
-    out = richardson(h, [2.0 + 0.5 * x ** 1.5 for x in h])
-    assert out["monotone"] and out["p"] == pytest.approx(1.5, abs=1e-6) and out["f0"] == pytest.approx(2.0)
-    out = richardson(h, [5.3 - 0.2 * x ** 0.7 for x in h])  # rising towards the limit, order < 1
-    assert out["p"] == pytest.approx(0.7, abs=1e-6) and out["f0"] == pytest.approx(5.3)
-    assert richardson(h, [2.5, 2.4, 2.45]) == {"f0": None, "p": None, "monotone": False}
-
-
-def test_study_reuses_a_solved_deck_without_ccx(tmp_path):
-    """The study's ccx rows come back from <label>.json when the deck is byte-identical (no ccx run)."""
-    import hashlib
-    import json
-
-    from tensortouch.tools.fe.study import _ccx
-
-    sc = coarse_press()
-    deck = export_inp_ccx(sc, tmp_path / "lab.inp")
-    sha = hashlib.sha256(deck.read_bytes()).hexdigest()
-    (tmp_path / "lab.json").write_text(json.dumps({"deck_sha256": sha, "RF": [[0, 0, -2.5]], "seconds": 12.0}))
-    row = _ccx(sc, tmp_path, "lab")
-    assert row["reused"] and row["RF"] == [[0, 0, -2.5]] and row["seconds"] == 12.0
-
-
 def test_cli_export_inp_max_increment(tmp_path, capsys):
     import argparse
 

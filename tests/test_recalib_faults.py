@@ -123,14 +123,6 @@ def test_power_loss_sigkill_mid_write_keeps_previous_calibration(store, tmp_path
     assert store.current(SENSOR) == v and store.load(SENSOR).meta["correction"]["output"] == "gain"
 
 
-# ----- corrupt new version → previous reactivated --------------------------------------------------
-def test_unloadable_correction_is_rolled_back(store):
-    bad = ({"file": "correction.onnx", "inputs": ["fmag"], "output": "gain"}, b"not an onnx model")
-    with pytest.raises(CalibrationError, match="failed verification .*v0001 re-activated"):
-        store_recalibration(store, store.load(SENSOR), {"pokes": 6}, correction=bad)
-    assert store.current(SENSOR) == "v0001"
-
-
 # ----- gauge faults in a session --------------------------------------------------------------------
 def cl(f, uv, xyz):
     return Cluster(id=-1, uv_px=uv, position_mm=xyz, normal=(0, 0, 1), area_mm2=1.0, force_n=(0.0, 0.0, -f),

@@ -1,13 +1,11 @@
-"""Stages 3, 4 (dataset shell), 5 and 8 cores of `tensortouch train all` (tools/train/*)."""
+"""Stages 3, 4 (dataset shell) and 8 cores of `tensortouch train all` (tools/train/*)."""
 import numpy as np
-import pytest
 from tensortouch.contracts.fields import CHANNELS
 from tensortouch.tools.train.correspondence import image_change_centroid, project_to_cap, tables_from_theta_phi
 from tensortouch.tools.train.dataset import DatasetConfig, FieldProjector, select_frames, write_dataset
 from tensortouch.tools.train.evaluate import frame_errors, has_phantom, summarize
 from tensortouch.tools.train.fields import FieldConfig, fe_to_fields, read_bounds, tributary_area
 from tensortouch.tools.train.model.data import load_split, read_index
-from tensortouch.tools.train.simreal import SimRealError, apply_ratios, fit_ratios
 
 # ---------------------------------------------------------------- stage 4 shell: sample selection
 
@@ -70,23 +68,6 @@ def test_write_dataset_contract(tmp_path):
     lo = np.array([b[c][0] for c in CHANNELS])
     hi = np.array([b[c][1] for c in CHANNELS])
     np.testing.assert_allclose(y[0].reshape(15, -1).mean(1), (0 - lo) / (hi - lo), rtol=1e-5)   # zeros → 0 N
-
-
-# ---------------------------------------------------------------- stage 5: sim-to-real ratios
-
-def test_fit_ratios_recovers_per_component_scale_and_falls_back():
-    rng = np.random.default_rng(3)
-    fe = np.column_stack([rng.uniform(0.5, 2, 50), rng.uniform(-0.01, 0.01, 50), -rng.uniform(2, 6, 50)])
-    true = np.array([1.1, 0.7, 0.9])
-    sensor = fe * true + rng.normal(0, 0.01, fe.shape)           # the measured force on the gel: RF's sign
-    r = fit_ratios(sensor, fe)
-    assert abs(r["ratio"][0] - 1.1) < 0.02 and abs(r["ratio"][2] - 0.9) < 0.01
-    assert r["component_fitted"] == [True, False, True] and r["ratio"][1] == r["magnitude"]
-    with pytest.raises(SimRealError):
-        fit_ratios(sensor * 0.0, fe * 0.01)
-    forces = np.ones((4, 3))
-    out = apply_ratios(forces, np.array([0, 1, -1, 1]), np.array([[2.0, 2, 2], [0.5, 1, 1.5]]))
-    np.testing.assert_allclose(out, [[2, 2, 2], [0.5, 1, 1.5], [1, 1, 1], [0.5, 1, 1.5]])
 
 
 # ---------------------------------------------------------------- stage 3: correspondence cores

@@ -63,21 +63,6 @@ def test_the_runtime_takes_the_threshold_from_the_manifest(tmp_path):
         assert PipelineConfig.for_package(SimpleNamespace(manifest=old)).contacts.threshold_n == ContactConfig().threshold_n
 
 
-def test_a_fine_tuned_package_names_its_init_checkpoint(tmp_path):
-    import hashlib
-
-    from tensortouch.tools.train.stages import _record_init
-
-    run = tmp_path / "runs" / "fit-x"
-    run.mkdir(parents=True)
-    (run / "best.pt").write_bytes(b"weights")
-    (run / "config.json").write_text(json.dumps({"epochs": 30}))
-    (tmp_path / "manifest.json").write_text(json.dumps({"training": {"command": "c"}}))
-    _record_init(tmp_path, run / "best.pt")
-    init = json.loads((tmp_path / "manifest.json").read_text())["training"]["init_from"]
-    assert init["sha256"] == hashlib.sha256(b"weights").hexdigest() and init["fit_config"] == {"epochs": 30}
-
-
 def test_choose_weak_takes_the_rest_maximum_times_the_margin_and_the_best_light_detection():
     cfg = ThresholdConfig(grid=(0.001, 0.002), weak_grid=(0.0005, 0.001), weak_margin=1.5)
     a = dict(sweep([1, 0], [10, 10], name="A"), rest_weak_max=[0.2, 0.05],

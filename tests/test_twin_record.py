@@ -8,7 +8,6 @@ import pytest
 from tensortouch.contracts.session import load_session, read_table
 from tensortouch.tools.sessions.writer import read_frames
 from tensortouch.tools.twin.record import RecordConfig, Recorder, record
-from tensortouch.tools.twin.signals import Hysteresis
 
 POSE_COLS = ["t", "indenter", "x", "y", "z", "qw", "qx", "qy", "qz"]
 RF_COLS = ["t", "indenter", "fx", "fy", "fz", "mx", "my", "mz"]
@@ -146,16 +145,6 @@ def test_deterministic_and_resumable(tmp_path):
     c._claim()
     with pytest.raises(Exception, match="other settings"):
         record(RecordConfig(serial="OTHER", physics="hertz-fallback"), tmp_path / "c")
-
-
-def test_hysteresis_slow_return():
-    h = Hysteresis(0.2, 1.0, (1,))
-    loading = [h.step(t, np.array([1.0]))[0] for t in np.arange(0, 10, 0.01)]
-    assert loading[1] == pytest.approx(0.8, abs=0.01) and loading[-1] == pytest.approx(1.0, abs=1e-3)
-    after = [h.step(t, np.array([0.0]))[0] for t in np.arange(10.0, 15, 0.01)]
-    assert after[0] == pytest.approx(0.2, rel=0.05)                 # the slow part remains at release
-    assert after[100] == pytest.approx(0.2 * np.exp(-1.0), rel=0.05)  # one tau later
-    assert after[-1] < 0.002
 
 
 def test_effects_change_measurements_not_truth_reaction(tmp_path):

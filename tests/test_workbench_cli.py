@@ -114,15 +114,6 @@ def test_session_in_other_units_gives_the_same_diagnosis(env, capsys):
         assert rb["reduction"] == pytest.approx(ra["reduction"], rel=1e-2, abs=1e-3)
 
 
-def test_effects_list_json_names_parameters_with_units(capsys):
-    code, text = run(["effects", "list", "--json"], capsys)
-    rows = {r["name"]: r for r in json.loads(text)}
-    assert {"temperature_softening", "viscoelastic_relaxation", "mullins_softening", "strain_stiffening",
-            "friction_mismatch", "rim_stiffening", "ft_bias_drift", "led_drift"} <= set(rows)
-    tau = [p for p in rows["viscoelastic_relaxation"]["params"] if p["name"] == "tau"][0]
-    assert tau["unit"] == "s" and tau["lo"] < tau["hi"]
-
-
 def test_clear_errors(env, capsys):
     (calib, hidden), store, tmp = env
     from tensortouch.contracts.errors import TensorTouchError

@@ -19,7 +19,7 @@ the whole observed dot motion with the motion predicted from the known geometry:
 3. **fit** (`fit_offset`): robust least squares over (t, s, a) of predicted vs observed motion of the
    dots within `fit_radius_px` → the poke point's image q = q0 + t (the lens error is what t and s
    absorb). On twin calibration pokes (FE displacement of the twin itself) this is 0.5 px rms from
-   the exact projection where the change centroid was 1.6–9 px (tests/test_train_stage3.py).
+   the exact projection where the change centroid was 1.6–9 px (tests/test_train_pokes2d_detector.py).
 """
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 These classes are the canonical definitions of the library effects (names, parameters, units,
 bounds, covariates); the digital twin reads its specs from them (tools/twin/effect_specs.py). The
 forward forms are written here independently of the twin's truth forms (docs/effects-model.md);
-tests/test_effects_model.py checks that the two agree.
+tests/test_effects_builtin.py checks that the two agree.
 """
 from __future__ import annotations
 

@@ -1,8 +1,6 @@
-"""Selective grasp pieces (tools/grasp): sensor mount, gel line contact, object placement,
-the controller's decision on synthetic contacts, and one simulated fingertip through the real
-runtime and a real Zenoh session on loopback."""
+"""The selective grasp controller (tools/grasp/controller.py): its decision on synthetic contacts, its
+scores and goals, and the trial verdict."""
 import ast
-import time
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -11,98 +9,7 @@ import numpy as np
 import pytest
 from tensortouch.tools.grasp import graph as graph_mod
 from tensortouch.tools.grasp.controller import ControllerConfig, SelectiveGraspController
-from tensortouch.tools.grasp.dome_contact import DomeContactConfig, ObjectContact, displacement
 from tensortouch.tools.grasp.sensor_mount import SensorMount
-from tensortouch.tools.twin.geometry import GelSurface
-
-
-def test_mount_maps_pad_axis_to_apex_and_round_trips():
-    m = SensorMount()
-    apex = m.direction_to_gel(np.array([1.0, 0, 0]))
-    np.testing.assert_allclose(apex, [0, 0, GelSurface().top_z], atol=1e-9)
-    rng = np.random.default_rng(0)
-    u = rng.normal(size=(50, 3)) + [3, 0, 0]
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    u = u[u @ [1, 0, 0] >= m.cone_cos()]
-    np.testing.assert_allclose(m.gel_to_direction(m.direction_to_gel(u)), u, atol=1e-9)
-    # arc length from the apex is kept: 12 mm tip sphere, θ = 0.3 rad → 3.6 mm on the gel
-    p = m.direction_to_gel(np.array([np.cos(0.3), 0, np.sin(0.3)]))
-    th, _ = m.gel.theta_phi(p)
-    assert th * m.gel.profile.radius_mm == pytest.approx(0.3 * 12.0)
-
-
-def test_line_contact_depth_profile_and_shear():
-    gel = GelSurface()
-    pts = gel.samples(0.4)
-    nrm = gel.normals(pts)
-    apex = np.array([0, 0, gel.top_z])
-    ob = ObjectContact(apex, np.array([0, 1.0, 0]), 1.09, 1.0, np.array([0.3, 0, 0]))
-    u = displacement(gel, pts, nrm, [ob])
-    i0 = int(np.argmin(np.linalg.norm(pts - apex, axis=1)))
-    assert -u[i0] @ nrm[i0] == pytest.approx(1.0, abs=0.05)       # depth d at the contact line
-    assert u[i0, 0] == pytest.approx(0.3, abs=0.02)                 # the skin follows the object
-    far = np.abs(pts[:, 0]) > 8
-    assert np.abs(u[far]).max() < 0.35
-    along = (np.abs(pts[:, 0]) < 0.3) & (np.abs(pts[:, 1]) > 9)     # the straight object leaves the dome
-    assert np.abs(u[along] @ np.array([0, 0, 1.0])).max() < 0.2
-    assert np.allclose(displacement(gel, pts, nrm, []), 0)
-
-
-def test_line_contact_profile_hand_worked_values():
-    """Across a cylinder pressed at the apex: the object's shape inside the contact half-width
-    b = √(R* d), d/2 at its edge, then (d/2)·exp(−(s − b)/λ) with s the arc distance on the dome."""
-    gel = GelSurface()
-    R, zc = gel.profile.radius_mm, gel.profile.center_z_mm
-    a, d, lam = 4.0, 1.0, DomeContactConfig().tail_mm
-    Rs = 1.0 / (1.0 / a + 1.0 / R)
-    b = np.sqrt(Rs * d)
-    s = np.array([0.0, 0.5 * b, b, b + lam, b + 2 * lam])          # arc distances across the object
-    pts = np.stack([R * np.sin(s / R), np.zeros_like(s), zc + R * np.cos(s / R)], 1)
-    nrm = (pts - [0, 0, zc]) / R
-    ob = ObjectContact(np.array([0, 0, gel.top_z]), np.array([0, 1.0, 0]), a, d, np.zeros(3))
-    w = -np.einsum("ij,ij->i", displacement(gel, pts, nrm, [ob]), nrm)
-    want = [d, d - (0.5 * b) ** 2 / (2 * Rs), d / 2, d / 2 / np.e, d / 2 / np.e ** 2]
-    assert w == pytest.approx(want, abs=1e-6)
-
-
-@pytest.mark.slow
-def test_line_contact_profile_matches_fe_of_the_twin_dome():
-    """The fitted profile against FE (tools.fe) of the twin's standard dome: a pen-sized cylinder
-    (radius 4 mm) pressed 0.6 and 1.2 mm across its apex; normal displacement of the surface nodes
-    within 1 mm of the cross-section and 8 mm of the contact line."""
-    from tensortouch.tools.fe import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario, solve
-
-    fe_gel = GelGeometry()
-    ind = Indenter(name="pen", shape="cylinder", params={"radius": 4.0, "length": 40.0},
-                   position=[0.0, 0.0, fe_gel.top_z], keypoints=[Keypoint([0.0, 0.0, -0.6]), Keypoint([0.0, 0.0, -1.2])])
-    res = solve(Scenario(gel=fe_gel, mesh=MeshSettings(size_top=0.6), indenters=[ind], name="pen-across-apex").validate())
-    gel = GelSurface()
-    R, zc = gel.profile.radius_mm, gel.profile.center_z_mm
-    P = res.nodes[res.surface_nodes]
-    nrm = P - [0.0, 0.0, zc]
-    rad = np.linalg.norm(nrm, axis=1)
-    nrm /= rad[:, None]
-    sel = (np.abs(rad - R) < 0.05) & (np.abs(P[:, 0]) < 1.0) & (np.abs(P[:, 1]) < 8.0)
-    assert sel.sum() > 20
-    for j, d in enumerate((0.6, 1.2)):
-        w_fe = -np.einsum("ij,ij->i", res.U[j][res.surface_nodes][sel], nrm[sel])
-        ob = ObjectContact(np.array([0.0, 0.0, gel.top_z]), np.array([1.0, 0.0, 0.0]), 4.0, d, np.zeros(3))
-        w = -np.einsum("ij,ij->i", displacement(gel, P[sel], nrm[sel], [ob]), nrm[sel])
-        assert np.sqrt(np.mean((w - w_fe) ** 2)) < 0.05, (d, np.sqrt(np.mean((w - w_fe) ** 2)))
-
-
-def test_placement_lets_both_objects_touch_one_pinch():
-    pytest.importorskip("mujoco")
-    from tensortouch.tools.grasp.scene import placement
-
-    R, gap = 0.011, 0.005
-    for r1, r2 in ((0.00109, 0.00109), (0.00109, 0.0015), (0.00109, 0.004), (0.004, 0.004)):
-        x1, x2 = placement(r1, r2, R, gap)
-        assert x2 - x1 >= r1 + r2 + gap - 1e-9
-        # same sphere distance D closes on both: D = 2r + 2√(R² − x²) for each
-        D1 = 2 * r1 + 2 * np.sqrt(R * R - x1 * x1)
-        D2 = 2 * r2 + 2 * np.sqrt(R * R - x2 * x2)
-        assert D1 == pytest.approx(D2, abs=1e-7)
 
 
 def _line_graph():
@@ -372,48 +279,6 @@ def test_controller_module_cannot_see_the_simulator():
             mods.add("." * node.level + (node.module or ""))
     assert mods <= {"__future__", "threading", "dataclasses", "numpy", ".graph", ".sensor_mount",
                     "...runtime.apps.subscriber"}, mods
-
-
-def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
-    """Twin render → SensorLoop (shipped int8 model, TWIN-DEMO calibration) → Publisher → a real
-    Zenoh session on loopback → the controller's subscriber sees two clusters where the objects are."""
-    from tensortouch.contracts.store import CalibrationStore
-    from tensortouch.runtime.apps.publisher import open_session
-    from tensortouch.runtime.pipeline import SensorPipeline
-    from tensortouch.runtime.stages.model import FieldModel, find_package
-    from tensortouch.tools.grasp.controller import ControllerNode
-    from tensortouch.tools.grasp.sim_sensor import SimFingertip
-    from tensortouch.tools.grasp.trial import free_endpoint
-    from tensortouch.tools.twin.unit import TwinUnit
-
-    unit = TwinUnit("TWIN-DEMO")
-    pipe = SensorPipeline("TWIN-DEMO", FieldModel(find_package(None), "int8", threads=1),
-                          CalibrationStore().load("TWIN-DEMO"))
-    ep = free_endpoint()
-    pub_s, sub_s = open_session(listen=[ep]), open_session(connect=[ep])
-    try:
-        deadline = time.monotonic() + 10
-        while not list(sub_s.info.peers_zid()) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        ctrl = SelectiveGraspController(_line_graph(), 4)
-        node = ControllerNode(ctrl, sub_s, {"thumb": "test-thumb"})
-        sen = SimFingertip("test-thumb", unit, pipe, pub_s)
-        try:
-            gel = unit.gel
-            objs = [ObjectContact(gel.point_at(abs(x) / gel.profile.radius_mm, 0.0 if x > 0 else np.pi), np.array([0, 1.0, 0]),
-                                  1.09, 1.2, np.zeros(3)) for x in (-4.0, 4.0)]   # pressed to the 1.2 mm cushion
-            for i in range(36):
-                sen.show([] if i < 32 else objs, i * 0.04)
-            assert ctrl.wait_frames({"thumb": 36}, timeout=30)
-            seen = sorted(p[0] for p, *_ in ctrl.latest["thumb"])
-            assert len(seen) == 2, ctrl.latest["thumb"]
-            assert seen[0] == pytest.approx(-4.0, abs=1.5) and seen[1] == pytest.approx(4.0, abs=1.5)
-        finally:
-            sen.close()
-            node.close()
-    finally:
-        sub_s.close()
-        pub_s.close()
 
 
 def test_trial_verdict_names_the_failure_cause():

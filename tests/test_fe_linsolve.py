@@ -1,0 +1,94 @@
+"""Sparse solvers (tools/fe/linsolve.py): PARDISO keeps its symbolic analysis, singular matrices, engines
+agree."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+fem = pytest.importorskip("felupe")
+
+from tensortouch.tools.fe.errors import FEError  # noqa: E402
+from tensortouch.tools.fe.linsolve import PardisoFactor, SuperLUFactor, mkl_rt  # noqa: E402
+
+try:
+    mkl_rt()
+except FEError:
+    pytest.skip("the train extra's mkl is not installed", allow_module_level=True)
+
+
+def _spd_like(n=400, seed=0, unsym=0.0):
+    rng = np.random.default_rng(seed)
+    A = sp.random(n, n, density=0.01, random_state=seed, format="csr")
+    A = A + A.T + sp.diags(rng.uniform(5, 6, n))
+    if unsym:
+        A = A + unsym * sp.random(n, n, density=0.005, random_state=seed + 1)
+    A = A.tocsr()
+    A.sort_indices()
+    return A
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_pardiso_keeps_the_symbolic_analysis_while_the_pattern_stays(symmetric):
+    A = _spd_like(unsym=0.0 if symmetric else 0.3)
+    b = np.random.default_rng(2).normal(size=A.shape[0])
+    fac = PardisoFactor(symmetric)
+    fac.factor(A)
+    x = fac.solve(b)
+    assert np.allclose(x, sla.spsolve(A.tocsc(), b), rtol=1e-10, atol=1e-12)
+    A2 = A.copy()
+    A2.data = A2.data * np.linspace(0.9, 1.1, A2.nnz) if not symmetric else A2.data * 1.3
+    fac.factor(A2)
+    x2 = fac.solve(b)
+    assert np.allclose(x2, sla.spsolve(A2.tocsc(), b), rtol=1e-10, atol=1e-12)
+    assert (fac.analyses, fac.factorizations) == (1, 2)
+    fac.factor(_spd_like(seed=5, unsym=0.0 if symmetric else 0.3))  # another pattern: a new analysis
+    assert fac.analyses == 2
+    # deterministic: the same sequence of matrices gives the same bits (the analysis of the first
+    # matrix, with its scaling and matching, is what the later factorisations reuse)
+    f2 = PardisoFactor(symmetric)
+    f2.factor(A)
+    f2.factor(A2)
+    assert np.array_equal(f2.solve(b), x2)
+
+
+def test_singular_matrix_is_a_floating_point_error():
+    A = _spd_like(n=50)
+    A = A.tolil()
+    A[:, 3] = 0.0
+    A[3, :] = 0.0
+    A[3, 3] = 0.0
+    A = A.tocsr()
+    A.sort_indices()
+    for fac in (SuperLUFactor(), ):
+        with pytest.raises(FloatingPointError):
+            fac.factor(A)
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.4])
+def test_engines_give_the_same_solve_and_pardiso_repeats_bit_for_bit(mu):
+    """A press-and-slide on a small pad: the reference engine (felupe + SuperLU) and the default one
+    (own assembly + PARDISO, symmetric type when mu = 0) reach the same iterates; two runs of the
+    default engine give identical bits (the FE cache and the recipe's data hash rely on it)."""
+    import json
+
+    from tensortouch.tools.fe import solve
+    from tensortouch.tools.fe.mesh import mesh_gel
+    from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario
+
+    pad = GelGeometry(kind="flat_pad", size_x=12.0, size_y=12.0, thickness=5.0)
+    ms = MeshSettings(size_top=1.2, size_inside=1.5)
+    ind = Indenter(name="s", shape="sphere", params={"radius": 4.0}, position=[0.0, 0.0, 5.0],
+                   keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in [(0, 0, -0.6), (0.6, 0, -0.6)]])
+    sc = Scenario(gel=pad, mesh=ms, indenters=[ind], friction=mu)
+    gm = mesh_gel(pad, ms)
+    ref = solve(sc, mesh=gm, engine="superlu")
+    new = solve(sc, mesh=gm, engine="pardiso")
+    again = solve(sc, mesh=gm, engine="pardiso")
+    info = json.loads(new.solver_info)
+    assert info["engine"] == "pardiso" and info["symmetric_tangent"] == (mu == 0.0)
+    assert info["symbolic_analyses"] == 1 and info["factorizations"] == info["iterations"]
+    assert json.loads(ref.solver_info)["iterations"] == info["iterations"]
+    assert np.allclose(new.RF, ref.RF, rtol=1e-9, atol=1e-12) and np.allclose(new.U, ref.U, atol=1e-10)
+    assert np.array_equal(again.RF, new.RF) and np.array_equal(again.U, new.U)
+    if mu == 0.0:  # no friction: only the plowing slope of the pressed surface pushes back in x
+        assert abs(new.RF[-1, 0, 0]) < 0.03 * abs(new.RF[-1, 0, 2])

@@ -1,0 +1,24 @@
+"""Rig estimate cores (tools/train/rig_estimate.py): clock lags, contact onsets and the onset fit, hand-worked."""
+import numpy as np
+from tensortouch.tools.train.rig_estimate import clock_lag, contact_onsets, fit_translation
+from tensortouch.tools.twin.geometry import GelSurface
+
+
+def test_clock_lag_contact_onsets_and_the_onset_fit_hand_worked():
+    t = np.arange(0.0, 10.0, 0.005)
+    bump = np.exp(-0.5 * ((t - 5.0) / 0.2) ** 2)
+    assert abs(clock_lag([(t, bump, t + 0.023, [bump])]) - 0.023) < 0.001   # sig stamped 23 ms late
+    assert abs(clock_lag([(t, bump, t - 0.041, [bump])]) + 0.041) < 0.001
+    force = 2.0 * bump ** 1.5 + 0.1                                       # a curved, monotone relation
+    assert abs(clock_lag([(t, force, t + 0.012, [bump])], grid_s=0.0005) - 0.012) < 0.0005
+    on = contact_onsets(np.array([0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6]), np.array([0, 0, 0.05, 0.15, 0.0, 0.2, 0.2]),
+                        0.1, 0.15)
+    np.testing.assert_allclose(on, [0.25])               # the 0.45 s crossing follows only 0.1 s of quiet
+    gel = GelSurface()
+    c, rho = gel.profile.center_z_mm, gel.profile.radius_mm
+    th, ph = np.meshgrid(np.linspace(0.0, 0.6, 4), np.linspace(0, 2 * np.pi, 6, endpoint=False))
+    d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3)
+    pts = np.array([0.0, 0.0, c]) + (rho - 0.05) * d + [0.2, -0.1, 0.0]    # 0.05 mm deep, shifted sideways
+    shift, depth = fit_translation(pts, c, rho)
+    np.testing.assert_allclose(shift, [0.2, -0.1, 0.0], atol=1e-6)
+    assert abs(depth - 0.05) < 1e-6
