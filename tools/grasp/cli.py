@@ -51,6 +51,10 @@ def register(sub) -> None:
     g.add_argument("--model", help="model package folder or name (default: the shipped one)")
     g.add_argument("--seed", type=int, default=0, help="first trial seed")
     g.add_argument("--picture", action="store_true", help="draw the first trial as a picture sequence")
+    g.add_argument("--randomize", action="store_true",
+                   help="draw each trial's task from the task distribution (tools/grasp/task.py: placement ±5 mm, "
+                        "yaw ±15°, diameters, pull force and direction, friction, soft or stiff contact) instead of "
+                        "the fixed scene")
     g.set_defaults(func=cmd_grasp, extra="hand")
 
 
@@ -153,7 +157,7 @@ def cmd_grasp(args) -> int:
                                        seed=0)
             if cmd_mount(margs) != 0:
                 return 2
-        bench = trial.Bench(graph_path, urdf, model=args.model)
+        bench = trial.Bench(graph_path, urdf, cfg=trial.TrialConfig(randomize=args.randomize), model=args.model)
     except TensorTouchError as exc:
         print(f"tensortouch grasp: {exc}", file=sys.stderr)
         return 2
@@ -168,7 +172,8 @@ def cmd_grasp(args) -> int:
                 r = bench.trial(pair, args.seed + i, frames)
                 results[pair].append(r)
                 n_ok = sum(x.outcome == "success" for x in results[pair])
-                print(f"  {pair} trial {i + 1}/{args.trials}: pulled {r.pulled}, judged {r.judged}, {r.outcome} "
+                why = f" ({trial.failure_class(r)})" if r.outcome != "success" else ""
+                print(f"  {pair} trial {i + 1}/{args.trials}: pulled {r.pulled}, judged {r.judged}, {r.outcome}{why} "
                       f"({r.seconds:.1f} s; {n_ok} successes so far; {time.monotonic() - t0:.0f} s total)",
                       file=sys.stderr, flush=True)
                 if frames:
@@ -178,6 +183,6 @@ def cmd_grasp(args) -> int:
                 trial.save_results(results, out)
     finally:
         bench.close()
-    print(trial.table(results), end="")
+    print(trial.table(results) + ("\n" + trial.factor_table(results) if args.randomize else ""), end="")
     print(f"wrote {out}/grasp_table.md and grasp_trials.json", file=sys.stderr)
     return 0
