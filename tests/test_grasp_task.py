@@ -85,3 +85,47 @@ def test_wilson_interval_hand_worked():
     lo, hi = wilson(17, 20)          # the seed's cable + pen: 85 %, Wilson 64.0–94.8 %
     assert lo == pytest.approx(0.6396, abs=1e-3) and hi == pytest.approx(0.9476, abs=1e-3)
     assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == 1.0
+
+
+def _result(pair, seed, outcome, cause, task):
+    from tensortouch.tools.grasp.trial import TrialResult
+
+    return TrialResult(pair, seed, task["pulled"], task["pulled"] if outcome == "success" else None, outcome,
+                       [[1, 0], [1, 0]], 3, 1.0, cause=cause, task=task, randomized=True)
+
+
+def test_tables_classify_failures_and_bin_factors(tmp_path):
+    pytest.importorskip("mujoco")
+    from tensortouch.tools.grasp import trial
+
+    dist = TaskDistribution()
+    causes = ["", "other object named", "no decision", "final pinch lost the pulled object",
+              "final pinch's gel touches the other object"]
+    res = [_result("A+B", s, "success" if s % 5 == 0 else ("false detection" if s % 5 == 1 else "other"),
+                   causes[s % 5], draw(dist, ("A", "B"), s).as_dict()) for s in range(20)]
+    assert [trial.failure_class(r) for r in res[:5]] == ["", "false detection", "no decision", "lost object",
+                                                        "touches both"]
+    t = trial.table({"A+B": res})
+    assert "| different cables (A+B) | randomized | 4/20 (20 %, 8–42) | 4 | 4 | 4 | 4 | 15/20 (75 %" in t
+    f = trial.factor_table({"A+B": res})
+    assert "| friction (20) | " in f and "thickest pen" not in f     # no pen in A+B
+    assert f.count("/4 (") == 2 * 7                                    # quintiles of 20 trials, 7 factors
+
+
+def test_merge_joins_runs_and_refuses_a_bad_file(tmp_path, capsys):
+    pytest.importorskip("mujoco")
+    from tensortouch.tools.grasp import trial
+    from tensortouch.tools.grasp.cli import _merge
+
+    dist = TaskDistribution()
+    for k in range(2):
+        trial.save_results({"A+A": [_result("A+A", 10 * k + s, "success", "", draw(dist, ("A", "A"), s).as_dict())
+                                    for s in range(3)]}, tmp_path / f"run{k}")
+    assert _merge([tmp_path / "run0", tmp_path / "run1"], tmp_path / "all") == 0
+    assert "6/6 (100 %" in (tmp_path / "all" / "grasp_table.md").read_text()
+    capsys.readouterr()
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "grasp_trials.json").write_text("{\"A+A\": [{\"seed\": 1}]}")
+    assert _merge([tmp_path / "bad"], tmp_path / "all2") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad/grasp_trials.json" in err[0]

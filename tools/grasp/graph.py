@@ -170,7 +170,7 @@ def start_node(g: ContactGraph, mount: SensorMount, min_room: int = 5, candidate
 
 
 def start_near(g: ContactGraph, mount: SensorMount, start: int, across_mm: float, tol_mm: float = 1.0,
-               depth_mm: float = 2.0, normal_deg: float = 10.0, min_room: int = 3) -> int:
+               depth_mm: float = 2.0, normal_deg: float = 10.0, min_room: int = 5) -> int:
     """A trial's start pinch for objects laid out `across_mm` across the pinch from where `start`
     would hold them (the objects' plane through `start`'s pinch point, normal to its pinch normal):
     among the nodes connected to `start` whose line of fingertip centres crosses that plane within

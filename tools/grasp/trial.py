@@ -50,6 +50,9 @@ class TrialConfig:
     open_mm: float = 8.0
     close_s: float = 0.4
     settle_s: float = 0.24
+    settle_until_still: bool = False   # then keep settling (up to settle_max_s) until the measured joint angles of the
+    settle_max_s: float = 1.0          # pinch move less than still_rad per frame for 2 frames (the hand's encoders:
+    still_rad: float = 0.002           # the fingers have stopped where the objects block them)
     pull_n: float = 0.6
     pull_ramp_s: float = 0.2
     decide_timeout_s: float = 0.8
@@ -238,6 +241,15 @@ class Bench:
             gel_touch.relax()
             phase = "settle"
             advance(cfg.settle_s)
+            if cfg.settle_until_still:
+                q_last, still = scene.data.qpos[scene.qadr].copy(), 0
+                for _ in range(max(0, round((cfg.settle_max_s - cfg.settle_s) / cfg.frame_dt))):
+                    advance(cfg.frame_dt)
+                    q_now = scene.data.qpos[scene.qadr].copy()
+                    still = still + 1 if np.abs(q_now - q_last).max() < cfg.still_rad else 0
+                    q_last = q_now
+                    if still >= 2:
+                        break
             ctrl.watch()
             phase = "reference"
             for _ in range(ctrl.cfg.reference_frames):   # the reference, before anything is pulled
