@@ -66,7 +66,7 @@ class TrialConfig:
     touch_mm: float = 0.1              # the verdict: a gel indented deeper than this by an object touches it
     randomize: bool = False            # draw each trial's task from `task` (tools.grasp.task) instead of the fixed scene
     task: TaskDistribution = field(default_factory=TaskDistribution)
-    start_from_layout: bool = False    # randomized: each trial's start pinch from the graph where the objects lie
+    start_from_layout: bool = True     # randomized: each trial's start pinch from the graph where the objects lie
                                        # (`graph.start_near`), as a camera would see them: to ± layout_error_mm across
     layout_error_mm: float = 1.0
 
