@@ -183,7 +183,7 @@ def cmd_grasp(args) -> int:
                 r = bench.trial(pair, args.seed + i, frames)
                 results[pair].append(r)
                 n_ok = sum(x.outcome == "success" for x in results[pair])
-                why = f" ({trial.failure_class(r)})" if r.outcome != "success" else ""
+                why = f" ({trial.failure_class(r)})" if r.outcome == "other" else ""
                 print(f"  {pair} trial {i + 1}/{args.trials}: pulled {r.pulled}, judged {r.judged}, {r.outcome}{why} "
                       f"({r.seconds:.1f} s; {n_ok} successes so far; {time.monotonic() - t0:.0f} s total)",
                       file=sys.stderr, flush=True)
