@@ -75,7 +75,7 @@ def test_factors_name_only_what_the_pair_has():
     d = TaskDraw(1, (-3.0, 2.0), -10.0, (6.5, 9.0), 0.8, -12.0, 40.0, 0.4, "stiff").as_dict()
     f = factors(d, ("pen", "pen"))
     assert f["thinnest cable (mm)"] is None and f["thickest pen (mm)"] == 9.0
-    assert f["|shift across| (mm)"] == 3.0 and f["|yaw| (°)"] == 10.0 and f["|pull tilt| (°)"] == 12.0
+    assert f["shift across, size (mm)"] == 3.0 and f["yaw, size (°)"] == 10.0 and f["pull tilt, size (°)"] == 12.0
 
 
 def test_wilson_interval_hand_worked():
@@ -110,6 +110,7 @@ def test_tables_classify_failures_and_bin_factors(tmp_path):
     f = trial.factor_table({"A+B": res})
     assert "| friction (20) | " in f and "thickest pen" not in f     # no pen in A+B
     assert f.count("/4 (") == 2 * 7                                    # quintiles of 20 trials, 7 factors
+    assert all(line.count("|") == 6 for line in f.splitlines())       # a cell never holds a "|"
 
 
 def test_merge_joins_runs_and_refuses_a_bad_file(tmp_path, capsys):

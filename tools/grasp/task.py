@@ -117,7 +117,7 @@ def factors(d: dict, pair: tuple[str, str]) -> dict[str, float | None]:
     kinds = _kinds(pair)
     cables = [x for x, k in zip(d["diameters_mm"], kinds) if k == "cable"]
     pens = [x for x, k in zip(d["diameters_mm"], kinds) if k == "pen"]
-    return {"|shift across| (mm)": abs(d["shift_mm"][0]), "|shift along| (mm)": abs(d["shift_mm"][1]),
-            "|yaw| (°)": abs(d["yaw_deg"]),
+    return {"shift across, size (mm)": abs(d["shift_mm"][0]), "shift along, size (mm)": abs(d["shift_mm"][1]),
+            "yaw, size (°)": abs(d["yaw_deg"]),
             "thinnest cable (mm)": min(cables) if cables else None, "thickest pen (mm)": max(pens) if pens else None,
-            "pull (N)": d["pull_n"], "|pull tilt| (°)": abs(d["pull_tilt_deg"]), "friction": d["friction"]}
+            "pull (N)": d["pull_n"], "pull tilt, size (°)": abs(d["pull_tilt_deg"]), "friction": d["friction"]}
