@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .figures import pyplot, save_figure
+from .figures import pyplot
 
 
 def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
@@ -52,7 +52,10 @@ def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
                         bbox={"fc": "w", "ec": "none", "alpha": 0.85, "pad": 1.0})
             ax.set_title(f"{name} sensor frame + published contacts", fontsize=7)
             ax.axis("off")
-    gel = f"; at the end, gel indentation (mm; thumb, index × objects 0, 1) {result.gel_mm}" if result.gel_mm else ""
+    gel = ""
+    if result.gel_mm:
+        g = np.round(np.asarray(result.gel_mm, float), 2).tolist()
+        gel = f"\nat the end, gel indentation (mm; thumb, index × objects 0, 1) {g}"
     task = getattr(result, "task", None) or {}
     drawn = ""
     if getattr(result, "randomized", False) and task:
@@ -62,5 +65,25 @@ def trial_sequence(frames: list[dict], result, path: str | Path) -> Path:
     why = f" ({result.cause})" if result.cause else ""
     fig.suptitle(f"{result.pair}: pulled object {result.pulled} (red), judged {result.judged}: {result.outcome}{why}"
                  f"{gel}{drawn}", fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, path, dpi=80)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return _save_small(fig, path, dpi=80)
+
+
+def _save_small(fig, path: str | Path, dpi: int) -> Path:
+    """The figure as a 256-colour PNG (the sensor frames make a full-colour one ~0.5 MB), written atomically."""
+    import io
+
+    from PIL import Image
+
+    from ...contracts.files import atomic_write
+    from .figures import pyplot
+
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    pyplot().close(fig)
+    small = io.BytesIO()
+    Image.open(buf).convert("RGB").quantize(256).save(small, format="PNG", optimize=True)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, small.getvalue())
+    return path
