@@ -45,3 +45,26 @@ def test_same_seed_same_trial_twice(small_hand):
     assert (r1.pulled, r1.judged, r1.outcome, r1.touching, r1.path_len, r1.scores) == \
         (r2.pulled, r2.judged, r2.outcome, r2.touching, r2.path_len, r2.scores)
     assert np.isfinite([f["q"] for f in log1]).all()
+
+
+@pytest.mark.slow
+def test_a_randomized_trial_runs_its_draw(small_hand):
+    """One short `--randomize` trial: the world is built from the seed's draw (diameters, friction,
+    contact setting, layout), the draw is recorded, and the outcome is one of the table's classes."""
+    from tensortouch.tools.grasp.task import TaskDistribution, draw
+    from tensortouch.tools.grasp.trial import FAILURES, Bench, TrialConfig, failure_class
+
+    cfg = TrialConfig(startup_frames=24, close_s=0.2, settle_s=0.12, decide_timeout_s=0.32, hold_s=0.08,
+                      frame_timeout_s=20.0, randomize=True)
+    bench = Bench(small_hand / "contact_graph.npz", small_hand / "hand_mounted.urdf", cfg)
+    seed = next(s for s in range(100) if draw(TaskDistribution(), ("A", "pen"), s).contact == "stiff")
+    try:
+        log: list = []
+        r = bench.trial("cable+rigid", seed, log_out=log)
+    finally:
+        bench.close()
+    d = draw(TaskDistribution(), ("A", "pen"), seed)
+    assert r.randomized and r.task["diameters_mm"] == list(d.diameters_mm) and r.task["contact"] == "stiff"
+    assert r.pulled == d.pulled and r.task["start"] >= 0
+    assert r.outcome == "success" or failure_class(r) in FAILURES
+    assert any(f["felt"]["thumb"] or f["felt"]["index"] for f in log)     # the drawn layout is pinched

@@ -32,6 +32,8 @@ def register(sub) -> None:
     p.add_argument("--graph-nodes", type=int, default=2700, help="contact-graph nodes (0: no graph)")
     p.add_argument("--refine-nodes", type=int, default=1300,
                    help="extra contact-graph nodes around the start pinch (default 1300; 0: none)")
+    p.add_argument("--refine-radius-mm", type=float, default=14.0,
+                   help="the refined region: pinch points within this of the start pinch (default 14)")
     p.add_argument("--seed", type=int, default=0, help="seed of the joint-configuration samples")
     p.set_defaults(func=cmd_mount, extra="hand")
 
@@ -51,6 +53,13 @@ def register(sub) -> None:
     g.add_argument("--model", help="model package folder or name (default: the shipped one)")
     g.add_argument("--seed", type=int, default=0, help="first trial seed")
     g.add_argument("--picture", action="store_true", help="draw the first trial as a picture sequence")
+    g.add_argument("--randomize", action="store_true",
+                   help="draw each trial's task from the task distribution (tools/grasp/task.py: placement ±5 mm, "
+                        "yaw ±15°, diameters, pull force and direction, friction, soft or stiff contact) instead of "
+                        "the fixed scene")
+    g.add_argument("--merge", nargs="+", metavar="DIR",
+                   help="run no trials: merge the grasp_trials.json of these earlier --out folders (e.g. one run "
+                        "per seed range) into one table and trials file in --out")
     g.set_defaults(func=cmd_grasp, extra="hand")
 
 
@@ -81,6 +90,9 @@ def cmd_mount(args) -> int:
     if args.samples < 10:
         print(f"--samples: expected at least 10, got {args.samples}", file=sys.stderr)
         return 2
+    if not args.refine_radius_mm > 0:
+        print(f"--refine-radius-mm: expected a positive number, got {args.refine_radius_mm}", file=sys.stderr)
+        return 2
     cfg = mount.MountConfig(z_cm=_floats(args.z_cm, "z-cm"), pitch_deg=_floats(args.pitch_deg, "pitch-deg"),
                             workspace=WorkspaceConfig(samples=args.samples, seed=args.seed))
     out = Path(args.out)
@@ -109,7 +121,8 @@ def cmd_mount(args) -> int:
             model = hand_model.load(urdf, spec)
             hand_model.apply_variant(model, spec, hand_model.nominal_placement(model, spec),
                                      ch.z_cm / 100, np.radians(ch.pitch_deg))
-            gcfg = graph.GraphConfig(nodes=args.graph_nodes, refine_nodes=max(0, args.refine_nodes))
+            gcfg = graph.GraphConfig(nodes=args.graph_nodes, refine_nodes=max(0, args.refine_nodes),
+                                     refine_radius_mm=args.refine_radius_mm)
             g = graph.build(model, spec, (ch.z_cm, ch.pitch_deg), gcfg,
                             progress=lambda i, n: print(f"\r  contact graph: {i}/{n} nodes", end="",
                                                         file=sys.stderr, flush=True))
@@ -133,6 +146,8 @@ def cmd_grasp(args) -> int:
     from ...contracts.errors import TensorTouchError
     from . import trial
 
+    if args.merge:
+        return _merge([Path(d) for d in args.merge], Path(args.out))
     if args.trials < 1:
         print(f"--trials: expected at least 1, got {args.trials}", file=sys.stderr)
         return 2
@@ -150,10 +165,10 @@ def cmd_grasp(args) -> int:
 
             margs = argparse.Namespace(urdf=None, out=str(hand), samples=10_000, z_cm="3.5,3.9,4.3,4.7,5.1,5.5",
                                        pitch_deg="-30,-20,-10,0,10,20,30", graph_nodes=2700, refine_nodes=1300,
-                                       seed=0)
+                                       refine_radius_mm=14.0, seed=0)
             if cmd_mount(margs) != 0:
                 return 2
-        bench = trial.Bench(graph_path, urdf, model=args.model)
+        bench = trial.Bench(graph_path, urdf, cfg=trial.TrialConfig(randomize=args.randomize), model=args.model)
     except TensorTouchError as exc:
         print(f"tensortouch grasp: {exc}", file=sys.stderr)
         return 2
@@ -168,7 +183,8 @@ def cmd_grasp(args) -> int:
                 r = bench.trial(pair, args.seed + i, frames)
                 results[pair].append(r)
                 n_ok = sum(x.outcome == "success" for x in results[pair])
-                print(f"  {pair} trial {i + 1}/{args.trials}: pulled {r.pulled}, judged {r.judged}, {r.outcome} "
+                why = f" ({trial.failure_class(r)})" if r.outcome == "other" else ""
+                print(f"  {pair} trial {i + 1}/{args.trials}: pulled {r.pulled}, judged {r.judged}, {r.outcome}{why} "
                       f"({r.seconds:.1f} s; {n_ok} successes so far; {time.monotonic() - t0:.0f} s total)",
                       file=sys.stderr, flush=True)
                 if frames:
@@ -178,6 +194,32 @@ def cmd_grasp(args) -> int:
                 trial.save_results(results, out)
     finally:
         bench.close()
-    print(trial.table(results), end="")
+    print(trial.table(results) + ("\n" + trial.factor_table(results) if args.randomize else ""), end="")
     print(f"wrote {out}/grasp_table.md and grasp_trials.json", file=sys.stderr)
+    return 0
+
+
+def _merge(dirs: list[Path], out: Path) -> int:
+    """`tensortouch grasp --merge DIR ...`: one table from several runs' grasp_trials.json."""
+    from . import trial
+
+    results: dict = {}
+    for d in dirs:
+        path = d / "grasp_trials.json"
+        try:
+            body = json.loads(path.read_text())
+            for pair, rows in body.items():
+                if pair not in trial.PAPER:
+                    raise ValueError(f"unknown pair {pair!r}")
+                results.setdefault(pair, []).extend(trial.TrialResult(**r) for r in rows)
+        except (OSError, ValueError, TypeError, AttributeError) as exc:
+            print(f"tensortouch grasp --merge: {path}: expected the grasp_trials.json of a `tensortouch grasp` run "
+                  f"({exc})", file=sys.stderr)
+            return 2
+    out.mkdir(parents=True, exist_ok=True)
+    trial.save_results(results, out)
+    randomized = any(r.randomized for rs in results.values() for r in rs)
+    print(trial.table(results) + ("\n" + trial.factor_table(results) if randomized else ""), end="")
+    print(f"merged {sum(len(r) for r in results.values())} trials from {len(dirs)} runs; wrote {out}/grasp_table.md "
+          f"and grasp_trials.json", file=sys.stderr)
     return 0

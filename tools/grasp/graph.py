@@ -169,6 +169,35 @@ def start_node(g: ContactGraph, mount: SensorMount, min_room: int = 5, candidate
     return int(order[0])
 
 
+def start_near(g: ContactGraph, mount: SensorMount, start: int, across_mm: float, tol_mm: float = 1.0,
+               depth_mm: float = 2.0, normal_deg: float = 10.0, min_room: int = 5) -> int:
+    """A trial's start pinch for objects laid out `across_mm` across the pinch from where `start`
+    would hold them (the objects' plane through `start`'s pinch point, normal to its pinch normal):
+    among the nodes connected to `start` whose line of fingertip centres crosses that plane within
+    `tol_mm` of that place across the pinch (any place along the objects), with a pinch point within
+    `depth_mm` of the plane and a normal within `normal_deg` of `start`'s, the one whose contacts
+    sit nearest both gels' apexes with at least `min_room` pinches either side (`room`); without
+    one with room, the nearest the apexes; without any, `start`."""
+    from scipy.sparse.csgraph import connected_components
+
+    _, lab = connected_components(g.matrix())
+    fr = across(g, start)
+    n = fr[2]
+    rel = (centre_line(g.point, g.normal, g.point[start], n) - g.point[start]) @ fr[0] * 1000.0
+    h = (g.point - g.point[start]) @ n * 1000.0
+    ok = ((lab == lab[start]) & (np.abs(rel - across_mm) <= tol_mm) & (np.abs(h) <= depth_mm)
+          & (g.normal @ n >= np.cos(np.radians(normal_deg))))
+    if not ok.any():
+        return int(start)
+    ax = np.asarray(mount.axis_tip, float)
+    ang = np.maximum(np.arccos(np.clip(g.dir_thumb @ ax, -1, 1)), np.arccos(np.clip(g.dir_index @ ax, -1, 1)))
+    order = np.flatnonzero(ok)[np.argsort(ang[ok], kind="stable")]
+    for node in order:
+        if min(room(g, int(node))) >= min_room:
+            return int(node)
+    return int(order[0])
+
+
 _KEYS = ("q", "point", "normal", "p_thumb", "p_index", "Tt", "Ti")
 
 

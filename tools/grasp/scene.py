@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .task import CONTACT_SOLREF_S
+
 OBJECTS = {   # diameter mm, kind
     "A": {"diameter_mm": 2.18, "kind": "cable"},
     "B": {"diameter_mm": 3.01, "kind": "cable"},
@@ -40,6 +42,7 @@ class SceneConfig:
     kp: float = 3.0                     # N·m/rad position gain
     joint_damping: float = 0.08
     friction: float = 1.0
+    contact: str = "soft"               # "soft": MuJoCo's default solref (20 ms); "stiff": 2 ms (tools.grasp.task)
     gap_mm: float = 5.0                 # free space between the two objects' surfaces
 
 
@@ -98,7 +101,10 @@ class Scene:
 
     def __init__(self, urdf: str, hand_joints: list[str], pair: tuple[str, str], point: np.ndarray,
                  normal: np.ndarray, across: np.ndarray, cfg: SceneConfig | None = None,
-                 jitter_m: np.ndarray | None = None):
+                 jitter_m: np.ndarray | None = None, diameters_mm: tuple[float, float] | None = None,
+                 yaw_deg: float = 0.0):
+        """`diameters_mm` overrides the pair's diameters; `yaw_deg` turns the objects' layout about
+        the pinch normal (through `point`)."""
         import mujoco
 
         self.cfg = cfg = cfg or SceneConfig()
@@ -115,6 +121,8 @@ class Scene:
                     g.size = [cfg.tip_collision_radius_mm / 1000.0, 0, 0]
                     g.contype, g.conaffinity = 2, 2
                     g.friction = [cfg.friction, 0.005, 0.0001]
+                    if cfg.contact != "soft":
+                        g.solref = [CONTACT_SOLREF_S[cfg.contact], 1.0]
                     g.name = "tip_" + ("thumb" if body.name == self.TIP_BODIES[0] else "index")
                     g.rgba = [0.95, 0.75, 0.2, 1.0]
         for j in spec.joints:
@@ -130,14 +138,19 @@ class Scene:
         n = np.asarray(normal, float) / np.linalg.norm(normal)
         v = np.asarray(across, float) - (np.asarray(across, float) @ n) * n
         v /= np.linalg.norm(v)
+        if yaw_deg:
+            a = np.radians(yaw_deg)
+            v = np.cos(a) * v + np.sin(a) * np.cross(n, v)
         e = np.cross(n, v)
-        radii = [OBJECTS[k]["diameter_mm"] / 2000.0 for k in pair]
+        self.across, self.normal = v, n
+        diam = diameters_mm or tuple(OBJECTS[k]["diameter_mm"] for k in pair)
+        radii = [d / 2000.0 for d in diam]
         offsets = placement(radii[0], radii[1], cfg.tip_collision_radius_mm / 1000.0, cfg.gap_mm / 1000.0)
         jitter = np.zeros(3) if jitter_m is None else np.asarray(jitter_m, float)
         centres = [point + jitter + offsets[0] * v, point + jitter + offsets[1] * v]
         self.objects = [SceneObject(f"obj{k}", OBJECTS[name]["kind"], r, c, e)
                         for k, (name, r, c) in enumerate(zip(pair, radii, centres))]
-        parts = [self._object_xml(o, OBJECTS[name]) for o, name in zip(self.objects, pair)]
+        parts = [self._object_xml(o) for o in self.objects]
         xml = xml.replace("</worldbody>", "".join(parts) + "</worldbody>", 1)
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
@@ -153,7 +166,7 @@ class Scene:
             o.body_ids = [int(m.geom_bodyid[o.geom_id])]
 
     # ------------------------------------------------------------------ building
-    def _object_xml(self, o: SceneObject, spec: dict) -> str:
+    def _object_xml(self, o: SceneObject) -> str:
         cfg = self.cfg
         e = o.axis
         rot_axis = np.cross([1.0, 0.0, 0.0], e)
@@ -170,12 +183,13 @@ class Scene:
             k, damping, mass, rgba = cfg.pen_stiffness, cfg.pen_damping, 0.01, "0.85 0.2 0.2 1"
         half = 0.5 * L - o.radius_m
         ax = " ".join(f"{x:.6g}" for x in o.centre)
+        solref = "" if cfg.contact == "soft" else f' solref="{CONTACT_SOLREF_S[cfg.contact]:g} 1"'
         joints = "".join(f'<joint name="{o.name}_s{i}" type="slide" axis="{a}" stiffness="{k:.6g}" '
                          f'damping="{damping}"/>' for i, a in enumerate(("1 0 0", "0 1 0", "0 0 1")))
         return (f'<body name="{o.name}" pos="{ax}" axisangle="{aa_s}">{joints}'
                 f'<geom name="{o.name}" type="capsule" fromto="{-half:.6g} 0 0 {half:.6g} 0 0" '
                 f'size="{o.radius_m:.6g}" mass="{mass}" rgba="{rgba}" contype="2" conaffinity="2" '
-                f'friction="{cfg.friction} 0.005 0.0001"/></body>')
+                f'friction="{cfg.friction} 0.005 0.0001"{solref}/></body>')
 
     # ------------------------------------------------------------------ running
     def set_hand(self, q: np.ndarray) -> None:
@@ -216,11 +230,11 @@ class Scene:
         for _ in range(max(1, round(seconds / self.cfg.timestep))):
             self.mj.mj_step(self.model, self.data)
 
-    def pull(self, k: int, force_n: float) -> None:
-        """External force along object k's axis, spread over its pushable bodies near the centre."""
+    def pull(self, k: int, force_n: float, direction: np.ndarray | None = None) -> None:
+        """External force on object k's body, along its axis or along the unit `direction` (world)."""
         self.data.xfrc_applied[:] = 0.0
         o = self.objects[k]
-        self.data.xfrc_applied[o.body_ids[0], :3] = force_n * o.axis
+        self.data.xfrc_applied[o.body_ids[0], :3] = force_n * (o.axis if direction is None else np.asarray(direction, float))
 
     def snapshot(self) -> dict:
         """Positions for drawing: fingertip centres and object axes (world, m)."""

@@ -18,7 +18,7 @@ import json
 import logging
 import socket
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +33,7 @@ from .controller import (
 )
 from .hand_model import HandSpec
 from .scene import PAIRS, Scene, SceneConfig
+from .task import TaskDistribution, draw, fixed
 from .sensor_mount import SensorMount
 from .touch import GelTouch
 
@@ -49,6 +50,9 @@ class TrialConfig:
     open_mm: float = 8.0
     close_s: float = 0.4
     settle_s: float = 0.24
+    settle_until_still: bool = False   # then keep settling (up to settle_max_s) until the measured joint angles of the
+    settle_max_s: float = 1.0          # pinch move less than still_rad per frame for 2 frames (the hand's encoders:
+    still_rad: float = 0.002           # the fingers have stopped where the objects block them)
     pull_n: float = 0.6
     pull_ramp_s: float = 0.2
     decide_timeout_s: float = 0.8
@@ -60,6 +64,11 @@ class TrialConfig:
     pull_only: bool = False            # pull for the whole decide window, no path (records the detection's inputs)
     frame_timeout_s: float = 120.0     # wall time a frame's contacts may take over Zenoh (slow machine)
     touch_mm: float = 0.1              # the verdict: a gel indented deeper than this by an object touches it
+    randomize: bool = False            # draw each trial's task from `task` (tools.grasp.task) instead of the fixed scene
+    task: TaskDistribution = field(default_factory=TaskDistribution)
+    start_from_layout: bool = True     # randomized: each trial's start pinch from the graph where the objects lie
+                                       # (`graph.start_near`), as a camera would see them: to ± layout_error_mm across
+    layout_error_mm: float = 1.0
 
 
 @dataclass
@@ -77,6 +86,8 @@ class TrialResult:
     decide_frames: int = 0                # frames scored before the decision (or the timeout)
     score_log: list = field(default_factory=list)   # every scored frame's object scores
     gel_mm: list = field(default_factory=list)      # final (2 fingertips × 2 objects): gel indentation, mm
+    task: dict = field(default_factory=dict)        # the trial's draw (tools.grasp.task.TaskDraw), or {} before it
+    randomized: bool = False
 
 
 def wait_matched(session, key: str, timeout_s: float) -> None:
@@ -151,13 +162,27 @@ class Bench:
 
         t0 = time.perf_counter()
         cfg, g, s = self.cfg, self.graph, self.start
-        rng = np.random.default_rng(seed)
-        drawn = int(rng.integers(0, 2))
-        pulled = drawn if pulled is None else int(pulled)
-        jitter = rng.uniform(-1, 1, 3) * cfg.jitter_mm / 1000.0
-        jitter -= (jitter @ g.normal[s]) * g.normal[s]
-        scene = Scene(self.urdf, self.joints, PAIRS[pair], g.point[s], g.normal[s], g.tip_index[s][:3, 2],
-                      self.scene_cfg, jitter)
+        n0 = g.normal[s] / np.linalg.norm(g.normal[s])
+        across0 = g.tip_index[s][:3, 2] - (g.tip_index[s][:3, 2] @ n0) * n0
+        across0 /= np.linalg.norm(across0)
+        if cfg.randomize:
+            task = draw(cfg.task, PAIRS[pair], seed)
+            # the layout's shift: across the pinch and along the objects (before the yaw)
+            jitter = (task.shift_mm[0] * across0 + task.shift_mm[1] * np.cross(n0, across0)) / 1000.0
+        else:
+            task, jitter = fixed(PAIRS[pair], seed, cfg.jitter_mm, cfg.pull_n)
+            jitter = jitter / 1000.0
+            jitter -= (jitter @ g.normal[s]) * g.normal[s]
+        pulled = task.pulled if pulled is None else int(pulled)
+        s0 = s
+        if cfg.randomize and cfg.start_from_layout:
+            seen = task.shift_mm[0] + np.random.default_rng((seed, 1)).uniform(-1, 1) * cfg.layout_error_mm
+            s = graph_mod.start_near(g, self.mount, s0, seen)
+        scene_cfg = replace(self.scene_cfg, friction=task.friction, contact=task.contact) if cfg.randomize else self.scene_cfg
+        scene = Scene(self.urdf, self.joints, PAIRS[pair], g.point[s0], g.normal[s0], g.tip_index[s0][:3, 2],
+                      scene_cfg, jitter, diameters_mm=task.diameters_mm, yaw_deg=task.yaw_deg)
+        pull_dir = (task.pull_direction(scene.objects[pulled].axis, scene.across, scene.normal)
+                    if task.pull_tilt_deg else None)
         q_open = scene.opened(g.q[s], g.normal[s], cfg.open_mm)
         scene.set_hand(q_open)
         ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg)
@@ -216,6 +241,15 @@ class Bench:
             gel_touch.relax()
             phase = "settle"
             advance(cfg.settle_s)
+            if cfg.settle_until_still:
+                q_last, still = scene.data.qpos[scene.qadr].copy(), 0
+                for _ in range(max(0, round((cfg.settle_max_s - cfg.settle_s) / cfg.frame_dt))):
+                    advance(cfg.frame_dt)
+                    q_now = scene.data.qpos[scene.qadr].copy()
+                    still = still + 1 if np.abs(q_now - q_last).max() < cfg.still_rad else 0
+                    q_last = q_now
+                    if still >= 2:
+                        break
             ctrl.watch()
             phase = "reference"
             for _ in range(ctrl.cfg.reference_frames):   # the reference, before anything is pulled
@@ -226,7 +260,7 @@ class Bench:
             steps = round(cfg.decide_timeout_s / cfg.frame_dt)
             phase = "pull"
             for k in range(steps):
-                scene.pull(pulled, cfg.pull_n * min(1.0, (k + 1) / n_pull))
+                scene.pull(pulled, task.pull_n * min(1.0, (k + 1) / n_pull), pull_dir)
                 scene.step(cfg.frame_dt)
                 sim_t += cfg.frame_dt
                 frame()
@@ -267,7 +301,8 @@ class Bench:
                 sen.close()
         return TrialResult(pair, seed, pulled, judged, outcome, touching.astype(int).tolist(), path_len,
                            round(time.perf_counter() - t0, 2), decision.scores if decision else [], cause,
-                           len(ctrl.log), [e["scores"] for e in ctrl.log], np.round(gel_mm, 3).tolist())
+                           len(ctrl.log), [e["scores"] for e in ctrl.log], np.round(gel_mm, 3).tolist(),
+                           {**task.as_dict(), "pulled": pulled, "start": int(s)}, cfg.randomize)
 
 
 def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
@@ -299,23 +334,86 @@ def verdict(judged: int | None, pulled: int, touching: np.ndarray, gel_mm: np.nd
     return "other", "final pinch lost the pulled object"
 
 
+FAILURES = ("false detection", "lost object", "touches both", "no decision")
+_CLASS = {"other object named": "false detection", "no decision": "no decision",
+          "final pinch's gel touches the other object": "touches both",
+          "final pinch also touches the other object": "touches both",
+          "final pinch lost the pulled object, touches the other": "lost object",
+          "final pinch lost the pulled object": "lost object"}
+NAMES = {"A+A": "two identical cables (A+A)", "A+B": "different cables (A+B)",
+         "cable+rigid": "cable + rigid (A+pen)", "rigid+rigid": "two rigid (pen+pen)"}
+
+
+def failure_class(r: TrialResult) -> str:
+    """One of `FAILURES` for a failed trial (its `cause`), "" for a success."""
+    return "" if r.outcome == "success" else _CLASS.get(r.cause, "no decision")
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a rate k/n (95 % at z = 1.96)."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = k / n
+    den = 1 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return float(max(0.0, mid - half)), float(min(1.0, mid + half))
+
+
+def _rate(k: int, n: int) -> str:
+    lo, hi = wilson(k, n)
+    return f"{k}/{n} ({100 * k / max(n, 1):.0f} %, {100 * lo:.0f}–{100 * hi:.0f})"
+
+
 def table(results: dict[str, list[TrialResult]]) -> str:
-    """Markdown table: ours beside the seed's, per pair."""
-    rows = ["| objects | success | false detection | other | seed: success | seed: false det. | seed: other |",
-            "|---|---|---|---|---|---|---|"]
-    names = {"A+A": "two identical cables (A+A)", "A+B": "different cables (A+B)",
-             "cable+rigid": "cable + rigid (A+pen)", "rigid+rigid": "two rigid (pen+pen)"}
+    """Markdown table: ours (success with its 95 % Wilson interval, failures by class) beside the
+    seed's, per pair."""
+    rows = ["| objects | task | success (95 % CI) | false detection | lost object | touches both | no decision | "
+            "seed: success (95 % CI) | seed: false det. | seed: other |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     for pair, res in results.items():
         n = len(res)
-        c = {k: sum(r.outcome == k for r in res) for k in ("success", "false detection", "other")}
+        ok = sum(r.outcome == "success" for r in res)
+        fails = [sum(failure_class(r) == c for r in res) for c in FAILURES]
         ps, pf, po, pn = PAPER[pair]
-        rows.append(f"| {names[pair]} | {c['success']}/{n} ({100 * c['success'] / max(n, 1):.1f} %) | "
-                    f"{c['false detection']}/{n} | {c['other']}/{n} | {ps}/{pn} ({100 * ps / pn:.1f} %) | "
-                    f"{pf}/{pn} | {po}/{pn} |")
+        task = "randomized" if res and res[0].randomized else "fixed scene (`--randomize` off)"
+        rows.append(f"| {NAMES[pair]} | {task} | {_rate(ok, n)} | " + " | ".join(str(f) for f in fails)
+                    + f" | {_rate(ps, pn)} | {pf}/{pn} | {po}/{pn} |")
+    return "\n".join(rows) + "\n"
+
+
+def factor_table(results: dict[str, list[TrialResult]], bins: int = 5) -> str:
+    """Markdown table of each drawn factor's extreme bins (its lowest and highest `bins`-quantile
+    over all randomized trials of all pairs): the success rate with its 95 % Wilson interval."""
+    from .task import factors
+
+    res = [r for rs in results.values() for r in rs if r.randomized and r.task]
+    if not res:
+        return ""
+    vals = [factors(r.task, PAIRS[r.pair]) for r in res]
+    ok = np.array([r.outcome == "success" for r in res])
+    rows = ["| factor (trials) | lowest bin: range | success (95 % CI) | highest bin: range | success (95 % CI) |",
+            "|---|---|---|---|---|"]
+    for name in vals[0]:
+        have = np.array([i for i, v in enumerate(vals) if v[name] is not None], int)
+        if not len(have):
+            continue
+        x = np.array([vals[i][name] for i in have])
+        order = have[np.argsort(x, kind="stable")]
+        m = max(1, len(have) // bins)
+        cells = []
+        for idx in (order[:m], order[-m:]):
+            xs = [vals[i][name] for i in idx]
+            cells.append(f"{min(xs):.2f}–{max(xs):.2f} | {_rate(int(ok[idx].sum()), len(idx))}")
+        rows.append(f"| {name} ({len(have)}) | " + " | ".join(cells) + " |")
+    for contact in ("soft", "stiff"):
+        idx = [i for i, r in enumerate(res) if r.task.get("contact") == contact]
+        if idx:
+            rows.append(f"| contact {contact} | all | {_rate(int(ok[idx].sum()), len(idx))} | | |")
     return "\n".join(rows) + "\n"
 
 
 def save_results(results: dict[str, list[TrialResult]], out: Path) -> None:
     body = {pair: [asdict(r) for r in res] for pair, res in results.items()}
     atomic_write(out / "grasp_trials.json", (json.dumps(body, indent=1) + "\n").encode())
-    atomic_write(out / "grasp_table.md", table(results).encode())
+    atomic_write(out / "grasp_table.md", (table(results) + "\n" + factor_table(results)).encode())
