@@ -2,7 +2,6 @@
 draws within bounds, hand-worked values, the fixed scene's draw unchanged."""
 import numpy as np
 import pytest
-
 from tensortouch.tools.grasp.task import FIXED_DIAMETER_MM, TaskDistribution, TaskDraw, draw, factors, fixed
 
 PAIRS = {"A+A": ("A", "A"), "A+B": ("A", "B"), "cable+rigid": ("A", "pen"), "rigid+rigid": ("pen", "pen")}

@@ -33,8 +33,8 @@ from .controller import (
 )
 from .hand_model import HandSpec
 from .scene import PAIRS, Scene, SceneConfig
-from .task import TaskDistribution, draw, fixed
 from .sensor_mount import SensorMount
+from .task import TaskDistribution, draw, fixed
 from .touch import GelTouch
 
 log = logging.getLogger(__name__)
@@ -368,8 +368,8 @@ def _rate(k: int, n: int) -> str:
 def table(results: dict[str, list[TrialResult]]) -> str:
     """Markdown table: ours (success with its 95 % Wilson interval, failures by class) beside the
     seed's, per pair."""
-    rows = ["| objects | task | success (95 % CI) | false detection | lost object | touches both | no decision | "
-            "seed: success (95 % CI) | seed: false det. | seed: other |",
+    rows = [("| objects | task | success (95 % CI) | false detection | lost object | touches both | no decision | "
+            "seed: success (95 % CI) | seed: false det. | seed: other |"),
             "|---|---|---|---|---|---|---|---|---|---|"]
     for pair, res in results.items():
         n = len(res)
