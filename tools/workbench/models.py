@@ -123,7 +123,7 @@ class ContactLaw:
         n = table.vec["normal"]
         sv = table.vec["slip_vec"]
         out = np.zeros((len(table), 3))
-        for kind in np.unique(kinds):
+        for kind in map(str, np.unique(kinds)):
             if kind not in self.laws:
                 raise TensorTouchError(f"contact law ({self.source}): the session presses with indenter {kind!r}, "
                                        f"which none of its calibration sessions used (it knows {sorted(self.laws)}); "
