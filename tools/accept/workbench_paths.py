@@ -203,13 +203,10 @@ def _gel_128(unit: str) -> dict:
 
 
 def _diag(d) -> dict:
-    v, u = d.verdict, d.unexplained
-    return {"verdict": v.effect.name if v else None, "family": (v.effect.family or v.effect.name) if v else None,
-            "pair": v.pair is not None if v else False, "p": v.p_adjusted if v else None,
-            "best": d.ranking[0].effect.name if d.ranking else None,
-            "best_p": d.ranking[0].p_adjusted if d.ranking else None,
-            "top_covariate": u.get("covariate"), "covariate_p": u.get("p_adjusted"),
-            "diag_floor": d.mde["floor"] if d.mde else None, "mde": d.mde["mde"] if d.mde else None}
+    """The twin-generality harness's row of a diagnosis, with the path's floor beside its MDE."""
+    from .twin_generality import _diag_row
+
+    return {**_diag_row(d), "diag_floor": d.mde["floor"] if d.mde else None}
 
 
 def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
