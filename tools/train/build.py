@@ -75,6 +75,8 @@ class BuildConfig:
     fe: str = "resolve"                           # stage 2: resolve (FE from measured keypoints) | twin (twin's solves)
     max_bulk_ratio: float = 5.0                   # stage 2 resolve: locking cap of the label solves (tools.fe SolverSettings)
     tables: str = "gpr"                           # θ/φ tables of the targets: gpr (stage 3 pokes) | truth (twin)
+    crop: str = "nominal"                         # stage 3's crop radius: nominal (the design's rim radius) | rim (the
+                                                  # unit's rim measured in its calibration rest frames, as `calib init` does)
     contact_stride: int = 2                       # every n-th in-contact frame becomes a sample
     label_frames: str = "interpolated"            # fe = "resolve": labels at every frame of an FE span | "checked" | "fe" | "keypoint"
     label_sigma: str = "pose"                     # a label between FE frames is placed by the mocap pose | "pose+ft"
@@ -134,7 +136,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     """Config key per stage: the fields that stage (and the stages before it) depend on."""
     d = cfg.to_dict()
     deps = {"sessions": ["train", "heldout", "physics", "size"],
-            "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe", "max_bulk_ratio"], "correspondence": ["tables"], "simreal": [],
+            "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe", "max_bulk_ratio"], "correspondence": ["tables", "crop"], "simreal": [],
             "dataset": ["tables", "contact_stride", "label_frames", "label_sigma", "rest_fraction", "val_fraction"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
@@ -144,7 +146,7 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
     optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
-                "detach_force_n": 1.1, "max_bulk_ratio": 5.0, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0}
+                "detach_force_n": 1.1, "max_bulk_ratio": 5.0, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0, "crop": "nominal"}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:
@@ -307,7 +309,7 @@ def _check_trajectory(ranges: dict, path: str) -> None:
 
 
 # build fields that take one of a few words
-CHOICES = {"fe": ("resolve", "twin"), "tables": ("gpr", "truth"), "label_frames": ("interpolated", "checked", "fe", "keypoint"),
+CHOICES = {"fe": ("resolve", "twin"), "tables": ("gpr", "truth"), "crop": ("nominal", "rim"), "label_frames": ("interpolated", "checked", "fe", "keypoint"),
            "label_sigma": ("pose+ft", "pose"),
            "physics": ("fe", "hertz-fallback"), "arch": ("hiera_qup", "unet", "vit"),
            "device": ("auto", "cpu", "cuda"), "quantization_pick": ("spread", "first")}

@@ -17,7 +17,10 @@ contact found on the measured F/T (stage 1 with the calibration thresholds `cont
   camera frame nearest the deepest moment, matched with the motion predicted from the FE
   displacement and the sensor design's nominal lens → sub-pixel image of the 3D point.
 `tools.recalib.gpr_geometry.refresh_geometry` fits the gel centre, φ rotation and θ = f_GPR(dist) from
-the nominal design centre/radius; dense tables (θ, φ, surface_xyz, normals, pixel_area, mask) on the
+the nominal design centre. The crop radius (`crop`) is the design's rim radius ("nominal") or the unit's
+rim measured in the session's rest frames ("rim", `session_rim`: the circle `tensortouch calib init`
+fits on a rig, so a model trained on these crops sees a new unit the way its calibration crops it);
+dense tables (θ, φ, surface_xyz, normals, pixel_area, mask) on the
 model grid are then stored as a new version (`provenance.method = "gpr-pokes"`) in the build's
 calibration store. For twin units the result is checked against the unit's true tables (diagnostics
 only: nothing downstream reads them). `image_change_centroid` is the simple detector (kept for
@@ -51,6 +54,10 @@ class CorrespondenceConfig:
     detach_force_n: float = 0.2
     camera: str = "stills"           # twin camera of the calibration session: "stills" renders only the frames
                                      # the detector can read (around each poke's start and deepest moment); "video" all
+    crop: str = "nominal"            # crop radius of the tables: "nominal" (the design's rim radius) or "rim" (the
+                                     # unit's rim measured in the session's rest frames, `runtime.calib.rim.fit_rim`)
+    rest_frames: int = 3             # frames before the first contact averaged for the rim
+    rest_margin_s: float = 0.2       # ... ending this long before the first measured contact
 
 
 def image_change_centroid(base: np.ndarray, cur: np.ndarray, cfg: CorrespondenceConfig = CorrespondenceConfig()
@@ -106,6 +113,28 @@ def record_calibration_session(b, serial: str, cfg: CorrespondenceConfig):
     if not (path / "session.json").is_file():
         Recorder(rcfg, path, progress=stage_progress(path.name)).run()
     return path
+
+
+def session_rim(session_dir, center0: tuple[float, float], radius0: float,
+                 cfg: CorrespondenceConfig = CorrespondenceConfig()):
+    """The gel rim (`RimFit`) in a calibration session's rest frames: the first `rest_frames` frames that end
+    `rest_margin_s` before the first F/T reading above `contact_force_n`, averaged, then `fit_rim` from the
+    design's circle: what `tensortouch calib init` does on a rig, from the recording alone."""
+    from ...contracts.session import load_session
+    from ...runtime.calib.rim import fit_rim, rest_image
+    from ..sessions.writer import read_frames
+
+    ses = load_session(session_dir)
+    frames = ses.table("frames")
+    w = ses.table("wrench")
+    loaded = np.linalg.norm(w[:, 2:5], axis=1) > cfg.contact_force_n
+    t_touch = float(w[loaded, 0].min()) if loaded.any() else float("inf")
+    rest = frames[frames[:, 0] < t_touch - cfg.rest_margin_s][:cfg.rest_frames]
+    if not len(rest):
+        raise CorrespondenceError(f"{session_dir}: no frame before the first contact (t {t_touch:.2f} s) to find "
+                                  "the gel rim in; the calibration session must start at rest")
+    imgs = [img for _, img in read_frames(ses, rest[:, 1].astype(int))]
+    return fit_rim(rest_image(imgs), center0, radius0, where=f"{session_dir} rest frames")
 
 
 def nominal_lens():
@@ -281,17 +310,27 @@ def fit_unit(b, spec_serial: str, cfg: CorrespondenceConfig = CorrespondenceConf
     path = record_calibration_session(b, spec_serial, cfg)
     c = correspondences(b, path, unit.gel, cfg)
     S = (b.cfg.size, b.cfg.size)
-    radius = nominal.gel_radius_px
+    rim = None
+    if cfg.crop == "rim":
+        rim = session_rim(path, nominal.gel_center_px, nominal.gel_radius_px, cfg)
+        radius = rim.radius
+    elif cfg.crop == "nominal":
+        radius = nominal.gel_radius_px
+    else:
+        raise CorrespondenceError(f"correspondence crop = {cfg.crop!r}: expected 'nominal' or 'rim'")
     fit, tables, x, y = gpr_tables(c["xy"], c["theta"], c["phi"], unit.gel, nominal.gel_center_px, radius, S)
     meta = calibration_meta(unit, b.cfg.size)
     meta["gel_center_px"] = [float(fit.center[0]), float(fit.center[1])]
     meta["gel_radius_px"] = float(radius)
-    meta["provenance"] = {"method": "gpr-pokes", "pokes": int(len(c["xy"])),
+    meta["provenance"] = {"method": "gpr-pokes", "pokes": int(len(c["xy"])), "crop": cfg.crop,
                           "notes": f"tools.train.correspondence: {len(c['xy'])} twin calibration pokes, GPR θ(dist)",
                           "fit": {k: v for k, v in fit.fit.items() if k != "trend"}}
+    if rim is not None:
+        meta["provenance"]["rim"] = rim.to_dict()
     version = CalibrationStore(b.store_root).write(spec_serial, tables, meta)
     return {"version": version, "pokes": int(len(c["xy"])), "center_px": list(fit.center),
-            "true_center_px": list(unit.gel_center_px), **truth_errors(unit, tables, x, y),
+            "true_center_px": list(unit.gel_center_px), "crop": cfg.crop, "radius_px": float(radius),
+            "true_radius_px": float(unit.gel_radius_px), **truth_errors(unit, tables, x, y),
             "poke_residual_theta_deg_rms": float(np.sqrt(np.mean(np.square(fit.residual_deg["theta"])))),
             "pokes_2d": c["pokes"], "poke_px_err_vs_truth": _px_truth_errors(unit, c)}
 
@@ -307,13 +346,14 @@ class CorrespondenceError(TensorTouchError):
     """A unit's GPR calibration failed: the build stops (it never falls back to the twin's truth)."""
 
 
-def build_unit_calibrations(b, cfg: CorrespondenceConfig = CorrespondenceConfig()) -> dict:
+def build_unit_calibrations(b, cfg: CorrespondenceConfig | None = None) -> dict:
     """Stage 3 for every unit of the build: GPR tables (tables = "gpr") or the twin's true tables
     (tables = "truth"); writes correspondence/<serial>.json naming the version to use. A GPR fit that
     fails raises CorrespondenceError naming the unit: a build never swaps in the true tables behind
     the recipe's back."""
     from ...contracts.store import CalibrationStore
 
+    cfg = cfg or CorrespondenceConfig(crop=getattr(b.cfg, "crop", "nominal"))
     store = CalibrationStore(b.store_root)
     out = {}
     for spec in b.all_sessions():
@@ -329,8 +369,9 @@ def build_unit_calibrations(b, cfg: CorrespondenceConfig = CorrespondenceConfig(
                                           f"({exc}); the build stops (tables = \"gpr\" never falls back to the "
                                           f"unit's true tables)") from exc
             doc.update(method="gpr-pokes", version=g["version"], gpr=g)
-            log.info("correspondence %s: %d pokes, θ error mean %.2f° p95 %.2f°", spec.serial, g["pokes"],
-                     g["theta_err_deg"]["mean"], g["theta_err_deg"]["p95"])
+            log.info("correspondence %s: %d pokes, θ error mean %.2f° p95 %.2f°, crop %s %.2f px (true rim %.2f px)",
+                     spec.serial, g["pokes"], g["theta_err_deg"]["mean"], g["theta_err_deg"]["p95"], g["crop"],
+                     g["radius_px"], g["true_radius_px"])
         atomic_write_json(b.root / "correspondence" / f"{spec.serial}.json", doc)
         out[spec.serial] = {"method": doc["method"], "version": doc["version"],
                             **({"theta_err_deg": doc["gpr"]["theta_err_deg"]} if "gpr" in doc else {})}
