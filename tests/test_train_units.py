@@ -28,3 +28,14 @@ def test_units_cli_bad_input_one_line(tmp_path):
     bad.write_text(P.PROTOCOL_FILE.read_text().replace("seeds = [200, 299]", "seeds = [150, 299]"))
     rc, lines = _cli("train", "units", "check", "--protocol", str(bad))
     assert rc == 2 and len(lines) == 1 and str(bad) in lines[0] and "overlap" in lines[0], lines
+
+
+def test_units_rim_finds_each_units_rim_nearer_than_the_design_radius():
+    from tensortouch.tools.train.units import rim_check
+
+    r = rim_check("TWIN-H01")                        # focal −4 %: the design radius is 4.4 px too large
+    assert abs(r["rim_px"] - r["true_px"]) < 0.5 < abs(r["design_px"] - r["true_px"])
+    rc, lines = _cli("train", "units", "rim", "validation", "--first", "2")
+    assert rc == 0 and lines[-1].startswith("2 units:"), lines
+    rc, lines = _cli("train", "units", "rim")
+    assert rc == 2 and len(lines) == 1 and "name the set" in lines[0], lines

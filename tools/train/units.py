@@ -3,6 +3,7 @@
     tensortouch train units check                      # the protocol, and every recipe against it
     tensortouch train units list [SET]                 # units, seeds, indenter pairs, pokes
     tensortouch train units record SET [--first N] [--pokes N] [--root DIR]
+    tensortouch train units rim SET                    # each unit's rim found in rest frames vs its true rim
 
 `record` plays the twin for a set's sessions into `<root>/<set>/sessions/<serial>-s<seed>/` and writes each
 unit's true calibration into `<root>/<set>/calibration_store/` (default root `<cache>/units`), as a
@@ -20,7 +21,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
-    ap.add_argument("action", choices=("check", "list", "record"), help="what to do")
+    ap.add_argument("action", choices=("check", "list", "record", "rim"), help="what to do")
     ap.add_argument("set", nargs="?", help="train | validation | sealed (list: all when not given)")
     ap.add_argument("--protocol", help="protocol file (default tools/train/protocol.toml)")
     ap.add_argument("--first", type=int, help="record only the set's first N units")
@@ -78,6 +79,22 @@ def record_set(protocol, name: str, root: Path, first=None, pokes=None, physics:
     return out
 
 
+def rim_check(serial: str, frames: int = 3, seed: int = 0) -> dict:
+    """A twin unit's rim as stage 3 finds it (`crop = "rim"`: `fit_rim` on `frames` averaged rest frames,
+    rendered with the unit's noise) against its true rim and the design's radius (px)."""
+    import numpy as np
+
+    from ...runtime.calib.rim import fit_rim, rest_image
+    from ..twin.unit import TwinUnit, VariationConfig
+
+    unit, nominal = TwinUnit(serial), TwinUnit(serial, variation=VariationConfig(0.0, 0.0, 0.0, 0.0))
+    rng = np.random.default_rng(seed)
+    fit = fit_rim(rest_image([unit.renderer.render(None, rng=rng) for _ in range(frames)]),
+                  nominal.gel_center_px, nominal.gel_radius_px, where=f"{serial} rest frames")
+    return {"serial": serial, "true_px": unit.gel_radius_px, "design_px": nominal.gel_radius_px, "rim_px": fit.radius,
+            "centre_err_px": float(np.hypot(*(np.asarray(fit.center) - unit.gel_center_px)))}
+
+
 def run(args: argparse.Namespace) -> int:
     from ...contracts.errors import TensorTouchError
     from .protocol import SET_NAMES, check_recipe_sessions, expand_recipe_sessions, load_protocol
@@ -102,6 +119,19 @@ def run(args: argparse.Namespace) -> int:
                 for s in set_sessions(protocol, name):
                     print(f"{name:10s} {s.serial:10s} seed {s.seed:5d}  {s.pokes} pokes  "
                           f"{'+'.join(s.trajectory['indenters']):18s} q{s.quality}  world {s.world}")
+        elif args.action == "rim":
+            if args.set is None:
+                raise TensorTouchError("units rim: name the set (train, validation or sealed)")
+            errs = []
+            for s in set_sessions(protocol, args.set, args.first):
+                r = rim_check(s.serial)
+                errs.append((r["rim_px"] - r["true_px"], r["design_px"] - r["true_px"]))
+                print(f"{s.serial:10s} true rim {r['true_px']:7.2f} px  design {r['design_px']:7.2f} "
+                      f"({errs[-1][1]:+.2f})  found {r['rim_px']:7.2f} ({errs[-1][0]:+.2f})  centre {r['centre_err_px']:.2f} px off")
+            e = [abs(a) for a, _ in errs]
+            d = [abs(b) for _, b in errs]
+            print(f"{len(errs)} units: found - true |mean| {sum(e) / len(e):.2f}, max {max(e):.2f} px; "
+                  f"design - true |mean| {sum(d) / len(d):.2f}, max {max(d):.2f} px")
         else:
             if args.set is None:
                 raise TensorTouchError("units record: name the set (train, validation or sealed)")
