@@ -26,7 +26,9 @@ import scipy.sparse.linalg as sla
 
 from .errors import FEError
 
-ENGINES = ("pardiso", "superlu")
+ENGINES = ("pardiso-reuse", "pardiso", "superlu")
+# "pardiso-reuse": PARDISO as "pardiso", and the Newton loop may reuse the last factorisation for
+# chord steps (tools.fe.solver.CHORD_RATIO; docs/decisions/2026-12-01-fe-factorisation-reuse.md).
 _MKL_THREADING_SEQUENTIAL = 1
 
 
@@ -189,6 +191,10 @@ class SuperLUFactor:
 
 
 def make_factor(engine: str, symmetric: bool):
+    if engine == "pardiso-reuse":
+        f = PardisoFactor(symmetric)
+        f.chord_steps = 0   # counted by the Newton loop; its presence allows chord steps
+        return f
     if engine == "pardiso":
         return PardisoFactor(symmetric)
     if engine == "superlu":

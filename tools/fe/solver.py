@@ -48,7 +48,7 @@ FIRST_TOUCH_ANCHOR = True
 # timings of a recipe stage). Not a scenario field: both engines solve the same equations (final
 # forces agree to rounding, `tensortouch bench fe`), so the scenario hashes (the FE cache keys) stay
 # as they are; solver_info records the engine.
-DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso")
+DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-reuse")
 
 
 # Where the indenters' motion turns (the increment's direction more than ~25 deg from the last one's,
@@ -125,7 +125,7 @@ class GelModel:
         cols = np.tile(self.surf_dofs.reshape(-1, 3), (1, 3)).ravel()
         self._crow, self._ccol = rows, cols
         self.fast = None  # own P1 assembly on a fixed pattern (engine "pardiso", Yeoh on linear tets)
-        if engine == "pardiso" and self.order == 1 and isinstance(self.umat, YeohUmat):
+        if engine.startswith("pardiso") and self.order == 1 and isinstance(self.umat, YeohUmat):
             self.fast = getattr(gm, "_p1_assembly", None)  # the pattern depends on the mesh only
             if self.fast is None:
                 B = np.asarray(self.region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
@@ -194,6 +194,13 @@ class GelModel:
         return out / np.maximum(w, 1e-300)[:, None]
 
 
+# Chord steps (engine "pardiso-reuse", tools.fe.linsolve.reuses_factorisation): once a Newton step
+# has cut the residual to CHORD_RATIO of the last iterate's (the quadratic range; not the first step,
+# whose starting residual is the predictor's), the next correction
+# reuses the kept factorisation with no new tangent (assembly) and no refactorisation, as long as
+# each such step keeps cutting the residual by CHORD_RATIO; otherwise the next step is a full Newton
+# step again. The convergence test is the same, so the result is converged to the same tolerance.
+CHORD_RATIO = 0.1
 HOLD_AFTER = 8      # Newton iterations of plain Newton before an increment switches to struggle mode
 ACCEPT_REL = 5e-3   # struggle mode: best iterate accepted if |r|max <= ACCEPT_REL * total normal force
 
@@ -211,6 +218,9 @@ def newton(model: GelModel, U0, poses, state, sv):
     hold, mode = None, "exact"
     r, ce = model.residual(U, poses, state)
     best = None
+    chord_ok = getattr(model.factor, "chord_steps", None) is not None
+    chord = False
+    res_prev = np.abs(r[model.free]).max()
     for it in range(1, sv.max_iterations + 1):
         if it > HOLD_AFTER:
             hold = ce.slip.copy() if hold is None else hold | ce.slip
@@ -219,7 +229,10 @@ def newton(model: GelModel, U0, poses, state, sv):
                 r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode)
         rf = r[model.free]
         fscale = max(np.abs(ce.fn).sum(), 1e-12)
-        model.factor.factor(model.tangent(ce))  # SingularTangent is a FloatingPointError
+        if chord:
+            model.factor.chord_steps += 1
+        else:
+            model.factor.factor(model.tangent(ce))  # SingularTangent is a FloatingPointError
         du = -model.factor.solve(rf)
         if not np.all(np.isfinite(du)):
             raise FloatingPointError("non-finite Newton update")
@@ -244,6 +257,8 @@ def newton(model: GelModel, U0, poses, state, sv):
         log.debug("  it %d: |r|max %.3e N, |du|max %.3e mm, step %.2f", it, res, dmax, step)
         if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 0.02 * model.sc.mesh.size_top:
             return U, ce, it, res
+        chord = chord_ok and mode == "exact" and it >= 2 and res <= CHORD_RATIO * res_prev
+        res_prev = res
         if mode != "exact" and (best is None or res < best[3]):
             best = (U, ce, it, res, max(np.abs(ce.fn).sum(), 1e-12))
     if best is not None and best[3] <= max(sv.tol_force, ACCEPT_REL * best[4]):
@@ -386,6 +401,7 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
             "assembly": "tools.fe.assembly (P1 Yeoh)" if model.fast is not None else "felupe",
             "symmetric_tangent": model.symmetric, "factorizations": model.factor.factorizations,
             "symbolic_analyses": model.factor.analyses,
+            "chord_steps": getattr(model.factor, "chord_steps", None) or 0, "chord_ratio": CHORD_RATIO,
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
     return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,
