@@ -11,6 +11,7 @@ reference `tensortouch bench fe` compares against). Each keypoint step is split 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -300,9 +301,25 @@ def check_initial(model: GelModel) -> None:
                                 f"the gel by {-d.min():.3f} mm; start the indenter above the surface")
 
 
+def _blas_one_thread():
+    """numpy's OpenBLAS held to one thread during a solve: its BLAS calls here are tiny per-cell
+    products, and a second thread only spins (≈ 10 % more CPU for the same bits, docs/BENCHMARKS.md
+    "FE engine"). threadpoolctl comes with the train extra (scikit-learn); without it, no limit."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None, engine: str | None = None) -> FEResult:
     """Solve all keypoint frames of `scenario`; see docs/fe.md for the contract. `engine`: the
     linear solver path (tools.fe.linsolve.ENGINES; None = DEFAULT_ENGINE)."""
+    with _blas_one_thread():
+        return _solve(scenario, progress, mesh, engine)
+
+
+def _solve(scenario: Scenario, progress, mesh: GelMesh | None, engine: str | None) -> FEResult:
     scenario.validate()
     t_start = time.time()
     gm = mesh if mesh is not None else build_mesh(scenario)
