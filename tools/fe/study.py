@@ -217,6 +217,27 @@ def run_study(name: str, work_dir, emit=print) -> list[dict]:
     return rows
 
 
+def ccx_converged(last_rf, seconds, axes, increments=AGREEMENT_CCX_INCREMENTS, tol=AGREEMENT_TOL):
+    """ccx's converged answer over its increment sizes and what it costs.
+
+    last_rf: per increment (coarse to fine) the last frame's RF (3,); seconds: ccx's wall time per
+    increment; axes: the RF components compared. Returns ({axis: |RF| extrapolated to increment 0 by
+    `richardson`, or the finest level's where not monotone}, seconds of the coarsest increment whose
+    |RF| on every axis is within `tol` of that answer, or of the finest)."""
+    if not (len(last_rf) == len(seconds) == len(increments) == 3):
+        raise ValueError(f"ccx_converged: expected 3 increments, got {len(last_rf)} forces, {len(seconds)} times, "
+                         f"{len(increments)} increments")
+    ref = {}
+    for ax in axes:
+        v = [abs(float(rf[ax])) for rf in last_rf]
+        e = richardson(increments, v)
+        ref[ax] = e["f0"] if e["monotone"] else v[-1]
+    for rf, t in zip(last_rf, seconds):
+        if all(abs(abs(float(rf[ax])) / ref[ax] - 1.0) <= tol for ax in axes):
+            return ref, t
+    return ref, seconds[-1]
+
+
 def _agreement_cases():
     press = _press([1.5], size_top=AGREEMENT_SIZE_TOP)
     slide = _press([1.0, 1.0], mu=2.2, size_top=AGREEMENT_SIZE_TOP)
@@ -232,16 +253,11 @@ def _agreement(work: Path) -> list[dict]:
         tag = case.split(",")[0].replace(" ", "_").replace("+", "")
         ccx = [_ccx(sc, work, f"{tag}_C3D4_inc{inc}", max_increment_mm=inc, case_name=case, increment_mm=inc)
                for inc in AGREEMENT_CCX_INCREMENTS]
-        last = {ax: [abs(r["RF"][-1][ax]) for r in ccx] for ax in axes}
-        ext = {ax: richardson(AGREEMENT_CCX_INCREMENTS, v) for ax, v in last.items()}
-        ref = {ax: e["f0"] if e["monotone"] else last[ax][-1] for ax, e in ext.items()}
+        ref, t_ccx = ccx_converged([r["RF"][-1] for r in ccx], [r["seconds"] for r in ccx], axes)
         rows += ccx
         rows.append({"solver": "ccx", "settings": "extrapolated to increment 0 (finest where not monotone)",
                      "case_name": case, "RF_last_abs": {str(ax): round(v, 5) for ax, v in ref.items()},
                      "seconds": 0.0, "RF": []})
-        # ccx's cheapest increment within AGREEMENT_TOL of its own converged answer
-        ok = [r for r in ccx if all(abs(abs(r["RF"][-1][ax]) / ref[ax] - 1.0) <= AGREEMENT_TOL for ax in axes)]
-        t_ccx = ok[0]["seconds"] if ok else ccx[-1]["seconds"]
         import felupe  # noqa: F401  (imported and meshed before timing ours: ccx's time has no start-up either)
 
         from .solver import build_mesh
