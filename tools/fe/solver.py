@@ -3,10 +3,11 @@
 Linear tets with the Yeoh / neo-Hookean material (the shipped default) are assembled by
 tools.fe.assembly straight onto a fixed free-DOF pattern; quadratic tets (mixed u/p/J, mesh.order = 2)
 and Mooney-Rivlin go through felupe's assembly. tools.fe.contact adds the node-to-rigid-indenter
-forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine: "pardiso"
-(default: MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
-symmetric) or "superlu" (the original path: felupe assembly and scipy's SuperLU, kept as the
-reference `tensortouch bench fe` compares against). Each keypoint step is split into increments
+forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine:
+"pardiso-reuse" (default: "pardiso" plus chord steps on the kept factorisation, CHORD_RATIO),
+"pardiso" (MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
+symmetric, one factorisation per Newton iteration) or "superlu" (the original path: felupe assembly
+and scipy's SuperLU, kept as the reference `tensortouch bench fe` compares against). Each keypoint step is split into increments
 (cutback on failure).
 """
 from __future__ import annotations
@@ -46,9 +47,9 @@ SOLVER_REVISION = 2
 FIRST_TOUCH_ANCHOR = True
 # Linear solver engine when solve() is not told (tools.fe.linsolve); the environment variable
 # TENSORTOUCH_FE_ENGINE sets it for a whole pipeline, batch worker processes included (before/after
-# timings of a recipe stage). Not a scenario field: both engines solve the same equations (final
-# forces agree to rounding, `tensortouch bench fe`), so the scenario hashes (the FE cache keys) stay
-# as they are; solver_info records the engine.
+# timings of a recipe stage). Not a scenario field: the engines solve the same equations (pardiso and
+# superlu agree to rounding, pardiso-reuse to the Newton tolerance, `tensortouch bench fe`), so the
+# scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
 DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-reuse")
 
 
@@ -125,7 +126,7 @@ class GelModel:
         rows = np.repeat(self.surf_dofs.reshape(-1, 3), 3, axis=1).ravel()
         cols = np.tile(self.surf_dofs.reshape(-1, 3), (1, 3)).ravel()
         self._crow, self._ccol = rows, cols
-        self.fast = None  # own P1 assembly on a fixed pattern (engine "pardiso", Yeoh on linear tets)
+        self.fast = None  # own P1 assembly on a fixed pattern (the pardiso engines, Yeoh on linear tets)
         if engine.startswith("pardiso") and self.order == 1 and isinstance(self.umat, YeohUmat):
             self.fast = getattr(gm, "_p1_assembly", None)  # the pattern depends on the mesh only
             if self.fast is None:
@@ -195,7 +196,7 @@ class GelModel:
         return out / np.maximum(w, 1e-300)[:, None]
 
 
-# Chord steps (engine "pardiso-reuse", tools.fe.linsolve.reuses_factorisation): once a Newton step
+# Chord steps (engine "pardiso-reuse", tools.fe.linsolve `allow_chord`): once a Newton step
 # has cut the residual to CHORD_RATIO of the last iterate's (the quadratic range; not the first step,
 # whose starting residual is the predictor's), the next correction
 # reuses the kept factorisation with no new tangent (assembly) and no refactorisation, as long as
@@ -219,7 +220,7 @@ def newton(model: GelModel, U0, poses, state, sv):
     hold, mode = None, "exact"
     r, ce = model.residual(U, poses, state)
     best = None
-    chord_ok = getattr(model.factor, "chord_steps", None) is not None
+    chord_ok = model.factor.allow_chord
     chord = False
     res_prev = np.abs(r[model.free]).max()
     for it in range(1, sv.max_iterations + 1):
@@ -228,6 +229,7 @@ def newton(model: GelModel, U0, poses, state, sv):
             if mode == "exact":
                 mode = "secant"
                 r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode)
+                chord = False   # the kept factors are of the exact tangent: struggle mode refactorises
         rf = r[model.free]
         fscale = max(np.abs(ce.fn).sum(), 1e-12)
         if chord:
@@ -418,7 +420,7 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
             "assembly": "tools.fe.assembly (P1 Yeoh)" if model.fast is not None else "felupe",
             "symmetric_tangent": model.symmetric, "factorizations": model.factor.factorizations,
             "symbolic_analyses": model.factor.analyses,
-            "chord_steps": getattr(model.factor, "chord_steps", None) or 0, "chord_ratio": CHORD_RATIO,
+            "chord_steps": model.factor.chord_steps, "chord_ratio": CHORD_RATIO,
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
     return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,
