@@ -92,3 +92,33 @@ def test_engines_give_the_same_solve_and_pardiso_repeats_bit_for_bit(mu):
     assert np.array_equal(again.RF, new.RF) and np.array_equal(again.U, new.U)
     if mu == 0.0:  # no friction: only the plowing slope of the pressed surface pushes back in x
         assert abs(new.RF[-1, 0, 0]) < 0.03 * abs(new.RF[-1, 0, 2])
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.4])
+def test_chord_steps_reuse_the_factorisation_converge_alike_and_repeat_bit_for_bit(mu):
+    """Engine pardiso-reuse (the default): where a Newton step has cut the residual tenfold, the next
+    correction reuses the kept factorisation (a chord step). It refactorises less than once per
+    iteration, reaches the exact-Newton engine's forces within the Newton tolerance, and two runs give
+    the same bits."""
+    import json
+
+    from tensortouch.tools.fe import solve
+    from tensortouch.tools.fe.mesh import mesh_gel
+    from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario
+
+    pad = GelGeometry(kind="flat_pad", size_x=12.0, size_y=12.0, thickness=5.0)
+    ms = MeshSettings(size_top=1.2, size_inside=1.5)
+    ind = Indenter(name="s", shape="sphere", params={"radius": 4.0}, position=[0.0, 0.0, 5.0],
+                   keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in [(0, 0, -0.6), (0.6, 0, -0.6)]])
+    sc = Scenario(gel=pad, mesh=ms, indenters=[ind], friction=mu)
+    gm = mesh_gel(pad, ms)
+    exact = solve(sc, mesh=gm, engine="pardiso")
+    chord = solve(sc, mesh=gm, engine="pardiso-reuse")
+    again = solve(sc, mesh=gm, engine="pardiso-reuse")
+    info = json.loads(chord.solver_info)
+    assert info["engine"] == "pardiso-reuse" and info["chord_steps"] > 0
+    assert info["factorizations"] + info["chord_steps"] == info["iterations"]
+    assert json.loads(exact.solver_info)["chord_steps"] == 0
+    scale = np.abs(exact.RF).max()
+    assert np.abs(chord.RF - exact.RF).max() <= 1e-4 * scale   # the Newton tolerance, not rounding
+    assert np.array_equal(again.RF, chord.RF) and np.array_equal(again.U, chord.U)

@@ -97,10 +97,25 @@ def test_bench_quick_json_last_line(capsys):
         assert data[key] > 0
     assert data["equilibrium_error_max"] < 0.01 and data["final_force_N"][2] < 0
     # the reference engine and the default one side by side: both timed, same forces
-    assert [r["engine"] for r in data["runs"]] == ["superlu", "pardiso"] and data["engine"] == "pardiso"
+    assert [r["engine"] for r in data["runs"]] == ["superlu", "pardiso-reuse"] and data["engine"] == "pardiso-reuse"
     assert data["speedup_cpu"] > 0 and data["final_force_rel_diff"] < 5e-3
     new = data["runs"][1]
-    assert new["symbolic_analyses"] == 1 and new["factorizations"] == new["newton_iterations"]
+    assert new["symbolic_analyses"] == 1
+    assert new["factorizations"] + new["chord_steps"] == new["newton_iterations"]
     assert "faster" in "".join(out)
+
+
+def test_bench_engines_list_compares_each_with_the_first(capsys):
+    from tensortouch.tools.fe import bench
+
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    assert bench.run(parser.parse_args(["--quick", "--json", "--keypoints", "2",
+                                        "--engines", "pardiso,pardiso-reuse"])) == 0
+    data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert data["reference_engine"] == "pardiso" and list(data["versus_reference"]) == ["pardiso-reuse"]
+    assert data["versus_reference"]["pardiso-reuse"]["final_force_rel_diff"] < 1e-3
+    assert bench.run(parser.parse_args(["--engines", "pardiso,nope"])) == 2
+    assert "--engines" in capsys.readouterr().out
 
 

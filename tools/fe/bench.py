@@ -7,7 +7,8 @@ u/p/J tets (top 1.4 mm / inside 3 mm, similar node count); `--frictionless` sets
 symmetric solver path).
 
 By default the solver's engines run side by side on the same mesh in one process, alternating
-(reference "superlu" = felupe assembly + scipy SuperLU, then the default "pardiso", `--repeat` times),
+(reference "superlu" = felupe assembly + scipy SuperLU, then the default engine, `--repeat` times;
+`--engines a,b,c` picks the list, the reference first),
 so the ratio holds on a shared machine; the output gives both wall and process-CPU times, the
 ratio of their medians, and how far the final forces of the two engines are apart.
 `--engine NAME` times one engine only.
@@ -44,7 +45,10 @@ def add_arguments(parser) -> None:
                         help="1 = linear tets (shipped default), 2 = quadratic u/p/J tets (locking-free, slower)")
     parser.add_argument("--frictionless", action="store_true", help="mu = 0 (symmetric tangent) instead of 2.2")
     parser.add_argument("--engine", choices=ENGINES, default=None,
-                        help="time one engine only (default: the reference superlu and pardiso side by side)")
+                        help="time one engine only (default: the reference superlu and the default side by side)")
+    parser.add_argument("--engines", default=None,
+                        help="comma-separated engines to time side by side, the reference first "
+                             f"(e.g. superlu,pardiso,pardiso-reuse; choices {', '.join(ENGINES)})")
     parser.add_argument("--repeat", type=int, default=1, help="alternating runs per engine (default 1)")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
@@ -65,6 +69,7 @@ def _time_one(scenario, mesh, engine: str, quiet: bool) -> dict:
             "cpu_seconds_per_trajectory": round(cpu * per, 3), "seconds_per_frame": round(wall / result.n_frames, 3),
             "increments": info["increments"], "newton_iterations": info["iterations"],
             "factorizations": info.get("factorizations"), "symbolic_analyses": info.get("symbolic_analyses"),
+            "chord_steps": info.get("chord_steps", 0),
             "final_force_N": [round(float(v), 5) for v in result.RF[-1, 0]],
             "equilibrium_error_max": float(f"{_equilibrium_error(result):.2e}"),
             "load_average_1min": round(os.getloadavg()[0], 2), "_rf": result.RF}
@@ -79,6 +84,14 @@ def run(args) -> int:
     if args.repeat < 1:
         print(f"--repeat: expected >= 1, got {args.repeat}")
         return 2
+    if args.engines:
+        engines = [e.strip() for e in args.engines.split(",") if e.strip()]
+        bad = [e for e in engines if e not in ENGINES]
+        if bad or len(set(engines)) != len(engines):
+            print(f"--engines: expected distinct names from {', '.join(ENGINES)}, got {args.engines!r}")
+            return 2
+    else:
+        engines = [args.engine] if args.engine else [REFERENCE_ENGINE, DEFAULT_ENGINE]
     mesh_kw = {"size_top": QUICK_SIZE_TOP} if args.quick else {}
     if args.order == 2:
         mesh_kw.update(order=2, size_top=max(mesh_kw.get("size_top", 0.7), 1.4), size_inside=3.0)
@@ -88,7 +101,6 @@ def run(args) -> int:
     t0 = time.perf_counter()
     mesh = build_mesh(scenario)
     t_mesh = time.perf_counter() - t0
-    engines = [args.engine] if args.engine else [REFERENCE_ENGINE, DEFAULT_ENGINE]
     runs = {e: [] for e in engines}
     for _ in range(args.repeat):
         for e in engines:
@@ -114,14 +126,18 @@ def run(args) -> int:
         "load_average_1min": round(os.getloadavg()[0], 2),
         "cpu_count": os.cpu_count(), "machine": platform.machine(),
     }
-    if len(engines) == 2:
+    if len(engines) >= 2:
         ref = runs[engines[0]][-1]["_rf"]
-        d = np.linalg.norm(last["_rf"] - ref, axis=2) / np.maximum(np.linalg.norm(ref, axis=2), 1e-12)
         out["reference_engine"] = engines[0]
-        out["speedup_wall"] = round(med[engines[0]]["seconds_per_trajectory"] / med[new]["seconds_per_trajectory"], 2)
-        out["speedup_cpu"] = round(med[engines[0]]["cpu_seconds_per_trajectory"] / med[new]["cpu_seconds_per_trajectory"], 2)
-        out["final_force_rel_diff"] = float(f"{d[-1].max():.2e}")
-        out["force_rel_diff_max_all_frames"] = float(f"{d.max():.2e}")
+        out["versus_reference"] = {}
+        for e in engines[1:]:
+            d = np.linalg.norm(runs[e][-1]["_rf"] - ref, axis=2) / np.maximum(np.linalg.norm(ref, axis=2), 1e-12)
+            out["versus_reference"][e] = {
+                "speedup_wall": round(med[engines[0]]["seconds_per_trajectory"] / med[e]["seconds_per_trajectory"], 2),
+                "speedup_cpu": round(med[engines[0]]["cpu_seconds_per_trajectory"] / med[e]["cpu_seconds_per_trajectory"], 2),
+                "final_force_rel_diff": float(f"{d[-1].max():.2e}"),
+                "force_rel_diff_max_all_frames": float(f"{d.max():.2e}")}
+        out.update(out["versus_reference"][new])
     label = " (QUICK: coarser mesh than shipped)" if args.quick else ""
     if args.order == 2:
         label += " (order 2: quadratic u/p/J tets, top 1.4 mm)"
@@ -132,11 +148,12 @@ def run(args) -> int:
         print(f"  {e:8s}: {med[e]['seconds_per_trajectory']:.2f} s wall, {med[e]['cpu_seconds_per_trajectory']:.2f} s CPU "
               f"per 5-keypoint trajectory (median of {len(runs[e])}; {r['increments']} increments, "
               f"{r['newton_iterations']} Newton iterations, {r['factorizations']} factorisations, "
-              f"{r['symbolic_analyses']} symbolic analyses); RF = {r['final_force_N']} N")
-    if len(engines) == 2:
-        print(f"  {new} / {engines[0]}: {out['speedup_wall']:.2f}x faster (wall), {out['speedup_cpu']:.2f}x (CPU); "
-              f"final forces differ by {out['final_force_rel_diff']:.1e} (relative), at most "
-              f"{out['force_rel_diff_max_all_frames']:.1e} over all frames")
+              f"{r['symbolic_analyses']} symbolic analyses, {r['chord_steps']} chord steps on a kept "
+              f"factorisation); RF = {r['final_force_N']} N")
+    for e, v in out.get("versus_reference", {}).items():
+        print(f"  {e} / {engines[0]}: {v['speedup_wall']:.2f}x faster (wall), {v['speedup_cpu']:.2f}x (CPU); "
+              f"final forces differ by {v['final_force_rel_diff']:.1e} (relative), at most "
+              f"{v['force_rel_diff_max_all_frames']:.1e} over all frames")
     print(f"  load average {out['load_average_1min']} on {os.cpu_count()} cores (wall time grows when the "
           f"machine is shared; the ratio is measured side by side); max |sum RF + base reaction| / |sum RF| = "
           f"{out['equilibrium_error_max']:.1e}")

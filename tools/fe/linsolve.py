@@ -7,7 +7,9 @@ and keypoint only refactorises the numbers (phase 22) and solves (phase 33). Sym
 (frictionless contact) use the real symmetric indefinite type on the upper triangle (Bunch-Kaufman
 pivoting), general ones the real unsymmetric type with scaling and matching. MKL runs single-threaded
 (sequential layer): one thread gives the same bits on every machine, the FE batch runner
-parallelises over scenarios, and it stays out of torch's OpenMP runtime. `SuperLUFactor`
+parallelises over scenarios, and it stays out of torch's OpenMP runtime. Engine "pardiso-reuse"
+is the same factor with `allow_chord`: the Newton loop (tools.fe.solver.CHORD_RATIO) may solve with
+the kept factors instead of refactorising once it converges quadratically. `SuperLUFactor`
 (engine "superlu") is the reference: scipy's splu, refactorised from scratch each time.
 docs/decisions/2026-11-28-fe-linear-solver.md has the measurements behind the choice.
 """
@@ -26,7 +28,9 @@ import scipy.sparse.linalg as sla
 
 from .errors import FEError
 
-ENGINES = ("pardiso", "superlu")
+ENGINES = ("pardiso-reuse", "pardiso", "superlu")
+# "pardiso-reuse": PARDISO as "pardiso", and the Newton loop may reuse the last factorisation for
+# chord steps (tools.fe.solver.CHORD_RATIO; docs/decisions/2026-12-01-fe-factorisation-reuse.md).
 _MKL_THREADING_SEQUENTIAL = 1
 
 
@@ -76,9 +80,10 @@ class PardisoFactor:
     """Factorise-and-solve with the symbolic analysis kept while indptr/indices stay the same.
 
     `factor(A)` with A a CSR matrix with sorted indices (the full matrix also when symmetric: the
-    upper triangle is taken here); `solve(b)`. Counters: `analyses`, `factorizations`."""
+    upper triangle is taken here); `solve(b)`. Counters: `analyses`, `factorizations`; `allow_chord`
+    lets the Newton loop solve with the kept factors without refactorising (it counts `chord_steps`)."""
 
-    def __init__(self, symmetric: bool):
+    def __init__(self, symmetric: bool, allow_chord: bool = False):
         self._lib = mkl_rt()
         self.symmetric = symmetric
         self.mtype = -2 if symmetric else 11
@@ -97,6 +102,7 @@ class PardisoFactor:
         self._upper = None
         self._A = self._take = None
         self.analyses = self.factorizations = 0
+        self.allow_chord, self.chord_steps = allow_chord, 0
 
     def _call(self, phase: int, A, b: np.ndarray) -> np.ndarray:
         x = np.zeros_like(b)
@@ -163,6 +169,8 @@ class SuperLUFactor:
     original path; every factorisation starts from scratch)."""
 
     symmetric = False
+    allow_chord = False
+    chord_steps = 0
 
     def __init__(self, symmetric: bool = False):
         self._lu = None
@@ -189,6 +197,8 @@ class SuperLUFactor:
 
 
 def make_factor(engine: str, symmetric: bool):
+    if engine == "pardiso-reuse":
+        return PardisoFactor(symmetric, allow_chord=True)
     if engine == "pardiso":
         return PardisoFactor(symmetric)
     if engine == "superlu":

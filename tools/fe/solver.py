@@ -3,14 +3,16 @@
 Linear tets with the Yeoh / neo-Hookean material (the shipped default) are assembled by
 tools.fe.assembly straight onto a fixed free-DOF pattern; quadratic tets (mixed u/p/J, mesh.order = 2)
 and Mooney-Rivlin go through felupe's assembly. tools.fe.contact adds the node-to-rigid-indenter
-forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine: "pardiso"
-(default: MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
-symmetric) or "superlu" (the original path: felupe assembly and scipy's SuperLU, kept as the
-reference `tensortouch bench fe` compares against). Each keypoint step is split into increments
+forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine:
+"pardiso-reuse" (default: "pardiso" plus chord steps on the kept factorisation, CHORD_RATIO),
+"pardiso" (MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
+symmetric, one factorisation per Newton iteration) or "superlu" (the original path: felupe assembly
+and scipy's SuperLU, kept as the reference `tensortouch bench fe` compares against). Each keypoint step is split into increments
 (cutback on failure).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -45,10 +47,10 @@ SOLVER_REVISION = 2
 FIRST_TOUCH_ANCHOR = True
 # Linear solver engine when solve() is not told (tools.fe.linsolve); the environment variable
 # TENSORTOUCH_FE_ENGINE sets it for a whole pipeline, batch worker processes included (before/after
-# timings of a recipe stage). Not a scenario field: both engines solve the same equations (final
-# forces agree to rounding, `tensortouch bench fe`), so the scenario hashes (the FE cache keys) stay
-# as they are; solver_info records the engine.
-DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso")
+# timings of a recipe stage). Not a scenario field: the engines solve the same equations (pardiso and
+# superlu agree to rounding, pardiso-reuse to the Newton tolerance, `tensortouch bench fe`), so the
+# scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
+DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-reuse")
 
 
 # Where the indenters' motion turns (the increment's direction more than ~25 deg from the last one's,
@@ -124,8 +126,8 @@ class GelModel:
         rows = np.repeat(self.surf_dofs.reshape(-1, 3), 3, axis=1).ravel()
         cols = np.tile(self.surf_dofs.reshape(-1, 3), (1, 3)).ravel()
         self._crow, self._ccol = rows, cols
-        self.fast = None  # own P1 assembly on a fixed pattern (engine "pardiso", Yeoh on linear tets)
-        if engine == "pardiso" and self.order == 1 and isinstance(self.umat, YeohUmat):
+        self.fast = None  # own P1 assembly on a fixed pattern (the pardiso engines, Yeoh on linear tets)
+        if engine.startswith("pardiso") and self.order == 1 and isinstance(self.umat, YeohUmat):
             self.fast = getattr(gm, "_p1_assembly", None)  # the pattern depends on the mesh only
             if self.fast is None:
                 B = np.asarray(self.region.dhdX)[:, :, 0, :].transpose(2, 0, 1)
@@ -194,6 +196,13 @@ class GelModel:
         return out / np.maximum(w, 1e-300)[:, None]
 
 
+# Chord steps (engine "pardiso-reuse", tools.fe.linsolve `allow_chord`): once a Newton step
+# has cut the residual to CHORD_RATIO of the last iterate's (the quadratic range; not the first step,
+# whose starting residual is the predictor's), the next correction
+# reuses the kept factorisation with no new tangent (assembly) and no refactorisation, as long as
+# each such step keeps cutting the residual by CHORD_RATIO; otherwise the next step is a full Newton
+# step again. The convergence test is the same, so the result is converged to the same tolerance.
+CHORD_RATIO = 0.1
 HOLD_AFTER = 8      # Newton iterations of plain Newton before an increment switches to struggle mode
 ACCEPT_REL = 5e-3   # struggle mode: best iterate accepted if |r|max <= ACCEPT_REL * total normal force
 
@@ -211,15 +220,22 @@ def newton(model: GelModel, U0, poses, state, sv):
     hold, mode = None, "exact"
     r, ce = model.residual(U, poses, state)
     best = None
+    chord_ok = model.factor.allow_chord
+    chord = False
+    res_prev = np.abs(r[model.free]).max()
     for it in range(1, sv.max_iterations + 1):
         if it > HOLD_AFTER:
             hold = ce.slip.copy() if hold is None else hold | ce.slip
             if mode == "exact":
                 mode = "secant"
                 r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode)
+                chord = False   # the kept factors are of the exact tangent: struggle mode refactorises
         rf = r[model.free]
         fscale = max(np.abs(ce.fn).sum(), 1e-12)
-        model.factor.factor(model.tangent(ce))  # SingularTangent is a FloatingPointError
+        if chord:
+            model.factor.chord_steps += 1
+        else:
+            model.factor.factor(model.tangent(ce))  # SingularTangent is a FloatingPointError
         du = -model.factor.solve(rf)
         if not np.all(np.isfinite(du)):
             raise FloatingPointError("non-finite Newton update")
@@ -244,6 +260,8 @@ def newton(model: GelModel, U0, poses, state, sv):
         log.debug("  it %d: |r|max %.3e N, |du|max %.3e mm, step %.2f", it, res, dmax, step)
         if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 0.02 * model.sc.mesh.size_top:
             return U, ce, it, res
+        chord = chord_ok and mode == "exact" and it >= 2 and res <= CHORD_RATIO * res_prev
+        res_prev = res
         if mode != "exact" and (best is None or res < best[3]):
             best = (U, ce, it, res, max(np.abs(ce.fn).sum(), 1e-12))
     if best is not None and best[3] <= max(sv.tol_force, ACCEPT_REL * best[4]):
@@ -285,9 +303,25 @@ def check_initial(model: GelModel) -> None:
                                 f"the gel by {-d.min():.3f} mm; start the indenter above the surface")
 
 
+def _blas_one_thread():
+    """numpy's OpenBLAS held to one thread during a solve: its BLAS calls here are tiny per-cell
+    products, and a second thread only spins (≈ 10 % more CPU for the same bits, docs/BENCHMARKS.md
+    "FE engine"). threadpoolctl comes with the train extra (scikit-learn); without it, no limit."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def solve(scenario: Scenario, progress=None, mesh: GelMesh | None = None, engine: str | None = None) -> FEResult:
     """Solve all keypoint frames of `scenario`; see docs/fe.md for the contract. `engine`: the
     linear solver path (tools.fe.linsolve.ENGINES; None = DEFAULT_ENGINE)."""
+    with _blas_one_thread():
+        return _solve(scenario, progress, mesh, engine)
+
+
+def _solve(scenario: Scenario, progress, mesh: GelMesh | None, engine: str | None) -> FEResult:
     scenario.validate()
     t_start = time.time()
     gm = mesh if mesh is not None else build_mesh(scenario)
@@ -386,6 +420,7 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
             "assembly": "tools.fe.assembly (P1 Yeoh)" if model.fast is not None else "felupe",
             "symmetric_tangent": model.symmetric, "factorizations": model.factor.factorizations,
             "symbolic_analyses": model.factor.analyses,
+            "chord_steps": model.factor.chord_steps, "chord_ratio": CHORD_RATIO,
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
     return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,

@@ -10,6 +10,14 @@ returns rows of {case, solver, settings, depth or slide, RF, seconds}; `tensorto
 - locking:   frictionless press 0.5-3 mm: ccx C3D10 (0.25 mm increments) and tools.fe P2/P0 at
              the true D1 (P2 mesh 1.4/3.0 mm) against tools.fe P1 (0.7/2.0 mm) with the bulk cap at 3, 4, 5 x mu0;
 - mesh:      frictionless press 2 mm at top sizes 1.0/0.7/0.5 mm in both solvers;
+- agreement: the cross-check table on the top 1.2 mm mesh (frictionless press 1.5 mm; press 1 mm
+             then slide 1 mm, mu 2.2; mu-press 2 mm, mu 2.2): ccx at increments AGREEMENT_CCX_INCREMENTS
+             (its frictional forces move with the increment), their Richardson extrapolation
+             (`richardson`, the finest level where not monotone) as ccx's converged answer, tools.fe at
+             its own 0.5 mm and at the finest of those increments; each tools.fe row carries
+             `ratio_to_ccx` (RF_z and, for the slide, RF_x of the last frame) and `speedup_vs_ccx`
+             (ccx's wall time at the increment whose forces are within AGREEMENT_TOL of its converged
+             answer, over ours);
 - c3d10:     the reference for the locking cap: frictionless press 0.5-3 mm at the true D1, ccx
              C3D10 on P2 meshes top 1.4/1.0/0.7 mm (inside 3.0 mm, increments 0.25 mm), its
              Richardson extrapolation to h -> 0 (`richardson`), and tools.fe P1 (0.7/2.0 mm) with
@@ -22,6 +30,7 @@ solves are reused by scenario hash (`fe_<hash>_anchor<0|1>.json`).
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import time
@@ -31,7 +40,10 @@ import numpy as np
 
 from .scenario import Keypoint, standard_dome
 
-STUDIES = ("press", "slide", "mupress", "locking", "mesh", "c3d10")
+STUDIES = ("press", "slide", "mupress", "locking", "mesh", "c3d10", "agreement")
+AGREEMENT_CCX_INCREMENTS = (0.5, 0.25, 0.125)  # mm, coarse to fine
+AGREEMENT_SIZE_TOP = 1.2   # mm (the cross-check mesh of docs/BENCHMARKS.md)
+AGREEMENT_TOL = 0.02       # ccx's increment counts as converged when its forces are this close to the extrapolation
 C3D10_LEVELS = ((1.4, 3.0), (1.0, 3.0), (0.7, 3.0))  # P2 mesh (top, inside) in mm, coarse to fine
 C3D10_P2P0_LEVELS = C3D10_LEVELS[:2]  # tools.fe P2/P0 on the same meshes (not 0.7 mm: 30k nodes, too slow here)
 GAP = 0.05  # mm: the standard dome's indenter starts this far above the apex
@@ -194,6 +206,9 @@ def run_study(name: str, work_dir, emit=print) -> list[dict]:
                         work=work, depths=depths, size_top=top)
             row["ratio_to_reference"] = (np.abs(np.asarray(row["RF"])[:, 2]) / ref).round(4).tolist()
             add(row)
+    elif name == "agreement":
+        for row in _agreement(work):
+            add(row)
     elif name == "mesh":
         for top, inside in ((1.0, 2.5), (0.7, 2.0), (0.5, 2.0)):
             sc = _press([2.0], size_top=top, size_inside=inside)
@@ -202,11 +217,67 @@ def run_study(name: str, work_dir, emit=print) -> list[dict]:
     return rows
 
 
+def ccx_converged(last_rf, seconds, axes, increments=AGREEMENT_CCX_INCREMENTS, tol=AGREEMENT_TOL):
+    """ccx's converged answer over its increment sizes and what it costs.
+
+    last_rf: per increment (coarse to fine) the last frame's RF (3,); seconds: ccx's wall time per
+    increment; axes: the RF components compared. Returns ({axis: |RF| extrapolated to increment 0 by
+    `richardson`, or the finest level's where not monotone}, seconds of the coarsest increment whose
+    |RF| on every axis is within `tol` of that answer, or of the finest)."""
+    if not (len(last_rf) == len(seconds) == len(increments) == 3):
+        raise ValueError(f"ccx_converged: expected 3 increments, got {len(last_rf)} forces, {len(seconds)} times, "
+                         f"{len(increments)} increments")
+    ref = {}
+    for ax in axes:
+        v = [abs(float(rf[ax])) for rf in last_rf]
+        e = richardson(increments, v)
+        ref[ax] = e["f0"] if e["monotone"] else v[-1]
+    for rf, t in zip(last_rf, seconds):
+        if all(abs(abs(float(rf[ax])) / ref[ax] - 1.0) <= tol for ax in axes):
+            return ref, t
+    return ref, seconds[-1]
+
+
+def _agreement_cases():
+    press = _press([1.5], size_top=AGREEMENT_SIZE_TOP)
+    slide = _press([1.0, 1.0], mu=2.2, size_top=AGREEMENT_SIZE_TOP)
+    slide.indenters[0].keypoints[1].translation = [1.0, 0.0, -(1.0 + GAP)]
+    mupress = _press([2.0], mu=2.2, size_top=AGREEMENT_SIZE_TOP)
+    return {"press 1.5 mm, mu 0": (press, (2,)), "press 1 mm + slide 1 mm, mu 2.2": (slide, (2, 0)),
+            "mu-press 2 mm, mu 2.2": (mupress, (2,))}
+
+
+def _agreement(work: Path) -> list[dict]:
+    rows = []
+    for case, (sc, axes) in _agreement_cases().items():
+        tag = case.split(",")[0].replace(" ", "_").replace("+", "")
+        ccx = [_ccx(sc, work, f"{tag}_C3D4_inc{inc}", max_increment_mm=inc, case_name=case, increment_mm=inc)
+               for inc in AGREEMENT_CCX_INCREMENTS]
+        ref, t_ccx = ccx_converged([r["RF"][-1] for r in ccx], [r["seconds"] for r in ccx], axes)
+        rows += ccx
+        rows.append({"solver": "ccx", "settings": "extrapolated to increment 0 (finest where not monotone)",
+                     "case_name": case, "RF_last_abs": {str(ax): round(v, 5) for ax, v in ref.items()},
+                     "seconds": 0.0, "RF": []})
+        import felupe  # noqa: F401  (imported and meshed before timing ours: ccx's time has no start-up either)
+
+        from .solver import build_mesh
+        build_mesh(sc)
+        for inc in (sc.solver.max_increment_mm, AGREEMENT_CCX_INCREMENTS[-1]):
+            s2 = copy.deepcopy(sc)
+            s2.solver.max_increment_mm = inc
+            row = _ours(s2, f"P1 {AGREEMENT_SIZE_TOP}mm inc{inc}", case_name=case, increment_mm=inc)
+            row["ratio_to_ccx"] = {str(ax): round(abs(row["RF"][-1][ax]) / ref[ax], 4) for ax in axes}
+            row["speedup_vs_ccx"] = round(t_ccx / max(row["seconds"], 1e-3), 1)
+            row["ccx_seconds_converged"] = t_ccx
+            rows.append(row)
+    return rows
+
+
 def fz_table(rows) -> str:
     """Markdown-ish text table of |Fz| per row (for the log)."""
     out = []
     for r in rows:
-        fz = np.abs(np.asarray(r["RF"])[:, 2])
+        fz = np.abs(np.asarray(r["RF"]).reshape(-1, 3)[:, 2])
         out.append(f"{r['case']:8s} {r['solver']:8s} {r['settings']:36s} " + " ".join(f"{v:7.4f}" for v in fz)
                    + f"   {r['seconds']:6.1f} s")
     return "\n".join(out)
