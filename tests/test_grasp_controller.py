@@ -439,39 +439,6 @@ def test_controller_config_refuses_an_unknown_rule(field, value):
         ControllerConfig(**{field: value})
 
 
-def test_held_thickness_is_the_fingertip_distance_less_both_cores():
-    from tensortouch.tools.grasp.controller import held_thickness
-
-    # centres 30 mm apart, cores of 11 mm: 8 mm held between them
-    assert held_thickness(np.array([[0, 0, 0.0], [0.018, 0.024, 0.0]]), 11.0) == pytest.approx(8.0)
-    with pytest.raises(ValueError, match=r"tips \(3,\)"):
-        held_thickness(np.zeros(3), 11.0)
-
-
-def test_plan_clears_the_other_object_by_the_held_thickness():
-    g = _line_graph()                      # pinches at x = −8 … 8 mm; fingertips at (x, ±12 mm)
-    mov, oth = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
-    cfg = ControllerConfig(keep_mm=5.0, clear_weight=30.0, aim_beside_load_n=float("inf"))
-    # the hand's model puts the fingertip centres 23 mm apart at the reference: 23 − 2·11 = 1 mm held,
-    # so the wanted clearance is 12 + 0.5 + 1 = 13.5 mm
-    ctrl = SelectiveGraspController(g, 4, SensorMount(), cfg, kinematics=lambda q: np.array([[0, 0, 0.0115], [0, 0, -0.0115]]))
-    ctrl.watch()
-    for _ in range(cfg.reference_frames):
-        ctrl.on_joints(g.q[4])
-        ctrl.detect()
-    assert ctrl.held_thickness_mm() == pytest.approx(1.0)
-    d = ctrl._plan(mov, oth, [])
-    assert d.terms["clear_mm"] == pytest.approx(13.5)
-    # ρ_o = hypot(x + 3.5, 12): x = 4 gives 14.15, clear, with e 0.5
-    assert g.point[d.goal][0] == pytest.approx(0.004)
-    # without the hand's model: the fixed clear_mm, 17 (x = 8: 16.62, 0.38 short, 11.4 + e 4.5; x = 6: 15.30,
-    # 1.7 short, 51 + e 2.5)
-    plain = SelectiveGraspController(g, 4, SensorMount(), cfg)
-    assert plain.held_thickness_mm() is None
-    d = plain._plan(mov, oth, [])
-    assert d.terms["clear_mm"] == pytest.approx(17.0) and g.point[d.goal][0] == pytest.approx(0.008)
-
-
 def test_repinch_moves_on_while_a_gel_still_feels_the_other_object():
     g, start, m, (oth, mov), _ = _pinch()
     cfg = ControllerConfig(keep_mm=5.0, clear_mm=13.0, clear_weight=30.0, repinches=1, repinch_clear_mm=1.5,

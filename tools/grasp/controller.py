@@ -80,12 +80,6 @@ class ControllerConfig:
     clear_mm: float = 17.0                  # wanted distance of the other object's axis from both fingertip centres
                                             # (gel radius 12 mm + a pen's 4 mm, + 1 mm: the fingertips end up to
                                             # 0.6 mm nearer than the graph's poses; its gel does not touch the other)
-    size_from_joints: bool = True           # the wanted clearance from the thickness the pinch holds, measured by the
-                                            # hand's joint encoders (`held_thickness_mm`): gel radius + half of it +
-                                            # clear_margin_mm, instead of the fixed clear_mm
-    core_radius_mm: float = 11.0            # the fingertip's rigid core under its gel (the pinch stops on it)
-    clear_margin_mm: float = 1.0            # beyond the gel radius + the other object's radius (at most half the held
-                                            # thickness): the fingertips end up to 0.6 mm nearer than the graph's poses
     repinches: int = 2                      # after the hold: while a gel still feels the other object, plan again with
     repinch_clear_mm: float = 1.5           # this much more clearance, from where the hand is, at most this many times
     touch_n: float = 0.15                   # the other object is felt: a cluster nearer its place on the gel than the
@@ -116,11 +110,8 @@ class SelectiveGraspController:
     SENSORS = ("thumb", "index")
 
     def __init__(self, graph: ContactGraph, start: int, mount: SensorMount | None = None,
-                 cfg: ControllerConfig | None = None, kinematics=None):
-        """`kinematics`: the hand's forward kinematics, joint angles (graph order) → both fingertip
-        centres (2, 3) in m (the robot's own model; without it the held thickness is unknown)."""
+                 cfg: ControllerConfig | None = None):
         self.graph, self.node, self.start = graph, int(start), int(start)
-        self.kinematics = kinematics
         self.mount = mount or SensorMount()
         self.cfg = cfg or ControllerConfig()
         self._lock = threading.Condition()
@@ -133,8 +124,6 @@ class SelectiveGraspController:
         self._pair: dict | None = None
         self.decision: Decision | None = None
         self.log: list[dict] = []
-        self.q_now: np.ndarray | None = None           # the hand's joint encoders (thumb then index), latest
-        self._q_ref: list[np.ndarray] = []             # the encoders over the reference frames
 
     # ------------------------------------------------------------------ inputs
     def on_contacts(self, sensor: str, frame) -> None:
@@ -144,23 +133,6 @@ class SelectiveGraspController:
                                     float(c.area_mm2)) for c in frame.contacts]
             self.received[sensor] = max(self.received[sensor], int(frame.seq))
             self._lock.notify_all()
-
-    def on_joints(self, q) -> None:
-        """The hand's measured joint angles (rad, thumb then index: the graph's order)."""
-        with self._lock:
-            self.q_now = np.array(q, float)
-
-    def held_thickness_mm(self) -> float | None:
-        """The thickness the pinch held in the reference (mm): the distance between both fingertip
-        centres at the encoders' mean reference angles (through `kinematics`) less both rigid cores.
-        Two objects side by side stop the fingertips on the thicker one, so this bounds both objects'
-        diameters. None without encoder readings or kinematics."""
-        if not self._q_ref or self.kinematics is None:
-            return None
-        tips = np.asarray(self.kinematics(np.mean(self._q_ref, axis=0)), float)
-        if tips.shape != (2, 3):
-            raise ValueError(f"kinematics returned {tips.shape}; expected (2, 3) fingertip centres")
-        return held_thickness(tips, self.cfg.core_radius_mm)
 
     def wait_frames(self, counts: dict[str, int], timeout: float = 10.0) -> bool:
         """Block until each sensor's contacts of frame `counts[s]` (its seq) arrived (lock-step
@@ -172,7 +144,6 @@ class SelectiveGraspController:
         with self._lock:
             self._watching = True
             self._ref, self._ref_acc = None, {s: [] for s in self.SENSORS}
-            self._q_ref = []
 
     # ------------------------------------------------------------------ per frame
     def update(self) -> Decision | None:
@@ -193,8 +164,6 @@ class SelectiveGraspController:
         if self._ref is None:
             for s in self.SENSORS:
                 self._ref_acc[s].append(latest[s])
-            if self.q_now is not None:
-                self._q_ref.append(self.q_now.copy())
             if len(self._ref_acc["thumb"]) >= self.cfg.reference_frames:
                 self._ref = {s: self._reference(self._ref_acc[s]) for s in self.SENSORS}
                 self._pair = self._reference_pair() if self.cfg.attribute == "lever" else None
@@ -379,15 +348,12 @@ class SelectiveGraspController:
         aimed = held_n >= self.cfg.aim_min_load_n or other_held_n >= self.cfg.aim_beside_load_n
         aim = self.cfg.aim_mm if aimed else 0.0
         cfg = self.cfg
-        thick = self.held_thickness_mm() if cfg.size_from_joints else None
-        if thick is not None:
-            cfg = replace(cfg, clear_mm=self.mount.tip_radius_mm + max(0.0, thick) / 2.0 + cfg.clear_margin_mm)
         terms = goal_terms(g.point, g.normal, tips, g.normal[self.node], moving, other, cfg, aim)
         score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
                             other, cfg, aim, terms)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
         chosen = {k: round(float(v[goal]), 3) for k, v in terms.items()}
-        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim, thickness_mm=None if thick is None else round(thick, 3))
+        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim)
         return Decision(moving, other, goal, g.path(self.node, goal), scores, chosen)
 
     def other_felt(self) -> dict[str, float]:
@@ -433,8 +399,7 @@ class SelectiveGraspController:
         if goal == d.goal:
             return None
         chosen = {k2: round(float(v[goal]), 3) for k2, v in terms.items()}
-        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim, thickness_mm=d.terms.get("thickness_mm"),
-                      repinch=k, felt_n=[round(felt[s], 3) for s in self.SENSORS],
+        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim, repinch=k, felt_n=[round(felt[s], 3) for s in self.SENSORS],
                       before={k2: d.terms[k2] for k2 in ("e", "lean", "h", "rho_other", "clear_mm") if k2 in d.terms})
         self.decision = Decision(d.moving_point, d.other_point, goal, g.path(d.goal, goal), d.scores, chosen)
         return self.decision
@@ -508,15 +473,6 @@ def between(p: np.ndarray, others: list[np.ndarray], gap_mm: float) -> bool:
             if off <= g and t * L >= g and (1 - t) * L >= g:
                 return True
     return False
-
-
-def held_thickness(tips: np.ndarray, core_radius_mm: float) -> float:
-    """The thickness (mm) between two fingertips whose centres are `tips` (2, 3; m) and whose
-    rigid cores have radius `core_radius_mm`: their distance less both cores."""
-    tips = np.asarray(tips, float)
-    if tips.shape != (2, 3):
-        raise ValueError(f"held_thickness: tips {tips.shape}; expected (2, 3)")
-    return float(np.linalg.norm(tips[0] - tips[1]) * 1000.0 - 2.0 * core_radius_mm)
 
 
 def goal_terms(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, normal_now: np.ndarray,

@@ -92,22 +92,6 @@ class TrialResult:
                                                     # final gel clearance of each tip from each object (mm), goal terms
 
 
-def hand_kinematics(urdf):
-    """The hand's forward kinematics (Pinocchio, the mounted URDF): thumb-then-index joint angles →
-    both fingertip centres (2, 3), m. The robot's own model, as the controller would have it."""
-    from . import hand_model
-    from .workspace import fingertip_kinematics
-
-    spec = hand_model.HandSpec()
-    model = hand_model.load(urdf, spec)
-    data = model.createData()
-
-    def tips(q):
-        Tt, Ti, _, _ = fingertip_kinematics(model, spec, np.asarray(q, float)[None, :], data)
-        return np.stack([Tt[0][:3, 3], Ti[0][:3, 3]])
-    return tips
-
-
 def wait_matched(session, key: str, timeout_s: float) -> None:
     """Block until `session` sees a subscriber matching `key` (Zenoh's matching status)."""
     pub = session.declare_publisher(key)
@@ -152,7 +136,6 @@ class Bench:
         self.ctrl_cfg = ctrl_cfg or ControllerConfig()
         self.scene_cfg = scene_cfg or SceneConfig()
         self.joints = list(HandSpec().thumb.joints + HandSpec().index.joints)
-        self.kinematics = hand_kinematics(self.urdf)
         deadline = time.monotonic() + 10.0   # the controller's session must reach the sensors' one
         while not list(self.sub_session.info.peers_zid()) and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -204,7 +187,7 @@ class Bench:
                     if task.pull_tilt_deg else None)
         q_open = scene.opened(g.q[s], g.normal[s], cfg.open_mm)
         scene.set_hand(q_open)
-        ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg, self.kinematics)
+        ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg)
         self.node.controller = ctrl
         sensors = {name: SimFingertip(sid, self.unit, open_pipeline(self.package, self.cal, sensor_id=self.cfg.sensor_unit),
                                       self.pub_session, seed=seed * 2 + i)
@@ -218,7 +201,6 @@ class Bench:
         def frame(record: str = ""):
             nonlocal sim_t
             felt = {name: gel_touch.contacts(i) for i, name in enumerate(sensors)}
-            ctrl.on_joints(scene.data.qpos[scene.qadr])   # the hand's joint encoders
             for name, sen in sensors.items():
                 sen.show(felt[name], sim_t)
             # step-locked: exactly this frame's contacts, however long the machine takes; a lost
@@ -349,7 +331,9 @@ def _diagnosis(scene: Scene, ctrl: SelectiveGraspController, gel_touch: GelTouch
             c, ax = scene.object_axis(k)
             gap[i, k] = _off_axis(tip, c, ax) * 1000.0 - gel_touch.mount.tip_radius_mm - o.radius_m * 1000.0
     d = ctrl.decision
-    return {"gel_gap_mm": np.round(gap, 2).tolist(), "terms": d.terms if d is not None else {}}
+    felt = ctrl.other_felt()
+    return {"gel_gap_mm": np.round(gap, 2).tolist(), "terms": d.terms if d is not None else {},
+            "other_felt_n": [round(felt[s], 3) for s in ctrl.SENSORS]}
 
 
 def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
