@@ -31,6 +31,9 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    fingertips where the graph allows, as near as it can otherwise, then prefers a short joint
    path. An object held firmly on both gels (≥ `aim_min_load_n`: a thick, stiff one) is aimed
    `aim_mm` beyond, away from the other. Dijkstra gives the path.
+4. Re-pinch (`repinch`): after the hold, while a gel still reports at least `touch_n` on the other
+   object's side (`other_felt`, seen from the goal's fingertip poses), a new goal from there with
+   `repinch_clear_mm` more clearance, at most `repinches` times.
 """
 from __future__ import annotations
 
