@@ -437,3 +437,27 @@ def test_lever_names_a_pulled_cable_whose_gel_merges_it_with_a_pen():
 def test_controller_config_refuses_an_unknown_rule(field, value):
     with pytest.raises(ValueError, match=f"ControllerConfig.{field} = '{value}'; expected one of"):
         ControllerConfig(**{field: value})
+
+
+def test_repinch_moves_on_while_a_gel_still_feels_the_other_object():
+    g, start, m, (oth, mov), _ = _pinch()
+    cfg = ControllerConfig(keep_mm=5.0, clear_mm=13.0, clear_weight=30.0, repinches=1, repinch_clear_mm=1.5,
+                           touch_n=0.15, aim_beside_load_n=float("inf"))
+    ctrl = SelectiveGraspController(g, start, m, cfg)
+    ctrl.decision = ctrl._plan(mov, oth, [])
+    first = ctrl.decision.goal
+    assert g.point[first][0] == pytest.approx(0.004)     # e 0.5, ρ_o = hypot(7.5, 12) = 14.15 clears 13
+    held = [(_on_gel(m, T[first], mov), (0, 0, -1.0)) for T in (g.tip_thumb, g.tip_index)]
+    # nothing felt where the other object lies: stay
+    ctrl.on_contacts("thumb", _frame([held[0]]))
+    ctrl.on_contacts("index", _frame([held[1]]))
+    assert ctrl.other_felt() == {"thumb": 0.0, "index": 0.0}
+    assert ctrl.repinch() is None
+    # the index gel feels 0.3 N nearer the other object's place than the held one's: a goal with
+    # 14.5 mm clearance, from where the hand is (x = 6: ρ_o 15.3, e 2.5)
+    ctrl.on_contacts("index", _frame([held[1], (_on_gel(m, g.tip_index[first], oth), (0, 0, -0.3))]))
+    assert ctrl.other_felt()["index"] == pytest.approx(0.3)
+    d = ctrl.repinch()
+    assert d is not None and g.point[d.goal][0] == pytest.approx(0.006)
+    assert d.path[0] == first and d.terms["repinch"] == 1 and d.terms["clear_mm"] == pytest.approx(14.5)
+    assert ctrl.repinch() is None                          # at most `repinches`

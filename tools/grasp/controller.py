@@ -31,11 +31,14 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    fingertips where the graph allows, as near as it can otherwise, then prefers a short joint
    path. An object held firmly on both gels (≥ `aim_min_load_n`: a thick, stiff one) is aimed
    `aim_mm` beyond, away from the other. Dijkstra gives the path.
+4. Re-pinch (`repinch`): after the hold, while a gel still reports at least `touch_n` on the other
+   object's side (`other_felt`, seen from the goal's fingertip poses), a new goal from there with
+   `repinch_clear_mm` more clearance, at most `repinches` times.
 """
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -80,6 +83,10 @@ class ControllerConfig:
     clear_mm: float = 17.0                  # wanted distance of the other object's axis from both fingertip centres
                                             # (gel radius 12 mm + a pen's 4 mm, + 1 mm: the fingertips end up to
                                             # 0.6 mm nearer than the graph's poses; its gel does not touch the other)
+    repinches: int = 2                      # after the hold: while a gel still feels the other object, plan again with
+    repinch_clear_mm: float = 1.5           # this much more clearance, from where the hand is, at most this many times
+    touch_n: float = 0.15                   # the other object is felt: a cluster nearer its place on the gel than the
+                                            # held object's, at least this strong
     keep_weight: float = 30.0               # score per mm beyond keep_mm or depth_mm
     clear_weight: float = 30.0              # score per mm short of clear_mm
     max_normal_deg: float = 15.0
@@ -99,6 +106,7 @@ class Decision:
     goal: int
     path: list[int]
     scores: list[float] = field(default_factory=list)
+    terms: dict = field(default_factory=dict)   # the goal's e, lean, h, rho_other (mm), clearance wanted, aim
 
 
 class SelectiveGraspController:
@@ -342,10 +350,62 @@ class SelectiveGraspController:
         tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
         aimed = held_n >= self.cfg.aim_min_load_n or other_held_n >= self.cfg.aim_beside_load_n
         aim = self.cfg.aim_mm if aimed else 0.0
+        cfg = self.cfg
+        terms = goal_terms(g.point, g.normal, tips, g.normal[self.node], moving, other, cfg, aim)
         score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
-                            other, self.cfg, aim)
+                            other, cfg, aim, terms)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
-        return Decision(moving, other, goal, g.path(self.node, goal), scores)
+        chosen = {k: round(float(v[goal]), 3) for k, v in terms.items()}
+        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim)
+        return Decision(moving, other, goal, g.path(self.node, goal), scores, chosen)
+
+    def other_felt(self) -> dict[str, float]:
+        """After a path: per gel the force (N) of the clusters lying nearer the other object's place
+        on that gel than the held object's (both seen from the node the hand was sent to)."""
+        d = self.decision
+        out = {s: 0.0 for s in self.SENSORS}
+        if d is None or d.other_point is None:
+            return out
+        with self._lock:
+            latest = {s: list(v) for s, v in self.latest.items()}
+        node, self.node = self.node, d.goal
+        try:
+            for s in self.SENSORS:
+                a, b = self._gel(s, d.moving_point), self._gel(s, d.other_point)
+                for p, f, *_ in latest[s]:
+                    if np.linalg.norm(p - b) < np.linalg.norm(p - a):
+                        out[s] += float(np.linalg.norm(f))
+        finally:
+            self.node = node
+        return out
+
+    def repinch(self) -> Decision | None:
+        """Call after the hold: when a gel still feels the other object (`other_felt` ≥ `touch_n`) and
+        fewer than `repinches` were made, a new goal from the current one with `repinch_clear_mm`
+        more clearance (and the same aim); its path is the new `trajectory`. None otherwise (also
+        when the graph holds no better pinch)."""
+        d = self.decision
+        if d is None or d.other_point is None or d.terms.get("repinch", 0) >= self.cfg.repinches:
+            return None
+        felt = self.other_felt()
+        if max(felt.values()) < self.cfg.touch_n:
+            return None
+        k = d.terms.get("repinch", 0) + 1
+        g = self.graph
+        tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
+        cfg = replace(self.cfg, clear_mm=d.terms["clear_mm"] + self.cfg.repinch_clear_mm)
+        aim = d.terms.get("aim_mm", 0.0)
+        terms = goal_terms(g.point, g.normal, tips, g.normal[self.start], d.moving_point, d.other_point, cfg, aim)
+        score = goal_scores(g.point, g.normal, tips, g.reachable_costs(d.goal), g.normal[self.start], d.moving_point,
+                            d.other_point, cfg, aim, terms)
+        goal = int(np.argmin(score)) if np.isfinite(score).any() else d.goal
+        if goal == d.goal:
+            return None
+        chosen = {k2: round(float(v[goal]), 3) for k2, v in terms.items()}
+        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim, repinch=k, felt_n=[round(felt[s], 3) for s in self.SENSORS],
+                      before={k2: d.terms[k2] for k2 in ("e", "lean", "h", "rho_other", "clear_mm") if k2 in d.terms})
+        self.decision = Decision(d.moving_point, d.other_point, goal, g.path(d.goal, goal), d.scores, chosen)
+        return self.decision
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """(times from now, joint targets) along the decided path."""
@@ -418,9 +478,32 @@ def between(p: np.ndarray, others: list[np.ndarray], gap_mm: float) -> bool:
     return False
 
 
+def goal_terms(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, normal_now: np.ndarray,
+               moving: np.ndarray, other: np.ndarray | None, cfg: ControllerConfig,
+               aim_mm: float = 0.0) -> dict[str, np.ndarray]:
+    """Per graph node e, lean, h and rho_other (mm), as `goal_scores` describes them."""
+    n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
+    moving = np.asarray(moving, float)
+    cross = centre_line(points, normals, moving, n0)
+    across = None if other is None else (moving - other) - ((moving - other) @ n0) * n0
+    if across is not None and np.linalg.norm(across) > 1e-6:
+        u = across / np.linalg.norm(across)
+        e = np.abs((cross - moving) @ u * 1000.0 - aim_mm)
+        lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
+        along = np.cross(n0, u)
+        rho_o = lateral_mm(tips.reshape(-1, 3), along, np.asarray(other, float)).reshape(-1, 2).min(axis=1)
+    else:
+        e = lateral_mm(cross, n0, moving)
+        d = tips - cross[:, None, :]
+        lean = np.max(np.linalg.norm(d - (d @ n0)[..., None] * n0, axis=2), axis=1) * 1000.0
+        rho_o = np.full(len(points), cfg.clear_mm)
+    h = np.abs((moving[None, :] - points) @ n0) * 1000.0
+    return {"e": e, "lean": lean, "h": h, "rho_other": rho_o}
+
+
 def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs: np.ndarray,
                 normal_now: np.ndarray, moving: np.ndarray, other: np.ndarray | None,
-                cfg: ControllerConfig, aim_mm: float = 0.0) -> np.ndarray:
+                cfg: ControllerConfig, aim_mm: float = 0.0, terms: dict | None = None) -> np.ndarray:
     """Score of each graph node as the goal (lower is better, inf = not allowed). `tips` (N, 2, 3):
     both fingertip centres of each node (m). The objects lie in the plane through `moving` normal
     to the current pinch normal `normal_now`, side by side (distances along them do not count: a
@@ -442,21 +525,8 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
     `keep_mm`, of lean over `lean_mm`, of h over `depth_mm`) + e + lean + h + cost_weight · path
     cost, so the limits are met where the graph allows and approached as near as it can otherwise."""
     n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
-    moving = np.asarray(moving, float)
-    cross = centre_line(points, normals, moving, n0)
-    across = None if other is None else (moving - other) - ((moving - other) @ n0) * n0
-    if across is not None and np.linalg.norm(across) > 1e-6:
-        u = across / np.linalg.norm(across)
-        e = np.abs((cross - moving) @ u * 1000.0 - aim_mm)
-        lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
-        along = np.cross(n0, u)
-        rho_o = lateral_mm(tips.reshape(-1, 3), along, np.asarray(other, float)).reshape(-1, 2).min(axis=1)
-    else:
-        e = lateral_mm(cross, n0, moving)
-        d = tips - cross[:, None, :]
-        lean = np.max(np.linalg.norm(d - (d @ n0)[..., None] * n0, axis=2), axis=1) * 1000.0
-        rho_o = np.full(len(points), cfg.clear_mm)
-    h = np.abs((moving[None, :] - points) @ n0) * 1000.0
+    t = terms if terms is not None else goal_terms(points, normals, tips, n0, moving, other, cfg, aim_mm)
+    e, lean, h, rho_o = t["e"], t["lean"], t["h"], t["rho_other"]
     miss = (cfg.clear_weight * np.clip(cfg.clear_mm - rho_o, 0.0, None)
             + cfg.keep_weight * (np.clip(e - cfg.keep_mm, 0.0, None) + np.clip(lean - cfg.lean_mm, 0.0, None)
                                  + np.clip(h - cfg.depth_mm, 0.0, None)))

@@ -88,6 +88,8 @@ class TrialResult:
     gel_mm: list = field(default_factory=list)      # final (2 fingertips × 2 objects): gel indentation, mm
     task: dict = field(default_factory=dict)        # the trial's draw (tools.grasp.task.TaskDraw), or {} before it
     randomized: bool = False
+    diag: dict = field(default_factory=dict)        # diagnosis only (simulator truth, never the controller's input):
+                                                    # final gel clearance of each tip from each object (mm), goal terms
 
 
 def wait_matched(session, key: str, timeout_s: float) -> None:
@@ -193,6 +195,7 @@ class Bench:
         gel_touch = GelTouch(scene, self.mount)
         sim_t = 0.0
         judged, outcome, path_len = None, "other", 0
+        diag: dict = {}
         phase = "rest"
 
         def frame(record: str = ""):
@@ -289,20 +292,48 @@ class Bench:
                     advance(ctrl.cfg.step_s, q_prev, q)
                     q_prev = q
                 phase = "hold"
-                advance(cfg.hold_s, label="final")
+                advance(cfg.hold_s, label="" if ctrl.cfg.repinches else "final")
+                while ctrl.repinch() is not None:   # a gel still feels the other object: move on from it
+                    _, qs = ctrl.trajectory()
+                    path_len += len(qs)
+                    phase = "path"
+                    for q in qs:
+                        advance(ctrl.cfg.step_s, q_prev, q)
+                        q_prev = q
+                    phase = "hold"
+                    advance(cfg.hold_s)
+                if frames_out is not None:
+                    frame("final")
             touching = scene.touching()
             gel_mm = np.zeros((2, 2))
             for i in range(2):
                 for c in gel_touch.contacts(i):
                     gel_mm[i, c.index] = max(gel_mm[i, c.index], c.depth)
             outcome, cause = verdict(judged, pulled, touching, gel_mm, cfg.touch_mm)
+            diag = _diagnosis(scene, ctrl, gel_touch, pulled)
         finally:
             for sen in sensors.values():
                 sen.close()
         return TrialResult(pair, seed, pulled, judged, outcome, touching.astype(int).tolist(), path_len,
                            round(time.perf_counter() - t0, 2), decision.scores if decision else [], cause,
                            len(ctrl.log), [e["scores"] for e in ctrl.log], np.round(gel_mm, 3).tolist(),
-                           {**task.as_dict(), "pulled": pulled, "start": int(s)}, cfg.randomize)
+                           {**task.as_dict(), "pulled": pulled, "start": int(s)}, cfg.randomize, diag)
+
+
+def _diagnosis(scene: Scene, ctrl: SelectiveGraspController, gel_touch: GelTouch, pulled: int) -> dict:
+    """The final state seen from the simulator, for diagnosis on tuning seeds: each fingertip
+    centre's distance from each object's axis minus gel radius and object radius (mm; below 0 the
+    gel is pressed in), and the controller's own view of its goal (`Decision.terms`)."""
+    gap = np.zeros((2, 2))
+    for i in range(2):
+        tip = scene.tip_pose(i)[:3, 3]
+        for k, o in enumerate(scene.objects):
+            c, ax = scene.object_axis(k)
+            gap[i, k] = _off_axis(tip, c, ax) * 1000.0 - gel_touch.mount.tip_radius_mm - o.radius_m * 1000.0
+    d = ctrl.decision
+    felt = ctrl.other_felt()
+    return {"gel_gap_mm": np.round(gap, 2).tolist(), "terms": d.terms if d is not None else {},
+            "other_felt_n": [round(felt[s], 3) for s in ctrl.SENSORS]}
 
 
 def _off_axis(x: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
