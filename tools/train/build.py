@@ -38,6 +38,10 @@ class SessionSpec:
     # the twin's world (tools/twin/world.py): "label" = the labels' own physics and an ideal rig (the
     # ceiling); "rig" = a world that differs from the label solver, estimated as a rig would (rig_estimate)
     world: str = "label"
+    # this session's twin physics when not the build's (BuildConfig.physics): a distilled build
+    # (BuildConfig.teacher) needs frames only, so some of its sessions may use the analytic
+    # "hertz-fallback" (seconds of CPU) instead of FE (minutes per poke); "" = the build's
+    physics: str = ""
 
     @property
     def name(self) -> str:
@@ -48,7 +52,7 @@ class SessionSpec:
         from ..twin.record import RecordConfig
         from ..twin.trajectory import with_ranges
 
-        rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=physics,
+        rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=self.physics or physics,
                             frame_format=self.frames, mjpg_quality=self.quality, model_size=size, world=self.world)
         rcfg.trajectory = with_ranges(rcfg.trajectory, self.trajectory, f"session {self.name} trajectory")
         return rcfg
@@ -134,6 +138,8 @@ class BuildConfig:
             for spec in d.get(k) or []:
                 if not spec.get("trajectory"):
                     spec.pop("trajectory", None)
+                if not spec.get("physics"):
+                    spec.pop("physics", None)
                 if spec.get("world") == "label":
                     spec.pop("world")
         return d
@@ -342,7 +348,7 @@ def _ranges():
              "eval_contact_n": above0(1000), "distill_copies": Range(0, 100), "crop_scale_jitter": Range(0, 0.5),
              "crop_center_jitter_px": Range(0, 100)}
     session = {"seed": Range(*SEED_RANGE), "pokes": Range(1, 10_000), "quality": Range(1, 100),
-               "frames": ("ffv1", "mjpg", "png")}
+               "frames": ("ffv1", "mjpg", "png"), "physics": ("", "fe", "hertz-fallback")}
     return build, session
 
 
