@@ -54,7 +54,6 @@ def test_output_bias_starts_at_the_mean_and_remap_is_exact():
 
 def test_full_scheme_quantizes_every_convolution_and_stays_close(tmp_path):
     import onnx
-
     from tensortouch.tools.train.export import ExportConfig, export_onnx, quantize_int8, run_model, session
 
     torch.manual_seed(0)
