@@ -112,7 +112,7 @@ def write_distilled(root: Path, parts: list[dict], bounds: dict, size: int, sour
     entries, i = [], 0
     for p in parts:
         for inp, tgt, val in zip(p["input"], p["target"], p["val"]):
-            e = write_sample(root, i, inp, tgt)
+            e = write_sample(root, i, inp, tgt, compress=False)
             e["split"] = "val" if val else "train"
             entries.append(e)
             i += 1
