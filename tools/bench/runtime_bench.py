@@ -144,8 +144,8 @@ def fp32_package(pkg, work: Path):
             man = dict(pkg.manifest)
             man["files"] = {**man["files"], name: {"sha256": sha256_file(folder / name)}}
             (folder / "manifest.json").write_text(json.dumps(man))
-    for k, v in PRECISION_FILES.items():
-        if k != "fp32" and (pkg.folder / v).is_file():
+    for v in pkg.manifest.get("files", {}):          # every other file the manifest lists (int8, fp32-half)
+        if v != name and (pkg.folder / v).is_file():
             shutil.copyfile(pkg.folder / v, folder / v)
     if not (folder / "manifest.json").is_file():
         shutil.copyfile(pkg.folder / "manifest.json", folder / "manifest.json")
