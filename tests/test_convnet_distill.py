@@ -54,7 +54,7 @@ def test_output_bias_starts_at_the_mean_and_remap_is_exact():
 
 def test_full_scheme_quantizes_every_convolution_and_stays_close(tmp_path):
     import onnx
-    from tensortouch.tools.train.export import ExportConfig, export_onnx, quantize_int8, run_model, session
+    from tensortouch.tools.train.export import ExportConfig, export_onnx, output_head_nodes, quantize_int8, run_model, session
 
     torch.manual_seed(0)
     m = ConvFieldNet(SMALL).eval()
@@ -63,8 +63,12 @@ def test_full_scheme_quantizes_every_convolution_and_stays_close(tmp_path):
     int8 = quantize_int8(fp32, tmp_path / "q.onnx", x, ExportConfig(scheme="full"))
     g = onnx.load(str(int8)).graph
     produced_by_dq = {o for n in g.node if n.op_type == "DequantizeLinear" for o in n.output}
+    head = set(output_head_nodes(g))
     convs = [n for n in g.node if n.op_type == "Conv"]
-    assert convs and all(n.input[0] in produced_by_dq and n.input[1] in produced_by_dq for n in convs)
+    assert len([n for n in convs if n.name in head]) == 1          # the head conv: float (quantize_head False)
+    body = [n for n in convs if n.name not in head]
+    assert body and all(n.input[0] in produced_by_dq and n.input[1] in produced_by_dq for n in body)
+    assert not any(n.input[1] in produced_by_dq for n in convs if n.name in head)
     adds = [n for n in g.node if n.op_type == "Add"]
     assert adds and all(all(i in produced_by_dq for i in n.input) for n in adds)
     y32, y8 = run_model(session(fp32), x), run_model(session(int8), x)
