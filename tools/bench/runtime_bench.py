@@ -144,8 +144,8 @@ def fp32_package(pkg, work: Path):
             man = dict(pkg.manifest)
             man["files"] = {**man["files"], name: {"sha256": sha256_file(folder / name)}}
             (folder / "manifest.json").write_text(json.dumps(man))
-    for k, v in PRECISION_FILES.items():
-        if k != "fp32" and (pkg.folder / v).is_file():
+    for v in pkg.manifest.get("files", {}):          # every other file the manifest lists (int8, fp32-half)
+        if v != name and (pkg.folder / v).is_file():
             shutil.copyfile(pkg.folder / v, folder / v)
     if not (folder / "manifest.json").is_file():
         shutil.copyfile(pkg.folder / "manifest.json", folder / "manifest.json")
@@ -260,7 +260,8 @@ def run(args) -> int:
     cv2.setNumThreads(1)           # as `tensortouch run` does: one core for the whole sensor loop
 
     sizes = [int(s) for s in args.sizes.split(",")]
-    results, notes, stages = {}, [], {}
+    results, notes, stages, tags = {}, [], {}, {}
+    named = _named_packages(args.package or [], sizes)
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -269,18 +270,22 @@ def run(args) -> int:
         h, w = frames[0].shape[:2]
         with Publisher("bench-0", listen=["tcp/127.0.0.1:0"]) as pub:
             for size in sizes:
-                pkg, synthetic = _package_for(size, work)
+                chosen = [(p, False) for p in named if p.size == (size, size)] if named else [_package_for(size, work)]
                 cal = _calibration(work / f"cal{size}", "bench-0", size, w, h)
-                params = pkg.manifest.get("metrics", {}).get("params")
-                pkg32, source = fp32_package(pkg, work)
-                notes.append(f"{size}² fp32 model: {source}")
-                configs = {}
-                if pkg32 is not None:
-                    configs[f"{size}/fp32"] = _Config(pkg32, "fp32", video, cal, args.threads, pub, 1)
-                configs[f"{size}/int8"] = _Config(pkg, "int8", video, cal, args.threads, pub, 1)
-                if args.fields_every > 1:
-                    configs[f"{size}/int8/fields÷{args.fields_every}"] = _Config(
-                        pkg, "int8", video, cal, args.threads, pub, args.fields_every)
+                configs, meta = {}, {}
+                for i, (pkg, synthetic) in enumerate(chosen):
+                    tag = f"{size}" if i == 0 else f"{size}/{pkg.name}"
+                    pkg32, source = fp32_package(pkg, work)
+                    notes.append(f"{size}² {pkg.name} fp32 model: {source}")
+                    if pkg32 is not None:
+                        configs[f"{tag}/fp32"] = _Config(pkg32, "fp32", video, cal, args.threads, pub, 1)
+                    configs[f"{tag}/int8"] = _Config(pkg, "int8", video, cal, args.threads, pub, 1)
+                    if args.fields_every > 1:
+                        configs[f"{tag}/int8/fields÷{args.fields_every}"] = _Config(
+                            pkg, "int8", video, cal, args.threads, pub, args.fields_every)
+                    for key in configs:
+                        meta.setdefault(key, (pkg, synthetic))
+                    tags.setdefault(size, []).append((tag, pkg.name, source))
                 done = 0
                 while done < args.frames:          # alternate chunks: load from other processes hits all alike
                     n = min(args.chunk, args.frames - done)
@@ -291,7 +296,9 @@ def run(args) -> int:
                 stages[size] = stage_ratios(q.fields, q.pipe.cal, q.pipe.cfg.contacts)
                 for key, c in configs.items():
                     c.close()
-                    results[key] = {**c.result(), "model": pkg.name, "synthetic": synthetic, "params": params}
+                    pkg, synthetic = meta[key]
+                    results[key] = {**c.result(), "model": pkg.name, "synthetic": synthetic,
+                                    "params": pkg.manifest.get("metrics", {}).get("params")}
     load_after = os.getloadavg()
     print(f"runtime benchmark — {args.frames} frames per config (interleaved in chunks of {args.chunk}), "
           f"{args.threads} onnxruntime thread(s), OpenCV 1 thread, capture = MJPG {w}x{h} decode, publish = Zenoh loopback; "
@@ -310,20 +317,32 @@ def run(args) -> int:
                 print(f"    {stage:<11} p50 {v['p50_ms']:7.3f} ms   p99 {v['p99_ms']:7.3f} ms")
     print("\nint8 vs fp32 (same run, interleaved):")
     for size in sizes:
-        q = results[f"{size}/int8"]
-        f = results.get(f"{size}/fp32")
-        if f is None:
-            print(f"  {size}²: fp32 unavailable ({notes[sizes.index(size)]})")
-            continue
-        fi, qi = f["stages"]["inference"]["p50_ms"], q["stages"]["inference"]["p50_ms"]
-        print(f"  {size}²: inference p50 {fi:.2f} → {qi:.2f} ms (×{fi / qi:.2f}); end-to-end {f['hz']:.1f} → "
-              f"{q['hz']:.1f} frames/s (×{q['hz'] / f['hz']:.2f}); CPU/frame {f['cpu_ms_per_frame']:.2f} → "
-              f"{q['cpu_ms_per_frame']:.2f} ms (×{f['cpu_ms_per_frame'] / q['cpu_ms_per_frame']:.2f})")
-        r = results.get(f"{size}/int8/fields÷{args.fields_every}")
-        if r is not None:
-            print(f"  {size}² int8, fields every {args.fields_every}th frame (wrench/contacts every frame): "
-                  f"{r['hz']:.1f} frames/s, CPU/frame {r['cpu_ms_per_frame']:.2f} ms, publish p50 "
-                  f"{r['stages']['publish']['p50_ms']:.3f} ms vs {q['stages']['publish']['p50_ms']:.3f} ms")
+        for tag, name, source in tags[size]:
+            q = results[f"{tag}/int8"]
+            f = results.get(f"{tag}/fp32")
+            if f is None:
+                print(f"  {size}² {name}: fp32 unavailable ({source})")
+                continue
+            fi, qi = f["stages"]["inference"]["p50_ms"], q["stages"]["inference"]["p50_ms"]
+            print(f"  {size}² {name}: inference p50 {fi:.2f} → {qi:.2f} ms (×{fi / qi:.2f}); end-to-end {f['hz']:.1f} → "
+                  f"{q['hz']:.1f} frames/s (×{q['hz'] / f['hz']:.2f}); CPU/frame {f['cpu_ms_per_frame']:.2f} → "
+                  f"{q['cpu_ms_per_frame']:.2f} ms (×{f['cpu_ms_per_frame'] / q['cpu_ms_per_frame']:.2f})")
+            r = results.get(f"{tag}/int8/fields÷{args.fields_every}")
+            if r is not None:
+                print(f"  {size}² int8, fields every {args.fields_every}th frame (wrench/contacts every frame): "
+                      f"{r['hz']:.1f} frames/s, CPU/frame {r['cpu_ms_per_frame']:.2f} ms, publish p50 "
+                      f"{r['stages']['publish']['p50_ms']:.3f} ms vs {q['stages']['publish']['p50_ms']:.3f} ms")
+    side = {size: t for size, t in tags.items() if len(t) > 1}
+    if side:
+        print("\npackages side by side (int8, same run, interleaved; ratio against the first --package):")
+    for size, t in side.items():
+        a = results[f"{t[0][0]}/int8"]
+        for tag, name, _ in t[1:]:
+            b = results[f"{tag}/int8"]
+            print(f"  {size}² {name} vs {t[0][1]}: {b['hz']:.1f} vs {a['hz']:.1f} frames/s (×{b['hz'] / a['hz']:.2f}); "
+                  f"CPU/frame {b['cpu_ms_per_frame']:.2f} vs {a['cpu_ms_per_frame']:.2f} ms "
+                  f"(×{a['cpu_ms_per_frame'] / b['cpu_ms_per_frame']:.2f}); end-to-end p99 "
+                  f"{b['stages']['end_to_end']['p99_ms']:.2f} vs {a['stages']['end_to_end']['p99_ms']:.2f} ms")
     print("\nchanged stages, previous → current core on the same fields (int8 run's first "
           f"{KEEP_FIELDS} frames, alternating, each frame's fastest of 5 rounds; tools/bench/previous_stages.py):")
     for size, st in stages.items():
@@ -344,8 +363,23 @@ def run(args) -> int:
     return 0
 
 
+def _named_packages(names: list[str], sizes: list[int]) -> list:
+    """The --package packages (a name in exported_models/ or a folder), each at one of `sizes`."""
+    from ...contracts.errors import ModelPackageError
+    from ...runtime.stages.model import find_package
+
+    out = [find_package(n) for n in names]
+    for n, p in zip(names, out):
+        if p.size[0] not in sizes or p.size[0] != p.size[1]:
+            raise ModelPackageError(f"--package {n}: input {p.size}, expected a square size among --sizes {sizes}")
+    return out
+
+
 def add_arguments(p) -> None:
     p.add_argument("--sizes", default="96,128", help="model input sizes, comma separated")
+    p.add_argument("--package", action="append", metavar="NAME|DIR",
+                   help="run this model package (repeat: side by side in one run, ratios against the first); "
+                        "default: the installed package at each size, else a synthetic net")
     p.add_argument("--frames", type=int, default=200, help="timed frames per configuration")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads")
     p.add_argument("--chunk", type=int, default=25, help="frames per turn when alternating configurations")

@@ -38,6 +38,10 @@ class SessionSpec:
     # the twin's world (tools/twin/world.py): "label" = the labels' own physics and an ideal rig (the
     # ceiling); "rig" = a world that differs from the label solver, estimated as a rig would (rig_estimate)
     world: str = "label"
+    # this session's twin physics when not the build's (BuildConfig.physics): a distilled build
+    # (BuildConfig.teacher) needs frames only, so some of its sessions may use the analytic
+    # "hertz-fallback" (seconds of CPU) instead of FE (minutes per poke); "" = the build's
+    physics: str = ""
 
     @property
     def name(self) -> str:
@@ -48,7 +52,7 @@ class SessionSpec:
         from ..twin.record import RecordConfig
         from ..twin.trajectory import with_ranges
 
-        rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=physics,
+        rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=self.physics or physics,
                             frame_format=self.frames, mjpg_quality=self.quality, model_size=size, world=self.world)
         rcfg.trajectory = with_ranges(rcfg.trajectory, self.trajectory, f"session {self.name} trajectory")
         return rcfg
@@ -105,6 +109,7 @@ class BuildConfig:
     fe_cluster: str = ""                          # stage 2 FE batch on this Dask scheduler (tcp://host:8786); "" = local
     quantization_samples: int = 128                # inputs that set the int8 ranges (ExportConfig)
     quantization_pick: str = "spread"              # spread over the train split | "first" (ExportConfig)
+    quantization_scheme: str = "hybrid"           # ExportConfig.scheme: hybrid | static | full (convnet: every op)
     threshold_sessions: int = 6                   # training sessions the package's contact threshold is measured on
     support_px: float = 0.0                       # a fixed cluster support radius (px, floor 0); 0 = the runtime default
     latency_runs: int = 50
@@ -112,6 +117,14 @@ class BuildConfig:
     eval_demo: bool = True                        # also evaluate on runtime/demo (held out: own unit/plan)
     models_dir: str = ""                          # default contracts.paths.models_dir()
     figures: bool = True                          # write docs/ figures (Fig. 10/11 style) after evaluation
+    # Distillation (tools/train/distill.py): with a teacher package the dataset's targets are the teacher's
+    # outputs on the training sessions' frames, so stages 1–4 (keypoints, FE labels, tables, sim-to-real) are
+    # skipped; each frame is also cropped `distill_copies` more times at a jittered rim (radius × U(1 ± s),
+    # centre ± c px), the per-unit crop variation of the protocol's units, and labelled by the teacher there.
+    teacher: str = ""                             # a model package folder ("" = FE labels)
+    distill_copies: int = 0
+    crop_scale_jitter: float = 0.04               # units' rims are 105.7–114.3 px against the nominal 110.09 px
+    crop_center_jitter_px: float = 1.0
 
     @staticmethod
     def from_dict(d: dict) -> "BuildConfig":
@@ -127,6 +140,8 @@ class BuildConfig:
             for spec in d.get(k) or []:
                 if not spec.get("trajectory"):
                     spec.pop("trajectory", None)
+                if not spec.get("physics"):
+                    spec.pop("physics", None)
                 if spec.get("world") == "label":
                     spec.pop("world")
         return d
@@ -137,16 +152,20 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     d = cfg.to_dict()
     deps = {"sessions": ["train", "heldout", "physics", "size"],
             "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe", "max_bulk_ratio"], "correspondence": ["tables", "crop"], "simreal": [],
-            "dataset": ["tables", "contact_stride", "label_frames", "label_sigma", "rest_fraction", "val_fraction"],
+            "dataset": ["tables", "contact_stride", "label_frames", "label_sigma", "rest_fraction", "val_fraction",
+                        "teacher", "distill_copies", "crop_scale_jitter", "crop_center_jitter_px"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
                     "init_bounds", "fit_seed", "photometric"],
-            "export": ["name", "quantization_samples", "quantization_pick", "threshold_sessions", "support_px"],
+            "export": ["name", "quantization_samples", "quantization_pick", "threshold_sessions", "support_px",
+                       "quantization_scheme"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
     optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
-                "detach_force_n": 1.1, "max_bulk_ratio": 5.0, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0, "crop": "nominal"}
+                "detach_force_n": 1.1, "max_bulk_ratio": 5.0, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0,
+                "crop": "nominal", "quantization_scheme": "hybrid", "teacher": "", "distill_copies": 0, "crop_scale_jitter": 0.04,
+                "crop_center_jitter_px": 1.0}
     keys, acc = {}, {}
     for st in STAGES:
         for k in deps[st]:
@@ -311,8 +330,9 @@ def _check_trajectory(ranges: dict, path: str) -> None:
 # build fields that take one of a few words
 CHOICES = {"fe": ("resolve", "twin"), "tables": ("gpr", "truth"), "crop": ("nominal", "rim"), "label_frames": ("interpolated", "checked", "fe", "keypoint"),
            "label_sigma": ("pose+ft", "pose"),
-           "physics": ("fe", "hertz-fallback"), "arch": ("hiera_qup", "unet", "vit"),
-           "device": ("auto", "cpu", "cuda"), "quantization_pick": ("spread", "first")}
+           "physics": ("fe", "hertz-fallback"), "arch": ("hiera_qup", "unet", "vit", "convnet"),
+           "device": ("auto", "cpu", "cuda"), "quantization_pick": ("spread", "first"),
+           "quantization_scheme": ("hybrid", "static", "full")}
 
 
 def _ranges():
@@ -328,9 +348,10 @@ def _ranges():
              "light_weight": Range(0, 10), "fit_seed": Range(*SEED_RANGE), "photometric": Range(0, 1),
              "threads": Range(1, 1024), "quantization_samples": Range(1, 1_000_000),
              "threshold_sessions": Range(1, 10_000), "support_px": Range(0, 4096), "latency_runs": Range(1, 1_000_000),
-             "eval_contact_n": above0(1000)}
+             "eval_contact_n": above0(1000), "distill_copies": Range(0, 100), "crop_scale_jitter": Range(0, 0.5),
+             "crop_center_jitter_px": Range(0, 100)}
     session = {"seed": Range(*SEED_RANGE), "pokes": Range(1, 10_000), "quality": Range(1, 100),
-               "frames": ("ffv1", "mjpg", "png")}
+               "frames": ("ffv1", "mjpg", "png"), "physics": ("", "fe", "hertz-fallback")}
     return build, session
 
 

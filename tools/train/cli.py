@@ -20,6 +20,8 @@ from pathlib import Path
 from ...contracts.files import atomic_write_json
 from ..command_group import LazySubcommands
 
+ARCH_CHOICES = ("hiera_qup", "unet", "vit", "convnet")    # tools.train.model.ARCHS (kept literal: no import at CLI start)
+
 log = logging.getLogger(__name__)
 
 # Tools on built packages and builds: each module exposes add_arguments(parser) and run(args).
@@ -167,7 +169,7 @@ def register(sub) -> None:
 
     f = ts.add_parser("fit", help="stage 6b: supervised training, L1, AdamW, warmup + cosine")
     common(f, 20, 16)
-    f.add_argument("--arch", default="hiera_qup", choices=("hiera_qup", "unet", "vit"), help="network architecture")
+    f.add_argument("--arch", default="hiera_qup", choices=ARCH_CHOICES, help="network architecture")
     f.add_argument("--encoder", help="encoder.pt from `train pretrain` (hiera_qup only)")
     f.set_defaults(func=cmd_fit, resume_hint="it continues from the run's last checkpoint")
 

@@ -34,6 +34,9 @@ RATIO_WARN = 1.3       # stage 4: warn when a sim-to-real force ratio is beyond 
 # hertz-fallback twin physics (smoke tests only) gives ~5x smaller forces than FE: scaled contact thresholds
 FALLBACK_CONTACT_N = (0.3, 0.22)
 
+# the stamp of stages 1, 2 and 4 in a distilled build (BuildConfig.teacher): its targets need no FE labels
+DISTILLED = {"skipped": "distilled: the targets are the teacher package's outputs (tools/train/distill.py)"}
+
 
 def stage_sessions(b) -> dict:
     """Record the twin sessions (FE physics, cached per poke) and write each unit's TRUE calibration
@@ -75,6 +78,8 @@ def _rig_estimate(path: Path) -> dict:
 
 def stage_keypoints(b) -> dict:
     """Stage 1 on every session (measured F/T + mocap) → keypoints/<session>.json."""
+    if b.cfg.teacher:
+        return DISTILLED
     from ...contracts.session import load_session
     from .keypoints import KeypointConfig, extract_keypoints, keypoints_doc
 
@@ -98,6 +103,8 @@ def stage_fe(b) -> dict:
     """Stage 2. resolve (default): FE scenarios from the stage-1 keypoints of the measured streams,
     solved by tools.fe's batch runner (tools/train/resolve_stage.py). twin: the twin's cached solves of
     the session's plan (re-solved when missing from the cache); lists any poke whose solve was redone."""
+    if b.cfg.teacher:
+        return DISTILLED
     if fe_mode(b) != "twin":
         from .resolve_stage import stage_fe_resolve
 
@@ -123,6 +130,8 @@ def stage_correspondence(b) -> dict:
 
 def stage_simreal(b) -> dict:
     """Stage 4: sim-to-real ratios per session and indenter → simreal/<session>.json."""
+    if b.cfg.teacher:
+        return DISTILLED
     from ...contracts.session import load_session
     from .simreal import session_ratios
 
@@ -149,6 +158,8 @@ def stage_dataset(b) -> dict:
     """Stage 5 + sample selection: training sessions → dataset/ (per-session parts cached in .work/)."""
     from .dataset import DatasetConfig, session_samples, split_pokes, write_dataset
 
+    if b.cfg.teacher:
+        return stage_dataset_distilled(b)
     work = b.dataset / ".work" / b.keys["dataset"]   # per configuration: a changed label source starts anew
     work.mkdir(parents=True, exist_ok=True)
     dcfg = DatasetConfig(size=b.cfg.size, contact_stride=b.cfg.contact_stride, rest_fraction=b.cfg.rest_fraction)
@@ -192,6 +203,75 @@ def stage_dataset(b) -> dict:
     n = sum(len(p["frame"]) for p in parts)
     return {"data_hash": h, "samples": n, "val": int(sum(p["val"].sum() for p in parts)),
             "rest": int(sum((p["poke"] < 0).sum() for p in parts))}
+
+
+def teacher_package(b) -> Path:
+    """The build's teacher package folder (a path relative to the repository root, or absolute)."""
+    from ...contracts.errors import ModelPackageError
+    from ...contracts.paths import ROOT
+
+    path = Path(b.cfg.teacher)
+    path = path if path.is_absolute() else ROOT / path
+    if not (path / "manifest.json").is_file():
+        raise ModelPackageError(f"teacher {b.cfg.teacher!r}: no model package there (expected {path / 'manifest.json'})")
+    return path
+
+
+def stage_dataset_distilled(b) -> dict:
+    """Stage 5 of a distilled build: training sessions' frames + the teacher's outputs → dataset/ (per-session
+    parts cached in .work/)."""
+    from ...runtime.stages.model import load_package
+    from .dataset import DatasetConfig, split_pokes
+    from .distill import DistillConfig, distill_session, teacher_bounds, write_distilled
+    from .export import session
+
+    teacher = teacher_package(b)
+    pkg = load_package(teacher)
+    if tuple(pkg.size) != (b.cfg.size, b.cfg.size):
+        raise ValueError(f"teacher {teacher}: input {pkg.size}, the build's size is {b.cfg.size}")
+    sess = session(pkg.file("int8"), threads=b.cfg.threads)      # what ships is what the student imitates
+    name = sess.get_inputs()[0].name
+
+    def run(x):
+        return sess.run(None, {name: x})[0]
+    work = b.dataset / ".work" / b.keys["dataset"]
+    work.mkdir(parents=True, exist_ok=True)
+    dcfg = DatasetConfig(size=b.cfg.size, contact_stride=b.cfg.contact_stride, rest_fraction=b.cfg.rest_fraction)
+    parts = []
+    for si, spec in enumerate(b.cfg.train):
+        part = work / f"{spec.name}.npz"
+        if not part.is_file():
+            t0 = time.monotonic()
+            last = [0.0]
+
+            def prog(i, n, name=spec.name, last=last):
+                if time.monotonic() - last[0] > 10 or i == n:
+                    last[0] = time.monotonic()
+                    log.info("distill %s: %d/%d frames", name, i, n)
+            kcfg = DistillConfig(copies=b.cfg.distill_copies, scale_jitter=b.cfg.crop_scale_jitter,
+                                 center_jitter_px=b.cfg.crop_center_jitter_px, seed=si)
+            d = distill_session(b.session(spec), unit_calibration(b, spec.serial), run, kcfg, dcfg, prog)
+            atomic_write(part, lambda fh, d=d: np.savez(fh, **d))
+            log.info("distill %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
+        with np.load(part) as z:
+            d = {k: z[k] for k in z.files}
+        val_pokes = split_pokes(spec.pokes, si) if spec.pokes > 1 else set()
+        d["val"] = np.isin(d["poke"], list(val_pokes)) & (d["poke"] >= 0)
+        parts.append(d)
+    source = (f"distilled from {repo_relative_path(teacher)} on twin sessions {[s.name for s in b.cfg.train]} "
+              f"(physics={b.cfg.physics}, {b.cfg.distill_copies} jittered crop(s) per frame); tools.train.build {b.cfg.build}")
+    area = np.mean([unit_calibration(b, spec.serial).pixel_area for spec in b.cfg.train], axis=0)
+    h = write_distilled(b.dataset, parts, teacher_bounds(teacher), b.cfg.size, source, pixel_area=area)
+    n = sum(len(p["frame"]) for p in parts)
+    return {"data_hash": h, "samples": n, "val": int(sum(p["val"].sum() for p in parts)),
+            "rest": int(sum((p["poke"] < 0).sum() for p in parts)), "teacher": repo_relative_path(teacher),
+            "teacher_int8_sha256": pkg.sha256("int8")}
+
+
+def repo_relative_path(path: Path) -> str:
+    from .package import repo_relative
+
+    return repo_relative(path)
 
 
 def _inputs_hash(b, spec) -> str:
@@ -247,7 +327,8 @@ def stage_export(b) -> dict:
     cmd = b.command or shlex.join(["tensortouch", "train", "all", "--name", b.cfg.name])
     man = export_run(fit_dir(b), b.dataset, b.cfg.name, root, cmd,
                      ExportConfig(quantization_samples=b.cfg.quantization_samples,
-                                  quantization_pick=b.cfg.quantization_pick, latency_runs=b.cfg.latency_runs),
+                                  quantization_pick=b.cfg.quantization_pick, latency_runs=b.cfg.latency_runs,
+                                  scheme=b.cfg.quantization_scheme),
                      wall_time_s=build_wall_time(b, 0.0))
     m = man["metrics"]
     thr = package_threshold(b, root / b.cfg.name)

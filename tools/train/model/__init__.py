@@ -1,11 +1,12 @@
-"""Stage 6 — networks (seed §III.J): Hiera + Q-Upsample, MAE pretraining, baselines, metrics, training.
+"""Stage 6 — networks (seed §III.J): Hiera + Q-Upsample, MAE pretraining, baselines, metrics, training;
+the int8 convolutional student (convnet.py, issue #44).
 
 `build_model(arch, image_size)` is the single place that maps an architecture name to a module, so
 checkpoints store only (arch, image_size) plus weights.
 """
 from __future__ import annotations
 
-ARCHS = ("hiera_qup", "unet", "vit")
+ARCHS = ("hiera_qup", "unet", "vit", "convnet")
 
 
 def build_model(arch: str, image_size: int):
@@ -23,4 +24,8 @@ def build_model(arch: str, image_size: int):
         from .baselines import ViTConfig, ViTDense
 
         return ViTDense(ViTConfig(image_size=image_size))
+    if arch == "convnet":
+        from .convnet import ConvFieldNet, ConvNetConfig
+
+        return ConvFieldNet(ConvNetConfig(image_size=image_size))
     raise ValueError(f"unknown architecture {arch!r}; choose one of {ARCHS}")

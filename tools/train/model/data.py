@@ -38,13 +38,14 @@ class DatasetError(TensorTouchError):
 
 
 
-def write_sample(root: Path, i: int, inp: np.ndarray, target: np.ndarray) -> dict:
-    """Write samples/<i>.npz atomically; returns its index entry (without split)."""
+def write_sample(root: Path, i: int, inp: np.ndarray, target: np.ndarray, compress: bool = True) -> dict:
+    """Write samples/<i>.npz atomically; returns its index entry (without split). `compress` = False stores
+    the arrays as they are (a distilled set's dense teacher targets compress little and slowly)."""
     if inp.dtype != np.uint8 or inp.shape[0] != 6 or target.shape != (N_CHANNELS,) + inp.shape[1:]:
         raise DatasetError(f"sample {i}: input must be uint8 (6,H,W) and target (15,H,W); got "
                            f"{inp.dtype}{inp.shape} and {target.shape}")
     buf = io.BytesIO()
-    np.savez_compressed(buf, input=inp, target=target.astype(np.float32))
+    (np.savez_compressed if compress else np.savez)(buf, input=inp, target=target.astype(np.float32))
     rel = f"samples/{i:06d}.npz"
     data = buf.getvalue()
     atomic_write(Path(root) / rel, data)

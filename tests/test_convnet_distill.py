@@ -1,0 +1,109 @@
+"""The int8 convolutional student (tools/train/model/convnet.py) and distillation's pure cores
+(tools/train/distill.py): shapes, the heads' bias/remap contract, full static int8 coverage, crop jitter."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnxruntime")
+
+from tensortouch.tools.train.distill import DistillConfig, jittered_circles, teacher_targets  # noqa: E402
+from tensortouch.tools.train.model import build_model  # noqa: E402
+from tensortouch.tools.train.model.convnet import ConvFieldNet, ConvNetConfig  # noqa: E402
+
+SMALL = ConvNetConfig(image_size=32, widths=(4, 8, 8, 8), blocks=(0, 1, 0, 1), decoder=(8, 8, 4, 4))
+
+
+def test_convnet_maps_6_channels_to_15_at_full_size():
+    m = build_model("convnet", 64).eval()
+    with torch.no_grad():
+        y = m(torch.rand(2, 6, 64, 64))
+    assert y.shape == (2, 15, 64, 64)
+
+
+def test_convnet_rejects_sizes_and_levels_that_do_not_fit():
+    with pytest.raises(ValueError, match="divisible"):
+        ConvFieldNet(ConvNetConfig(image_size=72))
+    with pytest.raises(ValueError, match="one entry per level"):
+        ConvFieldNet(ConvNetConfig(widths=(8, 8), blocks=(0, 0, 0), decoder=(8, 8)))
+
+
+def test_output_bias_starts_at_the_mean_and_remap_is_exact():
+    torch.manual_seed(0)
+    m = ConvFieldNet(SMALL).eval()
+    mean = torch.linspace(0.1, 0.9, 15)
+    with torch.no_grad():
+        m.heads.conv.weight.zero_()
+        m.heads.set_output_bias(mean)
+        y = m(torch.rand(1, 6, 32, 32))
+    # zero weights: every pixel of channel k is mean[k]
+    assert torch.allclose(y[0, :, 5, 7], mean)
+    torch.manual_seed(1)
+    m = ConvFieldNet(SMALL).eval()
+    x = torch.rand(1, 6, 32, 32)
+    with torch.no_grad():
+        before = m(x)
+        scale, offset = torch.full((15,), 2.0), torch.arange(15, dtype=torch.float32) / 10
+        m.heads.remap_output(scale, offset)
+        after = m(x)
+    assert torch.allclose(after, 2.0 * before + offset.view(1, -1, 1, 1), atol=1e-5)
+    with pytest.raises(ValueError, match="15"):
+        m.heads.set_output_bias(torch.zeros(3))
+
+
+def test_full_scheme_quantizes_every_convolution_and_stays_close(tmp_path):
+    import onnx
+    from tensortouch.tools.train.export import ExportConfig, export_onnx, output_head_nodes, quantize_int8, run_model, session
+
+    torch.manual_seed(0)
+    m = ConvFieldNet(SMALL).eval()
+    fp32 = export_onnx(m, tmp_path / "m.onnx", 32)
+    x = np.random.default_rng(0).random((8, 6, 32, 32), dtype=np.float32)
+    int8 = quantize_int8(fp32, tmp_path / "q.onnx", x, ExportConfig(scheme="full"))
+    g = onnx.load(str(int8)).graph
+    produced_by_dq = {o for n in g.node if n.op_type == "DequantizeLinear" for o in n.output}
+    head = set(output_head_nodes(g))
+    convs = [n for n in g.node if n.op_type == "Conv"]
+    assert len([n for n in convs if n.name in head]) == 1          # the head conv: float (quantize_head False)
+    body = [n for n in convs if n.name not in head]
+    assert body and all(n.input[0] in produced_by_dq and n.input[1] in produced_by_dq for n in body)
+    assert not any(n.input[1] in produced_by_dq for n in convs if n.name in head)
+    adds = [n for n in g.node if n.op_type == "Add"]
+    assert adds and all(all(i in produced_by_dq for i in n.input) for n in adds)
+    y32, y8 = run_model(session(fp32), x), run_model(session(int8), x)
+    assert y8.shape == y32.shape == (8, 15, 32, 32)
+    assert float(np.abs(y8 - y32).max()) < 0.1 * float(np.abs(y32).max() + 1e-6) + 0.05
+
+
+def test_jittered_circles_keep_the_calibrated_one_first_and_stay_in_bounds():
+    cfg = DistillConfig(scale_jitter=0.04, center_jitter_px=1.0)
+    c = jittered_circles(160.0, 120.0, 100.0, 50, cfg, np.random.default_rng(0))
+    assert c.shape == (51, 3)
+    assert tuple(c[0]) == (160.0, 120.0, 100.0)
+    assert np.all(np.abs(c[1:, 0] - 160) <= 1.0) and np.all(np.abs(c[1:, 1] - 120) <= 1.0)
+    assert np.all((c[1:, 2] >= 96.0) & (c[1:, 2] <= 104.0))
+    assert c[1:, 2].std() > 0.5                      # it does jitter
+    assert jittered_circles(1.0, 2.0, 3.0, 0, cfg, np.random.default_rng(0)).shape == (1, 3)
+    with pytest.raises(ValueError, match="positive radius"):
+        jittered_circles(0.0, 0.0, 0.0, 2, cfg, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="n = -1"):
+        jittered_circles(0.0, 0.0, 5.0, -1, cfg, np.random.default_rng(0))
+
+
+def test_teacher_targets_feed_the_teacher_inputs_in_0_1_one_frame_at_a_time():
+    seen = []
+
+    def teacher(x):                    # a stand-in teacher: channel k = mean of the inputs + k
+        seen.append(x.shape)
+        return np.broadcast_to(x.mean() + np.arange(15, dtype=np.float32).reshape(1, 15, 1, 1), (1, 15, 4, 4))
+    inp = np.full((3, 6, 4, 4), 255, np.uint8)
+    inp[1] = 0
+    y = teacher_targets(teacher, inp)
+    assert seen == [(1, 6, 4, 4)] * 3
+    assert y.shape == (3, 15, 4, 4) and y.dtype == np.float32
+    assert np.allclose(y[0, :, 0, 0], 1.0 + np.arange(15)) and np.allclose(y[1, :, 0, 0], np.arange(15))
+    with pytest.raises(ValueError, match="uint8"):
+        teacher_targets(teacher, inp.astype(np.float32))
+    with pytest.raises(ValueError, match="teacher gave"):
+        teacher_targets(lambda x: np.zeros((1, 14, 4, 4), np.float32), inp)

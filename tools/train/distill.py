@@ -1,0 +1,124 @@
+"""Stage 5 of a distilled build (BuildConfig.teacher): training sessions' frames → the teacher package's
+outputs as targets (docs/train.md "Distillation").
+
+A student learns the teacher's function, not the FE labels, so a sample needs only a pair of frames
+(baseline, current): the frames are those stage 5 would pick (`dataset.select_frames`), cropped through
+the runtime's Preprocessor at the unit's calibrated rim and, `copies` more times, at a jittered rim
+(radius × U(1 − s, 1 + s), centre ± c px: the spread of the protocol units' rims around the nominal
+lens). The teacher labels every crop it is shown, so the jittered samples stay consistent; its outputs
+are already min/max-normalized with its manifest's bounds, which become the dataset's bounds.
+
+Pure cores: `jittered_circles`, `teacher_targets`. Shell: `distill_session`, `write_distilled`.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...contracts.errors import TensorTouchError
+from ...contracts.files import atomic_write
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DistillConfig:
+    copies: int = 0                   # jittered crops per frame beside the calibrated one
+    scale_jitter: float = 0.04        # rim radius × U(1 − s, 1 + s)
+    center_jitter_px: float = 1.0     # rim centre + U(−c, c) px in x and y
+    seed: int = 0
+
+
+def jittered_circles(cx: float, cy: float, r: float, n: int, cfg: DistillConfig, rng: np.random.Generator
+                     ) -> np.ndarray:
+    """(1 + n, 3) crop circles (cx, cy, radius): the calibrated one first, then n jittered ones."""
+    if not (np.isfinite([cx, cy, r]).all() and r > 0):
+        raise ValueError(f"jittered_circles: circle ({cx}, {cy}, {r}) must be finite with a positive radius")
+    if n < 0:
+        raise ValueError(f"jittered_circles: n = {n}; expected ≥ 0")
+    out = np.empty((1 + n, 3))
+    out[0] = cx, cy, r
+    if n:
+        out[1:, 0] = cx + rng.uniform(-cfg.center_jitter_px, cfg.center_jitter_px, n)
+        out[1:, 1] = cy + rng.uniform(-cfg.center_jitter_px, cfg.center_jitter_px, n)
+        out[1:, 2] = r * rng.uniform(1 - cfg.scale_jitter, 1 + cfg.scale_jitter, n)
+    return out
+
+
+def teacher_targets(run, inputs: np.ndarray) -> np.ndarray:
+    """(N, 15, H, W) float32 teacher outputs for uint8 inputs (N, 6, H, W); `run` maps a float32 (1, 6, H, W)
+    batch in [0, 1] to (1, 15, H, W) (e.g. an onnxruntime session's run)."""
+    if inputs.dtype != np.uint8 or inputs.ndim != 4 or inputs.shape[1] != 6:
+        raise ValueError(f"teacher_targets: expected uint8 (N, 6, H, W) inputs, got {inputs.dtype}{inputs.shape}")
+    outs = [np.asarray(run(inputs[i:i + 1].astype(np.float32) / 255.0), np.float32) for i in range(len(inputs))]
+    y = np.concatenate(outs) if outs else np.zeros((0, 15) + inputs.shape[2:], np.float32)
+    if y.shape[0] != inputs.shape[0] or y.shape[2:] != inputs.shape[2:] or y.shape[1] != 15:
+        raise ValueError(f"teacher_targets: teacher gave {y.shape} for inputs {inputs.shape}")
+    return y
+
+
+def distill_session(session_dir: Path, calibration, run, cfg: DistillConfig, select_cfg, progress=None) -> dict:
+    """One session's samples: {'input' (n,6,S,S) u8, 'target' (n,15,S,S) normalized, 'frame', 'baseline',
+    'poke', 'copy' (n,)}; frames picked by `dataset.select_frames(select_cfg)` from truth/frames.csv."""
+    import cv2
+
+    from ...contracts.session import load_session, read_table
+    from ...runtime.stages.preprocess import Preprocessor
+    from ..sessions.writer import read_frames
+    from .dataset import select_frames
+
+    ses = load_session(session_dir)
+    fr = read_table(Path(session_dir) / "truth" / "frames.csv", ["t", "index", "poke", "sigma"])
+    picks = select_frames(fr[:, 2], select_cfg)
+    need = sorted({i for i, _, _ in picks} | {b for _, b, _ in picks})
+    frames = {i: cv2.cvtColor(img, cv2.COLOR_BGR2RGB) for i, img in read_frames(ses, need)}
+    cx, cy = calibration.gel_center_px
+    S = calibration.model_size
+    rng = np.random.default_rng([cfg.seed, int(fr.shape[0]), len(picks)])
+    rows, inputs = [], []
+    for n, (i, b, p) in enumerate(picks):
+        for k, (x, y, r) in enumerate(jittered_circles(cx, cy, calibration.gel_radius_px, cfg.copies, cfg, rng)):
+            pre = Preprocessor(x, y, r, S)
+            inputs.append(np.concatenate([pre.crop(frames[b]).transpose(2, 0, 1), pre.crop(frames[i]).transpose(2, 0, 1)]))
+            rows.append((i, b, p, k))
+        if progress:
+            progress(n + 1, len(picks))
+    x = np.stack(inputs).astype(np.uint8) if inputs else np.zeros((0, 6) + tuple(S), np.uint8)
+    arr = np.array(rows, int).reshape(-1, 4)
+    return {"input": x, "target": teacher_targets(run, x), "frame": arr[:, 0], "baseline": arr[:, 1],
+            "poke": arr[:, 2], "copy": arr[:, 3]}
+
+
+def teacher_bounds(package: Path) -> dict:
+    """The teacher's output bounds (its manifest), which normalize its outputs and so the dataset."""
+    from .model.train import load_any_bounds
+
+    return load_any_bounds(package)
+
+
+def write_distilled(root: Path, parts: list[dict], bounds: dict, size: int, source: str,
+                    pixel_area: np.ndarray | None = None) -> str:
+    """parts: per session {'input', 'target' (already normalized), 'val'} → dataset directory; returns its hash."""
+    from .fields import write_bounds
+    from .model.data import write_index, write_sample
+
+    root = Path(root)
+    write_bounds(root / "bounds.json", bounds)
+    if pixel_area is not None:
+        atomic_write(root / "pixel_area.npy", lambda fh: np.save(fh, np.asarray(pixel_area, np.float32)))
+    entries, i = [], 0
+    for p in parts:
+        for inp, tgt, val in zip(p["input"], p["target"], p["val"]):
+            e = write_sample(root, i, inp, tgt, compress=False)
+            e["split"] = "val" if val else "train"
+            entries.append(e)
+            i += 1
+    if not entries:
+        raise TensorTouchError(f"{root}: distillation found no frames in the training sessions")
+    h = write_index(root, entries, (size, size), source)
+    log.info("distilled dataset %s: %d samples (%d val), hash %s", root, len(entries),
+             sum(e["split"] == "val" for e in entries), h[:12])
+    return h
