@@ -53,7 +53,7 @@ log = logging.getLogger(__name__)
 UNITS = ("TWIN-K01", "TWIN-K02", "TWIN-K03")
 FE_UNITS = ("TWIN-K01",)       # FE solves are slow: one unit, shorter sessions
 POKES = 30
-FE_POKES = 8                   # 8 press blocks: the sign-flip test can still reach p = 1/256
+FE_POKES = 6                   # 6 press blocks: the sign-flip test can still reach p = 1/64
 CALIB_SEEDS = (7100, 7150)     # + unit index
 TEST_SEED = 7200               # + 10 * form index + draw
 SECOND_SEED = 7300
