@@ -329,6 +329,11 @@ def summarize(rows: list, forms_set: str = "scored") -> dict:
                       float(np.nanmax([r["mde"] or np.nan for r in nulls]))] if nulls else None,
             "right_at_or_above_floor": f"{sum(r['right'] for r in big)}/{len(big)}",
             "right_library_forms": f"{sum(r['right'] for r in lib)}/{len(lib)}",
+            # the cases the session could show at all: the effect at least the MDE the diagnosis reported
+            "right_at_or_above_mde": (f"{sum(r['right'] for r in big if r['mde'] and r['size_n'] >= r['mde'])}/"
+                                      f"{sum(bool(r['mde']) and r['size_n'] >= r['mde'] for r in big)}"),
+            "size_over_mde": {f"{r['form']}-{r['size_floor']:g}": round(r["size_n"] / r["mde"], 2)
+                              for r in big if r["mde"]},
             "per_form": {f: f"{sum(r['right'] for r in big if r['form'] == f)}/{sum(r['form'] == f for r in big)}"
                          for f in EXPECTED if any(r["form"] == f for r in big)},
             "removed_at_least_70": f"{sum(x >= 0.7 for x in removed)}/{len(removed)}",
