@@ -41,3 +41,18 @@ def test_lowpass_step_response_by_hand():
     t = np.array([0.0, 1.0, 2.0, 3.0])
     y = _lowpass(np.ones((4, 1)), t, tau=1.0)
     np.testing.assert_allclose(y[:, 0], [0.0, 1 - np.exp(-1), 1 - np.exp(-2), 1 - np.exp(-3)])
+
+
+def test_scoring_forms_by_hand(session):
+    w, p, tt = session.table("wrench"), session.table("poses"), session.table("temperature")
+    t = w[:, 0]
+    tip = np.column_stack([np.interp(t, p[p[:, 1] == 0][:, 0], p[p[:, 1] == 0][:, 2 + j]) for j in range(3)])
+    d = np.clip(10.0 - np.linalg.norm(tip - [0, 0, 5.0], axis=1), 0, None)
+    np.testing.assert_allclose(contribution(session, "cubic_stiffening", 0.3, GEL),
+                               w[:, 2:5] * (1 + 0.3 * d ** 3)[:, None], rtol=1e-12)
+    T = np.interp(t, tt[:, 0], tt[:, 1])
+    mid = 0.5 * (tt[:, 1].min() + tt[:, 1].max())
+    np.testing.assert_allclose(contribution(session, "logistic_temperature", 0.1, GEL),
+                               w[:, 2:5] * (1 - 0.1 / (1 + np.exp(-(T - mid) / 0.5)))[:, None], rtol=1e-12)
+    ramp = 0.2 * np.sqrt((t - t[0]) / 100.0)[:, None] * np.array([-0.5, 0.6, 0.8])
+    np.testing.assert_allclose(contribution(session, "ft_offset_sqrt", 0.2, GEL), w[:, 2:5] + ramp, atol=1e-12)

@@ -139,3 +139,62 @@ def test_floors_of_two_paths_side_by_side():
     assert any(line.strip().startswith("output") and f"{net.mde():.4f}" in line for line in lines)
     assert "the contact-law path sees the smallest" in lines[-1]
     assert net.to_json()["floor"] == pytest.approx(net.floor())
+
+
+def test_effect_added_from_a_path_diagnosis_reaches_the_runtime_effects_stage(tmp_path, capsys):
+    """`effects add --from-diagnosis FILE --path P` -> a calibration version the runtime's pipeline
+    applies: the published cluster forces are the effect's forward of the plain ones (end to end:
+    CLI, store, SensorPipeline)."""
+    import argparse
+    import json
+
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.runtime.pipeline import SensorPipeline
+    from tensortouch.runtime.stages.effects import EffectChain
+    from tensortouch.runtime.stages.model import FieldModel, load_package
+    from tensortouch.tools.bench.models import write_difference_package
+    from tensortouch.tools.workbench import cli
+
+    from tests.conftest import dome_calibration
+    from tests.test_e2e_runtime import SENSOR, SIZE, H, W
+    from tests.test_effect_stage import frames
+
+    store = CalibrationStore(tmp_path / "calib")
+    dome_calibration(store.root, SENSOR, size=SIZE, image=(W, H), radius_px=50.0)
+    plain = store.load(SENSOR)
+    params = {"alpha": 0.02, "t_ref": 20.0}
+    other = {"effect": "ft_bias_drift", "params": {"b_x": 0.1, "b_y": 0.0, "b_z": 0.0,
+                                                   "d_x": 0.0, "d_y": 0.0, "d_z": 0.0}}
+    per = {"contact-law": {"path": "contact-law", "ranking": [{"effect": "temperature_softening", "params": params}]},
+           "output": {"path": "output", "ranking": [other]}}
+    diag = tmp_path / "diag.json"
+    diag.write_text(json.dumps({**per["output"], "paths": per}))
+    parser = argparse.ArgumentParser(prog="tensortouch")
+    cli.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["effects", "add", "temperature_softening", "--sensor", SENSOR, "--store", str(store.root),
+                              "--from-diagnosis", str(diag), "--path", "contact-law"])
+    assert args.func(args) == 0
+    assert "on the contact-law path" in capsys.readouterr().out
+    cal = store.load(SENSOR)
+    assert [e["name"] for e in cal.effects] == ["temperature_softening"]
+    assert cal.effects[0]["params"] == pytest.approx(params)
+
+    pkg = load_package(write_difference_package(tmp_path / "m" / "d", SIZE))
+
+    def last(calibration, temperature):
+        pipe = SensorPipeline(SENSOR, FieldModel(pkg, "fp32"), calibration)
+        pipe.set_temperature(temperature)
+        return [pipe.process(f, k / 30.0) for k, f in enumerate(frames())][-1]
+
+    f0 = np.array([c.force_n for c in last(plain, 35.0).clusters])
+    f1 = np.array([c.force_n for c in last(cal, 35.0).clusters])
+    expect = EffectChain.from_list(cal.effects).apply(f0, {"temperature": np.full(len(f0), 35.0)})
+    assert len(f0) and np.allclose(f1, expect, rtol=1e-6) and not np.allclose(f1, f0)
+
+
+def test_a_refit_uses_the_model_of_the_path_the_effect_was_found_on():
+    from tensortouch.tools.workbench.effects_cli import model_of_diagnosis
+
+    assert model_of_diagnosis({"path": "contact-law", "model_source": ""}) == "contact-law"
+    assert model_of_diagnosis({"path": "output", "model_source": "/pkgs/hiera-qup-128"}) == "/pkgs/hiera-qup-128"
+    assert model_of_diagnosis({"path": "output"}) is None       # older diagnoses: the default model

@@ -21,7 +21,14 @@ nominal geometry (params "radius", "center_z", "skirt" of the cap sphere, mm):
   ft_offset_ramp         f_FT + amp (t / 100 s)^1.5 (0.4, -0.3, 1) N, a reference offset creeping
                          in the F/T frame, in and out of contact     library: linear in time
   sector_stiffening      F (1 + amp max(cos(φ - 0.7), 0)²), φ the tip's azimuth   not in the library
-(the last four are used by `tensortouch accept workbench-paths` only)
+  cubic_stiffening       F (1 + amp (d / 1 mm)³)                      library: 1 + k (d/h)²
+  logistic_temperature   F (1 - amp σ((T - T_mid) / 0.5 °C)), σ the logistic, T_mid the middle of the
+                         session's temperature range                 library: 1 - α (T - T_ref)
+  ft_offset_sqrt         f_FT + amp (t / 100 s)^0.5 (-0.5, 0.6, 0.8) N, a reference offset that
+                         settles, in the F/T frame, in and out of contact   library: linear in time
+  rim_linear             F (1 + amp (1 - s / 9 mm)₊), s as rim_profile   library: 1 + a exp(-s / w)
+(the last eight are used by `tensortouch accept workbench-paths` only: log_stiffening ..
+sector_stiffening for tuning its method, cubic_stiffening .. rim_linear for scoring it)
 """
 from __future__ import annotations
 
@@ -36,7 +43,8 @@ from ...contracts.session import Session, as_written, load_session, write_stream
 from .alter import _quat_matrix, copy_without_truth
 
 FORMS = ("saturating_stiffening", "two_term_relaxation", "rim_profile", "temperature_onset", "velocity_drag",
-         "log_stiffening", "exp_temperature", "ft_offset_ramp", "sector_stiffening")
+         "log_stiffening", "exp_temperature", "ft_offset_ramp", "sector_stiffening",
+         "cubic_stiffening", "logistic_temperature", "ft_offset_sqrt", "rim_linear")
 
 
 def _lowpass(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
@@ -84,11 +92,14 @@ def contribution(session, kind: str, amp: float, gel: dict) -> np.ndarray:
         d = np.clip(gel["radius"] - r, 0.0, None)
         if kind == "saturating_stiffening":
             f = f * (1.0 + amp * np.tanh(d ** 2))[:, None]
-        elif kind == "rim_profile":
+        elif kind in ("rim_profile", "rim_linear"):
             polar = np.arccos(np.clip(v[:, 2] / np.maximum(r, 1e-9), -1, 1))
             edge = np.arccos(np.clip((gel["skirt"] - gel["center_z"]) / gel["radius"], -1, 1))
             arc = gel["radius"] * np.clip(edge - polar, 0.0, None) + gel["skirt"]
-            f = f * (1.0 + amp * np.clip(1.0 - arc / 12.0, 0.0, None) ** 2)[:, None]
+            if kind == "rim_profile":
+                f = f * (1.0 + amp * np.clip(1.0 - arc / 12.0, 0.0, None) ** 2)[:, None]
+            else:
+                f = f * (1.0 + amp * np.clip(1.0 - arc / 9.0, 0.0, None))[:, None]
         elif kind == "temperature_onset":
             tt = session.table("temperature")
             T = np.interp(t, tt[:, 0], tt[:, 1])
@@ -115,6 +126,16 @@ def contribution(session, kind: str, amp: float, gel: dict) -> np.ndarray:
         elif kind == "ft_offset_ramp":
             t0 = float(w[0, 0])
             f = f + amp * (np.clip(t - t0, 0.0, None) / 100.0)[:, None] ** 1.5 * np.array([0.4, -0.3, 1.0])
+        elif kind == "cubic_stiffening":
+            f = f * (1.0 + amp * d ** 3)[:, None]
+        elif kind == "logistic_temperature":
+            tt = session.table("temperature")
+            T = np.interp(t, tt[:, 0], tt[:, 1])
+            mid = 0.5 * (float(tt[:, 1].min()) + float(tt[:, 1].max()))
+            f = f * (1.0 - amp / (1.0 + np.exp(-(T - mid) / 0.5)))[:, None]
+        elif kind == "ft_offset_sqrt":
+            t0 = float(w[0, 0])
+            f = f + amp * np.sqrt(np.clip(t - t0, 0.0, None) / 100.0)[:, None] * np.array([-0.5, 0.6, 0.8])
         elif kind == "sector_stiffening":
             phi = np.arctan2(v[:, 1], v[:, 0])
             f = f * (1.0 + amp * np.clip(np.cos(phi - 0.7), 0.0, None) ** 2)[:, None]

@@ -3,28 +3,40 @@ recipe uses, diagnosed through the shipped network's output, the contact law fit
 calibration sessions, and FE solved at each session's measured keypoints (issue 45's acceptance).
 
     tensortouch accept workbench-paths [--paths contact-law output fe] [--draws 1] [--sizes 1 3]
-                                       [--nulls 10] [--forms NAME ...] [--model exported_models/hiera-qup-128]
-                                       [--work DIR] [--progress FILE] [--out FILE]
+                                       [--nulls 10] [--forms NAME ...] [--tuning] [--fe-physics fe]
+                                       [--model exported_models/hiera-qup-128] [--work DIR] [--progress FILE]
 
-Units TWIN-P01..P03 (draw k, null k: unit k mod 3), analytic twin physics (hertz-fallback), 30-poke
-plans with frames at 2 fps rendered at the shipped model's size (128 px). Per unit, two calibration
-sessions without hidden physics: the contact law is fitted on both together
-(`ContactLaw.fit_sessions`), and on every path the model's own error (own_error.py) is fitted on
-both and every diagnosis runs against it. Paths: "output" = the shipped network's raw force over
-the session's frames (no correction: the nominal correction did nothing on these units); "contact-law";
-"fe" = the recipe's stage 1-2 on the session (keypoints from its own poses and F/T, one scenario per
-contact period) solved by the recipe's analytic stand-in of tools.fe (hertz-fallback units; the FE
-backend is the same pipeline, far slower).
+Units TWIN-K01..K03 (analytic twin physics, frames at 2 fps rendered at the shipped model's 128 px).
+Per unit and path, two calibration sessions without hidden physics: the contact law is fitted on
+both together (`ContactLaw.fit_sessions`), and on every path the model's own error (own_error.py) is
+fitted on both and every diagnosis runs against it. Paths: "output" = the shipped network's raw
+force over the session's frames (no correction: the nominal correction did nothing on these units);
+"contact-law"; "fe" = the recipe's stages 1-2 on the session (keypoints from its own poses and F/T,
+one scenario per contact period) solved by tools.fe with its shared on-disk cache
+(`--fe-physics hertz-fallback`: the recipe's analytic stand-in). FE solves cost ~30 s per contact
+period on the shared 2 cores, so the FE path runs on unit TWIN-K01 only, with sessions of
+FE_POKES pokes; the others on 30-poke sessions of all three units.
 
-Hidden forms (tools/accept/alter_forms.py; no test uses them): log_stiffening (expected verdict:
-strain_stiffening), exp_temperature (temperature_softening), ft_offset_ramp (ft_bias_drift),
-sector_stiffening (not in the library: right = no verdict and the azimuth φ named, significant, as
-what remains). Each is scaled so its own contribution on the path's rows is `size` × the path's
-floor (rms |r| of the unaltered session against the model + its own error). Per row: the verdict,
-"right", and on a second session of the unit altered the same way, with the verdict added, the share
-of the effect's own contribution removed: (before - after) / (before - unaltered). Nulls: unaltered
-sessions of new plans, diagnosed with and without the own-error model. Rows are kept under
-WORK/rows; a rerun resumes.
+FE at the keypoints of an altered session: stage 1 finds contact periods from |F| thresholds, so a
+hidden effect in the F/T stream moves a period's edges by a few samples and every altered copy would
+be solved anew. The harness solves each recording once, at the keypoints stage 1 finds on it before
+the effect is put in, and compares the altered F/T with that; `compare --paths fe` on a written
+altered copy solves its own keypoints.
+
+Hidden forms (tools/accept/alter_forms.py), kept in two sets: the TUNING forms (log_stiffening,
+exp_temperature, ft_offset_ramp, sector_stiffening; used while the method was developed,
+`--tuning`) and the SCORED forms (cubic_stiffening, logistic_temperature, ft_offset_sqrt,
+rim_linear; the default), each with the library family a right verdict names (sector_stiffening:
+no verdict and the azimuth φ named, significant). Each is scaled so its own contribution on the
+path's rows is `size` × the path's floor (rms |r| of the unaltered session against the model + its
+own error). Per row: the verdict, "right", and on a second session of the unit altered the same way,
+with the verdict added, the share of the effect's own contribution removed:
+(before - after) / (before - unaltered).
+
+Nulls: unaltered sessions the own error was not fitted on: first the cases' test and second sessions
+before their effect is put in, then sessions of new plans, `--nulls` in all per path; on the paths of
+`--raw-nulls` each is also diagnosed against the model alone. Rows are kept under WORK/rows; a
+rerun resumes.
 """
 from __future__ import annotations
 
@@ -38,14 +50,20 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-UNITS = ("TWIN-P01", "TWIN-P02", "TWIN-P03")
+UNITS = ("TWIN-K01", "TWIN-K02", "TWIN-K03")
+FE_UNITS = ("TWIN-K01",)       # FE solves are slow: one unit, shorter sessions
 POKES = 30
-CALIB_SEEDS = (6100, 6150)     # + unit index
-TEST_SEED = 6200               # + 10 * form index + draw
-SECOND_SEED = 6300
-NULL_SEED = 6400
-EXPECTED = {"log_stiffening": "strain_stiffening", "exp_temperature": "temperature_softening",
-            "ft_offset_ramp": "ft_bias_drift", "sector_stiffening": "phi"}
+FE_POKES = 6                   # 6 press blocks: the sign-flip test can still reach p = 1/64
+CALIB_SEEDS = (7100, 7150)     # + unit index
+TEST_SEED = 7200               # + 10 * form index + draw
+SECOND_SEED = 7300
+NULL_SEED = 7400
+FE_SEED_OFFSET = 1000          # the FE path's sessions: the same seeds + this
+TUNING = {"log_stiffening": "strain_stiffening", "exp_temperature": "temperature_softening",
+          "ft_offset_ramp": "ft_bias_drift", "sector_stiffening": "phi"}
+SCORED = {"cubic_stiffening": "strain_stiffening", "logistic_temperature": "temperature_softening",
+          "ft_offset_sqrt": "ft_bias_drift", "rim_linear": "rim_stiffening"}
+EXPECTED = {**TUNING, **SCORED}
 PATHS = ("contact-law", "output", "fe")
 
 
@@ -54,7 +72,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--draws", type=int, default=1, help="test sessions per form and size")
     p.add_argument("--sizes", type=float, nargs="+", default=[1.0, 3.0], help="effect sizes (× the path's floor)")
     p.add_argument("--nulls", type=int, default=10, help="sessions without a hidden effect")
-    p.add_argument("--forms", nargs="+", choices=sorted(EXPECTED), help="hidden forms (default: all)")
+    p.add_argument("--forms", nargs="+", choices=sorted(EXPECTED), help="hidden forms (default: the scored set)")
+    p.add_argument("--tuning", action="store_true", help="the tuning forms instead of the scored ones")
+    p.add_argument("--fe-physics", choices=("fe", "hertz-fallback"), default="fe",
+                   help="what solves the FE path: tools.fe (default) or the recipe's analytic stand-in")
     p.add_argument("--model", default="exported_models/hiera-qup-128", help="the shipped model package (output path)")
     p.add_argument("--no-own-error", action="store_true", help="diagnose against the model alone")
     p.add_argument("--raw-nulls", nargs="*", choices=PATHS, default=["output"],
@@ -86,27 +107,41 @@ def record(sc):
         return _record(sc)
 
 
-def _scenario(seed: int, unit: str):
+def _scenario(seed: int, unit: str, path: str = "output"):
+    """The recording of `seed` on `unit` for `path` (the FE path's are shorter, with seeds of their own)."""
     from ..workbench.scenarios import Scenario
 
+    if path == "fe":
+        return Scenario(seed + FE_SEED_OFFSET, pokes=FE_POKES, unit=unit, model_size=128)
     return Scenario(seed, pokes=POKES, unit=unit, model_size=128)
+
+
+def units_of(path: str) -> tuple:
+    return FE_UNITS if path == "fe" else UNITS
+
+
+def case_unit(path: str, form: str, draw: int) -> str:
+    u = units_of(path)
+    return u[(list(EXPECTED).index(form) + draw) % len(u)]
 
 
 class PathLab:
     """One unit on one model path: its store, model, own error; tables of (altered) sessions."""
 
-    def __init__(self, path: str, unit: str, work: Path, model_dir: str, own: bool = True):
+    def __init__(self, path: str, unit: str, work: Path, model_dir: str, own: bool = True,
+                 fe_physics: str = "fe"):
         from ...contracts.store import CalibrationStore
         from ...runtime.stages.effects import Registry
         from ..workbench.scenarios import store_root
 
-        self.path, self.unit, self.work = path, unit, Path(work)
+        self.path, self.unit, self.work, self.fe_physics = path, unit, Path(work), fe_physics
+        self.fe: dict = {}
         self.store = CalibrationStore(store_root(unit, 128))
         self.cal = self.store.load(unit)
         self.reg = Registry.default(entry_points=False)
         self.gel = _gel_128(unit)
         self.loaded: dict = {}
-        self.calib = [record(_scenario(s + UNITS.index(unit), unit)) for s in CALIB_SEEDS]
+        self.calib = [record(_scenario(s + UNITS.index(unit), unit, path)) for s in CALIB_SEEDS]
         if path == "contact-law":
             self.law = self._law()
         if path == "output":
@@ -131,7 +166,7 @@ class PathLab:
         from ..workbench.diagnose import DiagnoseConfig, blocks_of
         from ..workbench.own_error import OwnError
 
-        f = self.work / f"own-{self.path}-{self.unit}.json"
+        f = self.work / f"own-{self.path}-{self.unit}{'-' + self.fe_physics if self.path == 'fe' else ''}.json"
         if f.is_file():
             return OwnError.from_json(json.loads(f.read_text()))
         parts = []
@@ -153,7 +188,7 @@ class PathLab:
 
     def table(self, base: Path, form: str | None = None, amp: float = 0.0):
         """(table with the path's raw prediction in `model`, the unaltered session's measured force on
-        the same rows); the FE path solves the (altered) session's own keypoints."""
+        the same rows); the FE path is solved at the recording's keypoints (module docstring)."""
         from ..workbench.compare import load_table
         from .alter_forms import altered_session
 
@@ -175,7 +210,9 @@ class PathLab:
             return t, clean.meas
         from ..workbench.fe_path import FEModel, take_rows
 
-        pred = FEModel(base, self.cal.meta, "hertz-fallback", session=ses).predict(tb)
+        if base not in self.fe:
+            self.fe[base] = FEModel(base, self.cal.meta, self.fe_physics, session=self.session(base))
+        pred = self.fe[base].predict(tb)
         keep = np.all(np.isfinite(pred), axis=1)
         return take_rows(tb.with_model(pred), keep), t0.meas[keep]
 
@@ -213,7 +250,7 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
     from ...runtime.stages.effects import EffectChain, EnabledEffect
 
     i = list(EXPECTED).index(form)
-    base = record(_scenario(TEST_SEED + 10 * i + draw, lab.unit))
+    base = record(_scenario(TEST_SEED + 10 * i + draw, lab.unit, lab.path))
     t0, _ = lab.table(base)
     floor = _rms(t0.meas - lab.base(t0))
     t1, clean = lab.table(base, form, 1.0)
@@ -231,7 +268,7 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
         row["right"] = bool(row["family"] == fam and not row["pair"])
     v = d.verdict
     if v is not None and v.pair is None and v.channel == "force":
-        second = record(_scenario(SECOND_SEED + 10 * i + draw, lab.unit))
+        second = record(_scenario(SECOND_SEED + 10 * i + draw, lab.unit, lab.path))
         a2, clean2 = lab.table(second, form, amp)
         chain = EffectChain([EnabledEffect(v.effect, dict(v.params))])
         base2 = lab.base(a2)
@@ -242,10 +279,27 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
     return row
 
 
-def run_null(lab: PathLab, k: int, raw: bool = True) -> dict:
-    t, _ = lab.table(record(_scenario(NULL_SEED + k, lab.unit)))
-    row = {"path": lab.path, "null": k, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)), "rows": len(t),
-           **_diag(lab.diagnose(t))}
+def null_sessions(path: str, forms: list, draws: int, n: int) -> list[tuple[str, int, str]]:
+    """The path's n nulls as (name, seed, unit): the cases' test and second sessions before their
+    effect is put in, then sessions of new plans."""
+    out = []
+    for d in range(draws):
+        for f in forms:
+            i, u = list(EXPECTED).index(f), case_unit(path, f, d)
+            out += [(f"test{TEST_SEED + 10 * i + d}", TEST_SEED + 10 * i + d, u),
+                    (f"second{SECOND_SEED + 10 * i + d}", SECOND_SEED + 10 * i + d, u)]
+    units = units_of(path)
+    k = 0
+    while len(out) < n:
+        out.append((f"new{NULL_SEED + k}", NULL_SEED + k, units[k % len(units)]))
+        k += 1
+    return out[:n]
+
+
+def run_null(lab: PathLab, name: str, seed: int, raw: bool = True) -> dict:
+    t, _ = lab.table(record(_scenario(seed, lab.unit, lab.path)))
+    row = {"path": lab.path, "null": name, "seed": seed, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)),
+           "rows": len(t), **_diag(lab.diagnose(t))}
     if lab.own is not None and raw:
         raw = _diag(lab.diagnose(t, own=False))
         row["without_own_error"] = {k2: raw[k2] for k2 in ("verdict", "p", "best", "best_p", "top_covariate",
@@ -253,13 +307,18 @@ def run_null(lab: PathLab, k: int, raw: bool = True) -> dict:
     return row
 
 
-def summarize(rows: list) -> dict:
+def summarize(rows: list, forms_set: str = "scored") -> dict:
+    """Per model path (the FE path per solver): the acceptance counts over the cases of one form set
+    ("scored" or "tuning") and every null."""
     out = {}
-    for path in PATHS:
-        cases = [r for r in rows if r["path"] == path and "form" in r]
-        nulls = [r for r in rows if r["path"] == path and "null" in r]
+    keys = sorted({(r["path"], r.get("fe_physics")) for r in rows})
+    for path, fe in keys:
+        mine = [r for r in rows if r["path"] == path and r.get("fe_physics") == fe]
+        cases = [r for r in mine if "form" in r and r.get("set") == forms_set]
+        nulls = [r for r in mine if "null" in r]
         if not cases and not nulls:
             continue
+        path = f"{path} ({fe})" if fe else path
         big = [r for r in cases if r["size_floor"] >= 1.0]
         removed = [r["removed"] for r in big if r["right"] and "removed" in r]
         lib = [r for r in big if EXPECTED[r["form"]] != "phi"]
@@ -270,6 +329,11 @@ def summarize(rows: list) -> dict:
                       float(np.nanmax([r["mde"] or np.nan for r in nulls]))] if nulls else None,
             "right_at_or_above_floor": f"{sum(r['right'] for r in big)}/{len(big)}",
             "right_library_forms": f"{sum(r['right'] for r in lib)}/{len(lib)}",
+            # the cases the session could show at all: the effect at least the MDE the diagnosis reported
+            "right_at_or_above_mde": (f"{sum(r['right'] for r in big if r['mde'] and r['size_n'] >= r['mde'])}/"
+                                      f"{sum(bool(r['mde']) and r['size_n'] >= r['mde'] for r in big)}"),
+            "size_over_mde": {f"{r['form']}-{r['size_floor']:g}": round(r["size_n"] / r["mde"], 2)
+                              for r in big if r["mde"]},
             "per_form": {f: f"{sum(r['right'] for r in big if r['form'] == f)}/{sum(r['form'] == f for r in big)}"
                          for f in EXPECTED if any(r["form"] == f for r in big)},
             "removed_at_least_70": f"{sum(x >= 0.7 for x in removed)}/{len(removed)}",
@@ -288,7 +352,7 @@ def run(a: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING)
     work = Path(a.work) if a.work else paths.cache_dir() / "workbench" / "paths"
     (work / "rows").mkdir(parents=True, exist_ok=True)
-    forms = a.forms or list(EXPECTED)
+    forms = a.forms or list(TUNING if a.tuning else SCORED)
     prog = Path(a.progress) if a.progress else None
 
     def note(text: str) -> None:
@@ -301,25 +365,31 @@ def run(a: argparse.Namespace) -> int:
         labs: dict = {}
         per = [(s, d, f) for s in sorted(a.sizes) for d in range(a.draws) for f in forms]
         tasks = []                 # cases and nulls interleaved, the paths taking turns
+        nulls = {p: null_sessions(p, forms, a.draws, a.nulls) for p in a.paths}
         for k in range(max(a.nulls, len(per))):
             for path in a.paths:
                 if k < len(per):
                     tasks.append((path, "case", per[k]))
-                if k < a.nulls:
-                    tasks.append((path, "null", k))
+                if k < len(nulls[path]):
+                    tasks.append((path, "null", nulls[path][k]))
         for path, kind, arg in (tasks[::-1] if a.reverse else tasks):
-            name = (f"{path}-null-{arg}" if kind == "null" else f"{path}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
+            tag = f"-{a.fe_physics}" if path == "fe" else ""
+            name = (f"{path}{tag}-null-{arg[0]}" if kind == "null" else f"{path}{tag}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
             f = work / "rows" / f"{name}.json"
             if f.is_file():
                 continue
-            unit = UNITS[(arg if kind == "null" else arg[1]) % len(UNITS)]
+            unit = arg[2] if kind == "null" else case_unit(path, arg[2], arg[1])
             t0 = time.perf_counter()
             try:
                 if (path, unit) not in labs:
-                    labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error)
+                    labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error,
+                                               fe_physics=a.fe_physics)
                 lab = labs[path, unit]
-                row = (run_null(lab, arg, path in (a.raw_nulls or [])) if kind == "null"
+                row = (run_null(lab, arg[0], arg[1], path in (a.raw_nulls or [])) if kind == "null"
                        else run_case(lab, arg[2], arg[0], arg[1]))
+                row["set"] = "null" if kind == "null" else ("tuning" if arg[2] in TUNING else "scored")
+                if path == "fe":
+                    row["fe_physics"] = a.fe_physics
             except Exception as exc:    # a row that fails is reported, the run goes on
                 log.exception("%s failed", name)
                 note(f"{name}: FAILED {type(exc).__name__}: {exc}")
@@ -330,7 +400,7 @@ def run(a: argparse.Namespace) -> int:
                  f"removed {row.get('removed', '-')} ({row['seconds']:.0f} s)")
             print(json.dumps(row, default=float), flush=True)
     rows = [json.loads(f.read_text()) for f in sorted((work / "rows").glob("*.json"))]
-    summary = summarize(rows)
+    summary = summarize(rows, "tuning" if a.tuning else "scored")
     print(json.dumps(summary, indent=1))
     note("summary " + json.dumps(summary))
     if a.out:

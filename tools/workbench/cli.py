@@ -94,7 +94,8 @@ def cmd_paths(args, diagnosis: bool) -> int:
     for r in results:     # each path's diagnosis, as `effects add --from-diagnosis --path P` reads it
         d = r.diagnosis.to_json()
         d.update({"session": str(Path(args.session).resolve()), "sensor_id": r.comparison.summary["sensor_id"],
-                  "path": r.path, "floor": r.floor(), "mde_n": r.mde()})
+                  "path": r.path, "floor": r.floor(), "mde_n": r.mde(),
+                  "model_source": r.comparison.summary["model"].get("source", "")})
         if r.own_error is not None:
             d["own_error"] = r.own_error.to_json()
         per[r.path] = d
@@ -175,6 +176,7 @@ def cmd_diagnose(args) -> int:
     diag = diagnose(comp.table, registry, comp.chain, cfg, post=post, baseline=baseline)
     result = diag.to_json()
     result["path"] = "contact-law" if comp.summary["model"]["name"] == "contact-law" else "output"
+    result["model_source"] = comp.summary["model"].get("source", "")
     if own is not None:
         result["own_error"] = own.to_json()
     result.update({"session": str(Path(args.session).resolve()), "sensor_id": comp.summary["sensor_id"],

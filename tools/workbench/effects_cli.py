@@ -88,7 +88,7 @@ def cmd_effects_add(args) -> int:
         current = [e for e in base.effects if e.get("name") != args.name]
         entry = EnabledEffect(eff, params).to_dict(source)
         if args.from_diagnosis is not None and not args.no_refit and current and diag.get("path") != "fe":
-            current, entry = _refit(args, sensor, store, reg, current, entry, diag.get("session"), diag.get("own_error"))
+            current, entry = _refit(args, sensor, store, reg, current, entry, diag)
         version = store.derive(sensor, {"effects": current + [entry]}, base_version=base.version,
                                provenance={"method": "workbench effects add", "effect": args.name, "source": source})
     params = entry["params"]
@@ -100,9 +100,18 @@ def cmd_effects_add(args) -> int:
     return 0
 
 
-def _refit(args, sensor, store, reg, current, entry, session, own_error=None):
+def model_of_diagnosis(diag: dict) -> str | None:
+    """The --model a refit of this diagnosis uses: the model of the path it was found on (the contact
+    law, or the network package it ran), not whatever the default would be now."""
+    if diag.get("path") == "contact-law":
+        return "contact-law"
+    return diag.get("model_source") or None
+
+
+def _refit(args, sensor, store, reg, current, entry, diag: dict):
     """Joint refit of the enabled effects + the new one on the diagnosed session (same model and
     deployed order as compare/diagnose: force-stage effects, then the sensor's correction)."""
+    session, own_error = diag.get("session"), diag.get("own_error")
     from ...contracts.errors import TensorTouchError
     from ...runtime.stages.effects import EffectChain
     from .compare import run_compare
@@ -112,6 +121,8 @@ def _refit(args, sensor, store, reg, current, entry, session, own_error=None):
         print("note: parameters not refitted jointly (diagnosed session not found)")
         return current, entry
     args.session = session
+    if getattr(args, "model", None) is None:
+        args.model = model_of_diagnosis(diag)
     try:
         model = model_of(args, sensor, store)
         comp = run_compare(session, sensor, store, model, reg, progress=progress)
