@@ -70,6 +70,28 @@ def test_write_dataset_contract(tmp_path):
     np.testing.assert_allclose(y[0].reshape(15, -1).mean(1), (0 - lo) / (hi - lo), rtol=1e-5)   # zeros → 0 N
 
 
+def test_given_bounds_write_normalized_targets_as_they_are(tmp_path):
+    """A distilled set (`distill.write_distilled`): the teacher's bounds are stored, its already normalized
+    targets are not normalized again; a set with no frames is refused."""
+    import pytest
+    from tensortouch.contracts.errors import TensorTouchError
+    from tensortouch.tools.train.distill import write_distilled
+
+    rng = np.random.default_rng(3)
+    bounds = {c: [-2.0, 3.0] for c in CHANNELS}
+    tgt = rng.uniform(0, 1, (3, 15, 16, 16)).astype(np.float32)
+    parts = [{"input": rng.integers(0, 255, (3, 6, 16, 16), dtype=np.uint8), "target": tgt,
+              "val": np.array([False, True, False])}]
+    write_distilled(tmp_path / "d", parts, bounds, 16, "test")
+    assert read_bounds(tmp_path / "d" / "bounds.json") == bounds
+    _, y = load_split(tmp_path / "d", "train")
+    np.testing.assert_array_equal(y, tgt[[0, 2]])
+    empty = [{"input": np.zeros((0, 6, 16, 16), np.uint8), "target": np.zeros((0, 15, 16, 16), np.float32),
+              "val": np.zeros(0, bool)}]
+    with pytest.raises(TensorTouchError, match="no frames"):
+        write_distilled(tmp_path / "e", empty, bounds, 16, "test")
+
+
 # ---------------------------------------------------------------- stage 3: correspondence cores
 
 def test_image_change_centroid_finds_a_blob():

@@ -206,22 +206,26 @@ def split_pokes(n_pokes: int, session_index: int, every: int = 2) -> set[int]:
     return {session_index % max(1, n_pokes)} if session_index % every == 0 else set()
 
 
-def write_dataset(root: Path, parts: list[dict], size: int, source: str, pixel_area: np.ndarray | None = None) -> str:
+def write_dataset(root: Path, parts: list[dict], size: int, source: str, pixel_area: np.ndarray | None = None,
+                  bounds: dict | None = None, compress: bool = True) -> str:
     """parts: per session {'input', 'target' (physical), 'val' (bool per sample)} → dataset directory
     (index.json, bounds.json, samples/, and pixel_area.npy = the units' mean pixel area in mm² when
-    given, for the fit's total-force term); returns the data hash (SHA-256 of index.json)."""
+    given, for the fit's total-force term); returns the data hash (SHA-256 of index.json). With `bounds`
+    the targets are already normalized by them (a distilled set) and are written as they are."""
     from .fields import compute_bounds, normalize_global, write_bounds
     from .model.data import write_index, write_sample
 
     root = Path(root)
-    bounds = compute_bounds(t for p in parts for t in p["target"])
+    given = bounds is not None
+    if not given:
+        bounds = compute_bounds(t for p in parts for t in p["target"])
     write_bounds(root / "bounds.json", bounds)
     if pixel_area is not None:
         atomic_write(root / "pixel_area.npy", lambda fh: np.save(fh, np.asarray(pixel_area, np.float32)))
     entries, i = [], 0
     for p in parts:
         for inp, tgt, val in zip(p["input"], p["target"], p["val"]):
-            e = write_sample(root, i, inp, normalize_global(tgt, bounds))
+            e = write_sample(root, i, inp, tgt if given else normalize_global(tgt, bounds), compress=compress)
             e["split"] = "val" if val else "train"
             entries.append(e)
             i += 1

@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.errors import TensorTouchError
-from ...contracts.files import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -101,24 +100,10 @@ def teacher_bounds(package: Path) -> dict:
 
 def write_distilled(root: Path, parts: list[dict], bounds: dict, size: int, source: str,
                     pixel_area: np.ndarray | None = None) -> str:
-    """parts: per session {'input', 'target' (already normalized), 'val'} → dataset directory; returns its hash."""
-    from .fields import write_bounds
-    from .model.data import write_index, write_sample
+    """parts: per session {'input', 'target' (already normalized by `bounds`), 'val'} → dataset directory
+    (`dataset.write_dataset`); returns its hash."""
+    from .dataset import write_dataset
 
-    root = Path(root)
-    write_bounds(root / "bounds.json", bounds)
-    if pixel_area is not None:
-        atomic_write(root / "pixel_area.npy", lambda fh: np.save(fh, np.asarray(pixel_area, np.float32)))
-    entries, i = [], 0
-    for p in parts:
-        for inp, tgt, val in zip(p["input"], p["target"], p["val"]):
-            e = write_sample(root, i, inp, tgt, compress=False)
-            e["split"] = "val" if val else "train"
-            entries.append(e)
-            i += 1
-    if not entries:
+    if not any(len(p["input"]) for p in parts):
         raise TensorTouchError(f"{root}: distillation found no frames in the training sessions")
-    h = write_index(root, entries, (size, size), source)
-    log.info("distilled dataset %s: %d samples (%d val), hash %s", root, len(entries),
-             sum(e["split"] == "val" for e in entries), h[:12])
-    return h
+    return write_dataset(root, parts, size, source, pixel_area, bounds=bounds, compress=False)
