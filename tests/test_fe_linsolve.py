@@ -64,6 +64,18 @@ def test_singular_matrix_is_a_floating_point_error():
             fac.factor(A)
 
 
+def _pad_press_slide(mu: float):
+    """A small pad pressed 0.6 mm by a R 4 mm sphere, then slid 0.6 mm: (scenario, mesh)."""
+    from tensortouch.tools.fe.mesh import mesh_gel
+    from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario
+
+    pad = GelGeometry(kind="flat_pad", size_x=12.0, size_y=12.0, thickness=5.0)
+    ms = MeshSettings(size_top=1.2, size_inside=1.5)
+    ind = Indenter(name="s", shape="sphere", params={"radius": 4.0}, position=[0.0, 0.0, 5.0],
+                   keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in [(0, 0, -0.6), (0.6, 0, -0.6)]])
+    return Scenario(gel=pad, mesh=ms, indenters=[ind], friction=mu), mesh_gel(pad, ms)
+
+
 @pytest.mark.parametrize("mu", [0.0, 0.4])
 def test_engines_give_the_same_solve_and_pardiso_repeats_bit_for_bit(mu):
     """A press-and-slide on a small pad: the reference engine (felupe + SuperLU) and the default one
@@ -72,15 +84,8 @@ def test_engines_give_the_same_solve_and_pardiso_repeats_bit_for_bit(mu):
     import json
 
     from tensortouch.tools.fe import solve
-    from tensortouch.tools.fe.mesh import mesh_gel
-    from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario
 
-    pad = GelGeometry(kind="flat_pad", size_x=12.0, size_y=12.0, thickness=5.0)
-    ms = MeshSettings(size_top=1.2, size_inside=1.5)
-    ind = Indenter(name="s", shape="sphere", params={"radius": 4.0}, position=[0.0, 0.0, 5.0],
-                   keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in [(0, 0, -0.6), (0.6, 0, -0.6)]])
-    sc = Scenario(gel=pad, mesh=ms, indenters=[ind], friction=mu)
-    gm = mesh_gel(pad, ms)
+    sc, gm = _pad_press_slide(mu)
     ref = solve(sc, mesh=gm, engine="superlu")
     new = solve(sc, mesh=gm, engine="pardiso")
     again = solve(sc, mesh=gm, engine="pardiso")
@@ -103,15 +108,8 @@ def test_chord_steps_reuse_the_factorisation_converge_alike_and_repeat_bit_for_b
     import json
 
     from tensortouch.tools.fe import solve
-    from tensortouch.tools.fe.mesh import mesh_gel
-    from tensortouch.tools.fe.scenario import GelGeometry, Indenter, Keypoint, MeshSettings, Scenario
 
-    pad = GelGeometry(kind="flat_pad", size_x=12.0, size_y=12.0, thickness=5.0)
-    ms = MeshSettings(size_top=1.2, size_inside=1.5)
-    ind = Indenter(name="s", shape="sphere", params={"radius": 4.0}, position=[0.0, 0.0, 5.0],
-                   keypoints=[Keypoint(list(t), [0.0, 0.0, 0.0]) for t in [(0, 0, -0.6), (0.6, 0, -0.6)]])
-    sc = Scenario(gel=pad, mesh=ms, indenters=[ind], friction=mu)
-    gm = mesh_gel(pad, ms)
+    sc, gm = _pad_press_slide(mu)
     exact = solve(sc, mesh=gm, engine="pardiso")
     chord = solve(sc, mesh=gm, engine="pardiso-reuse")
     again = solve(sc, mesh=gm, engine="pardiso-reuse")
