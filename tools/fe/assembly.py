@@ -10,15 +10,17 @@ Yeoh tangent of tools.fe.materials.YeohUmat contracts to, per cell (volume V):
                     + (2/3 a trC f1 - kappa (J - 1) J) q_bi q_ak + f2 d_ai d_bk
 
 (a = J^(-2/3), f1 = dW/dI1b, f2 = d2W/dI1b^2, kappa the bulk modulus) and the force to
-f_ai / V = f1 d_ai + kappa (J - 1) J q_ai: a few outer products of (cell, 12) vectors instead of
-einsums over (3,3,3,3,cell) arrays. The entries are summed into the CSR data of the free-DOF
-pattern (gel elements + a 3x3 block per surface node for the contact) by one `np.bincount` over
-precomputed positions, so the pattern (and the factorisation's symbolic analysis,
-tools.fe.linsolve) stays the same for a whole solve, and the sums run in a fixed order
-(bit-identical results run to run). tests/test_fe_assembly.py checks both against felupe's.
+f_ai / V = f1 d_ai + kappa (J - 1) J q_ai: products of 4x3 vectors, never a (3,3,3,3) tensor. One
+numba pass over the cells computes the kinematics, the forces and the 12x12 block and adds them
+straight into the force vector and into the CSR data of the free-DOF pattern (gel elements + a 3x3
+block per surface node for the contact) at precomputed positions, in a fixed order (bit-identical
+results run to run). The pattern, and so the factorisation's symbolic analysis (tools.fe.linsolve),
+stays the same for a whole solve.
+tests/test_fe_assembly.py checks both against felupe's.
 """
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 import scipy.sparse as sp
 
@@ -58,80 +60,140 @@ class P1Assembly:
         pos = np.full(len(keys), len(ukeys), np.int64)                     # dump slot for fixed DOFs
         pos[keep] = np.searchsorted(ukeys, keys[keep])
         self.n_elem_entries = er.size
-        self.pos = pos
+        self.pos = pos.astype(np.int32) if len(ukeys) < 2**31 - 1 else pos
         self.nnz = len(ukeys)
         self.indices = (ukeys % nf).astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ukeys // nf, minlength=nf))]).astype(np.int32)
 
-    # -- kinematics ------------------------------------------------------------------------------
-    def kinematics(self, U: np.ndarray, umat) -> tuple:
-        """Per-cell quantities at displacement U (N,3) that forces and tangent share; pass them back as
-        `cells=` to skip recomputing them (the Newton loop's tangent is at its last residual's U)."""
-        ue = U[self.tets]                                                   # (C,4,3)
-        F = np.eye(3) + ue.transpose(0, 2, 1) @ self.B                     # (C,3,3) F_iJ
-        J, iF = _det_inv3(F)
-        trC = np.einsum("ciJ,ciJ->c", F, F)
-        a = J ** (-2.0 / 3.0)
-        f1, f2 = umat._f(a * trC)
-        p = self.B @ F.transpose(0, 2, 1)                                   # (C,4,3) F B_a
-        q = self.B @ iF                                                     # (C,4,3) F^-T B_a
-        d = (2.0 * a)[:, None, None] * (p - (trC / 3.0)[:, None, None] * q)  # dI1b/dF B_a
-        return J, trC, a, f1, f2, p, q, d
-
-    def _element_forces(self, J, f1, q, d, bulk):
-        return self.V[:, None, None] * (f1[:, None, None] * d + (bulk * (J - 1.0) * J)[:, None, None] * q)
-
-    def forces(self, U: np.ndarray, umat, cells: tuple | None = None) -> np.ndarray:
+    def forces(self, U: np.ndarray, umat) -> np.ndarray:
         """Internal force vector (ndof,) of the gel at displacement U (N,3)."""
-        J, _, _, f1, _, _, q, d = cells if cells is not None else self.kinematics(U, umat)
-        return np.bincount(self.edofs, self._element_forces(J, f1, q, d, umat.bulk).ravel(), minlength=self.ndof)
+        return _forces(np.ascontiguousarray(U, float), self.tets, self.B, self.V, umat.C10, umat.C20, umat.C30,
+                       umat.bulk, self.edofs, self.ndof)
 
-    def forces_and_tangent(self, U: np.ndarray, umat, contact_K: np.ndarray | None = None,
-                           cells: tuple | None = None):
+    def forces_and_tangent(self, U: np.ndarray, umat, contact_K: np.ndarray | None = None):
         """(internal force vector (ndof,), CSR data (nnz,) of the free-DOF tangent incl. contact_K).
 
         contact_K (M,3,3): d(contact force)/dx per surface node; enters with a minus sign (the
         residual is internal minus contact force)."""
-        J, trC, a, f1, f2, p, q, d = cells if cells is not None else self.kinematics(U, umat)
-        V, kap = self.V, umat.bulk
-        fe = self._element_forces(J, f1, q, d, kap)
-        C = len(V)
-        # rank-3 part: [p q d]_a M [p q d]_b^T with M = [[0, beta, 0], [beta, gamma, 0], [0, 0, V f2]]
-        M = np.zeros((C, 3, 3))
-        M[:, 0, 1] = M[:, 1, 0] = V * (-4.0 / 3.0) * a * f1
-        M[:, 1, 1] = V * (4.0 / 9.0 * a * trC * f1 + kap * J * (2.0 * J - 1.0))
-        M[:, 2, 2] = V * f2
-        L = np.stack([p, q, d], axis=3).reshape(C, 12, 3)
-        K = ((L @ M) @ L.transpose(0, 2, 1)).reshape(C, 4, 3, 4, 3)
-        # swap part delta q_bi q_ak and the isotropic part 2 a f1 (B_a . B_b) delta_ik
-        de = V * (2.0 / 3.0 * a * trC * f1 - kap * (J - 1.0) * J)
-        qd = q * de[:, None, None]
-        K += (qd.reshape(C, 12, 1) * q.reshape(C, 1, 12)).reshape(C, 4, 3, 4, 3).transpose(0, 1, 4, 3, 2)
-        g = self.gram * (V * 2.0 * a * f1)[:, None, None]
-        for i in range(3):
-            K[:, :, i, :, i] += g
-        w = K.ravel()
-        if contact_K is not None:
-            w = np.concatenate([w, -np.asarray(contact_K).ravel()])
-            pos = self.pos
-        else:
-            pos = self.pos[:self.n_elem_entries]
-        data = np.bincount(pos, w, minlength=self.nnz + 1)[:self.nnz]
-        return np.bincount(self.edofs, fe.ravel(), minlength=self.ndof), data
+        cw = np.zeros(0) if contact_K is None else np.ascontiguousarray(contact_K, float).ravel()
+        return _forces_and_tangent(np.ascontiguousarray(U, float), self.tets, self.B, self.V, self.gram,
+                                   umat.C10, umat.C20, umat.C30, umat.bulk, self.edofs, self.ndof, self.pos,
+                                   self.nnz, cw)
 
     def matrix(self, data: np.ndarray) -> sp.csr_matrix:
         """The free-DOF tangent as a CSR matrix sharing this pattern's index arrays."""
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.nfree, self.nfree), copy=False)
 
 
-def _det_inv3(F: np.ndarray):
-    """Determinants (C,) and inverses (C,3,3) of (C,3,3) matrices by cofactors."""
-    a, b, c = F[:, 0, 0], F[:, 0, 1], F[:, 0, 2]
-    d, e, f = F[:, 1, 0], F[:, 1, 1], F[:, 1, 2]
-    g, h, i = F[:, 2, 0], F[:, 2, 1], F[:, 2, 2]
-    c00, c01, c02 = e * i - f * h, f * g - d * i, d * h - e * g
-    J = a * c00 + b * c01 + c * c02
-    adj = np.stack([c00, c * h - b * i, b * f - c * e,
-                    c01, a * i - c * g, c * d - a * f,
-                    c02, b * g - a * h, a * e - b * d], axis=1).reshape(-1, 3, 3)
-    return J, adj / J[:, None, None]
+# -- per-cell kernels (numba, compiled once and cached next to this file) ------------------------------
+# Cells are visited in order and their entries added in the order of `edofs` / `pos`, so a result is the
+# same bits on every run (the FE cache keys depend on them). No fastmath: IEEE semantics as in numpy.
+
+@nb.njit(cache=True, nogil=True)
+def _cell(U, tets, B, c, C10, C20, C30, w):
+    """Kinematics of cell c: fills w[0] = p_a = F B_a, w[1] = q_a = F^-T B_a, w[2] = d_a = dI1b/dF B_a
+    (each (4,3)); returns (J, tr C, J^(-2/3), f1, f2)."""
+    F = np.empty((3, 3))
+    for i in range(3):
+        for J in range(3):
+            s = 1.0 if i == J else 0.0
+            for a in range(4):
+                s += U[tets[c, a], i] * B[c, a, J]
+            F[i, J] = s
+    c00 = F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]
+    c01 = F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]
+    c02 = F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]
+    det = F[0, 0] * c00 + F[0, 1] * c01 + F[0, 2] * c02
+    iF = np.empty((3, 3))   # F^-1 by cofactors
+    iF[0, 0] = c00
+    iF[0, 1] = F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]
+    iF[0, 2] = F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]
+    iF[1, 0] = c01
+    iF[1, 1] = F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]
+    iF[1, 2] = F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]
+    iF[2, 0] = c02
+    iF[2, 1] = F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]
+    iF[2, 2] = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    trC = 0.0
+    for i in range(3):
+        for J in range(3):
+            iF[i, J] /= det
+            trC += F[i, J] * F[i, J]
+    a = det ** (-2.0 / 3.0)
+    x = a * trC - 3.0
+    f1 = C10 + 2.0 * C20 * x + 3.0 * C30 * x * x      # YeohUmat._f
+    f2 = 2.0 * C20 + 6.0 * C30 * x
+    for k in range(4):
+        for i in range(3):
+            p = 0.0
+            q = 0.0
+            for J in range(3):
+                p += B[c, k, J] * F[i, J]
+                q += B[c, k, J] * iF[J, i]
+            w[0, k, i] = p
+            w[1, k, i] = q
+            w[2, k, i] = 2.0 * a * (p - trC / 3.0 * q)
+    return det, trC, a, f1, f2
+
+
+@nb.njit(cache=True, nogil=True)
+def _forces(U, tets, B, V, C10, C20, C30, bulk, edofs, ndof):
+    f = np.zeros(ndof)
+    w = np.empty((3, 4, 3))
+    for c in range(tets.shape[0]):
+        det, trC, a, f1, f2 = _cell(U, tets, B, c, C10, C20, C30, w)
+        vol = bulk * (det - 1.0) * det
+        for k in range(4):
+            for i in range(3):
+                f[edofs[c * 12 + 3 * k + i]] += V[c] * (f1 * w[2, k, i] + vol * w[1, k, i])
+    return f
+
+
+@nb.njit(cache=True, nogil=True)
+def _forces_and_tangent(U, tets, B, V, gram, C10, C20, C30, bulk, edofs, ndof, pos, nnz, contact_w):
+    f = np.zeros(ndof)
+    data = np.zeros(nnz + 1)          # the last slot takes the entries of fixed DOFs
+    w = np.empty((3, 4, 3))
+    C = tets.shape[0]
+    for c in range(C):
+        det, trC, a, f1, f2 = _cell(U, tets, B, c, C10, C20, C30, w)
+        Vc = V[c]
+        vol = bulk * (det - 1.0) * det
+        for k in range(4):
+            for i in range(3):
+                f[edofs[c * 12 + 3 * k + i]] += Vc * (f1 * w[2, k, i] + vol * w[1, k, i])
+        beta = Vc * (-4.0 / 3.0) * a * f1
+        gam = Vc * (4.0 / 9.0 * a * trC * f1 + bulk * det * (2.0 * det - 1.0))
+        vf2 = Vc * f2
+        de = Vc * (2.0 / 3.0 * a * trC * f1 - bulk * (det - 1.0) * det)
+        g0 = Vc * 2.0 * a * f1
+        base = c * 144
+        # the gel block is symmetric: each entry is computed once and added at (a i, b k) and (b k, a i)
+        for r in range(12):
+            ka, i = r // 3, r % 3
+            pa, qa, da = w[0, ka, i], w[1, ka, i], w[2, ka, i]
+            for col in range(r, 12):
+                kb, k = col // 3, col % 3
+                v = (beta * (pa * w[1, kb, k] + qa * w[0, kb, k]) + gam * qa * w[1, kb, k]
+                     + vf2 * da * w[2, kb, k] + de * w[1, kb, i] * w[1, ka, k])
+                if i == k:
+                    v += g0 * gram[c, ka, kb]
+                data[pos[base + r * 12 + col]] += v
+                if col != r:
+                    data[pos[base + col * 12 + r]] += v
+    for j in range(contact_w.shape[0]):
+        data[pos[C * 144 + j]] -= contact_w[j]
+    return f, data[:nnz]
+
+
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) the kernels on a one-cell mesh, so a timed solve does not
+    pay for it."""
+    nodes = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    B = np.array([[[-1.0, -1, -1], [1, 0, 0], [0, 1, 0], [0, 0, 1]]])
+    asm = P1Assembly(np.arange(4)[None], 4, np.arange(3, 12), np.arange(3, 6), B, np.array([1 / 6]))
+    from .materials import YeohUmat
+
+    umat = YeohUmat(0.03, 0.002, 0.0002, 0.1)
+    asm.forces(np.zeros_like(nodes), umat)
+    asm.forces_and_tangent(np.zeros_like(nodes), umat, np.zeros((1, 3, 3)))

@@ -50,6 +50,9 @@ def add_arguments(parser) -> None:
                         help="comma-separated engines to time side by side, the reference first "
                              f"(e.g. superlu,pardiso,pardiso-reuse; choices {', '.join(ENGINES)})")
     parser.add_argument("--repeat", type=int, default=1, help="alternating runs per engine (default 1)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="PARDISO threads per factorisation (default: TENSORTOUCH_FE_THREADS, else up to 2 "
+                             "cores); the results are the same bits for any count")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
 
@@ -84,6 +87,13 @@ def run(args) -> int:
     if args.repeat < 1:
         print(f"--repeat: expected >= 1, got {args.repeat}")
         return 2
+    from . import linsolve
+
+    if args.threads is not None:
+        if args.threads < 1:
+            print(f"--threads: expected >= 1, got {args.threads}")
+            return 2
+        linsolve.THREADS = args.threads
     if args.engines:
         engines = [e.strip() for e in args.engines.split(",") if e.strip()]
         bad = [e for e in engines if e not in ENGINES]
@@ -98,6 +108,9 @@ def run(args) -> int:
     scenario = standard_dome(n_keypoints=args.keypoints, **mesh_kw)
     if args.frictionless:
         scenario.friction = 0.0
+    from .assembly import compile_kernels
+
+    compile_kernels()  # numba compiles (or loads its cache) before anything is timed
     t0 = time.perf_counter()
     mesh = build_mesh(scenario)
     t_mesh = time.perf_counter() - t0
@@ -116,6 +129,7 @@ def run(args) -> int:
         "quick": bool(args.quick), "order": args.order, "friction": scenario.friction,
         "nodes": len(mesh.nodes), "tets": int(mesh.tets.shape[0]), "keypoints": args.keypoints,
         "seconds_mesh": round(t_mesh, 3), "engine": new, "repeat": args.repeat,
+        "pardiso_threads": linsolve.THREADS,
         "seconds_per_frame": last["seconds_per_frame"],
         "seconds_per_trajectory": med[new]["seconds_per_trajectory"],
         "cpu_seconds_per_trajectory": med[new]["cpu_seconds_per_trajectory"],
@@ -142,7 +156,8 @@ def run(args) -> int:
     if args.order == 2:
         label += " (order 2: quadratic u/p/J tets, top 1.4 mm)"
     print(f"FE bench{label}: standard dome, {out['nodes']} nodes, {out['tets']} tets, "
-          f"{args.keypoints} keypoints, mu = {scenario.friction}; mesh {t_mesh:.2f} s")
+          f"{args.keypoints} keypoints, mu = {scenario.friction}; mesh {t_mesh:.2f} s; "
+          f"PARDISO threads {linsolve.THREADS}")
     for e in engines:
         r = runs[e][-1]
         print(f"  {e:8s}: {med[e]['seconds_per_trajectory']:.2f} s wall, {med[e]['cpu_seconds_per_trajectory']:.2f} s CPU "

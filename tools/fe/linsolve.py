@@ -5,9 +5,13 @@
 analysis (METIS ordering, supernode structure: phase 11) runs once and every later Newton iteration
 and keypoint only refactorises the numbers (phase 22) and solves (phase 33). Symmetric tangents
 (frictionless contact) use the real symmetric indefinite type on the upper triangle (Bunch-Kaufman
-pivoting), general ones the real unsymmetric type with scaling and matching. MKL runs single-threaded
-(sequential layer): one thread gives the same bits on every machine, the FE batch runner
-parallelises over scenarios, and it stays out of torch's OpenMP runtime. Engine "pardiso-reuse"
+pivoting), general ones the real unsymmetric type (no scaling or matching: an FE tangent has a
+strong diagonal, and both cost time). PARDISO runs in its conditional numerical reproducibility
+mode (iparm[33]): the factors and solutions are the same bits with one thread or two, so the thread
+count (`THREADS`, environment variable TENSORTOUCH_FE_THREADS; the FE batch runner gives each of
+its worker processes one) is a speed setting, not part of a result. Threads come from MKL's GNU
+OpenMP layer (the libgomp that torch also uses; MKL's Intel layer crashes next to torch), or the
+sequential layer where no libgomp is installed. Engine "pardiso-reuse"
 is the same factor with `allow_chord`: the Newton loop (tools.fe.solver.CHORD_RATIO) may solve with
 the kept factors instead of refactorising once it converges quadratically. `SuperLUFactor`
 (engine "superlu") is the reference: scipy's splu, refactorised from scratch each time.
@@ -32,6 +36,24 @@ ENGINES = ("pardiso-reuse", "pardiso", "superlu")
 # "pardiso-reuse": PARDISO as "pardiso", and the Newton loop may reuse the last factorisation for
 # chord steps (tools.fe.solver.CHORD_RATIO; docs/decisions/2026-12-01-fe-factorisation-reuse.md).
 _MKL_THREADING_SEQUENTIAL = 1
+_MKL_THREADING_GNU = 3
+
+
+def _default_threads() -> int:
+    env = os.environ.get("TENSORTOUCH_FE_THREADS", "").strip()
+    if env:
+        try:
+            n = int(env)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise FEError(f"TENSORTOUCH_FE_THREADS: expected an integer >= 1, got {env!r}")
+        return n
+    return max(1, min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+
+
+# PARDISO threads per factorisation (a speed setting: the results do not depend on it, see above).
+THREADS = _default_threads()
 
 
 class SingularTangent(FloatingPointError):
@@ -59,7 +81,10 @@ def mkl_rt() -> ctypes.CDLL:
             raise FEError("MKL's mkl_rt library not found: the FE's sparse solver needs the `mkl` package "
                           "(pip install -e '.[train]')")
         lib.MKL_Set_Threading_Layer.argtypes = [ctypes.c_int]
-        lib.MKL_Set_Threading_Layer(_MKL_THREADING_SEQUENTIAL)
+        lib.MKL_Set_Threading_Layer(_MKL_THREADING_GNU if find_library("gomp") else _MKL_THREADING_SEQUENTIAL)
+        lib.MKL_Set_Num_Threads.argtypes = [ctypes.c_int]
+        lib.MKL_Set_Num_Threads_Local.argtypes = [ctypes.c_int]
+        lib.MKL_Set_Num_Threads_Local.restype = ctypes.c_int
         p_i32 = ctypes.POINTER(ctypes.c_int32)
         lib.pardiso.argtypes = [ctypes.POINTER(ctypes.c_int64)] + [p_i32] * 5 + [ctypes.c_void_p, p_i32, p_i32, p_i32,
                                                                                   p_i32, p_i32, p_i32,
@@ -83,18 +108,20 @@ class PardisoFactor:
     upper triangle is taken here); `solve(b)`. Counters: `analyses`, `factorizations`; `allow_chord`
     lets the Newton loop solve with the kept factors without refactorising (it counts `chord_steps`)."""
 
-    def __init__(self, symmetric: bool, allow_chord: bool = False):
+    def __init__(self, symmetric: bool, allow_chord: bool = False, threads: int | None = None):
         self._lib = mkl_rt()
+        self.threads = THREADS if threads is None else int(threads)
         self.symmetric = symmetric
         self.mtype = -2 if symmetric else 11
         self.pt = np.zeros(64, np.int64)      # PARDISO's internal handle
         self.iparm = it = np.zeros(64, np.int32)
         it[0] = 1            # iparm given here, no defaults
         it[1] = 2            # METIS nested dissection ordering
-        it[7] = 2            # up to 2 steps of iterative refinement (after perturbed pivots)
+        it[7] = 0            # iterative refinement: only after perturbed pivots (set in factor())
         it[9] = 8 if symmetric else 13   # pivot perturbation 1e-8 / 1e-13
-        it[10] = 1           # scaling
-        it[12] = 1           # weighted matching
+        it[10] = 0           # no scaling
+        it[12] = 0           # no weighted matching
+        it[33] = 1           # conditional numerical reproducibility: the same bits whatever the threads
         it[17] = -1          # report nnz(L+U) in iparm[17]
         it[20] = 1           # Bunch-Kaufman pivoting (symmetric indefinite)
         it[34] = 1           # zero-based indexing
@@ -112,10 +139,14 @@ class PardisoFactor:
         def ref(v):
             return ctypes.byref(ctypes.c_int32(v))
 
-        self._lib.pardiso(self.pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), ref(1), ref(1), ref(self.mtype),
-                          ref(phase), ref(A.shape[0]), A.data.ctypes.data, A.indptr.ctypes.data_as(i32),
-                          A.indices.ctypes.data_as(i32), None, ref(1), self.iparm.ctypes.data_as(i32), ref(0),
-                          b.ctypes.data, x.ctypes.data, ctypes.byref(err))
+        prev = self._lib.MKL_Set_Num_Threads_Local(self.threads)
+        try:
+            self._lib.pardiso(self.pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), ref(1), ref(1), ref(self.mtype),
+                              ref(phase), ref(A.shape[0]), A.data.ctypes.data, A.indptr.ctypes.data_as(i32),
+                              A.indices.ctypes.data_as(i32), None, ref(1), self.iparm.ctypes.data_as(i32), ref(0),
+                              b.ctypes.data, x.ctypes.data, ctypes.byref(err))
+        finally:
+            self._lib.MKL_Set_Num_Threads_Local(prev)
         if err.value != 0:
             raise SingularTangent(f"PARDISO phase {phase} failed with error {err.value}")
         return x
@@ -147,6 +178,9 @@ class PardisoFactor:
             self._pattern = (A.indptr, A.indices)
         self._call(22, M, b)
         self.factorizations += 1
+        # two refinement steps where pivots were perturbed (iparm[13] counts them); none otherwise,
+        # where they only repeat the solve (the residual is at rounding level after one)
+        self.iparm[7] = 2 if self.iparm[13] > 0 else 0
         self._A = M
 
     def solve(self, b: np.ndarray) -> np.ndarray:

@@ -149,8 +149,7 @@ class GelModel:
     def residual(self, U, poses, state, tangent=True, hold=None, slip_tangent="exact"):
         self._U = U
         if self.fast is not None:
-            self._cells = self.fast.kinematics(U, self.umat)
-            r = self.fast.forces(U, self.umat, self._cells)
+            r = self.fast.forces(U, self.umat)
         else:
             r = self.internal_forces(U)
         x = self.gm.nodes[self.surf] + U[self.surf]
@@ -169,7 +168,7 @@ class GelModel:
     def tangent(self, ce):
         """Free-DOF tangent at the displacement of the last residual() call."""
         if self.fast is not None:
-            _, data = self.fast.forces_and_tangent(self._U, self.umat, ce.K, cells=self._cells)
+            _, data = self.fast.forces_and_tangent(self._U, self.umat, ce.K)
             return self.fast.matrix(data)
         self.set_u(self._U)
         K = self.solid.assemble.matrix(self.field).tocsr()
@@ -304,9 +303,10 @@ def check_initial(model: GelModel) -> None:
 
 
 def _blas_one_thread():
-    """numpy's OpenBLAS held to one thread during a solve: its BLAS calls here are tiny per-cell
-    products, and a second thread only spins (≈ 10 % more CPU for the same bits, docs/BENCHMARKS.md
-    "FE engine"). threadpoolctl comes with the train extra (scikit-learn); without it, no limit."""
+    """numpy's OpenBLAS held to one thread during a solve: its BLAS calls here are tiny products, and
+    a second thread only spins (≈ 10 % more CPU for the same bits). PARDISO's threads are set per call
+    (tools.fe.linsolve.THREADS). threadpoolctl comes with the train extra (scikit-learn); without it,
+    no limit."""
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:
