@@ -120,3 +120,24 @@ def test_chord_steps_reuse_the_factorisation_converge_alike_and_repeat_bit_for_b
     scale = np.abs(exact.RF).max()
     assert np.abs(chord.RF - exact.RF).max() <= 1e-4 * scale   # the Newton tolerance, not rounding
     assert np.array_equal(again.RF, chord.RF) and np.array_equal(again.U, chord.U)
+
+
+def test_one_thread_and_two_give_the_same_bits():
+    """PARDISO's reproducible mode (iparm[33]): the thread count is a speed setting only, so FE results
+    (and the cache keys that hash them) do not depend on TENSORTOUCH_FE_THREADS. A 3D grid Laplacian
+    with an unsymmetric part, large enough for the factorisation to split across threads."""
+    n = 22
+    lap1 = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n))
+    eye = sp.identity(n)
+    A = (sp.kron(sp.kron(lap1, eye), eye) + sp.kron(sp.kron(eye, lap1), eye) + sp.kron(sp.kron(eye, eye), lap1))
+    A = (A + 0.05 * sp.diags(np.linspace(-1, 1, n ** 3 - 1), 1) + 0.1 * sp.identity(n ** 3)).tocsr()
+    A.sort_indices()
+    b = np.random.default_rng(3).normal(size=A.shape[0])
+    out = []
+    for threads in (1, 2, 1):
+        fac = PardisoFactor(False, threads=threads)
+        fac.factor(A)
+        out.append(fac.solve(b))
+        fac.free()
+    assert np.abs(A @ out[0] - b).max() < 1e-9
+    assert out[0].tobytes() == out[1].tobytes() == out[2].tobytes()
