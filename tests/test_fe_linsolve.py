@@ -141,3 +141,17 @@ def test_one_thread_and_two_give_the_same_bits():
         fac.free()
     assert np.abs(A @ out[0] - b).max() < 1e-9
     assert out[0].tobytes() == out[1].tobytes() == out[2].tobytes()
+
+
+def test_the_thread_count_comes_from_the_environment_and_bad_values_name_it(monkeypatch):
+    from tensortouch.tools.fe import linsolve
+
+    monkeypatch.setattr(linsolve, "THREADS", None)
+    monkeypatch.delenv("TENSORTOUCH_FE_THREADS", raising=False)
+    assert linsolve.thread_count() == 1
+    monkeypatch.setenv("TENSORTOUCH_FE_THREADS", "2")
+    assert linsolve.thread_count() == 2 and PardisoFactor(False).threads == 2
+    for bad in ("0", "two"):
+        monkeypatch.setenv("TENSORTOUCH_FE_THREADS", bad)
+        with pytest.raises(FEError, match="TENSORTOUCH_FE_THREADS"):
+            linsolve.thread_count()

@@ -100,8 +100,8 @@ def _local_pool(jobs, workers: int):
     """Yield (key, info) as the local process pool finishes `jobs` [(key, payload), ...]."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one BLAS thread per worker process
     workers = max(1, min(workers, len(jobs) or 1))
-    if workers > 1:  # one PARDISO thread per worker (the same bits as two, tools.fe.linsolve)
-        os.environ.setdefault("TENSORTOUCH_FE_THREADS", "1")
+    if workers > 1:  # one PARDISO thread per worker whatever the caller asked (the same bits, tools.fe.linsolve)
+        os.environ["TENSORTOUCH_FE_THREADS"] = "1"
     # spawn, not fork: gmsh and BLAS thread pools deadlock in forked children
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = {pool.submit(solve_payload, payload): key for key, payload in jobs}

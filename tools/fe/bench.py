@@ -51,8 +51,8 @@ def add_arguments(parser) -> None:
                              f"(e.g. superlu,pardiso,pardiso-reuse; choices {', '.join(ENGINES)})")
     parser.add_argument("--repeat", type=int, default=1, help="alternating runs per engine (default 1)")
     parser.add_argument("--threads", type=int, default=None,
-                        help="PARDISO threads per factorisation (default: TENSORTOUCH_FE_THREADS, else up to 2 "
-                             "cores); the results are the same bits for any count")
+                        help="PARDISO threads per factorisation (default: TENSORTOUCH_FE_THREADS, else 1); "
+                             "the results are the same bits for any count; 2 only pays on an idle machine")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
 
@@ -136,7 +136,7 @@ def run(args) -> int:
         "quick": bool(args.quick), "order": args.order, "friction": scenario.friction,
         "nodes": len(mesh.nodes), "tets": int(mesh.tets.shape[0]), "keypoints": args.keypoints,
         "seconds_mesh": round(t_mesh, 3), "seconds_pattern": round(t_pattern, 3), "engine": new, "repeat": args.repeat,
-        "pardiso_threads": linsolve.THREADS,
+        "pardiso_threads": linsolve.thread_count(),
         "seconds_per_frame": last["seconds_per_frame"],
         "seconds_per_trajectory": med[new]["seconds_per_trajectory"],
         "cpu_seconds_per_trajectory": med[new]["cpu_seconds_per_trajectory"],
@@ -165,7 +165,7 @@ def run(args) -> int:
     print(f"FE bench{label}: standard dome, {out['nodes']} nodes, {out['tets']} tets, "
           f"{args.keypoints} keypoints, mu = {scenario.friction}; mesh {t_mesh:.2f} s, assembly pattern "
           f"{t_pattern:.2f} s (once per mesh, not in the times below); "
-          f"PARDISO threads {linsolve.THREADS}")
+          f"PARDISO threads {linsolve.thread_count()}")
     for e in engines:
         r = runs[e][-1]
         print(f"  {e:8s}: {med[e]['seconds_per_trajectory']:.2f} s wall, {med[e]['cpu_seconds_per_trajectory']:.2f} s CPU "

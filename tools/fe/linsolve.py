@@ -8,8 +8,8 @@ and keypoint only refactorises the numbers (phase 22) and solves (phase 33). Sym
 pivoting), general ones the real unsymmetric type (no scaling or matching: an FE tangent has a
 strong diagonal, and both cost time). PARDISO runs in its conditional numerical reproducibility
 mode (iparm[33]): the factors and solutions are the same bits with one thread or two, so the thread
-count (`THREADS`, environment variable TENSORTOUCH_FE_THREADS; the FE batch runner gives each of
-its worker processes one) is a speed setting, not part of a result. Threads come from MKL's GNU
+count (`THREADS`: 1, or environment variable TENSORTOUCH_FE_THREADS) is a speed setting, not part
+of a result. Threads come from MKL's GNU
 OpenMP layer (the libgomp that torch also uses; MKL's Intel layer crashes next to torch), or the
 sequential layer where no libgomp is installed. Engine "pardiso-reuse"
 is the same factor with `allow_chord`: the Newton loop (tools.fe.solver.CHORD_RATIO) may solve with
@@ -39,21 +39,26 @@ _MKL_THREADING_SEQUENTIAL = 1
 _MKL_THREADING_GNU = 3
 
 
-def _default_threads() -> int:
+def thread_count() -> int:
+    """PARDISO threads per factorisation: `THREADS` when set, else TENSORTOUCH_FE_THREADS, else 1."""
+    if THREADS is not None:
+        return THREADS
     env = os.environ.get("TENSORTOUCH_FE_THREADS", "").strip()
-    if env:
-        try:
-            n = int(env)
-        except ValueError:
-            n = 0
-        if n < 1:
-            raise FEError(f"TENSORTOUCH_FE_THREADS: expected an integer >= 1, got {env!r}")
-        return n
-    return max(1, min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+    if not env:
+        return 1
+    try:
+        n = int(env)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise FEError(f"TENSORTOUCH_FE_THREADS: expected an integer >= 1, got {env!r}")
+    return n
 
 
-# PARDISO threads per factorisation (a speed setting: the results do not depend on it, see above).
-THREADS = _default_threads()
+# PARDISO threads per factorisation when set here (tools.fe.bench --threads; a speed setting: the results do not depend on it, see above).
+# One unless asked: two threads halve a factorisation on an idle machine, but with the other core busy
+# every OpenMP barrier waits for a time slice and a solve took 5x longer than with one thread.
+THREADS: int | None = None
 
 
 class SingularTangent(FloatingPointError):
@@ -110,7 +115,7 @@ class PardisoFactor:
 
     def __init__(self, symmetric: bool, allow_chord: bool = False, threads: int | None = None):
         self._lib = mkl_rt()
-        self.threads = THREADS if threads is None else int(threads)
+        self.threads = thread_count() if threads is None else int(threads)
         self.symmetric = symmetric
         self.mtype = -2 if symmetric else 11
         self.pt = np.zeros(64, np.int64)      # PARDISO's internal handle
