@@ -11,7 +11,6 @@ import logging
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 from scipy.special import erf
 
 from .base import Effect, Param, need, scale_rows
@@ -51,6 +50,8 @@ def prony_history(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
         e = math.exp(-d / tau)
         b = tau * (1.0 - e) / d
         zi = ((1.0 - b) * x[:1]).reshape((1,) + x.shape[1:])
+        from scipy.signal import lfilter  # here, not at module import: scipy.signal costs 1.3 s to import
+
         h, _ = lfilter([b, -b], [1.0, -e], x, axis=0, zi=zi)
         return h
     h = np.empty_like(x)
