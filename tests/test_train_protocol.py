@@ -151,8 +151,8 @@ def test_sealed_set_scored_once_end_to_end(tmp_path):
     rc, lines = _cli("train", "units", "record", "sealed", "--protocol", str(proto), "--root", str(root),
                      "--physics", "hertz-fallback")
     assert rc == 0, lines[-3:]
-    pkg = tmp_path / "pkg"
-    shutil.copytree(model, pkg)
+    pkg = tmp_path / "pkg"   # the shipped model files, without the shipped package's own sealed score log
+    shutil.copytree(model, pkg, ignore=shutil.ignore_patterns("sealed_scores.json", ".sealed_scores.json.lock"))
     args = ("train", "crosseval", "--package", str(pkg), "--units", "sealed", "--protocol", str(proto),
             "--units-root", str(root), "--boot", "50")
     rc, lines = _cli(*args)
