@@ -59,7 +59,6 @@ class P1Assembly:
         ukeys = k[np.concatenate([[True], k[1:] != k[:-1]])]
         pos = np.full(len(keys), len(ukeys), np.int64)                     # dump slot for fixed DOFs
         pos[keep] = np.searchsorted(ukeys, keys[keep])
-        self.n_elem_entries = er.size
         self.pos = pos.astype(np.int32) if len(ukeys) < 2**31 - 1 else pos
         self.nnz = len(ukeys)
         self.indices = (ukeys % nf).astype(np.int32)

@@ -55,7 +55,7 @@ def thread_count() -> int:
     return n
 
 
-# PARDISO threads per factorisation when set here (tools.fe.bench --threads; a speed setting: the results do not depend on it, see above).
+# PARDISO threads per factorisation when set here (`bench fe --threads`); a speed setting, see above.
 # One unless asked: two threads halve a factorisation on an idle machine, but with the other core busy
 # every OpenMP barrier waits for a time slice and a solve took 5x longer than with one thread.
 THREADS: int | None = None
@@ -87,7 +87,6 @@ def mkl_rt() -> ctypes.CDLL:
                           "(pip install -e '.[train]')")
         lib.MKL_Set_Threading_Layer.argtypes = [ctypes.c_int]
         lib.MKL_Set_Threading_Layer(_MKL_THREADING_GNU if find_library("gomp") else _MKL_THREADING_SEQUENTIAL)
-        lib.MKL_Set_Num_Threads.argtypes = [ctypes.c_int]
         lib.MKL_Set_Num_Threads_Local.argtypes = [ctypes.c_int]
         lib.MKL_Set_Num_Threads_Local.restype = ctypes.c_int
         p_i32 = ctypes.POINTER(ctypes.c_int32)
