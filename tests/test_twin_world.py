@@ -4,6 +4,7 @@ the label world unchanged, and a small rig-world recording that a rig estimate (
 calibrates from its own data. The physics is the analytic fallback (no FE) to keep it fast."""
 import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -136,16 +137,59 @@ def _small(world="label", pokes=2, **kw):
     return cfg
 
 
-# `_small()` as recorded by the twin before worlds existed (commit ce0d048): every file of the session
-# (streams, PNG frames, session.json, truth/) — how many, and the sha256 of their "name sha256" lines
-LABEL_WORLD_FILES = 92
-LABEL_WORLD_DIGEST = "a267cc57f79001c5c73548f6d3744ad2f9f4412bddeb6b3b7dfe6243a8e3d02f"
+# `_small()` as recorded by the twin before worlds existed (commit ce0d048), as a fingerprint of every
+# file of the session (streams, PNG frames, session.json, truth/): the file names exactly, CSV headers
+# exactly and each numeric column's sum, sum of squares and row-weighted sum, each frame's pixel mean and
+# mean square, and every JSON value. Numbers are compared to 1e-6 of their scale, not bit for bit:
+# numpy and OpenCV pick SIMD kernels by CPU (AVX2 / AVX-512), whose last bits differ, so a byte digest
+# holds on one machine only. Any change to what the label world records moves these far more.
+LABEL_WORLD = Path(__file__).parent / "data" / "twin_label_world_fingerprint.json"
 
 
-def _digest(folder):
-    files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
-    lines = "".join(f"{f} {hashlib.sha256((folder / f).read_bytes()).hexdigest()}\n" for f in files)
-    return len(files), hashlib.sha256(lines.encode()).hexdigest()
+def _fingerprint(folder) -> dict:
+    import cv2
+    out = {}
+    for p in sorted(q for q in folder.rglob("*") if q.is_file()):
+        name = str(p.relative_to(folder))
+        if p.suffix == ".csv":
+            header = p.read_text().splitlines()[0]
+            x = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            w = (np.arange(len(x)) + 1.0)[:, None] / max(len(x), 1)
+            out[name] = {"header": header, "rows": len(x), "sum": x.sum(0).tolist(),
+                         "sumsq": (x * x).sum(0).tolist(), "weighted": (w * x).sum(0).tolist(),
+                         "abs": np.abs(x).sum(0).tolist()}
+        elif p.suffix == ".png":
+            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(float)
+            out[name] = {"shape": list(img.shape), "mean": img.mean(), "meansq": (img * img).mean()}
+        elif p.suffix == ".json":
+            out[name] = json.loads(p.read_text())
+        else:
+            out[name] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+def _same(a, b, path="") -> list[str]:
+    """Where fingerprints a (recorded) and b (reference) differ beyond 1e-6 of each number's scale."""
+    if isinstance(b, dict):
+        if not isinstance(a, dict) or sorted(a) != sorted(b):
+            return [f"{path}: keys {sorted(a) if isinstance(a, dict) else a} != {sorted(b)}"]
+        if "sum" in b and "abs" in b:   # a CSV column set: scale by each column's sum of |x|
+            if a["header"] != b["header"] or a["rows"] != b["rows"]:
+                return [f"{path}: header/rows {a['header']!r} {a['rows']} != {b['header']!r} {b['rows']}"]
+            scale = np.asarray(b["abs"]) + 1e-9
+            bad = []
+            for k, sc in (("sum", scale), ("weighted", scale), ("abs", scale), ("sumsq", scale * (scale / b["rows"] + 1e-9))):
+                if np.any(np.abs(np.asarray(a[k]) - np.asarray(b[k])) > 1e-6 * sc):
+                    bad.append(f"{path}.{k}")
+            return bad
+        return [m for k in b for m in _same(a[k], b[k], f"{path}/{k}")]
+    if isinstance(b, list):
+        if not isinstance(a, list) or len(a) != len(b):
+            return [f"{path}: length"]
+        return [m for x, y in zip(a, b) for m in _same(x, y, path + "[]")]
+    if isinstance(b, float) or isinstance(a, float):
+        return [] if abs(float(a) - float(b)) <= 1e-6 * max(1.0, abs(float(b))) else [f"{path}: {a} != {b}"]
+    return [] if a == b else [f"{path}: {a!r} != {b!r}"]
 
 
 def test_the_label_world_records_todays_sessions(tmp_path):
@@ -155,7 +199,7 @@ def test_the_label_world_records_todays_sessions(tmp_path):
     plain.rig.camera_fps = 10.0
     assert cfg.key() == plain.key()                                      # resume keys of old recordings hold
     s = record(cfg, tmp_path / "s")
-    assert _digest(s) == (LABEL_WORLD_FILES, LABEL_WORLD_DIGEST)          # byte for byte
+    assert _same(_fingerprint(s), json.loads(LABEL_WORLD.read_text())) == []    # as before worlds
     truth = json.loads((s / "truth" / "truth.json").read_text())
     assert "world" not in truth and "world" not in truth["unit"]
     assert load_session(s).streams["poses"]["frame"] == "sensor"
