@@ -99,6 +99,27 @@ def test_contact_tangent_exact_stick():
     assert not ce.slip.any() and err < 1e-5
 
 
+def test_contact_tangent_without_normal_curvature():
+    """`normal_curvature=False` (the Newton matrix of an increment's first iterates, tools.fe.solver):
+    the same forces, and the frictionless tangent is -eps n n — by hand at a sphere's tip, where the
+    exact one adds the curvature term -eps d (I - n n) / R, a negative tangential stiffness."""
+    shape, R, p = Sphere(4.0), np.eye(3), np.zeros(3)
+    x = np.array([[0.0, 0.0, 0.2]])                 # 0.2 mm inside the tip of the 4 mm sphere
+    area, pen = np.array([0.5]), 5.0
+    st = fc.ContactState.empty(1, x)
+    exact = fc.evaluate(x, area, [shape], [(p, R)], st, pen, 0.0)
+    plain = fc.evaluate(x, area, [shape], [(p, R)], st, pen, 0.0, normal_curvature=False)
+    np.testing.assert_array_equal(plain.fn, exact.fn)
+    eps, d = pen * 0.5, -0.2
+    n = np.array([0.0, 0.0, -1.0])                  # outward normal of the sphere at its tip (towards the gel)
+    assert np.allclose(plain.fn[0], -eps * d * n)
+    assert np.allclose(plain.K[0], -eps * np.outer(n, n))
+    assert np.allclose(exact.K[0], -eps * (np.outer(n, n) + d * (np.eye(3) - np.outer(n, n)) / (4.0 + d)))
+    ce_f = fc.evaluate(x, area, [shape], [(p, R)], st, pen, 0.4, normal_curvature=False)
+    ce_e = fc.evaluate(x, area, [shape], [(p, R)], st, pen, 0.4)
+    np.testing.assert_array_equal(ce_f.fn + ce_f.ft, ce_e.fn + ce_e.ft)
+
+
 def test_contact_slip_hold_keeps_near_limit_nodes_slipping_only():
     """A held node slips while its trial force is within HOLD_BAND of the Coulomb limit; outside the
     band, or without a hold, the law is the plain return mapping."""

@@ -16,6 +16,10 @@ converged law almost or exactly as is:
   the plain law by < HOLD_BAND*mu|fN|; this breaks stick/slip flips at the kink.
 - `slip_tangent="secant"`: the slip tangent leaves out its unsymmetric normal-coupling term
   mu*eps*s(x)n; a quasi-Newton direction (forces unchanged), steadier when the exact one cycles.
+`normal_curvature=False` leaves the curvature term -eps d H out of the normal part's tangent (forces
+unchanged, a quasi-Newton matrix). On a convex indenter that term is a negative tangential stiffness
+eps |d| / R per node; at the penetration of an increment's first iterate (0.2-0.4 mm under a 4 mm
+sphere) it outweighs the soft gel's own, and the Newton step throws the contact patch sideways.
 """
 from __future__ import annotations
 
@@ -78,9 +82,9 @@ class ContactEval:
 
 def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: float,
              tangent: bool = True, tangential_ratio: float = 1.0, hold: np.ndarray | None = None,
-             slip_tangent: str = "exact") -> ContactEval:
+             slip_tangent: str = "exact", normal_curvature: bool = True) -> ContactEval:
     """Contact forces on surface nodes at current positions x (M,3); poses = [(p, R), ...];
-    hold, slip_tangent: see the module docstring."""
+    hold, slip_tangent, normal_curvature: see the module docstring."""
     if slip_tangent not in SLIP_TANGENTS:
         raise ValueError(f"slip_tangent {slip_tangent!r}: expected one of {SLIP_TANGENTS}")
     M, K = len(x), len(shapes)
@@ -112,7 +116,7 @@ def evaluate(x, area, shapes, poses, state: ContactState, penalty: float, mu: fl
         H = np.zeros((len(idx), 3, 3))
         if tangent:
             H = R @ shape.hessian(xi[idx]) @ R.T
-            Kn = -eps[:, None, None] * (nn + d[:, None, None] * H)
+            Kn = -eps[:, None, None] * ((nn + d[:, None, None] * H) if normal_curvature else nn)
         # friction
         a_loc = state.anchors[k, idx]
         fresh = np.isnan(a_loc[:, 0])

@@ -51,6 +51,14 @@ FIRST_TOUCH_ANCHOR = True
 # superlu agree to rounding, pardiso-reuse to the Newton tolerance, `tensortouch bench fe`), so the
 # scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
 DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-reuse")
+# An increment's Newton matrix leaves out the normal penalty's curvature term (tools.fe.contact,
+# `normal_curvature`) until a step has moved no node more than this fraction of the top mesh size (the
+# convergence test's own step bound); the exact tangent then finishes the increment quadratically.
+# The forces and the convergence test do not change, so results move only within the Newton
+# tolerance. On the ccx agreement press (1.2 mm mesh) the exact term from the start gave 23 iterations
+# and 22 factorisations, this 12 and 9 (docs/decisions/2026-12-02-fe-contact-tangent.md). 0: the exact
+# tangent throughout.
+CURVATURE_STEP_FRACTION = 0.02
 
 
 # Where the indenters' motion turns (the increment's direction more than ~25 deg from the last one's,
@@ -146,7 +154,7 @@ class GelModel:
     def set_u(self, U):
         self.u.values[:] = U
 
-    def residual(self, U, poses, state, tangent=True, hold=None, slip_tangent="exact"):
+    def residual(self, U, poses, state, tangent=True, hold=None, slip_tangent="exact", curvature=True):
         self._U = U
         if self.fast is not None:
             r = self.fast.forces(U, self.umat)
@@ -154,7 +162,8 @@ class GelModel:
             r = self.internal_forces(U)
         x = self.gm.nodes[self.surf] + U[self.surf]
         ce = fc.evaluate(x, self.area, self.shapes, poses, state, self.penalty, self.sc.friction, tangent,
-                         self.sc.solver.friction_stiffness_ratio, hold, slip_tangent)
+                         self.sc.solver.friction_stiffness_ratio, hold, slip_tangent,
+                         normal_curvature=curvature)
         r[self.surf_dofs] -= (ce.fn + ce.ft).ravel()
         return r, ce
 
@@ -213,11 +222,14 @@ def newton(model: GelModel, U0, poses, state, sv):
     slipped are held slipping (contact.evaluate `hold`) and slip uses the secant tangent, which breaks
     the stick/slip flip cycles of deep slides; if it still misses tol_force after max_iterations, its
     best iterate is accepted when that residual is <= ACCEPT_REL of the total normal force (at most
-    25 mN on one node under a 5 N contact; logged). An increment that converges within HOLD_AFTER
-    iterations is solved exactly as by plain Newton. docs/fe.md "Struggle mode for deep slides" has the measurements."""
+    25 mN on one node under a 5 N contact; logged). Until a step is small (CURVATURE_STEP_FRACTION) the
+    Newton matrix leaves out the normal penalty's curvature term; otherwise an increment that converges
+    within HOLD_AFTER iterations is solved by plain Newton. docs/fe.md "Struggle mode for deep slides"
+    has the measurements."""
     U = U0.copy()
     hold, mode = None, "exact"
-    r, ce = model.residual(U, poses, state)
+    curv = not CURVATURE_STEP_FRACTION > 0
+    r, ce = model.residual(U, poses, state, curvature=curv)
     best = None
     chord_ok = model.factor.allow_chord
     chord = False
@@ -227,7 +239,7 @@ def newton(model: GelModel, U0, poses, state, sv):
             hold = ce.slip.copy() if hold is None else hold | ce.slip
             if mode == "exact":
                 mode = "secant"
-                r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode)
+                r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode, curvature=curv)
                 chord = False   # the kept factors are of the exact tangent: struggle mode refactorises
         rf = r[model.free]
         fscale = max(np.abs(ce.fn).sum(), 1e-12)
@@ -244,13 +256,16 @@ def newton(model: GelModel, U0, poses, state, sv):
             Ut = U.copy()
             Ut.reshape(-1)[model.free] += step * du
             with np.errstate(invalid="ignore", divide="ignore"):
-                rt, cet = model.residual(Ut, poses, state, hold=hold, slip_tangent=mode)
+                rt, cet = model.residual(Ut, poses, state, hold=hold, slip_tangent=mode, curvature=curv)
             nt = np.linalg.norm(rt[model.free])
             if np.isfinite(nt) and (nt < norm0 or step < 0.1):
                 break
             step *= 0.5
         U, r, ce = Ut, rt, cet
         res = np.abs(r[model.free]).max()
+        if not curv and np.abs(step * du).max() < CURVATURE_STEP_FRACTION * model.sc.mesh.size_top:
+            curv = True
+            r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode, curvature=curv)
         if not np.isfinite(res):
             if best is not None:
                 break
@@ -418,7 +433,8 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
             "first_touch_anchor": FIRST_TOUCH_ANCHOR, "turn_increment_fraction": TURN_INCREMENT_FRACTION,
             "engine": model.engine,
             "assembly": "tools.fe.assembly (P1 Yeoh)" if model.fast is not None else "felupe",
-            "symmetric_tangent": model.symmetric, "factorizations": model.factor.factorizations,
+            "symmetric_tangent": model.symmetric, "curvature_step_fraction": CURVATURE_STEP_FRACTION,
+            "factorizations": model.factor.factorizations,
             "symbolic_analyses": model.factor.analyses,
             "chord_steps": model.factor.chord_steps, "chord_ratio": CHORD_RATIO,
             "seconds_total": time.time() - t_start, **stats}
