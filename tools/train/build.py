@@ -38,6 +38,10 @@ class SessionSpec:
     # the twin's world (tools/twin/world.py): "label" = the labels' own physics and an ideal rig (the
     # ceiling); "rig" = a world that differs from the label solver, estimated as a rig would (rig_estimate)
     world: str = "label"
+    # WorldConfig fields that differ from its defaults, world "rig" only (e.g. {"c10": 0, "c20": 0, "c30": 0}:
+    # the unit's stiffness nominal; the other differences as drawn): one difference switched off at a time
+    # is how the label budget gives each its share (docs/train.md)
+    world_params: dict = field(default_factory=dict)
     # this session's twin physics when not the build's (BuildConfig.physics): a distilled build
     # (BuildConfig.teacher) needs frames only, so some of its sessions may use the analytic
     # "hertz-fallback" (seconds of CPU) instead of FE (minutes per poke); "" = the build's
@@ -53,7 +57,8 @@ class SessionSpec:
         from ..twin.trajectory import with_ranges
 
         rcfg = RecordConfig(serial=self.serial, pokes=self.pokes, seed=self.seed, physics=self.physics or physics,
-                            frame_format=self.frames, mjpg_quality=self.quality, model_size=size, world=self.world)
+                            frame_format=self.frames, mjpg_quality=self.quality, model_size=size, world=self.world,
+                            world_params=dict(self.world_params) or None)
         rcfg.trajectory = with_ranges(rcfg.trajectory, self.trajectory, f"session {self.name} trajectory")
         return rcfg
 
@@ -144,6 +149,8 @@ class BuildConfig:
                     spec.pop("physics", None)
                 if spec.get("world") == "label":
                     spec.pop("world")
+                if not spec.get("world_params"):
+                    spec.pop("world_params", None)
         return d
 
 

@@ -16,7 +16,11 @@ imperfect mocap extrinsic, an F/T with a bias, and three clocks. Nothing here re
   depth b that put these points on the cap's sphere. Not estimated: δz (near the apex it moves the
   onsets exactly as the onset depth does) and the extrinsic's rotation (a rotation about the cap
   sphere's centre leaves the dome unchanged; it would need image correspondences); what the shift
-  cannot absorb stays as a residual error.
+  cannot absorb stays as a residual error. An onset whose tip lies farther than `onset_gate_mm` from the
+  rest surface as recorded is no first touch (F/T noise or a second module's load) and is left out; the
+  fit is robust (soft-L1, `ONSET_FSCALE_MM`) and bounded (|δ| ≤ `max_shift_mm`, b within
+  `onset_depth_bounds_mm`), and a fit that ends on a bound leaves the extrinsic as recorded (one such
+  outlier onset, 4 mm above the gel, had thrown an unbounded fit 32 mm sideways).
 - **Not estimated**: F/T cross-talk (needs a reference load), the unit's gel geometry and stiffness
   (the calibration stage's and the label budget's business).
 
@@ -46,6 +50,9 @@ class RigEstimateConfig:
     image_slow_tau_s: float = 1.0        # the gel skin's slow recovery (a regressor of the image change)
     grid_s: float = 0.001                # common time grid of the cross-correlations
     min_onsets: int = 6                  # fewer contact onsets: the extrinsic is left as recorded
+    onset_gate_mm: float = 1.5           # an onset tip farther than this from the rest surface is no first touch
+    max_shift_mm: float = 2.0            # |δx|, |δy| bound: a larger extrinsic error is a rig fault, not a residual
+    onset_depth_bounds_mm: tuple = (-1.0, 1.0)   # the mean onset depth b's bounds (mm inward)
 
 
 # ------------------------------------------------------------------------------------- pure cores
@@ -91,11 +98,23 @@ def lowpass(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])[0]
 
 
-def fit_translation(points: np.ndarray, center_z: float, radius: float) -> tuple[np.ndarray, float]:
-    """(δ (3,), b): the lateral shift (δx, δy; δz = 0) and the mean inward depth b that put contact-onset
-    points on the cap sphere (centre (0, 0, center_z), radius ρ): least squares of |p − δ − c| − (ρ − b).
-    The corrected positions are p − δ. δz is not fitted: onsets near the apex move with δz exactly as
-    with the onset depth b, so the two cannot be told apart."""
+ONSET_FSCALE_MM = 0.1   # soft-L1 scale of the onset fit's residuals (mm)
+
+
+def near_surface(points: np.ndarray, center_z: float, radius: float, gate_mm: float) -> np.ndarray:
+    """(N,) bool: onset tips within gate_mm of the cap sphere (centre (0, 0, center_z), radius ρ)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    return np.abs(np.linalg.norm(p - [0.0, 0.0, center_z], axis=1) - radius) <= gate_mm
+
+
+def fit_translation(points: np.ndarray, center_z: float, radius: float, max_shift: float = np.inf,
+                    depth_bounds: tuple = (-np.inf, np.inf)) -> tuple[np.ndarray, float, bool]:
+    """(δ (3,), b, on_bound): the lateral shift (δx, δy; δz = 0) and the mean inward depth b that put
+    contact-onset points on the cap sphere (centre (0, 0, center_z), radius ρ): robust (soft-L1) least
+    squares of |p − δ − c| − (ρ − b), with |δx|, |δy| ≤ max_shift and b within depth_bounds; on_bound
+    says the solution sits on one of the bounds (then it is not an estimate). The corrected positions
+    are p − δ. δz is not fitted: onsets near the apex move with δz exactly as with the onset depth b,
+    so the two cannot be told apart."""
     from scipy.optimize import least_squares
 
     p = np.asarray(points, np.float64)
@@ -106,8 +125,13 @@ def fit_translation(points: np.ndarray, center_z: float, radius: float) -> tuple
     def res(x):
         return np.linalg.norm(p - [x[0], x[1], 0.0] - c, axis=1) - (radius - x[2])
 
-    sol = least_squares(res, np.zeros(3))
-    return np.array([sol.x[0], sol.x[1], 0.0]), float(sol.x[2])
+    lo = np.array([-max_shift, -max_shift, depth_bounds[0]], float)
+    hi = np.array([max_shift, max_shift, depth_bounds[1]], float)
+    x0 = np.clip(np.zeros(3), lo + 1e-9, hi - 1e-9)
+    sol = least_squares(res, x0, bounds=(lo, hi), loss="soft_l1", f_scale=ONSET_FSCALE_MM)
+    width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    on_bound = bool(np.any((np.isfinite(lo) & (sol.x - lo < 1e-6 * width)) | (np.isfinite(hi) & (hi - sol.x < 1e-6 * width))))
+    return np.array([sol.x[0], sol.x[1], 0.0]), float(sol.x[2]), on_bound
 
 
 def contact_onsets(t: np.ndarray, force: np.ndarray, threshold: float, quiet_s: float) -> np.ndarray:
@@ -195,11 +219,16 @@ def estimate(session, cfg: RigEstimateConfig = RigEstimateConfig(), gel=None) ->
             p = poses[k]
             tp = p[:, 0] - clocks["poses"]
             q = np.array([np.interp(t0, tp, p[:, j]) for j in (2, 3, 4)])
-            if q[2] > gel.skirt:
+            if q[2] > gel.skirt and near_surface(q, prof.center_z_mm, prof.radius_mm, cfg.onset_gate_mm)[0]:
                 pts.append(q)
     shift, depth = None, None
     if len(pts) >= cfg.min_onsets:
-        shift, depth = fit_translation(np.asarray(pts), prof.center_z_mm, prof.radius_mm)
+        shift, depth, on_bound = fit_translation(np.asarray(pts), prof.center_z_mm, prof.radius_mm,
+                                                 cfg.max_shift_mm, tuple(cfg.onset_depth_bounds_mm))
+        if on_bound:
+            log.warning("%s: the onset fit ended on a bound (shift %s mm, onset depth %.2f mm): mocap extrinsic "
+                        "left as recorded", session.path, np.round(shift[:2], 2).tolist(), depth)
+            shift, depth = None, None
     else:
         log.warning("%s: %d contact onsets (< %d): mocap extrinsic left as recorded", session.path, len(pts),
                     cfg.min_onsets)

@@ -160,6 +160,9 @@ def stage_dataset(b) -> dict:
 
     if b.cfg.teacher:
         return stage_dataset_distilled(b)
+    if not b.cfg.train:   # a labels-only build (the label budget's recipes): held-out labels, nothing to train on
+        log.info("dataset: no training sessions; the held-out sessions' labels are built, no dataset is written")
+        return {"data_hash": "", "samples": 0, "val": 0, "rest": 0}
     work = b.dataset / ".work" / b.keys["dataset"]   # per configuration: a changed label source starts anew
     work.mkdir(parents=True, exist_ok=True)
     dcfg = DatasetConfig(size=b.cfg.size, contact_stride=b.cfg.contact_stride, rest_fraction=b.cfg.rest_fraction)
