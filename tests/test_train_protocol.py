@@ -119,17 +119,22 @@ def test_sealed_log_once_per_package(tmp_path):
     pkg = tmp_path / "pkg"
     pkg.mkdir()
     (pkg / "manifest.json").write_text(json.dumps({"files": {"model.int8.onnx": {"sha256": "ab" * 32}}}))
-    assert P.check_not_scored(pkg) == P.package_id({"files": {"model.int8.onnx": {"sha256": "ab" * 32}}})
+    assert P.check_not_scored(pkg, "h") == P.package_id({"files": {"model.int8.onnx": {"sha256": "ab" * 32}}})
     e = P.log_sealed_score(pkg, "h", ["TWIN-X-s1"], {"force_mae_n": 0.2})
     log = json.loads((pkg / P.SEALED_LOG).read_text())
     assert log == [e] and e["units"] == ["TWIN-X-s1"]
     with pytest.raises(P.ProtocolError, match="already scored on the sealed set"):
-        P.check_not_scored(pkg)
+        P.check_not_scored(pkg, "h")
     with pytest.raises(P.ProtocolError, match="once per package"):
         P.log_sealed_score(pkg, "h", [], {})
+    # a sealed set recorded anew (another protocol hash): scored once more, both entries kept
+    e2 = P.log_sealed_score(pkg, "h2", ["TWIN-X-s2"], {"force_mae_n": 0.3})
+    assert json.loads((pkg / P.SEALED_LOG).read_text()) == [e, e2]
+    with pytest.raises(P.ProtocolError, match="once per package"):
+        P.log_sealed_score(pkg, "h2", [], {})
     # other weights: another package
     (pkg / "manifest.json").write_text(json.dumps({"files": {"model.int8.onnx": {"sha256": "cd" * 32}}}))
-    P.check_not_scored(pkg)
+    P.check_not_scored(pkg, "h")
 
 
 def test_sealed_set_scored_once_end_to_end(tmp_path):

@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
             targets += unit_targets(protocol, args.units, units_root(args.units_root), check_whole=sealed)
             if sealed:
                 for pk in args.package:
-                    check_not_scored(pk)
+                    check_not_scored(pk, protocol.hash)
         if args.recipe:
             from .build import recipe_build, unit_calibration
 

@@ -9,8 +9,10 @@ score log.
 - `check_recipe_sessions(protocol, sessions, where)`: a recipe trains on train units only, holds out
   validation units only, never names a sealed unit or a seed in the sealed range.
 - `expand_recipe_sessions`: a recipe may take a set's sessions by name, `train = { set = "train", first = 12 }`.
-- `log_sealed_score(package, ...)`: the sealed set is scored once per package (its weights' sha256);
-  the log is `<package>/sealed_scores.json`, a second score of the same package is refused.
+- `log_sealed_score(package, ...)`: a sealed set is scored once per package (its weights' sha256);
+  the log is `<package>/sealed_scores.json`, a second score of the same package on the same sealed set
+  (the protocol's hash) is refused. A sealed set recorded anew with seeds no choice has seen (a new
+  protocol hash) may score it once more; the log keeps every entry, so each score stays visible.
 
 Pure core: `expand_units`, `check_sets`, `unit_pairs`, `sealed_entry`; shells read and write files.
 """
@@ -258,12 +260,12 @@ def package_id(manifest: dict) -> str:
 
 
 def sealed_entry(log: list[dict], pid: str, protocol_hash: str, units: list[str], headline: dict) -> dict:
-    """The new log entry of a sealed score; ProtocolError if this package was already scored on the
-    sealed set (the log names when)."""
+    """The new log entry of a sealed score; ProtocolError if this package was already scored on this
+    sealed set (the same protocol hash; the log names when)."""
     for e in log:
-        if e.get("package_id") == pid:
+        if e.get("package_id") == pid and e.get("protocol") == protocol_hash:
             raise ProtocolError(f"package {pid} was already scored on the sealed set at {e.get('when')} "
-                                f"(protocol {e.get('protocol')}); the sealed set is scored once per package")
+                                f"(protocol {e.get('protocol')}); a sealed set is scored once per package")
     return {"package_id": pid, "protocol": protocol_hash, "units": list(units),
             "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "headline": headline}
 
@@ -281,11 +283,12 @@ def read_sealed_log(package_dir: str | Path) -> list[dict]:
     return doc
 
 
-def check_not_scored(package_dir: str | Path) -> str:
-    """Before a sealed score: the package's id, or ProtocolError when its log already holds one."""
+def check_not_scored(package_dir: str | Path, protocol_hash: str) -> str:
+    """Before a sealed score: the package's id, or ProtocolError when its log already holds one on this
+    sealed set (protocol hash)."""
     man = json.loads((Path(package_dir) / "manifest.json").read_text(encoding="utf-8"))
     pid = package_id(man)
-    sealed_entry(read_sealed_log(package_dir), pid, "", [], {})
+    sealed_entry(read_sealed_log(package_dir), pid, protocol_hash, [], {})
     return pid
 
 
