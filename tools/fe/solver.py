@@ -263,9 +263,6 @@ def newton(model: GelModel, U0, poses, state, sv):
             step *= 0.5
         U, r, ce = Ut, rt, cet
         res = np.abs(r[model.free]).max()
-        if not curv and np.abs(step * du).max() < CURVATURE_STEP_FRACTION * model.sc.mesh.size_top:
-            curv = True
-            r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode, curvature=curv)
         if not np.isfinite(res):
             if best is not None:
                 break
@@ -274,6 +271,9 @@ def newton(model: GelModel, U0, poses, state, sv):
         log.debug("  it %d: |r|max %.3e N, |du|max %.3e mm, step %.2f", it, res, dmax, step)
         if res <= max(sv.tol_force, sv.tol_rel * fscale) and dmax < 0.02 * model.sc.mesh.size_top:
             return U, ce, it, res
+        if not curv and dmax < CURVATURE_STEP_FRACTION * model.sc.mesh.size_top:
+            curv = True   # the rest of the increment on the exact tangent (the forces are the same)
+            r, ce = model.residual(U, poses, state, hold=hold, slip_tangent=mode, curvature=curv)
         chord = chord_ok and mode == "exact" and it >= 2 and res <= CHORD_RATIO * res_prev
         res_prev = res
         if mode != "exact" and (best is None or res < best[3]):

@@ -291,6 +291,11 @@ def _inputs_hash(b, spec) -> str:
 
 
 def stage_pretrain(b) -> dict:
+    if not b.cfg.train and not b.cfg.teacher:
+        from ...contracts.errors import TensorTouchError
+
+        raise TensorTouchError(f"recipe {b.cfg.name!r}: sessions.train is empty, a labels-only build; "
+                               "`train dataset` and `train budget` run it, `train all` needs training sessions")
     if b.cfg.pretrain_epochs <= 0:
         return {"skipped": True}
     from .model.train import PretrainConfig, pretrain
