@@ -60,6 +60,17 @@ def test_press_and_slide_equilibrium_and_stick_then_slip(pad_mesh, tmp_path):
     assert np.array_equal(back.U, r.U) and json.loads(back.solver_info)["increments"] >= 5
 
 
+def test_struggle_acceptance_hand_worked_values():
+    """Struggle mode's best-iterate bound: 0.5 % of the total normal force, never below 2.5 mN (an
+    indenter leaving the gel has a normal force near 0) nor below tol_force."""
+    from tensortouch.tools.fe.solver import accept_best
+
+    assert accept_best(0.024, 5.0, 1e-4) and not accept_best(0.026, 5.0, 1e-4)   # 0.5 % of 5 N = 25 mN
+    assert accept_best(1.7e-3, 0.0, 1e-4)          # unloading: refused by the relative bound alone
+    assert not accept_best(3e-3, 0.1, 1e-4)        # 0.5 % of 0.1 N = 0.5 mN, below the 2.5 mN floor
+    assert accept_best(4e-3, 0.0, 5e-3)            # tol_force above the floor
+
+
 def test_struggle_mode_from_the_first_iteration_gives_the_same_slide(pad_mesh, monkeypatch):
     """Struggle mode (slip hold + secant slip tangent + best-iterate acceptance, normally entered after
     HOLD_AFTER iterations) switched on from the first Newton iteration: the stick-then-slip slide is
