@@ -56,3 +56,25 @@ def test_scoring_forms_by_hand(session):
                                w[:, 2:5] * (1 - 0.1 / (1 + np.exp(-(T - mid) / 0.5)))[:, None], rtol=1e-12)
     ramp = 0.2 * np.sqrt((t - t[0]) / 100.0)[:, None] * np.array([-0.5, 0.6, 0.8])
     np.testing.assert_allclose(contribution(session, "ft_offset_sqrt", 0.2, GEL), w[:, 2:5] + ramp, atol=1e-12)
+
+
+def test_gain_of_gives_back_each_multiplicative_forms_gain(session):
+    """gain_of recovers the per-row gain a multiplicative form put on the force, hand-worked for
+    cubic_stiffening; the set of multiplicative forms is the forms whose altered/clean force is a
+    scalar multiple row by row; shapes are checked."""
+    from tensortouch.tools.accept.alter_forms import MULTIPLICATIVE, gain_of
+
+    w, p = session.table("wrench"), session.table("poses")
+    f = w[:, 2:5]
+    tip = np.column_stack([np.interp(w[:, 0], p[p[:, 1] == 0][:, 0], p[p[:, 1] == 0][:, 2 + j]) for j in range(3)])
+    d = np.clip(10.0 - np.linalg.norm(tip - [0, 0, 5.0], axis=1), 0, None)
+    loaded = np.linalg.norm(f, axis=1) > 1e-6
+    g = gain_of(contribution(session, "cubic_stiffening", 0.3, GEL), f)
+    np.testing.assert_allclose(g[loaded], (1 + 0.3 * d ** 3)[loaded], rtol=1e-9)
+    for kind in FORMS:
+        alt = contribution(session, kind, 0.2, GEL)
+        cross = np.linalg.norm(np.cross(alt, f), axis=1)
+        assert (kind in MULTIPLICATIVE) == bool(np.all(cross <= 1e-9 * (1 + np.linalg.norm(f, axis=1) ** 2))), kind
+    np.testing.assert_array_equal(gain_of(np.zeros((2, 3)), np.zeros((2, 3))), [1.0, 1.0])
+    with pytest.raises(ValueError, match=r"gain_of: expected two \(N, 3\) force arrays"):
+        gain_of(np.zeros((2, 3)), np.zeros(3))

@@ -198,3 +198,12 @@ def test_a_refit_uses_the_model_of_the_path_the_effect_was_found_on():
     assert model_of_diagnosis({"path": "contact-law", "model_source": ""}) == "contact-law"
     assert model_of_diagnosis({"path": "output", "model_source": "/pkgs/hiera-qup-128"}) == "/pkgs/hiera-qup-128"
     assert model_of_diagnosis({"path": "output"}) is None       # older diagnoses: the default model
+
+
+def test_harness_scores_only_gains_a_gel_could_have():
+    """accept workbench-paths: a case whose hidden gain leaves [0.5, 4] on the loaded rows is out of
+    the physical range; an additive form (no gain range) is in it."""
+    from tensortouch.tools.accept.workbench_paths import physical
+
+    assert physical({"gain_range": [0.6, 3.9]}) and physical({"gain_range": None}) and physical({})
+    assert not physical({"gain_range": [0.9, 11.9]}) and not physical({"gain_range": [0.36, 1.0]})

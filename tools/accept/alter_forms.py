@@ -145,6 +145,22 @@ def contribution(session, kind: str, amp: float, gel: dict) -> np.ndarray:
     return out
 
 
+# Forms that scale the force by a gain (the others add an offset in the F/T frame).
+MULTIPLICATIVE = frozenset({"saturating_stiffening", "rim_profile", "temperature_onset", "log_stiffening",
+                            "exp_temperature", "cubic_stiffening", "logistic_temperature", "sector_stiffening",
+                            "rim_linear"})
+
+
+def gain_of(altered: np.ndarray, clean: np.ndarray) -> np.ndarray:
+    """(N,) the gain a multiplicative form put on each row's force: altered = gain * clean (rows
+    with no force get 1)."""
+    altered, clean = np.asarray(altered, float), np.asarray(clean, float)
+    if altered.shape != clean.shape or altered.ndim != 2:
+        raise ValueError(f"gain_of: expected two (N, 3) force arrays, got {altered.shape} and {clean.shape}")
+    cc = np.sum(clean * clean, axis=1)
+    return np.where(cc > 1e-18, np.sum(altered * clean, axis=1) / np.maximum(cc, 1e-18), 1.0)
+
+
 def altered_session(session: Session, kind: str, amp: float, gel: dict) -> Session:
     """In memory, the session `alter` writes and loading it gives back: `session` whose F/T force
     carries the hidden form (every wrench number as its file holds it; the frames, poses and

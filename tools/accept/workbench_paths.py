@@ -4,9 +4,13 @@ calibration sessions, and FE solved at each session's measured keypoints (issue 
 
     tensortouch accept workbench-paths [--paths contact-law output fe] [--draws 1] [--sizes 1 3]
                                        [--nulls 10] [--forms NAME ...] [--tuning] [--fe-physics fe]
+                                       [--world analytic|fe]
                                        [--model exported_models/hiera-qup-128] [--work DIR] [--progress FILE]
 
-Units TWIN-K01..K03 (analytic twin physics, frames at 2 fps rendered at the shipped model's 128 px).
+Units TWIN-K01..K03, frames at 2 fps rendered at the shipped model's 128 px, recorded with the twin's
+analytic contact physics or (`--world fe`) with the twin's FE, the physics the shipped network was
+trained on and the FE path solves (the FE path's floor is then the label error: keypoints found from
+the session's poses and F/T instead of the plan's).
 Per unit and path, two calibration sessions without hidden physics: the contact law is fitted on
 both together (`ContactLaw.fit_sessions`), and on every path the model's own error (own_error.py) is
 fitted on both and every diagnosis runs against it. Paths: "output" = the shipped network's raw
@@ -48,6 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .alter_forms import MULTIPLICATIVE, gain_of
+
 log = logging.getLogger(__name__)
 
 UNITS = ("TWIN-K01", "TWIN-K02", "TWIN-K03")
@@ -76,6 +82,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tuning", action="store_true", help="the tuning forms instead of the scored ones")
     p.add_argument("--fe-physics", choices=("fe", "hertz-fallback"), default="fe",
                    help="what solves the FE path: tools.fe (default) or the recipe's analytic stand-in")
+    p.add_argument("--world", choices=sorted(WORLDS), default="analytic",
+                   help="the twin physics the sessions are recorded with: analytic contact (default) or the twin's FE")
     p.add_argument("--model", default="exported_models/hiera-qup-128", help="the shipped model package (output path)")
     p.add_argument("--no-own-error", action="store_true", help="diagnose against the model alone")
     p.add_argument("--raw-nulls", nargs="*", choices=PATHS, default=["output"],
@@ -107,13 +115,17 @@ def record(sc):
         return _record(sc)
 
 
-def _scenario(seed: int, unit: str, path: str = "output"):
-    """The recording of `seed` on `unit` for `path` (the FE path's are shorter, with seeds of their own)."""
+WORLDS = {"analytic": "hertz-fallback", "fe": "fe"}   # --world: the twin physics the sessions are recorded with
+
+
+def _scenario(seed: int, unit: str, path: str = "output", world: str = "analytic"):
+    """The recording of `seed` on `unit` for `path` (the FE path's are shorter, with seeds of their own)
+    in `world` (WORLDS)."""
     from ..workbench.scenarios import Scenario
 
     if path == "fe":
-        return Scenario(seed + FE_SEED_OFFSET, pokes=FE_POKES, unit=unit, model_size=128)
-    return Scenario(seed, pokes=POKES, unit=unit, model_size=128)
+        return Scenario(seed + FE_SEED_OFFSET, pokes=FE_POKES, unit=unit, model_size=128, physics=WORLDS[world])
+    return Scenario(seed, pokes=POKES, unit=unit, model_size=128, physics=WORLDS[world])
 
 
 def units_of(path: str) -> tuple:
@@ -129,19 +141,19 @@ class PathLab:
     """One unit on one model path: its store, model, own error; tables of (altered) sessions."""
 
     def __init__(self, path: str, unit: str, work: Path, model_dir: str, own: bool = True,
-                 fe_physics: str = "fe"):
+                 fe_physics: str = "fe", world: str = "analytic"):
         from ...contracts.store import CalibrationStore
         from ...runtime.stages.effects import Registry
         from ..workbench.scenarios import store_root
 
-        self.path, self.unit, self.work, self.fe_physics = path, unit, Path(work), fe_physics
+        self.path, self.unit, self.work, self.fe_physics, self.world = path, unit, Path(work), fe_physics, world
         self.fe: dict = {}
         self.store = CalibrationStore(store_root(unit, 128))
         self.cal = self.store.load(unit)
         self.reg = Registry.default(entry_points=False)
         self.gel = _gel_128(unit)
         self.loaded: dict = {}
-        self.calib = [record(_scenario(s + UNITS.index(unit), unit, path)) for s in CALIB_SEEDS]
+        self.calib = [record(self.scenario(s + UNITS.index(unit))) for s in CALIB_SEEDS]
         if path == "contact-law":
             self.law = self._law()
         if path == "output":
@@ -155,7 +167,7 @@ class PathLab:
         from ..workbench.compare import load_table
         from ..workbench.models import ContactLaw
 
-        f = self.work / f"law-{self.unit}.json"
+        f = self.work / f"law-{self.unit}{self.tag()}.json"
         if f.is_file():
             return ContactLaw.load(f)
         law = ContactLaw.fit_sessions([load_table(c, self.cal)[0] for c in self.calib], self.calib)
@@ -166,7 +178,7 @@ class PathLab:
         from ..workbench.diagnose import DiagnoseConfig, blocks_of
         from ..workbench.own_error import OwnError
 
-        f = self.work / f"own-{self.path}-{self.unit}{'-' + self.fe_physics if self.path == 'fe' else ''}.json"
+        f = self.work / f"own-{self.path}-{self.unit}{'-' + self.fe_physics if self.path == 'fe' else ''}{self.tag()}.json"
         if f.is_file():
             return OwnError.from_json(json.loads(f.read_text()))
         parts = []
@@ -178,6 +190,13 @@ class PathLab:
 
         atomic_write_json(f, own.to_json())
         return own
+
+    def scenario(self, seed: int):
+        return _scenario(seed, self.unit, self.path, self.world)
+
+    def tag(self) -> str:
+        """File-name tag of the world (none for the analytic one, whose files came first)."""
+        return "" if self.world == "analytic" else f"-world-{self.world}"
 
     def session(self, base: Path):
         from ...contracts.session import load_session
@@ -250,7 +269,7 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
     from ...runtime.stages.effects import EffectChain, EnabledEffect
 
     i = list(EXPECTED).index(form)
-    base = record(_scenario(TEST_SEED + 10 * i + draw, lab.unit, lab.path))
+    base = record(lab.scenario(TEST_SEED + 10 * i + draw))
     t0, _ = lab.table(base)
     floor = _rms(t0.meas - lab.base(t0))
     t1, clean = lab.table(base, form, 1.0)
@@ -261,6 +280,11 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
     d = lab.diagnose(t)
     row = {"path": lab.path, "form": form, "unit": lab.unit, "draw": draw, "size_floor": size, "floor": floor,
            "size_n": got, "amp": amp, "rows": len(t), **_diag(d)}
+    if form in MULTIPLICATIVE:
+        loaded = np.linalg.norm(clean, axis=1) >= 0.2
+        g = gain_of(t.meas, clean)[loaded]
+        row["gain_range"] = [float(g.min()), float(g.max())] if len(g) else None
+    row["physical"] = physical(row)
     fam = EXPECTED[form]
     if fam == "phi":
         row["right"] = bool(row["verdict"] is None and row["top_covariate"] == "phi" and (row["covariate_p"] or 1) <= 0.05)
@@ -268,15 +292,32 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
         row["right"] = bool(row["family"] == fam and not row["pair"])
     v = d.verdict
     if v is not None and v.pair is None and v.channel == "force":
-        second = record(_scenario(SECOND_SEED + 10 * i + draw, lab.unit, lab.path))
+        second = record(lab.scenario(SECOND_SEED + 10 * i + draw))
         a2, clean2 = lab.table(second, form, amp)
         chain = EffectChain([EnabledEffect(v.effect, dict(v.params))])
         base2 = lab.base(a2)
         before, after = _rms(a2.meas - base2), _rms(a2.meas - lab.base(a2, chain))
         unaltered = _rms(clean2 - base2)
+        # the hidden form itself put on the model side: what an exact model of the effect leaves
+        # (a gain also scales the model's own error, so this is above `unaltered`)
+        ideal = _rms(a2.meas - (base2 * gain_of(a2.meas, clean2)[:, None] if form in MULTIPLICATIVE
+                                else base2 + (a2.meas - clean2)))
         row.update({"second_before": before, "second_after": after, "second_unaltered": unaltered,
-                    "removed": (before - after) / max(before - unaltered, 1e-12)})
+                    "second_ideal": ideal, "removed": (before - after) / max(before - unaltered, 1e-12),
+                    "removed_of_removable": (before - after) / max(before - ideal, 1e-12)})
     return row
+
+
+GAIN_RANGE = (0.5, 4.0)   # a hidden gain outside this on the loaded rows is no gel's correction
+
+
+def physical(row: dict) -> bool:
+    """Whether a case's hidden effect is one a gel could have: a multiplicative form's gain on the rows
+    with |F| >= 0.2 N within GAIN_RANGE (the library's stiffening families reach a gain of 4; a sensor
+    reading half or a quarter of the force is broken, not uncorrected). Scaling a form to a multiple of
+    a high floor can ask for more (a rim 12 times as stiff as the apex)."""
+    g = row.get("gain_range")
+    return g is None or (GAIN_RANGE[0] <= g[0] and g[1] <= GAIN_RANGE[1])
 
 
 def null_sessions(path: str, forms: list, draws: int, n: int) -> list[tuple[str, int, str]]:
@@ -297,7 +338,7 @@ def null_sessions(path: str, forms: list, draws: int, n: int) -> list[tuple[str,
 
 
 def run_null(lab: PathLab, name: str, seed: int, raw: bool = True) -> dict:
-    t, _ = lab.table(record(_scenario(seed, lab.unit, lab.path)))
+    t, _ = lab.table(record(lab.scenario(seed)))
     row = {"path": lab.path, "null": name, "seed": seed, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)),
            "rows": len(t), **_diag(lab.diagnose(t))}
     if lab.own is not None and raw:
@@ -311,14 +352,15 @@ def summarize(rows: list, forms_set: str = "scored") -> dict:
     """Per model path (the FE path per solver): the acceptance counts over the cases of one form set
     ("scored" or "tuning") and every null."""
     out = {}
-    keys = sorted({(r["path"], r.get("fe_physics")) for r in rows})
-    for path, fe in keys:
-        mine = [r for r in rows if r["path"] == path and r.get("fe_physics") == fe]
+    keys = sorted({(r.get("world", "analytic"), r["path"], r.get("fe_physics") or "") for r in rows})
+    for world, path, fe in keys:
+        mine = [r for r in rows if r["path"] == path and (r.get("fe_physics") or "") == fe
+                and r.get("world", "analytic") == world]
         cases = [r for r in mine if "form" in r and r.get("set") == forms_set]
         nulls = [r for r in mine if "null" in r]
         if not cases and not nulls:
             continue
-        path = f"{path} ({fe})" if fe else path
+        path = (f"{path} ({fe})" if fe else path) + ("" if world == "analytic" else f" [{world} world]")
         big = [r for r in cases if r["size_floor"] >= 1.0]
         removed = [r["removed"] for r in big if r["right"] and "removed" in r]
         lib = [r for r in big if EXPECTED[r["form"]] != "phi"]
@@ -337,6 +379,14 @@ def summarize(rows: list, forms_set: str = "scored") -> dict:
             "per_form": {f: f"{sum(r['right'] for r in big if r['form'] == f)}/{sum(r['form'] == f for r in big)}"
                          for f in EXPECTED if any(r["form"] == f for r in big)},
             "removed_at_least_70": f"{sum(x >= 0.7 for x in removed)}/{len(removed)}",
+            "removed_of_removable_at_least_70": (
+                f"{sum(r['removed_of_removable'] >= 0.7 for r in big if r['right'] and 'removed_of_removable' in r)}/"
+                f"{sum(r['right'] and 'removed_of_removable' in r for r in big)}"),
+            "physical_cases": f"{sum(physical(r) for r in big)}/{len(big)}",
+            "right_physical": f"{sum(r['right'] for r in big if physical(r))}/{sum(physical(r) for r in big)}",
+            "removed_at_least_70_physical": (
+                f"{sum(r['removed'] >= 0.7 for r in big if physical(r) and r['right'] and 'removed' in r)}/"
+                f"{sum(physical(r) and r['right'] and 'removed' in r for r in big)}"),
             "removed_median": float(np.median(removed)) if removed else None,
             "null_false_alarms": f"{sum(n['verdict'] is not None for n in nulls)}/{len(nulls)}",
             "null_false_alarms_without_own_error": (
@@ -373,7 +423,7 @@ def run(a: argparse.Namespace) -> int:
                 if k < len(nulls[path]):
                     tasks.append((path, "null", nulls[path][k]))
         for path, kind, arg in (tasks[::-1] if a.reverse else tasks):
-            tag = f"-{a.fe_physics}" if path == "fe" else ""
+            tag = (f"-{a.fe_physics}" if path == "fe" else "") + ("" if a.world == "analytic" else f"-world-{a.world}")
             name = (f"{path}{tag}-null-{arg[0]}" if kind == "null" else f"{path}{tag}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
             f = work / "rows" / f"{name}.json"
             if f.is_file():
@@ -383,13 +433,14 @@ def run(a: argparse.Namespace) -> int:
             try:
                 if (path, unit) not in labs:
                     labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error,
-                                               fe_physics=a.fe_physics)
+                                               fe_physics=a.fe_physics, world=a.world)
                 lab = labs[path, unit]
                 row = (run_null(lab, arg[0], arg[1], path in (a.raw_nulls or [])) if kind == "null"
                        else run_case(lab, arg[2], arg[0], arg[1]))
                 row["set"] = "null" if kind == "null" else ("tuning" if arg[2] in TUNING else "scored")
                 if path == "fe":
                     row["fe_physics"] = a.fe_physics
+                row["world"] = a.world
             except Exception as exc:    # a row that fails is reported, the run goes on
                 log.exception("%s failed", name)
                 note(f"{name}: FAILED {type(exc).__name__}: {exc}")
