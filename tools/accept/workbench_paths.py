@@ -4,7 +4,7 @@ calibration sessions, and FE solved at each session's measured keypoints (issue 
 
     tensortouch accept workbench-paths [--paths contact-law output fe] [--draws 1] [--sizes 1 3]
                                        [--nulls 10] [--forms NAME ...] [--tuning] [--fe-physics fe]
-                                       [--world analytic|fe]
+                                       [--world analytic|fe] [--fe-pokes 6]
                                        [--model exported_models/hiera-qup-128] [--work DIR] [--progress FILE]
 
 Units TWIN-K01..K03, frames at 2 fps rendered at the shipped model's 128 px, recorded with the twin's
@@ -84,6 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="what solves the FE path: tools.fe (default) or the recipe's analytic stand-in")
     p.add_argument("--world", choices=sorted(WORLDS), default="analytic",
                    help="the twin physics the sessions are recorded with: analytic contact (default) or the twin's FE")
+    p.add_argument("--fe-pokes", type=int, default=FE_POKES, help="pokes per session on the FE path")
     p.add_argument("--model", default="exported_models/hiera-qup-128", help="the shipped model package (output path)")
     p.add_argument("--no-own-error", action="store_true", help="diagnose against the model alone")
     p.add_argument("--raw-nulls", nargs="*", choices=PATHS, default=["output"],
@@ -118,13 +119,13 @@ def record(sc):
 WORLDS = {"analytic": "hertz-fallback", "fe": "fe"}   # --world: the twin physics the sessions are recorded with
 
 
-def _scenario(seed: int, unit: str, path: str = "output", world: str = "analytic"):
-    """The recording of `seed` on `unit` for `path` (the FE path's are shorter, with seeds of their own)
-    in `world` (WORLDS)."""
+def _scenario(seed: int, unit: str, path: str = "output", world: str = "analytic", fe_pokes: int = FE_POKES):
+    """The recording of `seed` on `unit` for `path` (the FE path's are shorter, `fe_pokes` pokes, with
+    seeds of their own) in `world` (WORLDS)."""
     from ..workbench.scenarios import Scenario
 
     if path == "fe":
-        return Scenario(seed + FE_SEED_OFFSET, pokes=FE_POKES, unit=unit, model_size=128, physics=WORLDS[world])
+        return Scenario(seed + FE_SEED_OFFSET, pokes=fe_pokes, unit=unit, model_size=128, physics=WORLDS[world])
     return Scenario(seed, pokes=POKES, unit=unit, model_size=128, physics=WORLDS[world])
 
 
@@ -141,12 +142,13 @@ class PathLab:
     """One unit on one model path: its store, model, own error; tables of (altered) sessions."""
 
     def __init__(self, path: str, unit: str, work: Path, model_dir: str, own: bool = True,
-                 fe_physics: str = "fe", world: str = "analytic"):
+                 fe_physics: str = "fe", world: str = "analytic", fe_pokes: int = FE_POKES):
         from ...contracts.store import CalibrationStore
         from ...runtime.stages.effects import Registry
         from ..workbench.scenarios import store_root
 
         self.path, self.unit, self.work, self.fe_physics, self.world = path, unit, Path(work), fe_physics, world
+        self.fe_pokes = fe_pokes
         self.fe: dict = {}
         self.store = CalibrationStore(store_root(unit, 128))
         self.cal = self.store.load(unit)
@@ -192,11 +194,12 @@ class PathLab:
         return own
 
     def scenario(self, seed: int):
-        return _scenario(seed, self.unit, self.path, self.world)
+        return _scenario(seed, self.unit, self.path, self.world, self.fe_pokes)
 
     def tag(self) -> str:
-        """File-name tag of the world (none for the analytic one, whose files came first)."""
-        return "" if self.world == "analytic" else f"-world-{self.world}"
+        """File-name tag of the world and the FE path's session length (none for the defaults, whose
+        files came first)."""
+        return variant_tag(self.path, self.world, self.fe_pokes)
 
     def session(self, base: Path):
         from ...contracts.session import load_session
@@ -248,6 +251,12 @@ class PathLab:
         from ..workbench.diagnose import diagnose
 
         return diagnose(table, self.reg, None, post=self.post(table) if own else None)
+
+
+def variant_tag(path: str, world: str, fe_pokes: int) -> str:
+    """File-name tag of a run's world and (FE path) session length; empty for the defaults."""
+    return (("" if world == "analytic" else f"-world-{world}")
+            + (f"-pokes{fe_pokes}" if path == "fe" and fe_pokes != FE_POKES else ""))
 
 
 def _gel_128(unit: str) -> dict:
@@ -352,15 +361,17 @@ def summarize(rows: list, forms_set: str = "scored") -> dict:
     """Per model path (the FE path per solver): the acceptance counts over the cases of one form set
     ("scored" or "tuning") and every null."""
     out = {}
-    keys = sorted({(r.get("world", "analytic"), r["path"], r.get("fe_physics") or "") for r in rows})
-    for world, path, fe in keys:
-        mine = [r for r in rows if r["path"] == path and (r.get("fe_physics") or "") == fe
-                and r.get("world", "analytic") == world]
+    def key(r):
+        return r.get("world", "analytic"), r["path"], r.get("fe_physics") or "", r.get("fe_pokes", FE_POKES)
+
+    for world, path, fe, fe_pokes in sorted({key(r) for r in rows}):
+        mine = [r for r in rows if key(r) == (world, path, fe, fe_pokes)]
         cases = [r for r in mine if "form" in r and r.get("set") == forms_set]
         nulls = [r for r in mine if "null" in r]
         if not cases and not nulls:
             continue
-        path = (f"{path} ({fe})" if fe else path) + ("" if world == "analytic" else f" [{world} world]")
+        path = ((f"{path} ({fe}{'' if fe_pokes == FE_POKES else f', {fe_pokes}-poke sessions'})" if fe else path)
+                + ("" if world == "analytic" else f" [{world} world]"))
         big = [r for r in cases if r["size_floor"] >= 1.0]
         removed = [r["removed"] for r in big if r["right"] and "removed" in r]
         lib = [r for r in big if EXPECTED[r["form"]] != "phi"]
@@ -423,7 +434,7 @@ def run(a: argparse.Namespace) -> int:
                 if k < len(nulls[path]):
                     tasks.append((path, "null", nulls[path][k]))
         for path, kind, arg in (tasks[::-1] if a.reverse else tasks):
-            tag = (f"-{a.fe_physics}" if path == "fe" else "") + ("" if a.world == "analytic" else f"-world-{a.world}")
+            tag = (f"-{a.fe_physics}" if path == "fe" else "") + variant_tag(path, a.world, a.fe_pokes)
             name = (f"{path}{tag}-null-{arg[0]}" if kind == "null" else f"{path}{tag}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
             f = work / "rows" / f"{name}.json"
             if f.is_file():
@@ -433,13 +444,13 @@ def run(a: argparse.Namespace) -> int:
             try:
                 if (path, unit) not in labs:
                     labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error,
-                                               fe_physics=a.fe_physics, world=a.world)
+                                               fe_physics=a.fe_physics, world=a.world, fe_pokes=a.fe_pokes)
                 lab = labs[path, unit]
                 row = (run_null(lab, arg[0], arg[1], path in (a.raw_nulls or [])) if kind == "null"
                        else run_case(lab, arg[2], arg[0], arg[1]))
                 row["set"] = "null" if kind == "null" else ("tuning" if arg[2] in TUNING else "scored")
                 if path == "fe":
-                    row["fe_physics"] = a.fe_physics
+                    row["fe_physics"], row["fe_pokes"] = a.fe_physics, a.fe_pokes
                 row["world"] = a.world
             except Exception as exc:    # a row that fails is reported, the run goes on
                 log.exception("%s failed", name)
