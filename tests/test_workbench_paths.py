@@ -207,3 +207,25 @@ def test_harness_scores_only_gains_a_gel_could_have():
 
     assert physical({"gain_range": [0.6, 3.9]}) and physical({"gain_range": None}) and physical({})
     assert not physical({"gain_range": [0.9, 11.9]}) and not physical({"gain_range": [0.36, 1.0]})
+
+
+def test_harness_markdown_counts_hand_made_rows():
+    """accept workbench-paths --summarize --markdown: one table line per world and path, counted by hand
+    from three rows (a right 1x case with its removal, a missed 3x one, a null with a verdict)."""
+    from tensortouch.tools.accept.workbench_paths import markdown
+
+    case = {"path": "output", "form": "cubic_stiffening", "set": "scored", "unit": "U", "size_floor": 1.0,
+            "floor": 0.1, "size_n": 0.2, "mde": 0.15, "verdict": "strain_stiffening", "p": 0.01, "right": True,
+            "removed": 0.8, "removed_of_removable": 0.9, "gain_range": [1.0, 1.5]}
+    miss = {**case, "size_floor": 3.0, "size_n": 0.3, "mde": 0.5, "verdict": None, "right": False, "best": "x",
+            "best_p": 0.4, "floor": 0.3}
+    for k in ("removed", "removed_of_removable"):
+        miss.pop(k)
+    null = {"path": "output", "null": "n", "floor": 0.2, "mde": 0.12, "verdict": "led_drift",
+            "without_own_error": {"verdict": "led_drift"}}
+    out = markdown([case, miss, null]).splitlines()
+    assert out[0] == ("| analytic | output | 0.100–0.300 | 0.120–0.120 | 1 / 1 | 0 / 1 | 1 / 1 | 1 / 1 (1 / 1) "
+                      "| 1 / 1 | 1 / 1 |")
+    assert out[2].startswith("- analytic, output, cubic_stiffening 1× (0.200 N, MDE 0.150 N, U, gain 1.00–1.50): "
+                             "strain_stiffening p = 0.01, removed 80 % (90 %")
+    assert out[3].endswith("none (best x, p = 0.4) — wrong/missed")

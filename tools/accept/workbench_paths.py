@@ -93,6 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--progress", help="append one line per finished row here")
     p.add_argument("--out", help="write every row and the summary as JSON here")
     p.add_argument("--summarize", action="store_true", help="only summarize the rows in the work folder")
+    p.add_argument("--markdown", action="store_true", help="with --summarize: the docs' table and case list")
     p.add_argument("--reverse", action="store_true", help="take the rows last to first (a second run on the "
                    "same work folder then meets the first one in the middle)")
 
@@ -293,7 +294,6 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
         loaded = np.linalg.norm(clean, axis=1) >= 0.2
         g = gain_of(t.meas, clean)[loaded]
         row["gain_range"] = [float(g.min()), float(g.max())] if len(g) else None
-    row["physical"] = physical(row)
     fam = EXPECTED[form]
     if fam == "phi":
         row["right"] = bool(row["verdict"] is None and row["top_covariate"] == "phi" and (row["covariate_p"] or 1) <= 0.05)
@@ -406,6 +406,56 @@ def summarize(rows: list, forms_set: str = "scored") -> dict:
     return out
 
 
+def _variant(r: dict) -> tuple[str, str]:
+    """(world, path label) of a row, the FE path with its solver and session length."""
+    path = r["path"]
+    if path == "fe":
+        path = f"fe ({r.get('fe_physics')}, {r.get('fe_pokes', FE_POKES)}-poke)"
+    return r.get("world", "analytic"), path
+
+
+def _frac(items: list, ok) -> str:
+    return f"{sum(bool(ok(r)) for r in items)} / {len(items)}"
+
+
+def _span(x: list) -> str:
+    return f"{min(x):.3f}–{max(x):.3f}" if x else "—"
+
+
+def markdown(rows: list, forms_set: str = "scored") -> str:
+    """The docs' table (one line per world and path: floors, MDE on nulls, right verdicts at 1x / 3x
+    the floor and at >= the MDE, >= 70 % removed and, in brackets, >= 70 % of the exact form's own
+    removal, false alarms with and without the own error), then one line per case."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault(_variant(r), []).append(r)
+    table, lines = [], []
+    for (world, path), mine in sorted(groups.items()):
+        cases = [r for r in mine if "form" in r and r.get("set") == forms_set]
+        nulls = [r for r in mine if "null" in r]
+        rem = [r for r in cases if r["right"] and "removed" in r]
+        raw = [n for n in nulls if "without_own_error" in n]
+        table.append("| " + " | ".join([
+            world, path, _span([r["floor"] for r in cases + nulls]), _span([r["mde"] for r in nulls if r.get("mde")]),
+            _frac([r for r in cases if r["size_floor"] == 1], lambda r: r["right"]),
+            _frac([r for r in cases if r["size_floor"] == 3], lambda r: r["right"]),
+            _frac([r for r in cases if r.get("mde") and r["size_n"] >= r["mde"]], lambda r: r["right"]),
+            f"{_frac(rem, lambda r: r['removed'] >= 0.7)} ({_frac(rem, lambda r: r['removed_of_removable'] >= 0.7)})",
+            _frac(nulls, lambda n: n["verdict"] is not None),
+            _frac(raw, lambda n: n["without_own_error"]["verdict"] is not None) if raw else "—"]) + " |")
+        for r in sorted(cases, key=lambda r: (r["form"], r["size_floor"], r.get("draw", 0))):
+            g = r.get("gain_range")
+            verdict = ((r["verdict"] + (" with a second effect (a pair)" if r.get("pair") else "")
+                        + f" p = {r['p']:.2g}") if r["verdict"]
+                       else f"none (best {r.get('best')}, p = {r.get('best_p') or 0:.2g})")
+            removed = (f", removed {100 * r['removed']:.0f} % ({100 * r['removed_of_removable']:.0f} % of the exact "
+                       "form's)" if "removed" in r else "")
+            lines.append(f"- {world}, {path}, {r['form']} {r['size_floor']:g}× ({r['size_n']:.3f} N, MDE "
+                         f"{r['mde'] or 0:.3f} N, {r['unit']}{f', gain {g[0]:.2f}–{g[1]:.2f}' if g else ''}): "
+                         f"{verdict}{removed}{'' if r['right'] else ' — wrong/missed'}")
+    return "\n".join(table + [""] + lines) + "\n"
+
+
 def run(a: argparse.Namespace) -> int:
     from ...contracts import paths
     from ...contracts.files import atomic_write_json
@@ -462,6 +512,9 @@ def run(a: argparse.Namespace) -> int:
                  f"removed {row.get('removed', '-')} ({row['seconds']:.0f} s)")
             print(json.dumps(row, default=float), flush=True)
     rows = [json.loads(f.read_text()) for f in sorted((work / "rows").glob("*.json"))]
+    if a.markdown:
+        print(markdown(rows, "tuning" if a.tuning else "scored"), end="")
+        return 0
     summary = summarize(rows, "tuning" if a.tuning else "scored")
     print(json.dumps(summary, indent=1))
     note("summary " + json.dumps(summary))

@@ -235,8 +235,7 @@ def newton(model: GelModel, U0, poses, state, sv):
     25 mN on one node under a 5 N contact) or <= ACCEPT_ABS (unloading, normal force near 0; logged).
     Until a step is small (CURVATURE_STEP_FRACTION) the Newton matrix leaves out the normal penalty's
     curvature term; otherwise an increment that converges within HOLD_AFTER iterations is solved by
-    plain Newton. docs/fe.md "Struggle mode for deep slides"
-    has the measurements."""
+    plain Newton. docs/fe.md "Struggle mode for deep slides" has the measurements."""
     U = U0.copy()
     hold, mode = None, "exact"
     curv = not CURVATURE_STEP_FRACTION > 0
