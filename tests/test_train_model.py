@@ -87,6 +87,66 @@ def test_heads_start_at_the_mean_target(arch):
     assert (y - mean).abs().max() < 0.1
 
 
+def test_crop_affine_hand_worked():
+    import torch
+    from tensortouch.tools.train.model.train import crop_affine
+
+    th = crop_affine(torch.tensor([2.0]), torch.tensor([[0.5, -0.25]]))
+    assert torch.equal(th, torch.tensor([[[2.0, 0.0, 0.5], [0.0, 2.0, -0.25]]]))
+    with pytest.raises(ValueError, match="expected scale \\(B,\\) and shift \\(B, 2\\)"):
+        crop_affine(torch.ones(2), torch.zeros(3, 2))
+
+
+def test_warp_crop_identity_shift_and_zoom_hand_worked():
+    import torch
+    from tensortouch.tools.train.model.train import warp_crop
+
+    H = W = 16
+    x = torch.zeros(1, 6, H, W)
+    x[:, :, 6:10, 6:10] = 1.0                      # a 4 px block at the centre (inside the crop circle)
+    zero = torch.full((1, 2, 1, 1), 0.25)
+    y = zero.expand(1, 2, H, W).clone()
+    y[:, :, 6:10, 6:10] = 0.75
+    one, none = torch.ones(1), torch.zeros(1, 2)
+    xo, yo = warp_crop(x, y, zero, one, none)      # the calibrated crop: unchanged
+    assert torch.allclose(xo, x, atol=1e-6) and torch.allclose(yo, y, atol=1e-6)
+    # the crop's centre 2 px to the right (2 px = 2 / 8 radii): the content moves 2 px left, target alike
+    xo, yo = warp_crop(x, y, zero, one, torch.tensor([[2.0 / 8, 0.0]]))
+    assert torch.allclose(xo[0, 0, 6:10, 4:8], torch.ones(4, 4), atol=1e-5)
+    assert float(xo[0, 0, 6:10, 8:10].abs().max()) < 1e-5
+    assert torch.allclose(yo[0, 1, 6:10, 4:8], torch.full((4, 4), 0.75), atol=1e-5)
+    assert torch.allclose(yo[0, :, 0, 0], zero.view(2))
+    # a crop circle of half the radius: the block fills twice the pixels; outside the frame the target is 0 N
+    xo, yo = warp_crop(x, y, zero, torch.tensor([0.5]), none)
+    assert torch.allclose(xo[0, 0, 5:11, 5:11], torch.ones(6, 6), atol=1e-5)     # 4 px → 8 px (edges bilinear)
+    assert float(xo[0, 0, 2, 2]) == 0.0 and abs(float(xo[0, 0, 3, 3]) - 0.0625) < 1e-6   # 0.25 × 0.25 of the corner
+    xo, yo = warp_crop(x, y, zero, torch.tensor([2.0]), none)
+    assert torch.allclose(yo[0, :, 0, 0], zero.view(2)) and float(xo[0, :, 0, 0].abs().max()) == 0.0
+    assert torch.allclose(xo[0, 0, 7:9, 7:9], torch.ones(2, 2), atol=1e-5)      # the block at half its size
+    with pytest.raises(ValueError, match="expected inputs \\(B, 6, H, W\\)"):
+        warp_crop(torch.zeros(1, 3, H, W), y, zero, one, none)
+    with pytest.raises(ValueError, match="y_zero"):
+        warp_crop(x, y, torch.zeros(1, 3, 1, 1), one, none)
+
+
+def test_crop_jitter_draws_within_bounds_and_masks_the_circle():
+    import torch
+    from tensortouch.tools.train.model.train import crop_jitter
+
+    torch.manual_seed(0)
+    x, y = torch.rand(8, 6, 32, 32), torch.rand(8, 15, 32, 32)
+    zero = torch.zeros(1, 15, 1, 1)
+    xo, yo = crop_jitter(x, y, zero, 0.0, 0.0)
+    inside = torch.linspace(-1 + 1 / 32, 1 - 1 / 32, 32)
+    disc = (inside.view(-1, 1) ** 2 + inside.view(1, -1) ** 2) <= 1
+    assert torch.allclose(xo[..., disc], x[..., disc], atol=1e-5) and torch.allclose(yo, y, atol=1e-5)
+    assert float(xo[..., ~disc].abs().max()) == 0.0                 # masked outside the crop as the runtime does
+    xo, yo = crop_jitter(x, y, zero, 0.1, 0.05)
+    assert xo.shape == x.shape and yo.shape == y.shape and not torch.allclose(yo, y, atol=1e-3)
+    with pytest.raises(ValueError, match="must lie in \\[0, 1\\)"):
+        crop_jitter(x, y, zero, 1.0, 0.0)
+
+
 def test_photometric_jitter_scales_both_frames_alike_within_bounds():
     import torch
     from tensortouch.tools.train.model.train import photometric_jitter

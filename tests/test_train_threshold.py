@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from tensortouch.runtime.pipeline import PipelineConfig
 from tensortouch.runtime.stages.contacts import ContactConfig
-from tensortouch.tools.train.threshold import ThresholdConfig, _has_core, choose, record, rest_frames
+from tensortouch.tools.train.threshold import ThresholdConfig, _has_core, budget_rule, choose, record, rest_frames
 
 
 def sweep(rest_fp, hit, n_rest=100, n_contact=50, name="S"):
@@ -88,3 +88,79 @@ def test_the_runtime_takes_the_light_touch_rule_from_the_manifest():
     assert (c.threshold_n, c.weak_threshold_n, c.min_total_n) == (0.002, 0.0012, 0.04)
     off = {"runtime": {"contacts": {"threshold_n": 0.002, "weak_threshold_n": None, "min_total_n": None}}}
     assert PipelineConfig.for_package(SimpleNamespace(manifest=off)).contacts.min_total_n == 0.0
+
+
+def budget_frames():
+    """10 rest frames (one with a core at the lower strong threshold; weak-component totals 0.5, 0.03, 0.02,
+    0.01 N, the rest 0) and 4 touch frames, on grid (0.001, 0.002) N and one weak threshold 0.0005 N."""
+    rc = np.zeros((10, 2), bool)
+    rc[0, 0] = True
+    rw = np.zeros((10, 1))
+    rw[:4, 0] = 0.5, 0.03, 0.02, 0.01
+    tc = np.array([[1, 1], [1, 0], [0, 0], [0, 0]], bool)
+    tw = np.array([[0.5], [0.2], [0.04], [0.01]])
+    return rc, rw, tc, tw
+
+
+def test_budget_rule_hand_worked():
+    rc, rw, tc, tw = budget_frames()
+    # one phantom in 10 allowed. Strong 0.001 N spends it on frame 0 (its core), so the weak rule must stay above
+    # 0.03 N: 3 touch frames. Strong 0.002 N: frame 0 has no core, the weak rule may keep one rest frame (0.5 N)
+    # and must stay above the next, 0.03 N: also 3. The tie goes to the stricter, larger strong threshold.
+    best = budget_rule(rc, rw, tc, tw, (0.001, 0.002), (0.0005,), 0.1, 0.02)
+    assert (best["threshold_n"], best["weak_threshold_n"]) == (0.002, 0.0005)
+    assert best["min_total_n"] == pytest.approx(0.03001)
+    assert best["detected_fraction"] == 0.75 and best["rest_fraction"] == pytest.approx(0.1)
+    # no phantom allowed: 0.001 N is out (frame 0); at 0.002 N the weak rule could only sit above 0.5 N and adds
+    # nothing, so the rule stays off (the stricter of equals)
+    best = budget_rule(rc, rw, tc, tw, (0.001, 0.002), (0.0005,), 0.0, 0.02)
+    assert (best["threshold_n"], best["weak_threshold_n"], best["min_total_n"]) == (0.002, None, None)
+    assert best["detected_fraction"] == 0.25 and best["rest_fraction"] == 0.0
+    # the floor: min_total_n never below it
+    best = budget_rule(rc, np.zeros_like(rw), tc, tw, (0.002,) * 2, (0.0005,), 0.0, 0.05)
+    assert best["min_total_n"] == 0.05 and best["detected_fraction"] == 0.5      # 0.2 N reaches it, 0.04 N does not
+    # a weak threshold at or above the strong one is no rule
+    assert budget_rule(rc, rw, tc, tw, (0.0005, 0.0005), (0.0005,), 0.1, 0.02)["weak_threshold_n"] is None
+
+
+def test_budget_rule_refuses_and_gives_up():
+    rc, rw, tc, tw = budget_frames()
+    rc[:, :] = True                                   # every rest frame has a core at every grid value
+    assert budget_rule(rc, rw, tc, tw, (0.001, 0.002), (0.0005,), 0.1, 0.02) is None
+    with pytest.raises(ValueError, match="rest_weak .* expected \\(frames, 1\\)"):
+        budget_rule(rc, np.zeros((10, 2)), tc, tw, (0.001, 0.002), (0.0005,), 0.1, 0.02)
+    with pytest.raises(ValueError, match="budget 1.0"):
+        budget_rule(rc, rw, tc, tw, (0.001, 0.002), (0.0005,), 1.0, 0.02)
+
+
+def test_choose_with_a_rest_budget_reads_the_sweeps_frames():
+    rc, rw, tc, tw = budget_frames()
+    a = dict(sweep([1, 0], [3, 1], n_rest=10, n_contact=4, name="V1"), rest_core=rc, rest_weak=rw, touch_core=tc,
+             touch_weak=tw)
+    cfg = ThresholdConfig(grid=(0.001, 0.002), weak_grid=(0.0005,), rest_budget=0.1, min_total_floor_n=0.02)
+    out = choose([a], cfg)
+    assert (out["threshold_n"], out["weak_threshold_n"]) == (0.002, 0.0005)
+    assert out["min_total_n"] == pytest.approx(0.03001)
+    m = out["measured"]
+    assert m["rest_frames"] == 10 and m["touch_frames"] == 4 and m["sessions"] == ["V1"]
+    assert m["touch_detected_fraction"] == 0.75 and m["rest_with_core_fraction"] == pytest.approx(0.1)
+    assert m["contact_detected_fraction"] == 0.25 and "0.2 N" in m["rule"]
+
+
+def test_threshold_cli_refuses_the_sealed_set_and_bad_budgets(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    pkg = Path(__file__).resolve().parents[1] / "exported_models" / "hiera-qup-128"
+
+    def cli(*args):
+        r = subprocess.run([sys.executable, "-m", "tensortouch.runtime.shells.cli", "train", "threshold", "--package",
+                            str(pkg), *args], capture_output=True, text=True, timeout=300)
+        return r.returncode, [ln for ln in (r.stdout + r.stderr).splitlines() if ln.strip()]
+    rc, lines = cli("--units", "sealed", "--units-root", str(tmp_path))
+    assert rc == 2 and len(lines) == 1 and "never used for a choice" in lines[0], lines
+    rc, lines = cli("--units", "validation", "--rest-budget", "1.5")
+    assert rc == 2 and len(lines) == 1 and "--rest-budget 1.5" in lines[0], lines
+    rc, lines = cli()
+    assert rc == 2 and len(lines) == 1 and "--units SET" in lines[0], lines

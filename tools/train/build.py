@@ -107,6 +107,8 @@ class BuildConfig:
     light_weight: float = 0.0                     # light-contact sample weight exponent (FitConfig.light_weight)
     fit_seed: int = 0                             # the fit's weight init and sample order (FitConfig.seed)
     photometric: float = 0.0                      # input jitter of LED brightness ± this (FitConfig.photometric)
+    augment_crop: bool = False                    # the fit warps input and target to jittered crops: radius
+                                                  # × U(1 ± crop_scale_jitter), centre ± crop_center_jitter_px
     init_from: str = ""                           # fine-tune the fit from this state dict (FitConfig.init_from)
     init_bounds: str = ""                         # the bounds init_from was trained with (FitConfig.init_bounds)
     threads: int = 2
@@ -163,13 +165,13 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
                         "teacher", "distill_copies", "crop_scale_jitter", "crop_center_jitter_px"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "init_from",
-                    "init_bounds", "fit_seed", "photometric"],
+                    "init_bounds", "fit_seed", "photometric", "augment_crop"],
             "export": ["name", "quantization_samples", "quantization_pick", "threshold_sessions", "support_px",
                        "quantization_scheme"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
-    optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
+    optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "augment_crop": False, "force_weight": 0.0, "light_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
                 "detach_force_n": 1.1, "max_bulk_ratio": 5.0, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0,
                 "crop": "nominal", "quantization_scheme": "hybrid", "teacher": "", "distill_copies": 0, "crop_scale_jitter": 0.04,
                 "crop_center_jitter_px": 1.0}

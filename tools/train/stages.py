@@ -310,11 +310,15 @@ def stage_fit(b) -> dict:
     from .model.train import FitConfig, fit
 
     enc = pretrain_dir(b) / "encoder.pt"
+    scale_jitter = shift = 0.0
+    if b.cfg.augment_crop:      # the centre jitter in px, as a share of the training units' mean crop radius
+        radius = float(np.mean([unit_calibration(b, spec.serial).gel_radius_px for spec in b.cfg.train]))
+        scale_jitter, shift = b.cfg.crop_scale_jitter, b.cfg.crop_center_jitter_px / radius
     res = fit(b.dataset, fit_dir(b),
               FitConfig(arch=b.cfg.arch, epochs=b.cfg.epochs, batch_size=b.cfg.batch, lr=b.cfg.lr,
                         threads=b.cfg.threads, fg_weight=b.cfg.fg_weight, force_weight=b.cfg.force_weight,
                         light_weight=b.cfg.light_weight, seed=b.cfg.fit_seed,
-                        photometric=b.cfg.photometric,
+                        photometric=b.cfg.photometric, crop_scale_jitter=scale_jitter, crop_shift=shift,
                         init_from=b.cfg.init_from, init_bounds=b.cfg.init_bounds, device=b.cfg.device),
               encoder_init=enc if (b.cfg.pretrain_epochs > 0 and enc.is_file() and b.cfg.arch == "hiera_qup") else None)
     return {"params": res["params"], "metrics": res["metrics"]["mean"], "samples_per_s": res.get("samples_per_s")}

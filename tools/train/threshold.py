@@ -19,6 +19,7 @@ the threshold and the rule are known.
 
     tensortouch train threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
     tensortouch train threshold --package DIR --session ... --check    # held-out detection report
+    tensortouch train threshold --package DIR --units validation --rest-budget 0.005 --write   # chosen on validation units
 """
 from __future__ import annotations
 
@@ -67,6 +68,12 @@ class ThresholdConfig:
     # or a fixed cluster reach (px; floor 0 N), chosen by the build (BuildConfig.support_px, `--support-px`):
     # 20 px recovers a sliding contact's shear haze (docs/history/BENCHMARKS-sessions-1-16.md "Weights read back from the shipped package")
     support_px: float | None = None
+    # The rule chosen on held-out (validation) units instead (`--rest-budget`): 0 = off, the rule above. Above 0,
+    # the strong threshold, the weak threshold and min_total_n are chosen together, with no margin, as the
+    # triple that detects the most frames with a measured |F| ≥ detect_n while at most this share of the
+    # sessions' rest frames holds a core (phantoms).
+    rest_budget: float = 0.0
+    detect_n: float = 0.2
 
 
 def _has_core(mag: np.ndarray, t: float, min_pixels: int) -> bool:
@@ -114,6 +121,7 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     rest_weak = np.zeros(len(cfg.weak_grid))
     light = {"core": [], "weak": []}
     kept, seen = {"support": [], "two": []}, {"support": 0, "two": 0}
+    rows = {"rest_core": [], "rest_weak": [], "touch_core": [], "touch_weak": []}   # per frame, for rest_budget
     for i, res in enumerate(replay_session(ses, package, calibration, precision="int8", threads=1)):
         if res.fields is None:
             continue
@@ -129,12 +137,16 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
                 seen[name] += 1
                 if seen[name] % cfg.support.stride == 0 and len(kept[name]) < cfg.support.frames_per_session:
                     kept[name].append(got)
-        if not (rest or contact or lit):
+        touch = bool(mags.max() >= cfg.detect_n)
+        if not (rest or contact or lit or touch):
             continue
         mag = np.where(calibration.mask, np.sqrt((fp ** 2).sum(axis=0)), 0.0)
         has = np.array([_has_core(mag, t, cfg.min_pixels) for t in grid])
-        if rest or lit:
+        if rest or lit or touch:
             tot = weak_totals(fp, mag, calibration.mask, cfg.weak_grid)
+        if rest or touch:
+            rows["rest_core" if rest else "touch_core"].append(has)
+            rows["rest_weak" if rest else "touch_weak"].append(tot)
         if rest:
             n_rest += 1
             rest_fp += has
@@ -148,7 +160,8 @@ def sweep_session(session_dir, package, calibration, cfg: ThresholdConfig = Thre
     return {"session": str(session_dir), "rest_frames": n_rest, "contact_frames": n_contact,
             "rest_with_core": rest_fp.tolist(), "contact_with_core": hit.tolist(),
             "rest_weak_max": rest_weak.tolist(), "light": light,
-            "support": kept["support"], "two": kept["two"], "calibration": calibration}    # the last three stay in memory (not JSON)
+            "support": kept["support"], "two": kept["two"], "calibration": calibration,   # these stay in memory (not JSON)
+            **{k: np.array(v, bool if k.endswith("core") else float).reshape(len(v), -1) for k, v in rows.items()}}
 
 
 def _max_force(meas: dict) -> np.ndarray:
@@ -157,6 +170,9 @@ def _max_force(meas: dict) -> np.ndarray:
 
 
 def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
+    if cfg.rest_budget > 0:
+        out = choose_budget(sweeps, cfg)
+        return out if out["threshold_n"] is None else dict(out, **_support(sweeps, out, cfg))
     grid = np.asarray(cfg.grid)
     fp = np.sum([s["rest_with_core"] for s in sweeps], axis=0)
     hit = np.sum([s["contact_with_core"] for s in sweeps], axis=0)
@@ -227,6 +243,85 @@ def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict
     measured.update(light_detected_fraction=float(frac[j]), light_detected_strong_only=float(core.mean()),
                     light_detected_by_weak_n=np.round(frac, 4).tolist())
     return {"weak_threshold_n": float(wg[j]), "min_total_n": float(round(fmin[j], 5))}
+
+
+def budget_rule(rest_core: np.ndarray, rest_weak: np.ndarray, touch_core: np.ndarray, touch_weak: np.ndarray,
+                grid, weak_grid, budget: float, floor_n: float) -> dict | None:
+    """The (strong, weak, min_total) triple that detects the most touch frames with at most `budget` of the rest
+    frames holding a core. Rows are frames: *_core (n, G) bool, a core above grid[g]; *_weak (n, J), the largest
+    |total force| (N) of a component above weak_grid[j]. A weak threshold at or above the strong one means the
+    rule is off (min_total None). Ties go to the stricter triple (larger strong threshold, then the rule off,
+    then the larger weak threshold). None:
+    even the top grid value leaves more than the budget. Returns indices, values and the two rates."""
+    grid, weak_grid = np.asarray(grid, float), np.asarray(weak_grid, float)
+    G, J = len(grid), len(weak_grid)
+    for name, a, cols in (("rest_core", rest_core, G), ("rest_weak", rest_weak, J), ("touch_core", touch_core, G),
+                          ("touch_weak", touch_weak, J)):
+        if a.ndim != 2 or a.shape[1] != cols:
+            raise ValueError(f"budget_rule: {name} {a.shape}, expected (frames, {cols})")
+    if rest_core.shape[0] != rest_weak.shape[0] or touch_core.shape[0] != touch_weak.shape[0]:
+        raise ValueError("budget_rule: core and weak rows of the same frames differ in number")
+    if not (0 <= budget < 1):
+        raise ValueError(f"budget_rule: budget {budget}; expected a share of rest frames in [0, 1)")
+    R, T = rest_core.shape[0], max(touch_core.shape[0], 1)
+    allowed = int(np.floor(budget * R + 1e-9))
+    best, best_key = None, None
+    for k in range(G):
+        base = rest_core[:, k]
+        if base.sum() > allowed:
+            continue
+        options = [(None, None)]                           # the strong threshold alone
+        for j in range(J):
+            if weak_grid[j] >= grid[k]:
+                continue
+            vals = np.sort(rest_weak[~base, j])[::-1]
+            a = allowed - int(base.sum())                  # phantoms the weak rule may still add
+            m = float(np.ceil(vals[a] * 1e5 + 1e-6) / 1e5) if a < len(vals) else 0.0   # just above the (a+1)-th largest
+            options.append((j, max(m, floor_n)))
+        for j, m in options:
+            hit = touch_core[:, k] if j is None else touch_core[:, k] | (touch_weak[:, j] >= m)
+            ph = base if j is None else base | (rest_weak[:, j] >= m)
+            key = (int(hit.sum()), k, J if j is None else j)     # the rule off is the strictest
+            if best_key is None or key > best_key:
+                best_key = key
+                best = {"k": k, "j": j, "threshold_n": float(grid[k]),
+                        "weak_threshold_n": None if j is None else float(weak_grid[j]),
+                        "min_total_n": None if j is None else float(m),
+                        "detected_fraction": float(hit.sum() / T), "rest_fraction": float(ph.sum() / max(R, 1))}
+    return best
+
+
+def _contact_detected(sweeps: list[dict], k: int) -> float | None:
+    """Share of the sweeps' contact frames (|F| > contact_n) with a core above grid[k]."""
+    n = sum(s["contact_frames"] for s in sweeps)
+    return float(sum(s["contact_with_core"][k] for s in sweeps) / n) if n else None
+
+
+def choose_budget(sweeps: list[dict], cfg: ThresholdConfig) -> dict:
+    """`choose` with cfg.rest_budget > 0: the contact settings from `budget_rule` on the sweeps' frames."""
+    def rows(key, cols):
+        parts = [s[key] for s in sweeps if len(s.get(key, ()))]
+        return np.concatenate(parts) if parts else np.zeros((0, cols), bool if key.endswith("core") else float)
+    G, J = len(cfg.grid), len(cfg.weak_grid)
+    rc, rw, tc, tw = rows("rest_core", G), rows("rest_weak", J), rows("touch_core", G), rows("touch_weak", J)
+    measured = {"rule": f"the strong threshold, weak threshold and min_total_n (no margin) that detect the most frames "
+                        f"with measured |F| >= {cfg.detect_n} N while at most {100 * cfg.rest_budget:.3g} % of the rest "
+                        f"frames (|F| < {cfg.rest_n} N, none >= {cfg.rest_touch_n} N within ± {cfg.rest_guard_s} s) hold "
+                        f"a core", "rest_budget": cfg.rest_budget, "grid_n": list(cfg.grid), "weak_grid_n": list(cfg.weak_grid),
+                "rest_frames": int(rc.shape[0]), "touch_frames": int(tc.shape[0]),
+                "sessions": [Path(s["session"]).name for s in sweeps]}
+    best = budget_rule(rc, rw, tc, tw, cfg.grid, cfg.weak_grid, cfg.rest_budget, cfg.min_total_floor_n)
+    if best is None:
+        log.warning("contact threshold: every grid value up to %g N leaves more than %.3g %% of the rest frames "
+                    "with a core; no threshold recorded", cfg.grid[-1], 100 * cfg.rest_budget)
+        return {"threshold_n": None, "weak_threshold_n": None, "min_total_n": None, "support_radius_px": None,
+                "support_floor_n": None, "merge_n": None, "measured": measured}
+    measured.update(touch_detected_fraction=round(best["detected_fraction"], 5),
+                    rest_with_core_fraction=round(best["rest_fraction"], 5),
+                    contact_detected_fraction=_contact_detected(sweeps, best["k"]),
+                    detected_at_n=best["threshold_n"])
+    return {"threshold_n": best["threshold_n"], "weak_threshold_n": best["weak_threshold_n"],
+            "min_total_n": best["min_total_n"], "measured": measured}
 
 
 def record(package_dir: Path, result: dict) -> None:
@@ -312,8 +407,16 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--package", required=True, help="model package folder")
-    ap.add_argument("--session", nargs="+", required=True, metavar="SESSION_DIR:STORE_DIR",
+    ap.add_argument("--session", nargs="+", default=[], metavar="SESSION_DIR:STORE_DIR",
                     help="a training session and the calibration store holding its unit")
+    ap.add_argument("--units", help="or every recorded session of a protocol unit set (`train units record SET`), "
+                                    "each unit with its calibration: validation (the sealed set is refused)")
+    ap.add_argument("--units-root", help="where recorded sets live (default <cache>/units)")
+    ap.add_argument("--protocol", help="protocol file of --units (default tools/train/protocol.toml)")
+    ap.add_argument("--rest-budget", type=float, default=0.0, metavar="SHARE",
+                    help="choose the threshold, weak threshold and min_total_n together on these (held-out) sessions: "
+                         "the most frames >= 0.2 N detected with at most SHARE of the rest frames holding a core "
+                         "(e.g. 0.005); 0 = the training-session rule (no core on any rest frame, x 4/3)")
     ap.add_argument("--write", action="store_true", help="record the result in the package's manifest")
     ap.add_argument("--support", action="store_true",
                     help="also measure a farther cluster support (off by default: docs/model_package.md 'Support')")
@@ -327,7 +430,20 @@ def run(args: argparse.Namespace) -> int:
     from ...contracts.session import load_session
     from ...contracts.store import CalibrationStore
 
+    if not 0 <= args.rest_budget < 1:
+        raise TensorTouchError(f"--rest-budget {args.rest_budget}: expected a share of rest frames in [0, 1)")
+    if not args.session and not args.units:
+        raise TensorTouchError("train threshold: give --session SESSION_DIR:STORE_DIR ... or --units SET")
     pairs = []
+    if args.units:
+        from .crosseval import unit_targets
+        from .protocol import load_protocol
+        from .units import units_root
+
+        if args.units == "sealed":
+            raise TensorTouchError("train threshold: --units sealed: the sealed set is never used for a choice")
+        pairs += [(path, cal) for _, path, cal in unit_targets(load_protocol(args.protocol), args.units,
+                                                               units_root(args.units_root), check_whole=False)]
     for item in args.session:
         sdir, _, store = item.partition(":")
         if not store:
@@ -337,7 +453,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(check(args.package, pairs), indent=1))
         return 0
     cmd = args.command_line
-    cfg = ThresholdConfig(measure_support=args.support, support_px=args.support_px)
+    cfg = ThresholdConfig(measure_support=args.support, support_px=args.support_px, rest_budget=args.rest_budget)
     print(json.dumps(measure(args.package, pairs, cfg, write=args.write, command=cmd), indent=1))
     return 0
 

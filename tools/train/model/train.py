@@ -82,6 +82,11 @@ class FitConfig(LoopConfig):
     # ramp of amplitude U(0, p) in a random direction, the same on the baseline and the current frame (units
     # differ in LED brightness, ±10 % per LED in the twin). 0 = off.
     photometric: float = 0.0
+    # Crop jitter of input and target alike: per sample, the crop circle's radius × U(1 − s, 1 + s) and its centre
+    # moved by U(−c, c) of the radius in x and y (a unit's rim and centre as a rig would misjudge them; the
+    # fields are per area, so the same warp of the targets is what the labels at that crop would be). 0 = off.
+    crop_scale_jitter: float = 0.0
+    crop_shift: float = 0.0
 
 
 @dataclass
@@ -193,7 +198,7 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, 
     config = {"what": what, **asdict(cfg), "n_train": n}
     for k in RUN_PLACE_KEYS:
         config.pop(k, None)
-    for k in ("init_bounds", "photometric"):      # runs made before these options existed resume unchanged
+    for k in ("init_bounds", "photometric", "crop_scale_jitter", "crop_shift"):   # runs made before these options existed resume unchanged
         if k in config and not config[k]:
             config.pop(k)
     ckpt = _prepare_run(out, config)
@@ -367,6 +372,8 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     def loss_fn(m, xb, yb):
         if cfg.photometric > 0:
             xb = photometric_jitter(xb, cfg.photometric)
+        if cfg.crop_scale_jitter > 0 or cfg.crop_shift > 0:
+            xb, yb = crop_jitter(xb, yb, y_zero, cfg.crop_scale_jitter, cfg.crop_shift)
         pred = m(xb).float()        # the loss in float32 also under CUDA autocast
         w = None if zero is None else 1.0 + cfg.fg_weight * (torch.abs(yb - zero) > cfg.fg_eps).float()
         if cfg.light_weight > 0:
@@ -454,6 +461,55 @@ def photometric_jitter(x: torch.Tensor, p: float) -> torch.Tensor:
     u = torch.linspace(-1.0, 1.0, W, device=x.device).view(1, 1, 1, W)
     g = gain * (1.0 + a * (torch.cos(beta) * u + torch.sin(beta) * v))
     return (x * g.repeat(1, 2, 1, 1)).clamp(0.0, 1.0)
+
+
+def crop_affine(scale: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+    """(B, 2, 3) affine_grid matrices of crops whose circle has radius `scale` (B,) and centre `shift` (B, 2), both
+    in units of the calibrated crop's radius (normalized image coordinates, x then y): output pixel p samples
+    the calibrated crop at scale·p + shift."""
+    if scale.ndim != 1 or shift.shape != (scale.shape[0], 2):
+        raise ValueError(f"crop_affine: expected scale (B,) and shift (B, 2), got {tuple(scale.shape)}, {tuple(shift.shape)}")
+    theta = torch.zeros(scale.shape[0], 2, 3, dtype=scale.dtype, device=scale.device)
+    theta[:, 0, 0] = scale
+    theta[:, 1, 1] = scale
+    theta[:, :, 2] = shift
+    return theta
+
+
+def warp_crop(x: torch.Tensor, y: torch.Tensor, y_zero: torch.Tensor, scale: torch.Tensor, shift: torch.Tensor
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Inputs (B, 6, H, W) and normalized targets (B, C, H, W) of each sample's calibrated crop, seen through the
+    crop circle of radius `scale` (B,) and centre `shift` (B, 2) radii (`crop_affine`). Both are resampled
+    bilinearly by the same warp; the inputs are masked outside the new crop's circle as the runtime's
+    Preprocessor masks them, the targets read the physical zero `y_zero` (1, C, 1, 1) where the calibrated
+    crop saw nothing."""
+    if x.ndim != 4 or x.shape[1] != 6 or y.ndim != 4 or y.shape[0] != x.shape[0] or y.shape[2:] != x.shape[2:]:
+        raise ValueError(f"warp_crop: expected inputs (B, 6, H, W) and targets (B, C, H, W), got "
+                         f"{tuple(x.shape)}, {tuple(y.shape)}")
+    if y_zero.shape != (1, y.shape[1], 1, 1):
+        raise ValueError(f"warp_crop: y_zero {tuple(y_zero.shape)}, expected (1, {y.shape[1]}, 1, 1)")
+    B, _, H, W = x.shape
+    grid = torch.nn.functional.affine_grid(crop_affine(scale, shift).to(x.dtype), [B, 1, H, W], align_corners=False)
+    xo = torch.nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    v = torch.linspace(-1.0 + 1.0 / H, 1.0 - 1.0 / H, H, device=x.device).view(1, 1, H, 1)
+    u = torch.linspace(-1.0 + 1.0 / W, 1.0 - 1.0 / W, W, device=x.device).view(1, 1, 1, W)
+    xo = xo * ((u * u + v * v) <= 1.0).to(x.dtype)
+    z = y_zero.to(y.dtype)
+    yo = torch.nn.functional.grid_sample(y - z, grid.to(y.dtype), mode="bilinear", padding_mode="zeros",
+                                         align_corners=False) + z
+    return xo, yo
+
+
+def crop_jitter(x: torch.Tensor, y: torch.Tensor, y_zero: torch.Tensor, s: float, c: float
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+    """`warp_crop` at a random crop per sample: radius × U(1 − s, 1 + s), centre + U(−c, c) radii in x and y.
+    Draws from torch's global generator (its state is in the checkpoint, so a resumed fit draws the same)."""
+    if not (0 <= s < 1 and 0 <= c < 1):
+        raise ValueError(f"crop_jitter: scale jitter {s} and shift {c} must lie in [0, 1)")
+    B = x.shape[0]
+    scale = 1.0 + s * (2.0 * torch.rand(B, device=x.device) - 1.0)
+    shift = c * (2.0 * torch.rand(B, 2, device=x.device) - 1.0)
+    return warp_crop(x, y, y_zero, scale, shift)
 
 
 def light_sample_weight(target: torch.Tensor, y_zero: torch.Tensor, scale: torch.Tensor, cfg) -> torch.Tensor:
