@@ -31,6 +31,8 @@ TOOLS = (
     ("crosseval", "tensortouch.tools.train.crosseval",
      ("packages side by side on held-out sessions or a protocol unit set through the runtime: detection, "
      "phantoms, |F| MAE and direction with bootstrap CIs")),
+    ("curve", "tensortouch.tools.train.curve",
+     "learning curve: a recipe on the first N train units for several N and fit seeds, scored on the validation units"),
     ("units", "tensortouch.tools.train.units",
      "the evaluation protocol's train / validation / sealed unit sets: check them and the recipes, list, record"),
     ("resolve-check", "tensortouch.tools.train.resolve_check",
