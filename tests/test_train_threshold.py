@@ -104,9 +104,9 @@ def budget_frames():
 
 def test_budget_rule_hand_worked():
     rc, rw, tc, tw = budget_frames()
-    # one phantom in 10 allowed. Strong 0.001 N spends it on frame 0 (its core), so the weak rule must stay above
-    # 0.03 N: 3 touch frames. Strong 0.002 N: frame 0 has no core, the weak rule may keep one rest frame (0.5 N)
-    # and must stay above the next, 0.03 N: also 3. The tie goes to the stricter, larger strong threshold.
+    # one phantom in 10 allowed, half of it (none) to the strong threshold: 0.001 N holds a core on frame 0, so the
+    # strong threshold is 0.002 N. The weak rule may then keep one rest frame (0.5 N) and must stay above the next,
+    # 0.03 N: the 0.2 and 0.04 N touches join the 0.5 N one, 3 of 4.
     best = budget_rule(rc, rw, tc, tw, (0.001, 0.002), (0.0005,), 0.1, 0.02)
     assert (best["threshold_n"], best["weak_threshold_n"]) == (0.002, 0.0005)
     assert best["min_total_n"] == pytest.approx(0.03001)

@@ -6,7 +6,8 @@ seeds, every package scored on the validation units by `train crosseval` (one sc
 The recipe must take its training sessions from the train set by name (`train = { set = "train", ... }`);
 each point replaces `first` with N (and the build's `fit_seed`), builds in its own folder
 `<cache>/train/curve/<name>-u<N>-s<seed>/` and exports its package there (`package/`), so a point never
-replaces a shipped package. Recording, FE labels and tables are cached (`<cache>/fe` and the twin's FE
+replaces a shipped package. The point that is the recipe itself (its own `first` and fit seed) is the
+recipe's own build and package, as `train all --recipe R` makes them. Recording, FE labels and tables are cached (`<cache>/fe` and the twin's FE
 cache), so the points after the first pay mostly for their fits. Packages of one N that differ only in
 `fit_seed` share a recipe key, so crosseval prints their mean ± spread.
 """
@@ -49,6 +50,13 @@ def point_recipe(recipe, n: int, seed: int):
     return Recipe(doc["name"], recipe.source, doc)
 
 
+def package_dir(cfg) -> Path:
+    """Where a build config's package is exported (BuildConfig.models_dir, else the repository's)."""
+    from ...contracts.paths import models_dir
+
+    return (Path(cfg.models_dir) if cfg.models_dir else models_dir()) / cfg.name
+
+
 def curve_rows(cards: dict, points: list[tuple[int, int, str]]) -> list[dict]:
     """Per N: the points' headline numbers (crosseval scorecards by package), mean and spread over fit seeds."""
     from .scorecard import fit_seed_spread, headline
@@ -89,9 +97,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         recipe = load_recipe(args.recipe, args.set)
         points = []
+        own = ((recipe.doc.get("sessions") or {}).get("train") or {}).get("first"), \
+            int((recipe.doc.get("build") or {}).get("fit_seed", 0))
         for n in args.train_units:
             for seed in args.fit_seed:
                 r = point_recipe(recipe, n, seed)
+                if (n, seed) == own:     # the recipe itself: its own build and package (`train all --recipe R`)
+                    b = run_recipe(recipe, command=getattr(args, "command_line", ""))
+                    points.append((n, seed, str(package_dir(b.cfg))))
+                    continue
                 root = cache_dir() / "train" / "curve" / r.name
                 run_recipe(r, root=root, command=getattr(args, "command_line", ""),
                            overrides={"models_dir": str(root / "package"), "eval_demo": False, "figures": False})

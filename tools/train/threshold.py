@@ -69,9 +69,9 @@ class ThresholdConfig:
     # 20 px recovers a sliding contact's shear haze (docs/history/BENCHMARKS-sessions-1-16.md "Weights read back from the shipped package")
     support_px: float | None = None
     # The rule chosen on held-out (validation) units instead (`--rest-budget`): 0 = off, the rule above. Above 0,
-    # the strong threshold, the weak threshold and min_total_n are chosen together, with no margin, as the
-    # triple that detects the most frames with a measured |F| ≥ detect_n while at most this share of the
-    # sessions' rest frames holds a core (phantoms).
+    # with no margin: the lowest strong threshold with at most half this share of the rest frames holding a
+    # core, then the weak rule that detects the most frames with a measured |F| ≥ detect_n while at most this
+    # share holds one (`budget_rule`).
     rest_budget: float = 0.0
     detect_n: float = 0.2
 
@@ -247,47 +247,51 @@ def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict
 
 def budget_rule(rest_core: np.ndarray, rest_weak: np.ndarray, touch_core: np.ndarray, touch_weak: np.ndarray,
                 grid, weak_grid, budget: float, floor_n: float) -> dict | None:
-    """The (strong, weak, min_total) triple that detects the most touch frames with at most `budget` of the rest
-    frames holding a core. Rows are frames: *_core (n, G) bool, a core above grid[g]; *_weak (n, J), the largest
-    |total force| (N) of a component above weak_grid[j]. A weak threshold at or above the strong one means the
-    rule is off (min_total None). Ties go to the stricter triple (larger strong threshold, then the rule off,
-    then the larger weak threshold). None:
-    even the top grid value leaves more than the budget. Returns indices, values and the two rates."""
+    """Contact settings under a phantom budget. Rows are frames: *_core (n, G) bool, a core above grid[g]; *_weak
+    (n, J), the largest |total force| (N) of a component above weak_grid[j].
+
+    The strong threshold is the lowest grid value at which at most half the budget of the rest frames holds a
+    core (the training-session rule with a budget instead of none, and no margin: a strong core also sets the
+    clusters, so it is not traded for the weak rule, whose components can join two contacts). Then, of the weak
+    thresholds below it and the rule off, the one with the smallest min_total_n that keeps the rest frames with
+    a core within the whole budget and detects the most touch frames (ties: the rule off, then the larger weak
+    threshold). None: even the top grid value leaves more than half the budget."""
     grid, weak_grid = np.asarray(grid, float), np.asarray(weak_grid, float)
     G, J = len(grid), len(weak_grid)
-    for name, a, cols in (("rest_core", rest_core, G), ("rest_weak", rest_weak, J), ("touch_core", touch_core, G),
-                          ("touch_weak", touch_weak, J)):
-        if a.ndim != 2 or a.shape[1] != cols:
-            raise ValueError(f"budget_rule: {name} {a.shape}, expected (frames, {cols})")
+    for name, arr, cols in (("rest_core", rest_core, G), ("rest_weak", rest_weak, J), ("touch_core", touch_core, G),
+                            ("touch_weak", touch_weak, J)):
+        if arr.ndim != 2 or arr.shape[1] != cols:
+            raise ValueError(f"budget_rule: {name} {arr.shape}, expected (frames, {cols})")
     if rest_core.shape[0] != rest_weak.shape[0] or touch_core.shape[0] != touch_weak.shape[0]:
         raise ValueError("budget_rule: core and weak rows of the same frames differ in number")
     if not (0 <= budget < 1):
         raise ValueError(f"budget_rule: budget {budget}; expected a share of rest frames in [0, 1)")
     R, T = rest_core.shape[0], max(touch_core.shape[0], 1)
     allowed = int(np.floor(budget * R + 1e-9))
-    best, best_key = None, None
-    for k in range(G):
-        base = rest_core[:, k]
-        if base.sum() > allowed:
+    ok = np.flatnonzero(rest_core.sum(axis=0) <= int(np.floor(budget / 2 * R + 1e-9)))
+    if not len(ok):
+        return None
+    k = int(ok[0])
+    base = rest_core[:, k]
+    options = [(None, None)]                               # the strong threshold alone
+    for j in range(J):
+        if weak_grid[j] >= grid[k]:
             continue
-        options = [(None, None)]                           # the strong threshold alone
-        for j in range(J):
-            if weak_grid[j] >= grid[k]:
-                continue
-            vals = np.sort(rest_weak[~base, j])[::-1]
-            a = allowed - int(base.sum())                  # phantoms the weak rule may still add
-            m = float(np.ceil(vals[a] * 1e5 + 1e-6) / 1e5) if a < len(vals) else 0.0   # just above the (a+1)-th largest
-            options.append((j, max(m, floor_n)))
-        for j, m in options:
-            hit = touch_core[:, k] if j is None else touch_core[:, k] | (touch_weak[:, j] >= m)
-            ph = base if j is None else base | (rest_weak[:, j] >= m)
-            key = (int(hit.sum()), k, J if j is None else j)     # the rule off is the strictest
-            if best_key is None or key > best_key:
-                best_key = key
-                best = {"k": k, "j": j, "threshold_n": float(grid[k]),
-                        "weak_threshold_n": None if j is None else float(weak_grid[j]),
-                        "min_total_n": None if j is None else float(m),
-                        "detected_fraction": float(hit.sum() / T), "rest_fraction": float(ph.sum() / max(R, 1))}
+        vals = np.sort(rest_weak[~base, j])[::-1]
+        a = allowed - int(base.sum())                      # phantoms the weak rule may add
+        m = float(np.ceil(vals[a] * 1e5 + 1e-6) / 1e5) if a < len(vals) else 0.0   # just above the (a+1)-th largest
+        options.append((j, max(m, floor_n)))
+    best, best_key = None, None
+    for j, m in options:
+        hit = touch_core[:, k] if j is None else touch_core[:, k] | (touch_weak[:, j] >= m)
+        ph = base if j is None else base | (rest_weak[:, j] >= m)
+        key = (int(hit.sum()), J if j is None else j)      # the rule off is the strictest
+        if best_key is None or key > best_key:
+            best_key = key
+            best = {"k": k, "j": j, "threshold_n": float(grid[k]),
+                    "weak_threshold_n": None if j is None else float(weak_grid[j]),
+                    "min_total_n": None if j is None else float(m),
+                    "detected_fraction": float(hit.sum() / T), "rest_fraction": float(ph.sum() / max(R, 1))}
     return best
 
 
@@ -304,10 +308,10 @@ def choose_budget(sweeps: list[dict], cfg: ThresholdConfig) -> dict:
         return np.concatenate(parts) if parts else np.zeros((0, cols), bool if key.endswith("core") else float)
     G, J = len(cfg.grid), len(cfg.weak_grid)
     rc, rw, tc, tw = rows("rest_core", G), rows("rest_weak", J), rows("touch_core", G), rows("touch_weak", J)
-    measured = {"rule": f"the strong threshold, weak threshold and min_total_n (no margin) that detect the most frames "
-                        f"with measured |F| >= {cfg.detect_n} N while at most {100 * cfg.rest_budget:.3g} % of the rest "
-                        f"frames (|F| < {cfg.rest_n} N, none >= {cfg.rest_touch_n} N within ± {cfg.rest_guard_s} s) hold "
-                        f"a core", "rest_budget": cfg.rest_budget, "grid_n": list(cfg.grid), "weak_grid_n": list(cfg.weak_grid),
+    measured = {"rule": f"no margin: the lowest grid value with at most {50 * cfg.rest_budget:.3g} % of the rest frames "
+                        f"(|F| < {cfg.rest_n} N, none >= {cfg.rest_touch_n} N within ± {cfg.rest_guard_s} s) holding a "
+                        f"core, then the weak rule detecting the most frames with measured |F| >= {cfg.detect_n} N with "
+                        f"at most {100 * cfg.rest_budget:.3g} % holding one", "rest_budget": cfg.rest_budget, "grid_n": list(cfg.grid), "weak_grid_n": list(cfg.weak_grid),
                 "rest_frames": int(rc.shape[0]), "touch_frames": int(tc.shape[0]),
                 "sessions": [Path(s["session"]).name for s in sweeps]}
     best = budget_rule(rc, rw, tc, tw, cfg.grid, cfg.weak_grid, cfg.rest_budget, cfg.min_total_floor_n)
