@@ -2,6 +2,7 @@
 sealed score log), on hand-made values."""
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -135,6 +136,21 @@ def test_sealed_log_once_per_package(tmp_path):
     # other weights: another package
     (pkg / "manifest.json").write_text(json.dumps({"files": {"model.int8.onnx": {"sha256": "cd" * 32}}}))
     P.check_not_scored(pkg, "h")
+
+
+def test_a_replaced_package_keeps_its_sealed_log(tmp_path):
+    from tensortouch.tools.train.package import write_package
+
+    model = tmp_path / "m.onnx"
+    for i, payload in enumerate((b"first weights", b"other weights")):
+        model.write_bytes(payload)
+        man = {"files": {"model.int8.onnx": {"sha256": hashlib.sha256(payload).hexdigest()}}}
+        pkg = write_package(tmp_path / "models", "p", {"model.int8.onnx": model}, man)
+        if i == 0:
+            first = P.log_sealed_score(pkg, "h", ["TWIN-X-s1"], {"force_mae_n": 0.2})
+    assert json.loads((pkg / P.SEALED_LOG).read_text()) == [first]     # carried over, not lost
+    assert (pkg / "model.int8.onnx").read_bytes() == b"other weights"
+    P.check_not_scored(pkg, "h")                                         # the new weights are another package
 
 
 def test_sealed_set_scored_once_end_to_end(tmp_path):

@@ -101,9 +101,13 @@ def atomic_copy(src: Path, dst: Path) -> None:
         atomic_write(dst, lambda out: shutil.copyfileobj(fh, out))
 
 
+SEALED_LOG = "sealed_scores.json"     # tools/train/protocol.py: the package's log of sealed-set scores
+
+
 def write_package(root: str | Path, name: str, models: dict[str, Path], manifest: dict) -> Path:
     """Atomically create/replace <root>/<name>/ with manifest.json and the `models` {file name: path}
-    to ship (a subset of manifest.files: optional files may be left out)."""
+    to ship (a subset of manifest.files: optional files may be left out). A replaced package's sealed-score
+    log is carried over: its entries name the model files they scored, so they are never lost."""
     root = Path(root)
     final = confined(root, name, "package name", ModelPackageError)     # before anything is created
     root.mkdir(parents=True, exist_ok=True)
@@ -121,6 +125,9 @@ def write_package(root: str | Path, name: str, models: dict[str, Path], manifest
                 raise ModelPackageError(f"{tmp / k}: required by the manifest but not written")
         with open(tmp / "manifest.json", "w") as fh:
             json.dump(manifest, fh, indent=1)
+        log_file = final / SEALED_LOG           # the sealed scores of what shipped under this name stay with it
+        if log_file.is_file():
+            shutil.copyfile(log_file, tmp / SEALED_LOG)
         old = None
         if final.exists():
             old = root / f".{name}.old.{os.getpid()}"

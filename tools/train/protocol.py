@@ -28,10 +28,10 @@ from pathlib import Path
 
 from ...contracts.errors import TensorTouchError
 from ...contracts.names import check_name
+from .package import SEALED_LOG
 
 PROTOCOL_FILE = Path(__file__).resolve().parent / "protocol.toml"
 SET_NAMES = ("train", "validation", "sealed")
-SEALED_LOG = "sealed_scores.json"
 TOP_KEYS = {"world", "frames", "qualities", "distribution", "sets"}
 
 
