@@ -164,3 +164,14 @@ def test_threshold_cli_refuses_the_sealed_set_and_bad_budgets(tmp_path):
     assert rc == 2 and len(lines) == 1 and "--rest-budget 1.5" in lines[0], lines
     rc, lines = cli()
     assert rc == 2 and len(lines) == 1 and "--units SET" in lines[0], lines
+
+
+def test_fixed_support_keeps_the_builds_reach(tmp_path):
+    from tensortouch.tools.train.threshold import fixed_support
+
+    def pkg(contacts, rule):
+        (tmp_path / "manifest.json").write_text(json.dumps({"runtime": {"contacts": contacts, "measured": {"support_rule": rule}}}))
+        return tmp_path
+    assert fixed_support(pkg({"support_radius_px": 20.0, "support_floor_n": 0.0}, "fixed by the build: 20 px, floor 0 N")) == 20.0
+    assert fixed_support(pkg({"support_radius_px": 9.0, "support_floor_n": 0.004}, "measured on ...")) is None
+    assert fixed_support(pkg({"support_radius_px": None, "support_floor_n": None}, "")) is None

@@ -409,6 +409,18 @@ def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdCo
             "bands": bands}
 
 
+def fixed_support(package_dir) -> float | None:
+    """The package's cluster reach when its build fixed it (support floor 0 N and a "fixed by the build" rule),
+    else None: a re-measurement keeps what the build chose instead of resetting it to the runtime default."""
+    man = json.loads((Path(package_dir) / "manifest.json").read_text())
+    rt = man.get("runtime") or {}
+    c, m = rt.get("contacts") or {}, rt.get("measured") or {}
+    if c.get("support_radius_px") and c.get("support_floor_n") == 0.0 and \
+            str(m.get("support_rule", "")).startswith("fixed by the build"):
+        return float(c["support_radius_px"])
+    return None
+
+
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--package", required=True, help="model package folder")
     ap.add_argument("--session", nargs="+", default=[], metavar="SESSION_DIR:STORE_DIR",
@@ -457,7 +469,10 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(check(args.package, pairs), indent=1))
         return 0
     cmd = args.command_line
-    cfg = ThresholdConfig(measure_support=args.support, support_px=args.support_px, rest_budget=args.rest_budget)
+    support_px = args.support_px
+    if support_px is None and not args.support:    # keep a reach the build fixed (BuildConfig.support_px)
+        support_px = fixed_support(args.package)
+    cfg = ThresholdConfig(measure_support=args.support, support_px=support_px, rest_budget=args.rest_budget)
     print(json.dumps(measure(args.package, pairs, cfg, write=args.write, command=cmd), indent=1))
     return 0
 
