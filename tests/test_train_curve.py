@@ -39,3 +39,17 @@ def test_curve_rows_average_the_fit_seeds_of_each_point():
     assert rows[0]["force_mae_n"]["sd"] == pytest.approx(0.0707107, rel=1e-5) and rows[1]["force_mae_n"]["n"] == 1
     text = format_rows(rows)
     assert "| 3 | 2 | 0.35 N ± 0.071 | 8 % ± 2.8 |" in text and "| 12 | 1 | 0.2 N | 4 % |" in text
+
+
+def test_a_point_exported_from_the_same_recipe_is_not_rebuilt(tmp_path):
+    import json
+
+    from tensortouch.tools.train.curve import built_from
+
+    r = point_recipe(recipe({"set": "train", "first": 12, "pokes": 8}), 3, 0)
+    assert not built_from(tmp_path / "none", r)
+    (tmp_path / "manifest.json").write_text("{not json")
+    assert not built_from(tmp_path, r)
+    (tmp_path / "manifest.json").write_text(json.dumps({"training": {"recipe": {"hash": r.hash}}}))
+    assert built_from(tmp_path, r)
+    assert not built_from(tmp_path, point_recipe(recipe({"set": "train", "first": 12, "pokes": 8}), 3, 1))

@@ -305,7 +305,7 @@ def test_a_recipe_session_in_the_rig_world_is_estimated_once(rig_session, tmp_pa
     import shutil
 
     from tensortouch.tools.train.build import BuildConfig, SessionSpec, stage_keys
-    from tensortouch.tools.train.stages import _rig_estimate
+    from tensortouch.tools.train.rig_estimate import prepare
 
     label, rig = SessionSpec("TWIN-X", 1, 2), SessionSpec("TWIN-X", 1, 2, world="rig")
     assert rig.record_config("hertz-fallback", 128).world == "rig"
@@ -318,10 +318,10 @@ def test_a_recipe_session_in_the_rig_world_is_estimated_once(rig_session, tmp_pa
                       for k, info in man["streams"].items()}
     man["provenance"].pop("rig_estimate", None)
     (s / "session.json").write_text(json.dumps(man))
-    first = _rig_estimate(s)
+    first = prepare(s)
     assert first["onsets"] >= 6 and "clock_offset_s" in load_session(s).streams["wrench"]
     before = (s / "session.json").read_bytes()
-    assert _rig_estimate(s) == first and (s / "session.json").read_bytes() == before
+    assert prepare(s) == first and (s / "session.json").read_bytes() == before
 
 
 def test_a_rewritten_stream_carries_its_calibration_in_the_numbers(rig_session, tmp_path):

@@ -43,36 +43,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--json", help="write all summaries and scorecards here")
 
 
-def unit_targets(protocol, name: str, root: Path, check_whole: bool) -> list[tuple]:
-    """(name, session folder, calibration) of a recorded protocol set; `check_whole`: every unit of the
-    set recorded with its full plan (the sealed set is scored whole)."""
-    from ...contracts.errors import TensorTouchError
-    from ...contracts.session import load_session
-    from ...contracts.store import CalibrationStore
-    from .units import set_paths, set_sessions
-
-    sessions, store_root = set_paths(root, name)
-    store = CalibrationStore(store_root)
-    out = []
-    for spec in set_sessions(protocol, name):
-        path = sessions / spec.name
-        if not (path / "session.json").is_file():
-            if check_whole:
-                raise TensorTouchError(f"crosseval: {path} is not recorded; the {name} set is scored whole "
-                                       f"(tensortouch train units record {name})")
-            continue
-        if check_whole:
-            got = load_session(path, check_frames=False).manifest.get("provenance", {}).get("planned_pokes")
-            if got != spec.pokes:
-                raise TensorTouchError(f"crosseval: {path} holds {got} planned pokes, the protocol {spec.pokes}; "
-                                       f"the {name} set is scored whole")
-        out.append((spec.name, path, store.load(spec.serial)))
-    if not out:
-        raise TensorTouchError(f"crosseval: no session of set {name} recorded under {sessions} "
-                               f"(tensortouch train units record {name})")
-    return out
-
-
 def recipe_key(package) -> str | None:
     """The recipe a package was built from, its fit seed left out (packages that differ only by fit seed
     share it); None when it was not built from a recipe."""
@@ -133,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         targets, protocol = [], None
         if args.units:
             from .protocol import check_not_scored, load_protocol
-            from .units import units_root
+            from .units import unit_targets, units_root
 
             protocol = load_protocol(args.protocol)
             targets += unit_targets(protocol, args.units, units_root(args.units_root), check_whole=sealed)

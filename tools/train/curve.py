@@ -8,7 +8,8 @@ each point replaces `first` with N (and the build's `fit_seed`), builds in its o
 `<cache>/train/curve/<name>-u<N>-s<seed>/` and exports its package there (`package/`), so a point never
 replaces a shipped package. The point that is the recipe itself (its own `first` and fit seed) is the
 recipe's own build and package, as `train all --recipe R` makes them. Recording, FE labels and tables are cached (`<cache>/fe` and the twin's FE
-cache), so the points after the first pay mostly for their fits. Packages of one N that differ only in
+cache), so the points after the first pay mostly for their fits; a point whose package is already
+exported from the same recipe (its manifest's recipe hash) is scored as it is, not rebuilt. Packages of one N that differ only in
 `fit_seed` share a recipe key, so crosseval prints their mean ± spread.
 """
 from __future__ import annotations
@@ -57,6 +58,16 @@ def package_dir(cfg) -> Path:
     return (Path(cfg.models_dir) if cfg.models_dir else models_dir()) / cfg.name
 
 
+def built_from(package: Path, recipe) -> bool:
+    """True when `package` holds a manifest whose recorded recipe hash is `recipe`'s: the point is built
+    (a curve resumed in a fresh cache does not rebuild what it already exported)."""
+    try:
+        doc = json.loads((Path(package) / "manifest.json").read_text())
+        return ((doc.get("training") or {}).get("recipe") or {}).get("hash") == recipe.hash
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def curve_rows(cards: dict, points: list[tuple[int, int, str]]) -> list[dict]:
     """Per N: the points' headline numbers (crosseval scorecards by package), mean and spread over fit seeds."""
     from .scorecard import fit_seed_spread, headline
@@ -89,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from ...contracts.paths import cache_dir
     from . import crosseval
     from .recipe import load_recipe
-    from .runner import run_recipe
+    from .runner import run_recipe, step_configs
 
     if args.units == "sealed":
         print("train curve: --units sealed: the sealed set is never used for a choice")
@@ -103,13 +114,17 @@ def run(args: argparse.Namespace) -> int:
             for seed in args.fit_seed:
                 r = point_recipe(recipe, n, seed)
                 if (n, seed) == own:     # the recipe itself: its own build and package (`train all --recipe R`)
-                    b = run_recipe(recipe, command=getattr(args, "command_line", ""))
-                    points.append((n, seed, str(package_dir(b.cfg))))
+                    pk = package_dir(step_configs(recipe)[-1])
+                    if not built_from(pk, recipe):
+                        pk = package_dir(run_recipe(recipe, command=getattr(args, "command_line", "")).cfg)
+                    points.append((n, seed, str(pk)))
                     continue
                 root = cache_dir() / "train" / "curve" / r.name
-                run_recipe(r, root=root, command=getattr(args, "command_line", ""),
-                           overrides={"models_dir": str(root / "package"), "eval_demo": False, "figures": False})
-                points.append((n, seed, str(root / "package" / r.name)))
+                pk = root / "package" / r.name
+                if not built_from(pk, r):
+                    run_recipe(r, root=root, command=getattr(args, "command_line", ""),
+                               overrides={"models_dir": str(root / "package"), "eval_demo": False, "figures": False})
+                points.append((n, seed, str(pk)))
     except TensorTouchError as exc:
         print(f"train curve: {exc}")
         return 2

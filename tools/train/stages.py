@@ -44,6 +44,7 @@ def stage_sessions(b) -> dict:
     from ..progress import stage_progress
     from ..twin.record import Recorder
     from ..twin.unit import write_true_calibration
+    from .rig_estimate import prepare
 
     out = {}
     for i, spec in enumerate(b.all_sessions()):
@@ -57,23 +58,9 @@ def stage_sessions(b) -> dict:
                      spec.name, spec.serial, spec.seed, spec.pokes)
             rec.run()
         if spec.world == "rig":
-            out[spec.name] = {"rig_estimate": _rig_estimate(path)}
+            out[spec.name] = {"rig_estimate": prepare(path)}
         out[spec.name] = {**out.get(spec.name, {}), "path": str(path), "true_calibration": version}
     return {"sessions": out}
-
-
-def _rig_estimate(path: Path) -> dict:
-    """A rig-world session, as a rig would prepare it: F/T tare, clock offsets and the mocap extrinsic's
-    shift estimated from its own data and folded into its manifest (once; tools/train/rig_estimate.py)."""
-    from ...contracts.session import load_session
-    from .rig_estimate import estimate, write
-
-    ses = load_session(path)
-    done = ses.manifest.get("provenance", {}).get("rig_estimate")
-    if done is None:
-        done = estimate(ses)
-        write(path, done)
-    return {k: done[k] for k in ("clock_offset_s", "mocap_translation_mm", "onsets")}
 
 
 def stage_keypoints(b) -> dict:

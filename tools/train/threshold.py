@@ -452,9 +452,8 @@ def run(args: argparse.Namespace) -> int:
         raise TensorTouchError("train threshold: give --session SESSION_DIR:STORE_DIR ... or --units SET")
     pairs = []
     if args.units:
-        from .crosseval import unit_targets
         from .protocol import load_protocol
-        from .units import units_root
+        from .units import unit_targets, units_root
 
         if args.units == "sealed":
             raise TensorTouchError("train threshold: --units sealed: the sealed set is never used for a choice")

@@ -56,7 +56,7 @@ def record_set(protocol, name: str, root: Path, first=None, pokes=None, physics:
     from ..twin.record import Recorder
     from ..twin.unit import write_true_calibration
     from .protocol import ProtocolError
-    from .stages import _rig_estimate
+    from .rig_estimate import prepare
 
     if name == "sealed" and (first or pokes):
         raise ProtocolError("units record sealed: the sealed set is recorded whole (no --first / --pokes)")
@@ -74,7 +74,7 @@ def record_set(protocol, name: str, root: Path, first=None, pokes=None, physics:
                      spec.pokes, spec.trajectory["indenters"])
             rec.run()
         if spec.world == "rig":
-            _rig_estimate(path)
+            prepare(path)
         out.append(path)
     return out
 
@@ -141,3 +141,32 @@ def run(args: argparse.Namespace) -> int:
         print(f"units: {exc}")
         return 2
     return 0
+
+
+def unit_targets(protocol, name: str, root: Path, check_whole: bool) -> list[tuple]:
+    """(name, session folder, calibration) of a recorded protocol set; `check_whole`: every unit of the
+    set recorded with its full plan (the sealed set is scored whole)."""
+    from ...contracts.errors import TensorTouchError
+    from ...contracts.session import load_session
+    from ...contracts.store import CalibrationStore
+
+    sessions, store_root = set_paths(root, name)
+    store = CalibrationStore(store_root)
+    out = []
+    for spec in set_sessions(protocol, name):
+        path = sessions / spec.name
+        if not (path / "session.json").is_file():
+            if check_whole:
+                raise TensorTouchError(f"{path} is not recorded; the {name} set is scored whole "
+                                       f"(tensortouch train units record {name})")
+            continue
+        if check_whole:
+            got = load_session(path, check_frames=False).manifest.get("provenance", {}).get("planned_pokes")
+            if got != spec.pokes:
+                raise TensorTouchError(f"{path} holds {got} planned pokes, the protocol {spec.pokes}; "
+                                       f"the {name} set is scored whole")
+        out.append((spec.name, path, store.load(spec.serial)))
+    if not out:
+        raise TensorTouchError(f"no session of set {name} recorded under {sessions} "
+                               f"(tensortouch train units record {name})")
+    return out
