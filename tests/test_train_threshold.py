@@ -175,3 +175,22 @@ def test_fixed_support_keeps_the_builds_reach(tmp_path):
     assert fixed_support(pkg({"support_radius_px": 20.0, "support_floor_n": 0.0}, "fixed by the build: 20 px, floor 0 N")) == 20.0
     assert fixed_support(pkg({"support_radius_px": 9.0, "support_floor_n": 0.004}, "measured on ...")) is None
     assert fixed_support(pkg({"support_radius_px": None, "support_floor_n": None}, "")) is None
+
+
+def test_repeated_session_flags_are_all_kept():
+    """`--session A --session B C` is three sessions (a repeated nargs flag used to keep only the last)."""
+    import argparse
+
+    from tensortouch.tools.train.threshold import add_arguments
+    from tensortouch.tools.workbench.cli import _model_args
+
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    args = ap.parse_args(["--package", "p", "--session", "a:s", "--session", "b:s", "c:s"])
+    assert args.session == ["a:s", "b:s", "c:s"]
+    assert ap.parse_args(["--package", "p"]).session == []
+    wb = argparse.ArgumentParser()
+    _model_args(wb)
+    got = wb.parse_args(["--model-from", "c1", "--model-from", "c2", "--own-error-from", "o1", "--own-error-from", "o2"])
+    assert got.model_from == ["c1", "c2"] and got.own_error_from == ["o1", "o2"]
+    assert wb.parse_args([]).model_from is None

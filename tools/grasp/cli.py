@@ -57,7 +57,7 @@ def register(sub) -> None:
                    help="draw each trial's task from the task distribution (tools/grasp/task.py: placement ±5 mm, "
                         "yaw ±15°, diameters, pull force and direction, friction, soft or stiff contact) instead of "
                         "the fixed scene")
-    g.add_argument("--merge", nargs="+", metavar="DIR",
+    g.add_argument("--merge", nargs="+", action="extend", metavar="DIR",
                    help="run no trials: merge the grasp_trials.json of these earlier --out folders (e.g. one run "
                         "per seed range) into one table and trials file in --out")
     g.set_defaults(func=cmd_grasp, extra="hand")

@@ -423,7 +423,7 @@ def fixed_support(package_dir) -> float | None:
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--package", required=True, help="model package folder")
-    ap.add_argument("--session", nargs="+", default=[], metavar="SESSION_DIR:STORE_DIR",
+    ap.add_argument("--session", nargs="+", action="extend", default=[], metavar="SESSION_DIR:STORE_DIR",
                     help="a training session and the calibration store holding its unit")
     ap.add_argument("--units", help="or every recorded session of a protocol unit set (`train units record SET`), "
                                     "each unit with its calibration: validation (the sealed set is refused)")

@@ -35,10 +35,10 @@ def _model_args(p) -> None:
                         "installed one when the calibration matches its size and the session has frames), "
                         "'contact-law' (the sensor's stored nominal contact law) or a contact-law JSON file")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision (default int8)")
-    p.add_argument("--model-from", metavar="CALIB_SESSION", nargs="+",
+    p.add_argument("--model-from", metavar="CALIB_SESSION", nargs="+", action="extend",
                    help="contact law: fit it on these calibration sessions (together they must press with every "
                         "indenter the compared sessions use) and make it the sensor's default")
-    p.add_argument("--correction-from", metavar="CALIB_SESSION", nargs="+",
+    p.add_argument("--correction-from", metavar="CALIB_SESSION", nargs="+", action="extend",
                    help="network: fit the sensor's force correction (zero-constrained gain forest, as "
                         "`tensortouch recalibrate` stores) on these calibration sessions (several short "
                         "sessions covering the gel are best), store it as a new calibration version, then compare")
@@ -47,7 +47,7 @@ def _model_args(p) -> None:
                    help="compare/diagnose on each of these model paths and print their floors and minimum "
                         "detectable effects side by side: output (network + effects + correction), contact-law "
                         "(the law fitted with --model-from), fe (FE solved at the session's measured keypoints)")
-    p.add_argument("--own-error-from", metavar="CALIB_SESSION", nargs="+",
+    p.add_argument("--own-error-from", metavar="CALIB_SESSION", nargs="+", action="extend",
                    help="fit the model's own residual structure on these clean calibration sessions and diagnose "
                         "only what is new against it")
     p.add_argument("--fe-physics", choices=("fe", "hertz-fallback"), default="fe",
