@@ -18,7 +18,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from tensortouch.contracts.errors import SessionError
 from tensortouch.runtime.stages.contacts import ContactConfig
-from tensortouch.tools.scoring import contact_config, ft_to_sensor, match_contacts, measured_at
+from tensortouch.tools.scoring import contact_config, ft_to_sensor, match_contacts, measured_at, split_at_tips
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -91,6 +91,28 @@ def test_match_contacts_nearest_pairs_and_priority_order():
     # in priority order the far indenter goes first and takes the nearest free cluster
     assert match_contacts(tips, cents, order=[2, 0]).tolist() == [2, -1, 0]
     assert match_contacts(tips, cents[:0]).tolist() == [-1, -1, -1]
+
+
+def test_split_at_tips_gives_each_pixel_to_the_nearest_tip_by_hand():
+    # a 1×4 strip of pixels at x = 0, 1, 2, 3 mm; tips at x = 0.2 and x = 2.9; the last pixel is masked out
+    xyz = np.zeros((1, 4, 3))
+    xyz[0, :, 0] = [0.0, 1.0, 2.0, 3.0]
+    fp = np.zeros((3, 1, 4))
+    fp[2, 0] = [1.0, 2.0, 4.0, 8.0]
+    fp[0, 0] = [0.5, 0.0, 0.0, 0.0]
+    mask = np.array([[True, True, True, False]])
+    out = split_at_tips(fp, xyz, mask, np.array([[0.2, 0, 0], [2.9, 0, 0]]))
+    assert out.tolist() == [[0.5, 0.0, 3.0], [0.0, 0.0, 4.0]]
+    # one tip takes the whole masked field; no tip gets nothing
+    assert split_at_tips(fp, xyz, mask, np.array([[9.0, 0, 0]])).tolist() == [[0.5, 0.0, 7.0]]
+    assert split_at_tips(fp, xyz, mask, np.zeros((0, 3))).shape == (0, 3)
+
+
+def test_split_at_tips_checks_shapes():
+    with pytest.raises(ValueError, match="force_px"):
+        split_at_tips(np.zeros((2, 1, 4)), np.zeros((1, 4, 3)), np.ones((1, 4), bool), np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="mask"):
+        split_at_tips(np.zeros((3, 1, 4)), np.zeros((1, 4, 3)), np.ones((1, 3), bool), np.zeros((1, 3)))
 
 
 def test_contact_config_is_the_packages_own():

@@ -62,6 +62,9 @@ def test_crosseval_scorecard_on_the_shipped_demo(tmp_path):
     assert card["units"] == 1 and card["pokes"] >= 2 and o["contacts"] >= 20
     assert 0.0 <= o["miss_rate"]["mean"] <= 0.2 and o["force_mae_n"]["ci"][0] <= o["force_mae_n"]["mean"] <= o["force_mae_n"]["ci"][1]
     assert 0.0 < o["direction_error_deg"]["mean"] < 45.0 and o["phantom_rate"]["n"] > 0
+    # the field split at the measured tips is scored on every contact, and reads like the clusters there
+    assert o["split_force_mae_n"]["n"] == o["contacts"] and 0.0 < o["split_force_mae_n"]["mean"] < 1.0
+    assert any("field split at the tips" in ln for ln in lines)
     assert set(card["by indenter"]) <= {"cylinder3", "flat4"} and card["by indenter"]
     assert sum(b["contacts"] for b in card["by force"].values()) == o["contacts"]
     assert sum(b["contacts"] for b in card["by contacts"].values()) == o["contacts"]

@@ -74,6 +74,13 @@ def test_scorecard_means_and_breakdown_counts():
     assert card["by contacts"]["single"]["contacts"] == 2 and card["by contacts"]["multi"]["contacts"] == 2
     assert card["by contacts"]["multi"]["pokes"] == 1 and card["by contacts"]["single"]["units"] == 2
     assert {k: v["contacts"] for k, v in card["by force"].items()} == {"0.2-0.5 N": 1, "0.5-1.5 N": 2, "1.5-3 N": 1}
+    # the field split at the tips is scored on every contact (misses too); n 0 where no split was given
+    assert o["split_force_mae_n"]["n"] == 0
+    c, r = _table()
+    c["split"] = [[0, 0, 1.1], [0, 0, 1.0], [0, 0, 0.4], [0, 0.3, 0]]
+    card = S.scorecard(c, r, S.ScoreConfig(n_boot=50))
+    assert card["overall"]["split_force_mae_n"]["mean"] == pytest.approx((0.1 + 1.0 + 0.2 + 0.0) / 4)
+    assert card["by contacts"]["multi"]["split_force_mae_n"]["n"] == 2
     # below the contact threshold a row is not scored
     card = S.scorecard(*_table(), S.ScoreConfig(n_boot=50, contact_n=0.5))
     assert card["overall"]["contacts"] == 3
@@ -87,10 +94,12 @@ def test_session_table_from_evaluation_rows():
     rows = [{"frame": 1, "indenter": 0, "meas_force": [0, 0, 1.0], "pred_force": [0, 0, 0.9], "miss": False},
             {"frame": 2, "indenter": 0, "meas_force": [0, 0, 1.0], "pred_force": [0, 0, 0.9], "miss": False},
             {"frame": 2, "indenter": 1, "meas_force": [0, 0, 0.5], "pred_force": [0, 0, 0], "miss": True},
-            {"frame": 6, "indenter": 1, "meas_force": [0, 0.4, 0], "pred_force": [0, 0.5, 0], "miss": False}]
+            {"frame": 6, "indenter": 1, "meas_force": [0, 0.4, 0], "pred_force": [0, 0.5, 0], "miss": False,
+             "split_force": [0, 0.45, 0]}]
     c, r = S.session_table("U", {"frames": frames, "rows": rows}, {0: "sphere3", 1: "flat4"})
     assert c["poke"] == [0, 0, 0, 1] and c["n_contact"] == [1, 2, 2, 1]
     assert c["indenter"] == ["sphere3", "sphere3", "flat4", "flat4"]
+    assert np.isnan(c["split"][0]).all() and c["split"][3] == [0, 0.45, 0]
     assert r["poke"] == [0, 1, 1] and r["phantom"] == [True, False, False]      # frame 3 (0.1 N) is no rest frame
 
 

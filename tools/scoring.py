@@ -9,6 +9,7 @@ deploy package (runtime/) needs none of it.
   `average` F/T samples per value, `pose_cutoff_hz` a zero-phase low-pass of the mocap track.
 - `ft_to_sensor`: F/T-frame vectors → sensor frame (F/T → indenter → sensor rotations).
 - `match_contacts`: indenter tips ↔ cluster centroids, each cluster used once.
+- `split_at_tips`: the field's force split at the measured tips (nearest tip per pixel), the clustering left out.
 - `contact_config(package)` / `find_contacts(fields, calibration, contacts)`: the runtime's contact stage
   on a frame's fields with the package's OWN settings (manifest `runtime.contacts`: threshold,
   light-touch rule, support, merge), exactly as `tensortouch run` builds it.
@@ -126,6 +127,28 @@ def match_contacts(tips: np.ndarray, centroids: np.ndarray, max_mm: float = np.i
             break
         if out[k] < 0 and c not in out:
             out[k] = c
+    return out
+
+
+def split_at_tips(force_px: np.ndarray, surface_xyz: np.ndarray, mask: np.ndarray, tips: np.ndarray) -> np.ndarray:
+    """The field's force split at the measured tips, with no clustering: every masked pixel's force goes
+    to the nearest tip (surface distance in mm, ties to the lower index). force_px (3, H, W) N per pixel,
+    surface_xyz (H, W, 3) mm, mask (H, W) bool, tips (K, 3) mm → (K, 3) N. Beside the clusters' forces it
+    tells the network's field from the contact stage's split of it."""
+    fp = np.asarray(force_px, float)
+    xyz = np.asarray(surface_xyz, float)
+    m = np.asarray(mask, bool)
+    tips = np.asarray(tips, float).reshape(-1, 3)
+    if fp.ndim != 3 or fp.shape[0] != 3 or xyz.shape != fp.shape[1:] + (3,) or m.shape != fp.shape[1:]:
+        raise ValueError(f"split_at_tips: force_px (3, H, W), surface_xyz (H, W, 3) and mask (H, W) expected; "
+                         f"got {fp.shape}, {xyz.shape}, {m.shape}")
+    out = np.zeros((len(tips), 3))
+    if len(tips) == 0 or not m.any():
+        return out
+    p, f = xyz[m], fp[:, m].T
+    near = np.argmin(np.linalg.norm(p[:, None, :] - tips[None], axis=2), axis=1)
+    for k in range(3):
+        out[:, k] = np.bincount(near, f[:, k], len(tips))
     return out
 
 

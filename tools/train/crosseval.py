@@ -71,7 +71,8 @@ def format_card(card: dict) -> str:
         note = "  (one poke: no CI)" if b["pokes"] < 2 else "  (one unit: CI over pokes only)" if b["units"] < 2 else ""
         return (f"  {label:18s} n={b['contacts']:<5d} units={b['units']:<3d} pokes={b['pokes']:<4d} "
                 f"miss {cell(b['miss_rate'], 100, '%')}  |F| MAE {cell(b['force_mae_n'], 1, ' N')}  "
-                f"dir {cell(b['direction_error_deg'], 1, '°')}  (misses as 0: {cell(b['force_mae_with_misses_n'], 1, ' N')}){note}")
+                f"dir {cell(b['direction_error_deg'], 1, '°')}  (misses as 0: {cell(b['force_mae_with_misses_n'], 1, ' N')}; "
+                f"field split at the tips: {cell(b.get('split_force_mae_n'), 1, ' N')}){note}")
 
     o = card["overall"]
     out = [(f"  {card['units']} units, {card['pokes']} pokes; phantoms {cell(o['phantom_rate'], 100, '%')} "

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ...contracts.files import atomic_write_json
-from ..scoring import contact_config, find_contacts, match_contacts, measured_at
+from ..scoring import contact_config, find_contacts, match_contacts, measured_at, split_at_tips
 from .labels import at_fe_frames
 
 log = logging.getLogger(__name__)
@@ -95,9 +95,12 @@ def has_phantom(clusters: list, frame_rows: list[dict], cfg: EvalConfig = EvalCo
 def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalConfig(), keep_fields_at=None) -> dict:
     """Replay a session through the runtime (runtime.offline.replay_session); returns rows, rest
     forces, per-frame traces, per frame the measured |F| per indenter and the clusters' |F| ("frames",
-    what tools.train.scorecard scores), and the indenter names by id."""
+    what tools.train.scorecard scores), and the indenter names by id. A row also holds `split_force`:
+    the frame's field split at the measured tips of the indenters above `phantom_n`
+    (tools.scoring.split_at_tips; the raw field, before effects and correction)."""
     from ...contracts.session import load_session
     from ...runtime.offline import replay_session
+    from ...runtime.stages.contacts import pixel_forces
     from ..sessions.writer import read_frames
 
     ses = load_session(session_dir)
@@ -123,6 +126,12 @@ def evaluate_session(session_dir, package, calibration, cfg: EvalConfig = EvalCo
         if np.all(mags < cfg.rest_n):
             rest.append(float(np.linalg.norm(res.force_n)))
         fr = frame_errors(res.clusters, tips, forces, cfg)
+        if fr:
+            near = np.flatnonzero(mags > cfg.phantom_n)
+            split = split_at_tips(pixel_forces(res.fields, calibration.pixel_area), calibration.surface_xyz,
+                                  calibration.mask, tips[near])
+            for r in fr:
+                r["split_force"] = split[int(np.flatnonzero(near == r["indenter"])[0])].tolist()
         if (mags >= cfg.contact_n).sum() == 1 and (mags >= cfg.rest_n).sum() == 1:
             phantoms.append(has_phantom(res.clusters, fr, cfg))
         for r in fr:

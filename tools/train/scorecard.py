@@ -8,6 +8,8 @@ turned into rows by `session_table`), each row tagged with its unit and poke. Th
 - regression, on detected contacts only: |F| MAE (| |F_pred| − |F_meas| |), and the direction error
   (degrees between the predicted and the measured force vector) beside it;
 - the seed's number too: |F| MAE with misses counted as 0 N (comparable with BENCHMARKS and s16).
+- the field split at the measured tips (tools.scoring.split_at_tips) scored like the clusters: the network's
+  field with the contact stage's clustering left out (where it is close to the clusters' MAE, the field holds it back).
 
 Confidence intervals: hierarchical bootstrap, units drawn with replacement, then within each drawn unit
 its pokes with replacement (a poke = one contact period, its rest frames before it included); the 2.5 and
@@ -120,11 +122,12 @@ def force_bin(mag: float) -> str:
 
 def scorecard(contacts: dict, rest: dict, cfg: ScoreConfig = ScoreConfig()) -> dict:
     """contacts: arrays per scored contact — unit, poke, indenter (name), n_contact (indenters ≥ contact_n
-    on that frame), meas (N, 3), pred (N, 3), miss (bool); rest: arrays per rest frame — unit, poke,
-    phantom (bool). Returns {"overall": block, "by indenter": {...}, "by contacts": {"single", "multi"},
-    "by force": {...}, "units", "pokes"} where a block holds miss_rate, phantom_rate (overall only),
-    force_mae_n (detected), direction_error_deg (detected), force_mae_with_misses_n, each
-    {"n", "mean", "ci"}."""
+    on that frame), meas (N, 3), pred (N, 3), miss (bool), optionally split (N, 3): the field split at the
+    measured tips (tools.scoring.split_at_tips); rest: arrays per rest frame — unit, poke, phantom (bool).
+    Returns {"overall": block, "by indenter": {...}, "by contacts": {"single", "multi"}, "by force": {...},
+    "units", "pokes"} where a block holds miss_rate, phantom_rate (overall only), force_mae_n (detected),
+    direction_error_deg (detected), force_mae_with_misses_n, split_force_mae_n (every scored contact with
+    a split; n 0 without one), each {"n", "mean", "ci"}."""
     cu, cp = np.asarray(contacts["unit"], object), np.asarray(contacts["poke"], int)
     ru, rp = np.asarray(rest["unit"], object), np.asarray(rest["poke"], int)
     order = sorted(set(cu.tolist()) | set(ru.tolist()))
@@ -138,6 +141,8 @@ def scorecard(contacts: dict, rest: dict, cfg: ScoreConfig = ScoreConfig()) -> d
     scored = mm >= cfg.contact_n
     err = np.abs(pm - mm)
     ang = direction_error_deg(pred, meas)
+    split = np.asarray(contacts.get("split", np.full((len(cu), 3), np.nan)), float).reshape(-1, 3)
+    split_err = np.abs(np.linalg.norm(split, axis=1) - mm)
 
     def stat(value, mask):
         return ratio_stats(W, *_sums(ccid, nc, value, mask), level=cfg.level)
@@ -150,7 +155,8 @@ def scorecard(contacts: dict, rest: dict, cfg: ScoreConfig = ScoreConfig()) -> d
                 "miss_rate": stat(miss.astype(float), sel),
                 "force_mae_n": stat(err, det),
                 "direction_error_deg": stat(np.nan_to_num(ang), det & np.isfinite(ang)),
-                "force_mae_with_misses_n": stat(np.abs(np.where(miss, 0.0, pm) - mm), sel)}
+                "force_mae_with_misses_n": stat(np.abs(np.where(miss, 0.0, pm) - mm), sel),
+                "split_force_mae_n": stat(np.nan_to_num(split_err), sel & np.isfinite(split_err))}
 
     overall = block(np.ones(len(cu), bool))
     ph = np.asarray(rest["phantom"], float)
@@ -181,7 +187,7 @@ def session_table(unit: str, result: dict, names: dict[int, str], cfg: ScoreConf
                 "indenter": [names.get(r["indenter"], str(r["indenter"])) for r in rows],
                 "n_contact": [int((mags[at[r["frame"]]] >= cfg.contact_n).sum()) for r in rows],
                 "meas": [r["meas_force"] for r in rows], "pred": [r["pred_force"] for r in rows],
-                "miss": [r["miss"] for r in rows]}
+                "miss": [r["miss"] for r in rows], "split": [r.get("split_force", [np.nan] * 3) for r in rows]}
     free = [(f, p) for f, p in zip(fr, poke) if f["fields"] and max(f["meas_mags"], default=0.0) < cfg.free_n]
     rest = {"unit": [unit] * len(free), "poke": [int(p) for _, p in free],
             "phantom": [max(f["cluster_forces"], default=0.0) > cfg.phantom_n for f, _ in free]}
@@ -189,7 +195,8 @@ def session_table(unit: str, result: dict, names: dict[int, str], cfg: ScoreConf
 
 
 def concat_tables(tables: list[tuple[dict, dict]]) -> tuple[dict, dict]:
-    c = {k: [v for t in tables for v in t[0][k]] for k in ("unit", "poke", "indenter", "n_contact", "meas", "pred", "miss")}
+    c = {k: [v for t in tables for v in t[0].get(k, [[np.nan] * 3] * len(t[0]["unit"]))]
+         for k in ("unit", "poke", "indenter", "n_contact", "meas", "pred", "miss", "split")}
     r = {k: [v for t in tables for v in t[1][k]] for k in ("unit", "poke", "phantom")}
     return c, r
 
