@@ -91,6 +91,11 @@ def test_match_contacts_nearest_pairs_and_priority_order():
     # in priority order the far indenter goes first and takes the nearest free cluster
     assert match_contacts(tips, cents, order=[2, 0]).tolist() == [2, -1, 0]
     assert match_contacts(tips, cents[:0]).tolist() == [-1, -1, -1]
+    # more indenters than clusters: the first in order takes the cluster, the others get none (no cluster
+    # is counted twice, with or without a distance bound)
+    assert match_contacts(tips[:2], cents[:1], order=[0, 1]).tolist() == [0, -1]
+    assert match_contacts(tips[:2], cents[:1], order=[1, 0]).tolist() == [-1, 0]
+    assert match_contacts(tips[:2], cents[1:2], order=[1, 0]).tolist() == [-1, 0]
 
 
 def test_split_at_tips_gives_each_pixel_to_the_nearest_tip_by_hand():

@@ -118,7 +118,7 @@ def match_contacts(tips: np.ndarray, centroids: np.ndarray, max_mm: float = np.i
         for k in order:
             dk = np.where(free, d[k], np.inf)
             c = int(np.argmin(dk))
-            if dk[c] <= max_mm:
+            if free[c] and dk[c] <= max_mm:       # with every cluster taken, the indenter gets none
                 out[k], free[c] = c, False
         return out
     for flat in np.argsort(d, axis=None, kind="stable"):
