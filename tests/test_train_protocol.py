@@ -133,6 +133,15 @@ def test_sealed_log_once_per_package(tmp_path):
     assert json.loads((pkg / P.SEALED_LOG).read_text()) == [e, e2]
     with pytest.raises(P.ProtocolError, match="once per package"):
         P.log_sealed_score(pkg, "h2", [], {})
+    # a fixed scorer re-measures: once more per scorer version; entries of before the versions count as 1
+    old = json.loads((pkg / P.SEALED_LOG).read_text())
+    (pkg / P.SEALED_LOG).write_text(json.dumps([{k: v for k, v in x.items() if k != "scorer"} for x in old]))
+    with pytest.raises(P.ProtocolError, match="scorer 1"):
+        P.check_not_scored(pkg, "h", scorer=1)
+    e3 = P.log_sealed_score(pkg, "h", ["TWIN-X-s1"], {"force_mae_n": 0.25}, scorer=2)
+    assert e3["scorer"] == 2 and len(json.loads((pkg / P.SEALED_LOG).read_text())) == 3
+    with pytest.raises(P.ProtocolError, match="scorer 2"):
+        P.check_not_scored(pkg, "h", scorer=2)
     # other weights: another package
     (pkg / "manifest.json").write_text(json.dumps({"files": {"model.int8.onnx": {"sha256": "cd" * 32}}}))
     P.check_not_scored(pkg, "h")

@@ -15,8 +15,8 @@ rest frames) apart from |F| MAE on detected contacts and the direction error (de
 bootstrap CIs over units and pokes, by indenter, single/multi contact and force bin. Packages built from
 one recipe but different fit seeds get their mean ± spread.
 
-`--units sealed` scores the sealed set, whole, alone, once per package: a package already in its
-`sealed_scores.json` is refused, and the score is appended there.
+`--units sealed` scores the sealed set, whole, alone, once per package and scorer version: a package
+already in its `sealed_scores.json` under this scorer is refused, and the score is appended there.
 """
 from __future__ import annotations
 

@@ -9,7 +9,8 @@ score log.
 - `check_recipe_sessions(protocol, sessions, where)`: a recipe trains on train units only, holds out
   validation units only, never names a sealed unit or a seed in the sealed range.
 - `expand_recipe_sessions`: a recipe may take a set's sessions by name, `train = { set = "train", first = 12 }`.
-- `log_sealed_score(package, ...)`: a sealed set is scored once per package (its weights' sha256);
+- `log_sealed_score(package, ...)`: a sealed set is scored once per package (its weights' sha256) and
+  scorer version (`scorecard.SCORER_VERSION`);
   the log is `<package>/sealed_scores.json`, a second score of the same package on the same sealed set
   (the protocol's hash) is refused. A sealed set recorded anew with seeds no choice has seen (a new
   protocol hash) may score it once more; the log keeps every entry, so each score stays visible.
@@ -259,14 +260,21 @@ def package_id(manifest: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def sealed_entry(log: list[dict], pid: str, protocol_hash: str, units: list[str], headline: dict) -> dict:
+def sealed_entry(log: list[dict], pid: str, protocol_hash: str, units: list[str], headline: dict,
+                 scorer: int | None = None) -> dict:
     """The new log entry of a sealed score; ProtocolError if this package was already scored on this
-    sealed set (the same protocol hash; the log names when)."""
+    sealed set (the same protocol hash) by this scorer version (tools.train.scorecard.SCORER_VERSION;
+    entries without one are version 1; the log names when). A scorer fix re-measures what was scored, so
+    the set may score the package once more under the new version; the earlier entry stays."""
+    from .scorecard import SCORER_VERSION
+
+    scorer = SCORER_VERSION if scorer is None else int(scorer)
     for e in log:
-        if e.get("package_id") == pid and e.get("protocol") == protocol_hash:
+        if e.get("package_id") == pid and e.get("protocol") == protocol_hash and int(e.get("scorer", 1)) == scorer:
             raise ProtocolError(f"package {pid} was already scored on the sealed set at {e.get('when')} "
-                                f"(protocol {e.get('protocol')}); a sealed set is scored once per package")
-    return {"package_id": pid, "protocol": protocol_hash, "units": list(units),
+                                f"(protocol {e.get('protocol')}, scorer {scorer}); a sealed set is scored once per "
+                                f"package")
+    return {"package_id": pid, "protocol": protocol_hash, "scorer": scorer, "units": list(units),
             "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "headline": headline}
 
 
@@ -283,16 +291,17 @@ def read_sealed_log(package_dir: str | Path) -> list[dict]:
     return doc
 
 
-def check_not_scored(package_dir: str | Path, protocol_hash: str) -> str:
+def check_not_scored(package_dir: str | Path, protocol_hash: str, scorer: int | None = None) -> str:
     """Before a sealed score: the package's id, or ProtocolError when its log already holds one on this
-    sealed set (protocol hash)."""
+    sealed set (protocol hash) by this scorer version."""
     man = json.loads((Path(package_dir) / "manifest.json").read_text(encoding="utf-8"))
     pid = package_id(man)
-    sealed_entry(read_sealed_log(package_dir), pid, protocol_hash, [], {})
+    sealed_entry(read_sealed_log(package_dir), pid, protocol_hash, [], {}, scorer)
     return pid
 
 
-def log_sealed_score(package_dir: str | Path, protocol_hash: str, units: list[str], headline: dict) -> dict:
+def log_sealed_score(package_dir: str | Path, protocol_hash: str, units: list[str], headline: dict,
+                     scorer: int | None = None) -> dict:
     """Append the sealed score to `<package>/sealed_scores.json` (atomic, under a lock file)."""
     import fcntl
 
@@ -303,6 +312,6 @@ def log_sealed_score(package_dir: str | Path, protocol_hash: str, units: list[st
         fcntl.flock(lk, fcntl.LOCK_EX)
         log = read_sealed_log(folder)
         man = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
-        entry = sealed_entry(log, package_id(man), protocol_hash, units, headline)
+        entry = sealed_entry(log, package_id(man), protocol_hash, units, headline, scorer)
         atomic_write_json(folder / SEALED_LOG, log + [entry])
     return entry

@@ -26,6 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 
 FORCE_BINS = (0.2, 0.5, 1.5, 3.0, 5.0, np.inf)    # N, measured |F| of the contact
+# The scoring's version, kept in each sealed score (tools.train.protocol): raised whenever a fix changes
+# what the same frames score. 2: an indenter never takes a cluster another indenter already matched.
+SCORER_VERSION = 2
 
 
 @dataclass(frozen=True)
