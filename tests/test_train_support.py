@@ -142,3 +142,31 @@ def test_a_build_fixes_the_support_in_the_export_key_only_when_set():
     base, fixed = BuildConfig(), BuildConfig(support_px=20.0)
     assert stage_keys(base)["fit"] == stage_keys(fixed)["fit"]          # the weights are the same ...
     assert stage_keys(base)["export"] != stage_keys(fixed)["export"]    # ... the package is not
+
+
+def gauss_pair(peaks, centres, sigma=6.0):
+    """Pixel forces (3, S, S) of Gaussian presses along the row v = 48 (N per pixel, -z)."""
+    v, u = np.mgrid[0:S, 0:S].astype(float)
+    g = sum(p * np.exp(-((u - c) ** 2 + (v - 48) ** 2) / (2 * sigma ** 2)) for p, c in zip(peaks, centres))
+    return np.stack([np.zeros_like(g), np.zeros_like(g), -g])
+
+
+def test_splitting_keeps_two_joined_presses_apart_without_splitting_one_contact():
+    from tensortouch.tools.train.support import SupportConfig, choose_split
+
+    cal, cc = flat_calibration(), ContactConfig(threshold_n=0.001)
+    two_fp = gauss_pair((0.006, 0.005), (36, 60))         # 24 px apart: joined at 0.0015 N, dip 0.70
+    two = [{"fp": two_fp.astype(np.float32), "tips": np.array([[7.2, 9.6, 0.0], [12.0, 9.6, 0.0]])}]
+    one = gauss_pair((0.006, 0.0055), (40, 56))           # one contact, a 17 % dip between its two peaks
+    single = [sample(one, one.reshape(3, -1).sum(1), c=(48, 48))] * 3
+    cfg = SupportConfig(split_dips=(0.0, 0.8, 0.6, 0.05))
+    out = choose_split(single, [cal] * 3, two, [cal], cc, cfg)
+    m = out["measured"]
+    assert m["split_two_apart_frames"] == [0, 0, 1, 1]
+    assert m["split_phantom_frames"][:3] == [0, 0, 0] and m["split_phantom_frames"][3] == 3   # 0.05 splits one contact
+    assert out["split_dip"] == pytest.approx(0.6)           # the least splitting of the best
+    # no two-contact frames: nothing to choose on, off
+    assert choose_split(single, [cal] * 3, [], [], cc, cfg)["split_dip"] is None
+    # the runtime reads it from the manifest
+    man = {"runtime": {"contacts": {"threshold_n": 0.001, "split_dip": 0.6}}}
+    assert PipelineConfig.for_package(SimpleNamespace(manifest=man)).contacts.split_dip == 0.6

@@ -3,7 +3,8 @@
 |f_n + f_s| per pixel (N, = traction × pixel area) above a threshold (seed: 0.005 N; default 0.002 N, see ContactConfig) → binary mask →
 8-connected components (the cluster cores; a light touch spreads thinner than the threshold, so a
 component of pixels above the weak threshold counts as a core too when its total force reaches
-min_total_n) → each core grown onto weaker pixels nearby, so its total
+min_total_n) → cores bridged above merge_n joined, cores holding several peaks with a deep enough dip
+between them split (split_dip) → each core grown onto weaker pixels nearby, so its total
 force includes the tails the threshold cuts off → per cluster: 2D centroid, 3D centroid (deformed surface, mm), mean normal,
 area (mm²), total force vector (N), perimeter (px), circularity 4πA/P², priority from force and
 stability. Ids stay stable across frames by matching 3D centroids (Hungarian assignment with a gate).
@@ -40,6 +41,11 @@ class ContactConfig:
     min_total_n: float = 0.0
     # cores joined by pixels above merge_n (N) are one cluster (0 = off); packages carry a measured value
     merge_n: float = 0.0
+    # a core holding several peaks is split where the field between them dips: a peak is its own contact
+    # when every path from it to a higher pixel falls below (1 - split_dip) x its own peak (0 = off; in
+    # (0, 1): 0.5 splits two presses whose fields join at less than half the weaker peak). Two heavy
+    # presses 8 mm apart join above any usable threshold; packages carry a measured value
+    split_dip: float = 0.0
     match_gate_mm: float = 4.0      # max centroid jump to keep a cluster's id between frames
     stable_frames: int = 5          # frames until a cluster counts as fully stable for priority
     max_contacts: int = 16          # cap published clusters (highest priority first)
@@ -89,6 +95,9 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     n, labels = cv2.connectedComponents(binary, connectivity=8)
     if n > 2 and cfg.merge_n > 0:
         labels, n, _ = merge_bridged(labels, binary, mag, mask, cfg.merge_n)
+    split = ()
+    if 0.0 < cfg.split_dip < 1.0:
+        labels, n, split = split_peaks(labels, n, mag, mask, cfg.split_dip)
     k = n
     flat = labels.ravel()
     ci = np.flatnonzero(flat)                     # core pixels, raster order
@@ -121,7 +130,7 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     nsum = per_cluster(nrm, w) / safe[:, None]
     nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
     fvec = per_cluster(force_px.reshape(3, -1)[:, idx].T)
-    perim, circ = _shape_metrics(binary, labels, k)
+    perim, circ = _shape_metrics(binary, labels, k, split)
     out = []
     for j in range(1, k):
         if pixels[j] < cfg.min_pixels:
@@ -168,6 +177,67 @@ def merge_bridged(labels: np.ndarray, binary: np.ndarray, mag: np.ndarray, mask:
     stats = np.zeros((n, 5), np.int64)
     stats[:, cv2.CC_STAT_AREA] = np.bincount(new.ravel(), minlength=n)
     return new, n, stats
+
+
+def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, mask: np.ndarray, dip: float,
+                margin_px: int = 4) -> tuple[np.ndarray, int, tuple[int, ...]]:
+    """Cores (labels 1..n-1) holding several significant peaks become one cluster per peak.
+
+    A peak (a local maximum of |f| on a core, 8-neighbourhood) is significant when, at the level
+    (1 - dip) x its value, the component of (mag > level) & mask that holds it has no higher pixel: the
+    field dips by at least `dip` of the peak on every path to a higher one. The highest peak of a core
+    always is. Each significant peak's component at its level (within the core) seeds a cluster, and the
+    rest of the core goes to the nearest seed pixel. The components are taken on the core's bounding box
+    grown by `margin_px`. Returns (labels, n incl. background, labels whose pixels were split)."""
+    lab_idx = np.flatnonzero(labels.ravel())
+    if not len(lab_idx):
+        return labels, n, ()
+    dil = cv2.dilate(mag, np.ones((3, 3), np.uint8))
+    peak = (mag >= dil) & (labels > 0)
+    per = np.bincount(labels[peak], minlength=n)
+    multi = np.flatnonzero(per[1:] > 1) + 1
+    if not len(multi):
+        return labels, n, ()
+    out = labels.copy()
+    touched = []
+    h, w = labels.shape
+    for j in multi:
+        rows, cols = np.nonzero(labels == j)
+        r0, r1 = max(rows.min() - margin_px, 0), min(rows.max() + margin_px + 1, h)
+        c0, c1 = max(cols.min() - margin_px, 0), min(cols.max() + margin_px + 1, w)
+        m, msk, core = mag[r0:r1, c0:c1], mask[r0:r1, c0:c1], labels[r0:r1, c0:c1] == j
+        pv, pu = np.nonzero(peak[r0:r1, c0:c1] & core)
+        order = np.argsort(-m[pv, pu], kind="stable")
+        seeds = []
+        for i in order:
+            v, u = pv[i], pu[i]
+            p = float(m[v, u])
+            if any(sd[v, u] for sd in seeds):             # a plateau's twin, or inside a seed already
+                continue
+            if seeds:
+                _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & msk).astype(np.uint8), connectivity=8)
+                comp = cl == cl[v, u]
+                if float(m[comp].max()) > p:
+                    continue
+            else:
+                _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & msk).astype(np.uint8), connectivity=8)
+                comp = cl == cl[v, u]
+            seeds.append(comp & core)
+        if len(seeds) < 2:
+            continue
+        marker = np.zeros(m.shape, np.int32)
+        for s_i, sd in enumerate(seeds):
+            marker[sd] = s_i + 1
+        _, nearest = cv2.distanceTransformWithLabels((marker == 0).astype(np.uint8), cv2.DIST_L2, 5,
+                                                     labelType=cv2.DIST_LABEL_PIXEL)
+        flat = marker.ravel()
+        grown = np.concatenate([[0], flat[flat > 0]])[nearest]       # seed pixels numbered in raster order
+        new_ids = np.array([0, j] + list(range(n, n + len(seeds) - 1)), np.int32)
+        sub = out[r0:r1, c0:c1]
+        sub[core] = new_ids[grown[core]]
+        touched += [int(j)] + list(range(n, n + len(seeds) - 1))
+        n += len(seeds) - 1
+    return out, n, tuple(touched)
 
 
 def weak_components(force_px: np.ndarray, mag: np.ndarray, mask: np.ndarray, strong: np.ndarray,
@@ -225,19 +295,28 @@ def _support_labels(labels: np.ndarray, mag: np.ndarray, cfg: ContactConfig) -> 
     return out
 
 
-def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Perimeter (contour length, px) and circularity 4πA/P² per label (1 for a disc)."""
+def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int, split: tuple = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Perimeter (contour length, px) and circularity 4πA/P² per label (1 for a disc); the labels in
+    `split` (parts of one core, split_peaks) from their own pixels."""
     perim = np.zeros(k)
     circ = np.zeros(k)
+
+    def take(contours, j_of):
+        for c in contours:
+            j = j_of(c)
+            p = cv2.arcLength(c, True)
+            a = cv2.contourArea(c)
+            if p > perim[j]:  # one external contour per 8-connected component; keep the longest
+                perim[j] = p
+                circ[j] = min(1.0, 4 * np.pi * a / (p * p)) if p > 0 else 0.0
+
+    split_set = set(split)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    for c in contours:
-        x, y = c[0, 0]
-        j = labels[y, x]
-        p = cv2.arcLength(c, True)
-        a = cv2.contourArea(c)
-        if p > perim[j]:  # one external contour per 8-connected component; keep the longest
-            perim[j] = p
-            circ[j] = min(1.0, 4 * np.pi * a / (p * p)) if p > 0 else 0.0
+    take([c for c in contours if labels[c[0, 0, 1], c[0, 0, 0]] not in split_set],
+         lambda c: labels[c[0, 0, 1], c[0, 0, 0]])
+    for j in split:
+        contours, _ = cv2.findContours((labels == j).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        take(contours, lambda c, j=j: j)
     return perim, circ
 
 

@@ -94,6 +94,7 @@ def _fail(where, msg):
 
 CONTACT_LIMIT = 1e6      # no contact setting (N, px, mm, frames) is larger
 POSITIVE = ("threshold_n", "stable_frames")     # contact settings that must be > 0 (a threshold, a divisor)
+FRACTIONS = ("split_dip",)                       # contact settings that must be < 1
 
 
 def _number(v) -> bool:
@@ -129,6 +130,8 @@ def _check_runtime(rt, mpath) -> None:
             _fail(mpath, f"runtime.contacts.{key}: not a contact setting (expected some of {sorted(known)})")
         if v is None:
             continue
+        if key in FRACTIONS and (not _number(v) or not 0 <= v < 1):
+            _fail(mpath, f"runtime.contacts.{key} is {v!r}, expected null or a finite number in [0, 1)")
         if not _number(v) or v < 0 or (key in POSITIVE and v == 0) or v > CONTACT_LIMIT \
                 or (key in ints and not isinstance(v, int)):
             need = "> 0" if key in POSITIVE else ">= 0"

@@ -23,7 +23,12 @@ cluster. Chosen first, on the same frames plus the frames where two indenters to
 of the core threshold (0 = off), the one with the fewest phantom frames (an extra cluster above
 `phantom_n`) that keeps two real contacts apart (each tip's nearest cluster its own) on at least as many
 two-contact frames as no merging does, less `separation_slack`.
-Pure core: `support_sample`, `two_sample`, `score`, `merge_counts`, `choose_merge`, `choose_support`.
+Splitting (ContactConfig.split_dip): two presses close together join into one core whose field dips between
+their peaks, at any threshold that still finds light touches. Chosen after merging, on the same frames: among
+`split_dips` (0 = off), the one keeping the most two-contact frames apart while single-contact frames with a
+phantom rise by at most `split_phantom_slack`.
+Pure core: `support_sample`, `two_sample`, `score`, `merge_counts`, `choose_merge`, `choose_split`,
+`choose_support`.
 """
 from __future__ import annotations
 
@@ -43,6 +48,8 @@ class SupportConfig:
     merge_fractions: tuple = (0.0, 0.6, 0.4)   # merge_n candidates as fractions of the core threshold (0 = off)
     phantom_n: float = 0.05         # an extra cluster above this (N) on a single-contact frame is a phantom
     separation_slack: float = 0.01  # two-contact frames kept apart may drop by at most this fraction
+    split_dips: tuple = (0.0, 0.8, 0.7, 0.6, 0.5, 0.4)   # split_dip candidates, least splitting first (0 = off)
+    split_phantom_slack: float = 0.005  # single-contact frames with a phantom may rise by at most this fraction
 
 
 def support_sample(fp: np.ndarray, tips: np.ndarray, forces: np.ndarray, rest_n: float,
@@ -107,6 +114,26 @@ def choose_merge(single, single_cals, two, two_cals, contacts, cfg: SupportConfi
                          "merge_candidates_n": values, "merge_phantom_frames": [c[0] for c in counts],
                          "merge_two_apart_frames": [c[1] for c in counts], "merge_single_frames": len(single),
                          "merge_two_frames": len(two)}}
+
+
+def choose_split(single, single_cals, two, two_cals, contacts, cfg: SupportConfig = SupportConfig()) -> dict:
+    """{"split_dip", "measured": {...}}; None (off) without two-contact samples. With the merging already
+    chosen (in `contacts`): among `split_dips`, the one keeping the most two-contact frames apart whose
+    single-contact frames with a phantom stay within `split_phantom_slack` of no splitting; ties: the
+    earlier (less splitting)."""
+    if not two:
+        return {"split_dip": None, "measured": {}}
+    counts = [merge_counts(single, single_cals, two, two_cals, replace(contacts, split_dip=d), cfg)
+              for d in cfg.split_dips]
+    off_phantom = counts[0][0]
+    ok = [i for i, (ph, _) in enumerate(counts) if ph <= off_phantom + cfg.split_phantom_slack * len(single)]
+    best = max(ok, key=lambda i: (counts[i][1], -i))
+    return {"split_dip": float(cfg.split_dips[best]) if cfg.split_dips[best] > 0 else None,
+            "measured": {"split_rule": f"most two-contact frames kept apart, single-contact frames with an extra "
+                                       f"cluster > {cfg.phantom_n} N within {100 * cfg.split_phantom_slack:.3g} % of "
+                                       f"no splitting",
+                         "split_candidates": list(cfg.split_dips), "split_phantom_frames": [c[0] for c in counts],
+                         "split_two_apart_frames": [c[1] for c in counts]}}
 
 
 def score(samples: list[dict], calibrations: list, contacts, radius: float, floor: float) -> float:

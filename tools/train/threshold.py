@@ -32,7 +32,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .support import SupportConfig, choose_merge, choose_support, support_sample, two_sample
+from .support import SupportConfig, choose_merge, choose_split, choose_support, support_sample, two_sample
 
 log = logging.getLogger(__name__)
 
@@ -187,7 +187,8 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
         log.warning("contact threshold: every grid value up to %g N leaves false contacts on rest frames (%d at "
                     "the top): the network paints force on an untouched gel; no threshold recorded", grid[-1], fp[-1])
         return {"threshold_n": None, "weak_threshold_n": None, "min_total_n": None,
-                "support_radius_px": None, "support_floor_n": None, "merge_n": None, "measured": dict(measured, contact_detected_fraction=None)}
+                "support_radius_px": None, "support_floor_n": None, "merge_n": None, "split_dip": None,
+                "measured": dict(measured, contact_detected_fraction=None)}
     t = float(round(grid[int(clean[0])] * cfg.margin, 5))
     k = min(int(np.searchsorted(grid, t - 1e-12)), len(grid) - 1)      # the first grid value >= t
     measured["contact_detected_fraction"] = float(hit[k] / n_contact) if n_contact else None
@@ -197,7 +198,7 @@ def choose(sweeps: list[dict], cfg: ThresholdConfig = ThresholdConfig()) -> dict
 
 
 def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
-    """Merging, then the cluster support, with the chosen threshold and rule (None: sweeps without
+    """Merging, splitting, then the cluster support, with the chosen threshold and rule (None: sweeps without
     support frames)."""
     from dataclasses import replace
 
@@ -210,12 +211,16 @@ def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
     cc = contact_config(chosen)                 # the runtime's reading of these keys, as it will apply them
     merge = choose_merge(samples, cals, two, two_cals, cc, cfg.support)
     chosen["measured"].update(merge.pop("measured"))
+    cc = replace(cc, merge_n=merge["merge_n"] or 0.0)
+    split = choose_split(samples, cals, two, two_cals, cc, cfg.support)
+    chosen["measured"].update(split.pop("measured"))
+    merge.update(split)
     if cfg.support_px:
         chosen["measured"]["support_rule"] = f"fixed by the build: {cfg.support_px:g} px, floor 0 N"
         return dict({"support_radius_px": float(cfg.support_px), "support_floor_n": 0.0}, **merge)
     if not cfg.measure_support:
         return dict({"support_radius_px": None, "support_floor_n": None}, **merge)
-    cc = replace(cc, merge_n=merge["merge_n"] or 0.0)
+    cc = replace(cc, split_dip=merge["split_dip"] or 0.0)
     res = choose_support(samples, cals, cc, cfg.support)
     chosen["measured"].update(res.pop("measured"))
     return dict(res, **merge)
@@ -319,7 +324,7 @@ def choose_budget(sweeps: list[dict], cfg: ThresholdConfig) -> dict:
         log.warning("contact threshold: every grid value up to %g N leaves more than %.3g %% of the rest frames "
                     "with a core; no threshold recorded", cfg.grid[-1], 100 * cfg.rest_budget)
         return {"threshold_n": None, "weak_threshold_n": None, "min_total_n": None, "support_radius_px": None,
-                "support_floor_n": None, "merge_n": None, "measured": measured}
+                "support_floor_n": None, "merge_n": None, "split_dip": None, "measured": measured}
     measured.update(touch_detected_fraction=round(best["detected_fraction"], 5),
                     rest_with_core_fraction=round(best["rest_fraction"], 5),
                     contact_detected_fraction=_contact_detected(sweeps, best["k"]),
