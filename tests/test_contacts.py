@@ -187,7 +187,6 @@ def test_split_dip_splits_two_joined_presses_and_keeps_a_shallow_dip_whole():
 
 
 def test_split_dip_keeps_a_noisy_single_press_whole():
-    from dataclasses import replace
 
     xyz, normals, area, mask = _plane()
     v, u = np.mgrid[0:64, 0:64].astype(float)
