@@ -214,14 +214,10 @@ def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, mask: np.ndarray, d
             p = float(m[v, u])
             if any(sd[v, u] for sd in seeds):             # a plateau's twin, or inside a seed already
                 continue
-            if seeds:
-                _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & msk).astype(np.uint8), connectivity=8)
-                comp = cl == cl[v, u]
-                if float(m[comp].max()) > p:
-                    continue
-            else:
-                _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & msk).astype(np.uint8), connectivity=8)
-                comp = cl == cl[v, u]
+            _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & msk).astype(np.uint8), connectivity=8)
+            comp = cl == cl[v, u]
+            if seeds and float(m[comp].max()) > p:          # a path to a higher pixel stays above the level
+                continue
             seeds.append(comp & core)
         if len(seeds) < 2:
             continue
