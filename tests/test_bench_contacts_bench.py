@@ -11,8 +11,8 @@ def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):
     assert run(p.parse_args(["--frames", "2", "--json"])) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     rows = {(r["field"], r["config"]): r for r in out["rows"]}
-    assert len(rows) == 12 and all(r["ms"] > 0 for r in rows.values())
-    assert out["package"] == "hiera-qup-128"         # the fourth configuration: the shipped package's settings
+    assert len(rows) == 20 and all(r["ms"] > 0 for r in rows.values())
+    assert out["package"] == "hiera-qup-128"         # the fifth configuration: the shipped package's settings
     assert len(rows[("one touch + light touch", "strong only")]["clusters_n"]) == 1
     light = sorted(rows[("one touch + light touch", "with rule")]["clusters_n"])
     assert len(light) == 2 and 0.25 < light[0] <= 0.31
@@ -25,3 +25,9 @@ def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):
     # the shipped package's light-touch rule and merge see the light touch and join the split contact
     assert len(rows[("one touch + light touch", "package")]["clusters_n"]) == 2
     assert len(rows[("split sliding contact", "package")]["clusters_n"]) == 1
+    # splitting keeps the merged sliding contact whole and parts two heavy presses joined above the threshold
+    assert rows[("split sliding contact", "rule+merge+split")]["clusters_n"] == merged
+    joined = rows[("two presses joined", "rule+merge")]["clusters_n"]
+    parts = sorted(rows[("two presses joined", "rule+merge+split")]["clusters_n"])
+    assert len(joined) == 1 and len(parts) == 2 and 2.8 < parts[0] < 3.2 and 3.7 < parts[1] < 4.1
+    assert abs(sum(parts) - joined[0]) < 0.01

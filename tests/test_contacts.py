@@ -141,6 +141,8 @@ def test_cores_bridged_above_merge_n_are_one_cluster_with_the_summed_force():
     assert merged[0].pixels == sum(c.pixels for c in apart)
     # a bridge below merge_n does not join them
     assert len(find_clusters(fp, xyz, normals, area, mask, cfg=replace(base, merge_n=0.0016))) == 2
+    # splitting leaves what merging joined whole (the dip across the bridge is 60 %, the split asks 50 %)
+    assert len(find_clusters(fp, xyz, normals, area, mask, cfg=replace(base, merge_n=0.0012, split_dip=0.5))) == 1
 
 
 def _plane(s=64):

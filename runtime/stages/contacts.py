@@ -3,8 +3,8 @@
 |f_n + f_s| per pixel (N, = traction × pixel area) above a threshold (seed: 0.005 N; default 0.002 N, see ContactConfig) → binary mask →
 8-connected components (the cluster cores; a light touch spreads thinner than the threshold, so a
 component of pixels above the weak threshold counts as a core too when its total force reaches
-min_total_n) → cores bridged above merge_n joined, cores holding several peaks with a deep enough dip
-between them split (split_dip) → each core grown onto weaker pixels nearby, so its total
+min_total_n) → cores bridged above merge_n joined, other cores holding several peaks with a deep enough
+dip between them split (split_dip) → each core grown onto weaker pixels nearby, so its total
 force includes the tails the threshold cuts off → per cluster: 2D centroid, 3D centroid (deformed surface, mm), mean normal,
 area (mm²), total force vector (N), perimeter (px), circularity 4πA/P², priority from force and
 stability. Ids stay stable across frames by matching 3D centroids (Hungarian assignment with a gate).
@@ -93,11 +93,16 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     if not binary.any():
         return []
     n, labels = cv2.connectedComponents(binary, connectivity=8)
+    joined = None
     if n > 2 and cfg.merge_n > 0:
+        n0, pre = n, labels
         labels, n, _ = merge_bridged(labels, binary, mag, mask, cfg.merge_n)
+        ci = np.flatnonzero(pre.ravel())
+        pairs = np.unique(labels.ravel()[ci].astype(np.int64) * n0 + pre.ravel()[ci])
+        joined = np.bincount(pairs // n0, minlength=n) > 1        # labels made of several cores
     split = ()
     if 0.0 < cfg.split_dip < 1.0:
-        labels, n, split = split_peaks(labels, n, mag, mask, cfg.split_dip)
+        labels, n, split = split_peaks(labels, n, mag, cfg.split_dip, joined)
     k = n
     flat = labels.ravel()
     ci = np.flatnonzero(flat)                     # core pixels, raster order
@@ -179,46 +184,43 @@ def merge_bridged(labels: np.ndarray, binary: np.ndarray, mag: np.ndarray, mask:
     return new, n, stats
 
 
-def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, mask: np.ndarray, dip: float,
-                margin_px: int = 4) -> tuple[np.ndarray, int, tuple[int, ...]]:
+def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, dip: float,
+                keep: np.ndarray | None = None) -> tuple[np.ndarray, int, tuple[int, ...]]:
     """Cores (labels 1..n-1) holding several significant peaks become one cluster per peak.
 
     A peak (a local maximum of |f| on a core, 8-neighbourhood) is significant when, at the level
-    (1 - dip) x its value, the component of (mag > level) & mask that holds it has no higher pixel: the
-    field dips by at least `dip` of the peak on every path to a higher one. The highest peak of a core
-    always is. Each significant peak's component at its level (within the core) seeds a cluster, and the
-    rest of the core goes to the nearest seed pixel. The components are taken on the core's bounding box
-    grown by `margin_px`. Returns (labels, n incl. background, labels whose pixels were split)."""
-    lab_idx = np.flatnonzero(labels.ravel())
-    if not len(lab_idx):
-        return labels, n, ()
+    (1 - dip) x its value, the part of its core above that level that holds it has no higher pixel: the
+    field dips by at least `dip` of the peak on every path within the core to a higher one. The highest
+    peak of a core always is. Each significant peak's part at its level seeds a cluster, and the rest of
+    the core goes to the nearest seed pixel. Labels where `keep` (bool per label) is set stay whole: cores
+    merging joined on purpose (merge_bridged). Returns (labels, n incl. background, labels whose pixels
+    were split)."""
     dil = cv2.dilate(mag, np.ones((3, 3), np.uint8))
     peak = (mag >= dil) & (labels > 0)
     per = np.bincount(labels[peak], minlength=n)
+    if keep is not None:
+        per[np.flatnonzero(keep)] = 0
     multi = np.flatnonzero(per[1:] > 1) + 1
     if not len(multi):
         return labels, n, ()
     out = labels.copy()
     touched = []
-    h, w = labels.shape
     for j in multi:
         rows, cols = np.nonzero(labels == j)
-        r0, r1 = max(rows.min() - margin_px, 0), min(rows.max() + margin_px + 1, h)
-        c0, c1 = max(cols.min() - margin_px, 0), min(cols.max() + margin_px + 1, w)
-        m, msk, core = mag[r0:r1, c0:c1], mask[r0:r1, c0:c1], labels[r0:r1, c0:c1] == j
+        r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+        m, core = mag[r0:r1, c0:c1], labels[r0:r1, c0:c1] == j
         pv, pu = np.nonzero(peak[r0:r1, c0:c1] & core)
-        order = np.argsort(-m[pv, pu], kind="stable")
         seeds = []
-        for i in order:
+        for i in np.argsort(-m[pv, pu], kind="stable"):
             v, u = pv[i], pu[i]
             p = float(m[v, u])
             if any(sd[v, u] for sd in seeds):             # a plateau's twin, or inside a seed already
                 continue
-            _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & msk).astype(np.uint8), connectivity=8)
+            _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & core).astype(np.uint8), connectivity=8)
             comp = cl == cl[v, u]
             if seeds and float(m[comp].max()) > p:          # a path to a higher pixel stays above the level
                 continue
-            seeds.append(comp & core)
+            seeds.append(comp)
         if len(seeds) < 2:
             continue
         marker = np.zeros(m.shape, np.int32)
