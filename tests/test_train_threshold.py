@@ -194,3 +194,31 @@ def test_repeated_session_flags_are_all_kept():
     got = wb.parse_args(["--model-from", "c1", "--model-from", "c2", "--own-error-from", "o1", "--own-error-from", "o2"])
     assert got.model_from == ["c1", "c2"] and got.own_error_from == ["o1", "o2"]
     assert wb.parse_args([]).model_from is None
+
+
+def test_split_only_writes_split_dip_and_leaves_the_other_settings(tmp_path):
+    """`train threshold --split-only` on the shipped demo with a copy of the shipped package: the manifest
+    gains runtime.contacts.split_dip (a candidate or null) and the split_* measurement; nothing else moves."""
+    import shutil
+
+    from tensortouch.contracts.paths import ROOT as REPO
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.tools.train.threshold import measure_split
+
+    model, demo = REPO / "exported_models" / "hiera-qup-128", REPO / "runtime" / "demo"
+    if not (model / "manifest.json").is_file() or not (demo / "session.json").is_file():
+        pytest.skip("no shipped model or demo in this checkout")
+    pkg = tmp_path / "pkg"
+    shutil.copytree(model, pkg)
+    before = json.loads((pkg / "manifest.json").read_text())
+    cal = CalibrationStore(REPO / "calibration_store").load(json.loads((demo / "session.json").read_text())["sensor_id"])
+    out = measure_split(pkg, [(demo, cal)], command="tensortouch train threshold --split-only")
+    after = json.loads((pkg / "manifest.json").read_text())
+    assert after["runtime"]["contacts"]["split_dip"] == out["split_dip"]
+    assert out["split_dip"] is None or 0 < out["split_dip"] < 1
+    m = after["runtime"]["measured"]
+    assert m["split_candidates"][0] == 0.0 and len(m["split_two_apart_frames"]) == len(m["split_candidates"])
+    assert m["split_command"].endswith("--split-only") and m["split_sessions"] == ["demo"]
+    for k, v in before["runtime"]["contacts"].items():
+        assert after["runtime"]["contacts"][k] == v
+    assert {k: v for k, v in m.items() if not k.startswith("split")} == before["runtime"]["measured"]

@@ -369,6 +369,33 @@ def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Threshold
     return out
 
 
+def measure_split(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True,
+                  command: str | None = None) -> dict:
+    """Only the splitting (support.choose_split), with every other contact setting as the package has it:
+    on these sessions' single- and two-contact frames. Written into the manifest's runtime.contacts
+    (split_dip) and runtime.measured (the split_* keys, beside the rest of the measurement)."""
+    from ...runtime.stages.model import load_package
+    from ..scoring import contact_config
+    from .package import update_manifest
+
+    package = load_package(package_dir)
+    sweeps = [sweep_session(path, package, cal, cfg) for path, cal in sessions]
+    samples = [x for s in sweeps for x in s.get("support", [])]
+    cals = [s["calibration"] for s in sweeps for _ in s.get("support", [])]
+    two = [x for s in sweeps for x in s.get("two", [])]
+    two_cals = [s["calibration"] for s in sweeps for _ in s.get("two", [])]
+    out = choose_split(samples, cals, two, two_cals, contact_config(package), cfg.support)
+    out["measured"].update(split_sessions=[Path(s["session"]).name for s in sweeps], split_single_frames=len(samples),
+                           split_two_frames=len(two), **({"split_command": command} if command else {}))
+    if write:
+        def change(man):
+            rt = man.setdefault("runtime", {})
+            rt.setdefault("contacts", {})["split_dip"] = out["split_dip"]
+            rt.setdefault("measured", {}).update(out["measured"])
+        update_manifest(package_dir, change)
+    return out
+
+
 CHECK_BANDS = ((0.1, 0.3), (0.3, 0.5), (0.5, 1.0), (1.0, float("inf")))
 
 
@@ -444,6 +471,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--support-px", type=float, help="a fixed cluster support radius (px, floor 0 N) instead")
     ap.add_argument("--check", action="store_true",
                     help="measure nothing: report the package's own detection on these (e.g. held-out) sessions")
+    ap.add_argument("--split-only", action="store_true",
+                    help="choose only the splitting of joined presses (split_dip), every other setting as the package has it")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -473,6 +502,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(check(args.package, pairs), indent=1))
         return 0
     cmd = args.command_line
+    if args.split_only:
+        print(json.dumps(measure_split(args.package, pairs, ThresholdConfig(), write=args.write, command=cmd), indent=1))
+        return 0
     support_px = args.support_px
     if support_px is None and not args.support:    # keep a reach the build fixed (BuildConfig.support_px)
         support_px = fixed_support(args.package)
