@@ -214,6 +214,9 @@ def test_model_manifest_bad_inputs(tmp_path):
                         match=want)
     raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"contacts": {"merge_n": -0.5}}})),
                     match="merge_n")
+    for value in (1.0, 1.5, -0.1, "half"):             # a share of the peak: [0, 1)
+        raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"contacts": {"split_dip": value}}})),
+                        match="split_dip is")
     raises_one_line(load_package, with_manifest(json.dumps({**good, "files": {}})), match="files is empty")
     raises_one_line(load_package, with_manifest(json.dumps({**good, "files": {"model.int8.onnx": "abc"}})),
                     match="files.model.int8.onnx must be an object")
