@@ -204,26 +204,32 @@ def _support(sweeps: list[dict], chosen: dict, cfg: ThresholdConfig) -> dict:
 
     from ...runtime.pipeline import contact_config
 
+    samples, cals, two, two_cals = _contact_frames(sweeps)
+    cc = contact_config(chosen)                 # the runtime's reading of these keys, as it will apply them
+    rules = choose_merge(samples, cals, two, two_cals, cc, cfg.support)
+    chosen["measured"].update(rules.pop("measured"))
+    cc = replace(cc, merge_n=rules["merge_n"] or 0.0)
+    split = choose_split(samples, cals, two, two_cals, cc, cfg.support)
+    chosen["measured"].update(split.pop("measured"))
+    rules.update(split)
+    if cfg.support_px:
+        chosen["measured"]["support_rule"] = f"fixed by the build: {cfg.support_px:g} px, floor 0 N"
+        return dict({"support_radius_px": float(cfg.support_px), "support_floor_n": 0.0}, **rules)
+    if not cfg.measure_support:
+        return dict({"support_radius_px": None, "support_floor_n": None}, **rules)
+    cc = replace(cc, split_dip=rules["split_dip"] or 0.0)
+    res = choose_support(samples, cals, cc, cfg.support)
+    chosen["measured"].update(res.pop("measured"))
+    return dict(res, **rules)
+
+
+def _contact_frames(sweeps: list[dict]) -> tuple[list, list, list, list]:
+    """The sweeps' single-contact samples, their calibrations, two-contact samples, their calibrations."""
     samples = [x for s in sweeps for x in s.get("support", [])]
     cals = [s["calibration"] for s in sweeps for _ in s.get("support", [])]
     two = [x for s in sweeps for x in s.get("two", [])]
     two_cals = [s["calibration"] for s in sweeps for _ in s.get("two", [])]
-    cc = contact_config(chosen)                 # the runtime's reading of these keys, as it will apply them
-    merge = choose_merge(samples, cals, two, two_cals, cc, cfg.support)
-    chosen["measured"].update(merge.pop("measured"))
-    cc = replace(cc, merge_n=merge["merge_n"] or 0.0)
-    split = choose_split(samples, cals, two, two_cals, cc, cfg.support)
-    chosen["measured"].update(split.pop("measured"))
-    merge.update(split)
-    if cfg.support_px:
-        chosen["measured"]["support_rule"] = f"fixed by the build: {cfg.support_px:g} px, floor 0 N"
-        return dict({"support_radius_px": float(cfg.support_px), "support_floor_n": 0.0}, **merge)
-    if not cfg.measure_support:
-        return dict({"support_radius_px": None, "support_floor_n": None}, **merge)
-    cc = replace(cc, split_dip=merge["split_dip"] or 0.0)
-    res = choose_support(samples, cals, cc, cfg.support)
-    chosen["measured"].update(res.pop("measured"))
-    return dict(res, **merge)
+    return samples, cals, two, two_cals
 
 
 def choose_weak(sweeps: list[dict], k: int, cfg: ThresholdConfig, measured: dict) -> dict:
@@ -380,10 +386,7 @@ def measure_split(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Thr
 
     package = load_package(package_dir)
     sweeps = [sweep_session(path, package, cal, cfg) for path, cal in sessions]
-    samples = [x for s in sweeps for x in s.get("support", [])]
-    cals = [s["calibration"] for s in sweeps for _ in s.get("support", [])]
-    two = [x for s in sweeps for x in s.get("two", [])]
-    two_cals = [s["calibration"] for s in sweeps for _ in s.get("two", [])]
+    samples, cals, two, two_cals = _contact_frames(sweeps)
     out = choose_split(samples, cals, two, two_cals, contact_config(package), cfg.support)
     out["measured"].update(split_sessions=[Path(s["session"]).name for s in sweeps], split_single_frames=len(samples),
                            split_two_frames=len(two), **({"split_command": command} if command else {}))
