@@ -77,6 +77,29 @@ def test_p1_forces_and_tangent_match_felupe(bulk):
     assert np.array_equal(fast.forces_and_tangent(U, umat, Kc)[1], data)
 
 
+def test_two_assembly_threads_give_the_same_bits(monkeypatch):
+    """The cells are assembled in PARTS fixed parts summed in order, so two threads (the parts at once)
+    give the bits of one, and the contact blocks are added once."""
+    from tensortouch.tools.fe import assembly, linsolve
+
+    nodes, tets = _tet_mesh()
+    umat = YeohUmat(0.03, 0.002, 0.0002, 0.5)
+    *_, top, surf_dofs, fast = _felupe_and_fast(nodes, tets, umat)
+    assert assembly.PARTS >= 2 and fast.bounds[0] == 0 and fast.bounds[-1] == len(tets)
+    rng = np.random.default_rng(2)
+    x, y, z = nodes.T / 3
+    U = np.stack([0.3 * z * np.sin(2 * x), 0.2 * z * y, -0.4 * z ** 2], 1)
+    Kc = rng.normal(0, 0.01, (len(top), 3, 3))
+    out = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(linsolve, "THREADS", threads)
+        out[threads] = (fast.forces(U, umat), *fast.forces_and_tangent(U, umat, Kc))
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(out[1], out[2]))
+    _, no_contact = fast.forces_and_tangent(U, umat, np.zeros_like(Kc))
+    # the contact blocks enter once, with a minus sign: their sum is the difference of the traces
+    assert np.isclose(no_contact.sum() - out[1][2].sum(), Kc.sum(), rtol=1e-9, atol=1e-12)
+
+
 def test_a_turn_of_the_motion_starts_with_a_shorter_increment(monkeypatch):
     """Press then slide on a small pad: where the motion turns the first increment is shortened to
     TURN_INCREMENT_FRACTION (one increment more than plain stepping, recorded in solver_info), and

@@ -51,6 +51,52 @@ def test_pardiso_keeps_the_symbolic_analysis_while_the_pattern_stays(symmetric):
     assert np.array_equal(f2.solve(b), x2)
 
 
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_mixed_precision_refines_single_factors_to_the_double_solution(symmetric):
+    """Engine pardiso-mixed: single-precision factors (raw solve ~1e-6 off), refined in double to
+    |b - A x| <= REFINE_TOL |b|; the same bits with one thread or two."""
+    from tensortouch.tools.fe.linsolve import REFINE_TOL
+
+    A = _spd_like(n=600, unsym=0.0 if symmetric else 0.3)
+    b = np.random.default_rng(2).normal(size=A.shape[0])
+    exact = sla.spsolve(A.tocsc(), b)
+    out = []
+    for threads in (1, 2):
+        fac = PardisoFactor(symmetric, mixed=True, threads=threads)
+        fac.factor(A)
+        out.append(fac.solve(b))
+        assert fac.dtype == np.float32 and fac.refinements >= 1 and fac.double_fallbacks == 0
+        raw = fac._call(33, fac._A, b.astype(np.float32)).astype(float)
+        assert 1e-9 < np.linalg.norm(A @ raw - b) / np.linalg.norm(b) < 1e-4   # the single solve alone
+    assert np.linalg.norm(A @ out[0] - b) <= REFINE_TOL * np.linalg.norm(b)
+    assert np.allclose(out[0], exact, rtol=1e-8, atol=1e-12)
+    assert out[0].tobytes() == out[1].tobytes()
+
+
+def test_mixed_precision_falls_back_to_double_factors_when_refinement_stalls(monkeypatch):
+    """Where refinement does not reach REFINE_TOL within MAX_REFINE corrections (forced here by
+    allowing none: the raw single solve is ~1e-6 off), the double factorisation solves the system,
+    the same bits as the double engine, and keeps solving for this matrix (chord steps) until the
+    next factor()."""
+    from tensortouch.tools.fe import linsolve
+
+    monkeypatch.setattr(linsolve, "MAX_REFINE", 0)
+    A = _spd_like(n=400, unsym=0.3)
+    b = np.random.default_rng(4).normal(size=A.shape[0])
+    fac = PardisoFactor(False, mixed=True)
+    fac.factor(A)
+    x = fac.solve(b)
+    dbl = PardisoFactor(False)
+    dbl.factor(A)
+    assert fac.double_fallbacks == 1 and x.tobytes() == dbl.solve(b).tobytes()
+    fac.solve(b)
+    assert fac.double_fallbacks == 1      # the double factors stay for this matrix
+    monkeypatch.setattr(linsolve, "MAX_REFINE", 4)
+    fac.factor(_spd_like(n=400, seed=1, unsym=0.3))   # the next matrix: single factors again
+    fac.solve(b)
+    assert fac.double_fallbacks == 1 and fac._fallback is None
+
+
 def test_singular_matrix_is_a_floating_point_error():
     A = _spd_like(n=50)
     A = A.tolil()
@@ -120,6 +166,31 @@ def test_chord_steps_reuse_the_factorisation_converge_alike_and_repeat_bit_for_b
     scale = np.abs(exact.RF).max()
     assert np.abs(chord.RF - exact.RF).max() <= 1e-4 * scale   # the Newton tolerance, not rounding
     assert np.array_equal(again.RF, chord.RF) and np.array_equal(again.U, chord.U)
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.4])
+def test_mixed_precision_engine_takes_the_same_newton_path_and_repeats_bit_for_bit(mu, monkeypatch):
+    """Engine pardiso-mixed (the default): the same iterations, factorisations and chord steps as
+    pardiso-reuse, forces to rounding of the refined solves (not the Newton tolerance), and the same
+    bits on a rerun and with two threads (PARDISO's reproducible mode and the fixed assembly parts)."""
+    import json
+
+    from tensortouch.tools.fe import linsolve, solve
+    from tensortouch.tools.fe.solver import DEFAULT_ENGINE
+
+    assert DEFAULT_ENGINE == "pardiso-mixed" or "TENSORTOUCH_FE_ENGINE" in __import__("os").environ
+    sc, gm = _pad_press_slide(mu)
+    dbl = solve(sc, mesh=gm, engine="pardiso-reuse")
+    mixed = solve(sc, mesh=gm, engine="pardiso-mixed")
+    monkeypatch.setattr(linsolve, "THREADS", 2)
+    two = solve(sc, mesh=gm, engine="pardiso-mixed")
+    a, b = json.loads(dbl.solver_info), json.loads(mixed.solver_info)
+    assert b["engine"] == "pardiso-mixed" and b["refinements"] > 0 and b["double_fallbacks"] == 0
+    for key in ("iterations", "factorizations", "chord_steps", "increments"):
+        assert a[key] == b[key], key
+    scale = np.abs(dbl.RF).max()
+    assert np.abs(mixed.RF - dbl.RF).max() <= 1e-7 * scale
+    assert np.array_equal(two.RF, mixed.RF) and np.array_equal(two.U, mixed.U)
 
 
 def test_one_thread_and_two_give_the_same_bits():

@@ -14,15 +14,32 @@ f_ai / V = f1 d_ai + kappa (J - 1) J q_ai: products of 4x3 vectors, never a (3,3
 numba pass over the cells computes the kinematics, the forces and the 12x12 block and adds them
 straight into the force vector and into the CSR data of the free-DOF pattern (gel elements + a 3x3
 block per surface node for the contact) at precomputed positions, in a fixed order (bit-identical
-results run to run). The pattern, and so the factorisation's symbolic analysis (tools.fe.linsolve),
+results run to run). The cells are always assembled as PARTS contiguous parts, each into its own
+force vector and CSR data, summed in part order; with two threads (tools.fe.linsolve.thread_count)
+the parts run at once (the kernels release the GIL), so the bits are the same with one thread or two. The pattern, and so the factorisation's symbolic analysis (tools.fe.linsolve),
 stays the same for a whole solve.
 tests/test_fe_assembly.py checks both against felupe's.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numba as nb
 import numpy as np
 import scipy.sparse as sp
+
+PARTS = 2   # cell parts per assembly (fixed: the summation order, hence the bits, depend on it)
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _run_parts(fn, threads: int) -> list:
+    """fn(part) for each part, in threads when threads > 1; results in part order."""
+    global _POOL
+    if threads <= 1:
+        return [fn(k) for k in range(PARTS)]
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(PARTS, thread_name_prefix="fe-assembly")
+    return list(_POOL.map(fn, range(PARTS)))
 
 
 class P1Assembly:
@@ -63,11 +80,24 @@ class P1Assembly:
         self.nnz = len(ukeys)
         self.indices = (ukeys % nf).astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ukeys // nf, minlength=nf))]).astype(np.int32)
+        self.bounds = np.linspace(0, C, PARTS + 1).round().astype(np.int64)   # cell ranges of the parts
+
+    @staticmethod
+    def _threads() -> int:
+        from .linsolve import thread_count
+
+        return thread_count()
 
     def forces(self, U: np.ndarray, umat) -> np.ndarray:
         """Internal force vector (ndof,) of the gel at displacement U (N,3)."""
-        return _forces(np.ascontiguousarray(U, float), self.tets, self.B, self.V, umat.C10, umat.C20, umat.C30,
-                       umat.bulk, self.edofs, self.ndof)
+        U = np.ascontiguousarray(U, float)
+        b = self.bounds
+        parts = _run_parts(lambda k: _forces(U, self.tets, self.B, self.V, umat.C10, umat.C20, umat.C30, umat.bulk,
+                                             self.edofs, self.ndof, b[k], b[k + 1]), self._threads())
+        f = parts[0]
+        for g in parts[1:]:
+            f += g
+        return f
 
     def forces_and_tangent(self, U: np.ndarray, umat, contact_K: np.ndarray | None = None):
         """(internal force vector (ndof,), CSR data (nnz,) of the free-DOF tangent incl. contact_K).
@@ -75,9 +105,17 @@ class P1Assembly:
         contact_K (M,3,3): d(contact force)/dx per surface node; enters with a minus sign (the
         residual is internal minus contact force)."""
         cw = np.zeros(0) if contact_K is None else np.ascontiguousarray(contact_K, float).ravel()
-        return _forces_and_tangent(np.ascontiguousarray(U, float), self.tets, self.B, self.V, self.gram,
-                                   umat.C10, umat.C20, umat.C30, umat.bulk, self.edofs, self.ndof, self.pos,
-                                   self.nnz, cw)
+        U = np.ascontiguousarray(U, float)
+        b, none = self.bounds, np.zeros(0)
+        parts = _run_parts(lambda k: _forces_and_tangent(U, self.tets, self.B, self.V, self.gram, umat.C10, umat.C20,
+                                                         umat.C30, umat.bulk, self.edofs, self.ndof, self.pos,
+                                                         self.nnz, cw if k == 0 else none, b[k], b[k + 1]),
+                           self._threads())
+        f, data = parts[0]
+        for g, d in parts[1:]:
+            f += g
+            data += d
+        return f, data
 
     def matrix(self, data: np.ndarray) -> sp.csr_matrix:
         """The free-DOF tangent as a CSR matrix sharing this pattern's index arrays."""
@@ -136,10 +174,10 @@ def _cell(U, tets, B, c, C10, C20, C30, w):
 
 
 @nb.njit(cache=True, nogil=True)
-def _forces(U, tets, B, V, C10, C20, C30, bulk, edofs, ndof):
+def _forces(U, tets, B, V, C10, C20, C30, bulk, edofs, ndof, c0, c1):
     f = np.zeros(ndof)
     w = np.empty((3, 4, 3))
-    for c in range(tets.shape[0]):
+    for c in range(c0, c1):
         det, trC, a, f1, f2 = _cell(U, tets, B, c, C10, C20, C30, w)
         vol = bulk * (det - 1.0) * det
         for k in range(4):
@@ -149,12 +187,13 @@ def _forces(U, tets, B, V, C10, C20, C30, bulk, edofs, ndof):
 
 
 @nb.njit(cache=True, nogil=True)
-def _forces_and_tangent(U, tets, B, V, gram, C10, C20, C30, bulk, edofs, ndof, pos, nnz, contact_w):
+def _forces_and_tangent(U, tets, B, V, gram, C10, C20, C30, bulk, edofs, ndof, pos, nnz, contact_w, c0, c1):
+    """Cells c0..c1-1 (and the contact blocks contact_w, empty for all parts but one)."""
     f = np.zeros(ndof)
     data = np.zeros(nnz + 1)          # the last slot takes the entries of fixed DOFs
     w = np.empty((3, 4, 3))
     C = tets.shape[0]
-    for c in range(C):
+    for c in range(c0, c1):
         det, trC, a, f1, f2 = _cell(U, tets, B, c, C10, C20, C30, w)
         Vc = V[c]
         vol = bulk * (det - 1.0) * det

@@ -72,7 +72,8 @@ def _time_one(scenario, mesh, engine: str, quiet: bool) -> dict:
             "cpu_seconds_per_trajectory": round(cpu * per, 3), "seconds_per_frame": round(wall / result.n_frames, 3),
             "increments": info["increments"], "newton_iterations": info["iterations"],
             "factorizations": info.get("factorizations"), "symbolic_analyses": info.get("symbolic_analyses"),
-            "chord_steps": info.get("chord_steps", 0),
+            "chord_steps": info.get("chord_steps", 0), "refinements": info.get("refinements", 0),
+            "double_fallbacks": info.get("double_fallbacks", 0),
             "final_force_N": [round(float(v), 5) for v in result.RF[-1, 0]],
             "equilibrium_error_max": float(f"{_equilibrium_error(result):.2e}"),
             "load_average_1min": round(os.getloadavg()[0], 2), "_rf": result.RF}

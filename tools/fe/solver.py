@@ -4,7 +4,8 @@ Linear tets with the Yeoh / neo-Hookean material (the shipped default) are assem
 tools.fe.assembly straight onto a fixed free-DOF pattern; quadratic tets (mixed u/p/J, mesh.order = 2)
 and Mooney-Rivlin go through felupe's assembly. tools.fe.contact adds the node-to-rigid-indenter
 forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine:
-"pardiso-reuse" (default: "pardiso" plus chord steps on the kept factorisation, CHORD_RATIO),
+"pardiso-mixed" (default: "pardiso-reuse" with single-precision factors refined in double),
+"pardiso-reuse" ("pardiso" plus chord steps on the kept factorisation, CHORD_RATIO),
 "pardiso" (MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
 symmetric, one factorisation per Newton iteration) or "superlu" (the original path: felupe assembly
 and scipy's SuperLU, kept as the reference `tensortouch bench fe` compares against). Each keypoint step is split into increments
@@ -49,9 +50,9 @@ FIRST_TOUCH_ANCHOR = True
 # Linear solver engine when solve() is not told (tools.fe.linsolve); the environment variable
 # TENSORTOUCH_FE_ENGINE sets it for a whole pipeline, batch worker processes included (before/after
 # timings of a recipe stage). Not a scenario field: the engines solve the same equations (pardiso and
-# superlu agree to rounding, pardiso-reuse to the Newton tolerance, `tensortouch bench fe`), so the
-# scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
-DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-reuse")
+# superlu agree to rounding, pardiso-reuse and pardiso-mixed to the Newton tolerance, `tensortouch
+# bench fe`), so the scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
+DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-mixed")
 # An increment's Newton matrix leaves out the normal penalty's curvature term (tools.fe.contact,
 # `normal_curvature`) until a step has moved no node more than this fraction of the top mesh size (the
 # convergence test's own step bound); the exact tangent then finishes the increment quadratically.
@@ -205,7 +206,7 @@ class GelModel:
         return out / np.maximum(w, 1e-300)[:, None]
 
 
-# Chord steps (engine "pardiso-reuse", tools.fe.linsolve `allow_chord`): once a Newton step
+# Chord steps (engines "pardiso-reuse" and "pardiso-mixed", tools.fe.linsolve `allow_chord`): once a Newton step
 # has cut the residual to CHORD_RATIO of the last iterate's (the quadratic range; not the first step,
 # whose starting residual is the predictor's), the next correction
 # reuses the kept factorisation with no new tangent (assembly) and no refactorisation, as long as
@@ -447,6 +448,8 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
             "factorizations": model.factor.factorizations,
             "symbolic_analyses": model.factor.analyses,
             "chord_steps": model.factor.chord_steps, "chord_ratio": CHORD_RATIO,
+            "refinements": model.factor.refinements,
+            "double_fallbacks": model.factor.double_fallbacks,
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
     return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,
