@@ -91,6 +91,35 @@ def test_an_interrupted_build_says_how_to_resume(monkeypatch, capsys):
     assert "interrupted; rerun `tensortouch train all --recipe hiera-qup-128` to resume" in line, line
 
 
+def test_an_interrupt_surfacing_from_compiled_code_is_the_same_line(monkeypatch, capsys):
+    """Ctrl-C inside a numba kernel reaches Python as a SystemError whose context is the KeyboardInterrupt."""
+    from tensortouch.runtime.shells import commands
+
+    def interrupted_in_a_kernel(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(<function kernel>) returned a result with an exception set")  # noqa: B904 - as the C dispatcher raises it
+
+    monkeypatch.setattr(commands, "cmd_calib_list", interrupted_in_a_kernel)
+    assert cli.main(["calib", "list"]) == 130
+    assert _one_line(capsys) == "tensortouch calib: interrupted"
+
+
+def test_a_system_error_without_an_interrupt_is_a_real_error(monkeypatch):
+    from tensortouch.runtime.shells import commands
+
+    def broken(args):
+        try:
+            raise ValueError("inner")
+        except ValueError:
+            raise SystemError("returned a result with an exception set")  # noqa: B904
+
+    monkeypatch.setattr(commands, "cmd_calib_list", broken)
+    with pytest.raises(SystemError):
+        cli.main(["calib", "list"])
+
+
 def test_a_missing_input_file_is_one_line(capsys, tmp_path):
     assert cli.main(["bench", "hand", "--from-log", str(tmp_path / "nope.jsonl")]) == 2
     line = _one_line(capsys)

@@ -149,10 +149,30 @@ def dispatch(args) -> int:
         print(line, file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        hint = getattr(args, "resume_hint", None)       # set by commands that pick up where they stopped
-        print(f"tensortouch {args.command}: interrupted"
-              + (f"; rerun `{getattr(args, 'command_line', args.command)}` to resume ({hint})" if hint else ""), file=sys.stderr)
-        return 130
+        return _interrupted(args)
+    except SystemError as exc:
+        # Ctrl-C inside compiled code (a numba kernel) comes back as a SystemError whose context is the interrupt
+        if not _caused_by_interrupt(exc):
+            raise
+        return _interrupted(args)
+
+
+def _interrupted(args: argparse.Namespace) -> int:
+    hint = getattr(args, "resume_hint", None)       # set by commands that pick up where they stopped
+    print(f"tensortouch {args.command}: interrupted"
+          + (f"; rerun `{getattr(args, 'command_line', args.command)}` to resume ({hint})" if hint else ""), file=sys.stderr)
+    return 130
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """True when a KeyboardInterrupt is in `exc`'s chain of causes and contexts."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _commands(parser: argparse.ArgumentParser) -> set[str]:
