@@ -101,6 +101,30 @@ def test_total_force_error_is_the_integrated_contact_force_difference():
     assert err[0].item() == pytest.approx(0.1, rel=1e-5) and err[1].item() == pytest.approx(0.0, abs=1e-6)
 
 
+def test_pixel_force_excess_counts_single_pixels_beyond_the_tolerance():
+    import torch
+    from tensortouch.contracts.fields import CHANNELS
+    from tensortouch.tools.train.model.train import pixel_force_excess
+
+    bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit
+    area = np.full((8, 8), 0.01, np.float32)                   # mm² per pixel
+    span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
+    scale = torch.from_numpy(span[:, None, None] * area[None])
+    y = torch.full((3, 15, 8, 8), 0.5)
+    p = y.clone()
+    p[0, 11, 0, :3] += 0.2                                     # 3 px × 0.2 MPa × 0.01 mm² = 0.002 N each
+    p[1, 9, :, :] += 0.04                                      # 64 px of 0.0004 N: all within 0.0005 N
+    p[2, 9, 0, 0] += 0.3                                       # fn_x 0.003 N cancelled by fs_x (fn + fs is the force)
+    p[2, 12, 0, 0] -= 0.3
+    got = pixel_force_excess(p, y, scale, 0.0005)
+    assert got[0].item() == pytest.approx(3 * (0.002 - 0.0005), rel=1e-4)
+    assert got[1].item() == 0.0 and got[2].item() == pytest.approx(0.0, abs=1e-7)
+    with pytest.raises(ValueError, match="scale"):
+        pixel_force_excess(p, y, scale[:, :4], 0.0005)
+    with pytest.raises(ValueError, match="pred and target"):
+        pixel_force_excess(p[:, :9], y[:, :9], scale, 0.0005)
+
+
 def test_light_sample_weight_emphasises_light_contacts_only():
     import torch
     from tensortouch.contracts.fields import CHANNELS

@@ -2,7 +2,7 @@
 
 Every weighted layer is a convolution followed by BatchNorm (folded into the convolution when exported)
 and ReLU, so onnxruntime's static QDQ quantization covers the whole graph: no LayerNorm, GELU, Softmax
-or attention matmul stays in float. Shape: a stride-2 pyramid (128² → 64² → 32² → 16² → 8²), an FPN-style
+or attention matmul stays in float. Shape: a stride-2 pyramid (128² → 64² → 32² → 16² → 8²; most blocks at the coarse levels, where they are cheap), an FPN-style
 decoder that adds each level's 1×1 lateral to the nearest-neighbour upsampled coarser level, and a 1×1 head
 at 64² whose 15·4 channels a pixel shuffle turns into the 15 full-resolution fields (the targets are smooth
 at the pixel scale; the Hiera network's heads use the same shuffle).
@@ -23,10 +23,10 @@ from .network_input import NetworkInput
 @dataclass(frozen=True)
 class ConvNetConfig(NetworkInput):
     # encoder widths at strides 2, 4, 8, 16 and the residual 3×3 blocks after each downsampling
-    widths: tuple[int, ...] = (16, 32, 64, 96)
-    blocks: tuple[int, ...] = (0, 1, 2, 2)
+    widths: tuple[int, ...] = (16, 32, 64, 128)
+    blocks: tuple[int, ...] = (0, 1, 3, 3)
     # decoder widths at strides 16, 8, 4, 2 (coarse to fine)
-    decoder: tuple[int, ...] = (64, 48, 32, 24)
+    decoder: tuple[int, ...] = (96, 64, 32, 24)
     shuffle: int = 2                     # the head works at stride `shuffle`, a pixel shuffle restores full size
 
 

@@ -70,6 +70,12 @@ class FitConfig(LoopConfig):
     # integrates them) is at least light_min_n weighs clip((light_ref_n / |F|)^light_weight, 1, light_max),
     # so a 0.3 N touch is not learnt as "rest" beside 5 N presses. 0 = off (every sample weighs 1).
     light_weight: float = 0.0
+    # Per-pixel force term: weight (per N) of Σ_pixels max(0, |ΔF_pixel| − pixel_force_tol_n), the force error of
+    # single pixels beyond a tolerance below the runtime's cluster threshold (≈ 0.0015 N per pixel). L1 over
+    # the fields tolerates a few badly wrong pixels (at the crop's rim, say) that the contact stage reads as a
+    # cluster core on every rest frame. 0 = off. Needs pixel_area.npy, as force_weight.
+    pixel_force_weight: float = 0.0
+    pixel_force_tol_n: float = 0.0005
     light_ref_n: float = 1.0
     light_max: float = 3.0
     light_min_n: float = 0.05
@@ -366,7 +372,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     zero = y_zero if cfg.fg_weight > 0 else None
 
     force_scale = None
-    if cfg.force_weight > 0 or cfg.light_weight > 0:
+    if cfg.force_weight > 0 or cfg.light_weight > 0 or cfg.pixel_force_weight > 0:
         force_scale = _force_scale(data, bounds).to(device)
 
     def loss_fn(m, xb, yb):
@@ -385,6 +391,8 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
             loss = (w * torch.abs(pred - yb)).sum() / w.sum()
         if cfg.force_weight > 0:
             loss = loss + cfg.force_weight * total_force_error(pred, yb, force_scale).mean()
+        if cfg.pixel_force_weight > 0:
+            loss = loss + cfg.pixel_force_weight * pixel_force_excess(pred, yb, force_scale, cfg.pixel_force_tol_n).mean()
         return loss
 
     def on_epoch(epoch, extra):
@@ -440,7 +448,7 @@ def _force_scale(data: Path, bounds: dict) -> torch.Tensor:
 
     path = data / "pixel_area.npy"
     if not path.is_file():
-        raise DatasetError(f"{path}: missing; force_weight > 0 needs the dataset's mean pixel area (mm², (H, W))")
+        raise DatasetError(f"{path}: missing; force_weight, light_weight or pixel_force_weight > 0 needs the dataset's mean pixel area (mm², (H, W))")
     area = np.load(path).astype(np.float32)
     span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
     return torch.from_numpy(span[:, None, None] * area[None])
@@ -528,6 +536,19 @@ def total_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Ten
     from normalized predictions/targets (B, 15, H, W) and `_force_scale`."""
     d = ((pred[:, 9:15] - target[:, 9:15]) * scale).sum(dim=(2, 3))        # (B, 6) N per channel
     return torch.linalg.vector_norm(d[:, :3] + d[:, 3:], dim=1)
+
+
+def pixel_force_excess(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor, tol_n: float) -> torch.Tensor:
+    """(B,) N: Σ over pixels of max(0, |ΔF_pixel| − tol_n), where ΔF_pixel is one pixel's error of the contact
+    force (normal + shear, N) from normalized predictions/targets (B, 15, H, W) and `_force_scale` (6, H, W)."""
+    if pred.shape != target.shape or pred.ndim != 4 or pred.shape[1] != 15:
+        raise ValueError(f"pixel_force_excess: expected (B, 15, H, W) pred and target, got {tuple(pred.shape)} "
+                         f"and {tuple(target.shape)}")
+    if scale.shape != (6, *pred.shape[2:]):
+        raise ValueError(f"pixel_force_excess: expected a (6, {pred.shape[2]}, {pred.shape[3]}) scale, got {tuple(scale.shape)}")
+    d = (pred[:, 9:15] - target[:, 9:15]) * scale                            # (B, 6, H, W) N per pixel
+    err = torch.linalg.vector_norm(d[:, :3] + d[:, 3:], dim=1)             # (B, H, W)
+    return torch.relu(err - tol_n).sum(dim=(1, 2))
 
 
 def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainConfig()) -> dict:
