@@ -83,15 +83,18 @@ def test_runtime_clusters_keep_the_smoothed_tails():
     assert c_old.force_mag_n < c.force_mag_n
 
 
+def _contact_scale(area_mm2: float):
+    """`_force_scale` of bounds [-0.5, 0.5] MPa on every channel (span 1 MPa, zero at 0.5) over an 8×8 image."""
+    import torch
+
+    return torch.full((6, 8, 8), float(area_mm2))
+
+
 def test_total_force_error_is_the_integrated_contact_force_difference():
     import torch
-    from tensortouch.contracts.fields import CHANNELS
     from tensortouch.tools.train.model.train import total_force_error
 
-    bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit
-    area = np.full((8, 8), 0.25, np.float32)                   # mm² per pixel
-    span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
-    scale = torch.from_numpy(span[:, None, None] * area[None])
+    scale = _contact_scale(0.25)                        # 1 MPa per normalized unit × mm² per pixel
     y = torch.full((2, 15, 8, 8), 0.5)
     p = y.clone()
     p[0, 11, :2, :2] += 0.1                                    # fn_z: 4 px × 0.1 MPa × 0.25 mm² = 0.1 N
@@ -103,13 +106,9 @@ def test_total_force_error_is_the_integrated_contact_force_difference():
 
 def test_pixel_force_excess_counts_single_pixels_beyond_the_tolerance():
     import torch
-    from tensortouch.contracts.fields import CHANNELS
     from tensortouch.tools.train.model.train import pixel_force_excess
 
-    bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit
-    area = np.full((8, 8), 0.01, np.float32)                   # mm² per pixel
-    span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
-    scale = torch.from_numpy(span[:, None, None] * area[None])
+    scale = _contact_scale(0.01)                        # 1 MPa per normalized unit × mm² per pixel
     y = torch.full((3, 15, 8, 8), 0.5)
     p = y.clone()
     p[0, 11, 0, :3] += 0.2                                     # 3 px × 0.2 MPa × 0.01 mm² = 0.002 N each
@@ -127,13 +126,9 @@ def test_pixel_force_excess_counts_single_pixels_beyond_the_tolerance():
 
 def test_light_sample_weight_emphasises_light_contacts_only():
     import torch
-    from tensortouch.contracts.fields import CHANNELS
     from tensortouch.tools.train.model.train import FitConfig, light_sample_weight
 
-    bounds = {c: [-0.5, 0.5] for c in CHANNELS}               # span 1 MPa per normalized unit, zero at 0.5
-    area = np.full((8, 8), 0.25, np.float32)
-    span = np.array([bounds[c][1] - bounds[c][0] for c in CHANNELS[9:15]], np.float32)
-    scale = torch.from_numpy(span[:, None, None] * area[None])
+    scale = _contact_scale(0.25)                        # 1 MPa per normalized unit × mm² per pixel
     y0 = torch.full((1, 15, 1, 1), 0.5)
     y = torch.full((5, 15, 8, 8), 0.5)
     for i, f in enumerate((0.0, 0.01, 0.25, 1.0, 4.0)):       # total normal force per sample (N)

@@ -2,8 +2,8 @@
 
 Every weighted layer is a convolution followed by BatchNorm (folded into the convolution when exported)
 and ReLU, so onnxruntime's static QDQ quantization covers the whole graph: no LayerNorm, GELU, Softmax
-or attention matmul stays in float. Shape: a stride-2 pyramid (128² → 64² → 32² → 16² → 8²; most blocks at the coarse levels, where they are cheap), an FPN-style
-decoder that adds each level's 1×1 lateral to the nearest-neighbour upsampled coarser level, and a 1×1 head
+or attention matmul stays in float. Shape: a stride-2 pyramid (128² → 64² → 32² → 16² → 8²; most blocks
+at the coarse levels, where they are cheap), an FPN-style decoder that adds each level's 1×1 lateral to the nearest-neighbour upsampled coarser level, and a 1×1 head
 at 64² whose 15·4 channels a pixel shuffle turns into the 15 full-resolution fields (the targets are smooth
 at the pixel scale; the Hiera network's heads use the same shuffle).
 

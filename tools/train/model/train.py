@@ -534,8 +534,13 @@ def light_sample_weight(target: torch.Tensor, y_zero: torch.Tensor, scale: torch
 def total_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
     """(B,) |ΔF| in N: the error of the total contact force (normal + shear) the runtime integrates,
     from normalized predictions/targets (B, 15, H, W) and `_force_scale`."""
-    d = ((pred[:, 9:15] - target[:, 9:15]) * scale).sum(dim=(2, 3))        # (B, 6) N per channel
-    return torch.linalg.vector_norm(d[:, :3] + d[:, 3:], dim=1)
+    return torch.linalg.vector_norm(_pixel_force_error(pred, target, scale).sum(dim=(2, 3)), dim=1)
+
+
+def _pixel_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """(B, 3, H, W) N: each pixel's error of the contact force the runtime reads (fn + fs)."""
+    d = (pred[:, 9:15] - target[:, 9:15]) * scale                            # (B, 6, H, W) N per channel
+    return d[:, :3] + d[:, 3:]
 
 
 def pixel_force_excess(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor, tol_n: float) -> torch.Tensor:
@@ -546,8 +551,7 @@ def pixel_force_excess(pred: torch.Tensor, target: torch.Tensor, scale: torch.Te
                          f"and {tuple(target.shape)}")
     if scale.shape != (6, *pred.shape[2:]):
         raise ValueError(f"pixel_force_excess: expected a (6, {pred.shape[2]}, {pred.shape[3]}) scale, got {tuple(scale.shape)}")
-    d = (pred[:, 9:15] - target[:, 9:15]) * scale                            # (B, 6, H, W) N per pixel
-    err = torch.linalg.vector_norm(d[:, :3] + d[:, 3:], dim=1)             # (B, H, W)
+    err = torch.linalg.vector_norm(_pixel_force_error(pred, target, scale), dim=1)     # (B, H, W)
     return torch.relu(err - tol_n).sum(dim=(1, 2))
 
 
