@@ -226,3 +226,150 @@ def test_the_thread_count_comes_from_the_environment_and_bad_values_name_it(monk
         monkeypatch.setenv("TENSORTOUCH_FE_THREADS", bad)
         with pytest.raises(FEError, match="TENSORTOUCH_FE_THREADS"):
             linsolve.thread_count()
+
+
+# -- engine pardiso-krylov: FGMRES on kept (stale) single-precision factors, local Schwarz correction --------
+
+def _node_matrix(side=12, seed=0, unsym=0.0):
+    """A 3-DOF-per-node matrix on a side x side grid of nodes (every node's 3x3 diagonal block in the
+    pattern, as the FE tangent): grid Laplacian (x) an SPD 3x3 block, plus a small unsymmetric part."""
+    rng = np.random.default_rng(seed)
+    lap1 = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(side, side))
+    eye = sp.identity(side)
+    lap = sp.kron(lap1, eye) + sp.kron(eye, lap1) + 0.05 * sp.identity(side * side)
+    B0 = np.array([[2.0, 0.3, 0.1], [0.3, 1.5, 0.2], [0.1, 0.2, 1.0]])
+    A = sp.kron(lap, B0).tocsr()
+    if unsym:
+        A = A + unsym * sp.kron(sp.diags([1.0, -1.0], [1, -1], shape=(side * side, side * side)),
+                                rng.normal(size=(3, 3)))
+    A = A.tocsr()
+    A.sum_duplicates()
+    A.sort_indices()
+    return A
+
+
+def _with_block_jump(A, nodes, scale):
+    """A with `scale` times a contact-like 3x3 block added on the diagonal of each node in `nodes`
+    (a node entering contact: its penalty is far stiffer than the gel around it)."""
+    A = A.tolil()
+    for k in nodes:
+        for i in range(3):
+            A[3 * k + i, 3 * k + i] += scale * (1.0 + 0.1 * i)
+        A[3 * k, 3 * k + 2] += 0.3 * scale     # unsymmetric, as a slipping node's friction block
+    A = A.tocsr()
+    A.sort_indices()
+    return A
+
+
+def test_fgmres_reaches_the_tolerance_with_a_stale_preconditioner_and_repeats_bit_for_bit():
+    from tensortouch.tools.fe.linsolve import fgmres
+
+    A = _node_matrix(unsym=0.2)
+    stale = PardisoFactor(False, mixed=True)
+    stale.factor((A * 1.0 + 0.3 * sp.identity(A.shape[0])).tocsr())   # an earlier tangent, 10-20 % off
+
+    def pre(v):
+        return stale._call(33, stale._A, v.astype(np.float32)).astype(float)
+
+    b = np.random.default_rng(1).normal(size=A.shape[0])
+    x, its, ok = fgmres(A.dot, pre, b, 1e-10, 40)
+    assert ok and 1 < its < 40
+    assert np.linalg.norm(b - A @ x) <= 1e-10 * np.linalg.norm(b)
+    x2, its2, _ = fgmres(A.dot, pre, b, 1e-10, 40)
+    assert its2 == its and x2.tobytes() == x.tobytes()
+    # the exact preconditioner: one iteration to the single factors' accuracy
+    fresh = PardisoFactor(False)
+    fresh.factor(A)
+    _, its1, ok1 = fgmres(A.dot, fresh.solve, b, 1e-10, 5)
+    assert ok1 and its1 == 1
+    # too few iterations allowed: not converged, and says so (the caller refactorises)
+    _, its3, ok3 = fgmres(A.dot, pre, b, 1e-14, 2)
+    assert not ok3 and its3 == 2
+    assert fgmres(A.dot, pre, np.zeros_like(b), 1e-10, 5)[1:] == (0, True)
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_krylov_factor_keeps_its_factors_while_the_local_correction_absorbs_a_contact_change(symmetric):
+    """A later tangent with a few nodes' diagonal blocks jumped 50x (contact) and the rest a little
+    changed: solved by FGMRES on the kept factors with no refactorisation; the moved nodes and their
+    neighbours are the local (Schwarz) set; the answer within KRYLOV_TOL; the same bits again."""
+    from tensortouch.tools.fe import linsolve
+    from tensortouch.tools.fe.linsolve import KrylovFactor
+
+    A = _node_matrix(unsym=0.0 if symmetric else 0.2)
+    A2 = _with_block_jump((A * 1.02).tocsr(), [40, 41, 77], 50.0)
+    if symmetric:
+        A2 = ((A2 + A2.T) * 0.5).tocsr()
+        A2.sort_indices()
+    b = np.random.default_rng(2).normal(size=A.shape[0])
+    out = []
+    for _ in range(2):
+        fac = KrylovFactor(symmetric)
+        fac.factor(A)
+        fac.solve(b)
+        fac.factor(A2)
+        x = fac.solve(b)
+        assert fac.factorizations == 1 and fac.krylov_solves == 1 and fac.krylov_failures == 0
+        kind, its, nloc = fac.trace[-1]
+        assert kind == "krylov" and its <= linsolve.KRYLOV_MAX and 3 <= nloc < A.shape[0] // 3
+        assert np.linalg.norm(b - A2 @ x) <= linsolve.KRYLOV_TOL * np.linalg.norm(b)
+        x_chord = fac.solve(2.0 * b)     # a chord step: the same tangent, no factor() in between
+        assert np.linalg.norm(2.0 * b - A2 @ x_chord) <= linsolve.KRYLOV_TOL * 2.0 * np.linalg.norm(b)
+        out.append(x)
+    assert out[0].tobytes() == out[1].tobytes()
+
+
+def test_krylov_factor_refactorises_when_fgmres_fails_or_too_many_nodes_moved(monkeypatch):
+    from tensortouch.tools.fe import linsolve
+    from tensortouch.tools.fe.linsolve import KrylovFactor
+
+    A = _node_matrix(unsym=0.2)
+    wobble = sp.diags(0.04 * A.diagonal() * np.random.default_rng(5).uniform(size=A.shape[0]))  # < SCHWARZ_REL
+    A2 = _with_block_jump((A + wobble).tocsr(), [10, 60], 20.0)
+    b = np.random.default_rng(3).normal(size=A.shape[0])
+    # FGMRES allowed one iteration only: it fails, the tangent is refactorised and solved (refined)
+    monkeypatch.setattr(linsolve, "KRYLOV_MAX", 1)
+    fac = KrylovFactor(False)
+    fac.factor(A)
+    fac.factor(A2)
+    x = fac.solve(b)
+    assert fac.krylov_failures == 1 and fac.factorizations == 2 and fac.trace[-1][0] == "failed"
+    assert np.linalg.norm(b - A2 @ x) <= linsolve.REFINE_TOL * np.linalg.norm(b)
+    # the refactorised tangent is now the kept one: its chord step is a plain refined solve
+    fac.solve(b)
+    assert fac.trace[-1][0] == "factor" and fac.factorizations == 2
+    # more moved nodes than SCHWARZ_MAX_NODES: refactorised at factor(), not counted as a failure
+    monkeypatch.setattr(linsolve, "KRYLOV_MAX", 12)
+    monkeypatch.setattr(linsolve, "SCHWARZ_MAX_NODES", 1)
+    fac2 = KrylovFactor(False)
+    fac2.factor(A)
+    fac2.factor(A2)
+    fac2.solve(b)
+    assert fac2.factorizations == 2 and fac2.krylov_failures == 0 and fac2.krylov_solves == 0
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.4])
+def test_krylov_engine_takes_the_mixed_engines_newton_path_and_repeats_bit_for_bit(mu, monkeypatch):
+    """Engine pardiso-krylov on the pad press-and-slide: the same increments, Newton iterations and
+    chord steps as pardiso-mixed, fewer factorisations (Krylov solves on kept factors instead), forces
+    within 1e-6 of pardiso-mixed's (the linear solves are converged to KRYLOV_TOL, not the Newton
+    tolerance), and the same bits on a rerun and with two threads."""
+    import json
+
+    from tensortouch.tools.fe import linsolve, solve
+
+    sc, gm = _pad_press_slide(mu)
+    mixed = solve(sc, mesh=gm, engine="pardiso-mixed")
+    kry = solve(sc, mesh=gm, engine="pardiso-krylov")
+    again = solve(sc, mesh=gm, engine="pardiso-krylov")
+    monkeypatch.setattr(linsolve, "THREADS", 2)
+    two = solve(sc, mesh=gm, engine="pardiso-krylov")
+    a, b = json.loads(mixed.solver_info), json.loads(kry.solver_info)
+    assert b["engine"] == "pardiso-krylov" and b["krylov_solves"] > 0 and b["krylov_iterations"] >= b["krylov_solves"]
+    for key in ("iterations", "chord_steps", "increments", "cutbacks"):
+        assert a[key] == b[key], key
+    assert b["factorizations"] < a["factorizations"]
+    scale = np.abs(mixed.RF).max()
+    assert np.abs(kry.RF - mixed.RF).max() <= 1e-6 * scale
+    assert np.array_equal(again.RF, kry.RF) and np.array_equal(again.U, kry.U)
+    assert np.array_equal(two.RF, kry.RF) and np.array_equal(two.U, kry.U)

@@ -74,6 +74,8 @@ def _time_one(scenario, mesh, engine: str, quiet: bool) -> dict:
             "factorizations": info.get("factorizations"), "symbolic_analyses": info.get("symbolic_analyses"),
             "chord_steps": info.get("chord_steps", 0), "refinements": info.get("refinements", 0),
             "double_fallbacks": info.get("double_fallbacks", 0),
+            "krylov_solves": info.get("krylov_solves", 0), "krylov_iterations": info.get("krylov_iterations", 0),
+            "krylov_failures": info.get("krylov_failures", 0),
             "final_force_N": [round(float(v), 5) for v in result.RF[-1, 0]],
             "equilibrium_error_max": float(f"{_equilibrium_error(result):.2e}"),
             "load_average_1min": round(os.getloadavg()[0], 2), "_rf": result.RF}
@@ -173,7 +175,9 @@ def run(args) -> int:
               f"per 5-keypoint trajectory (median of {len(runs[e])}; {r['increments']} increments, "
               f"{r['newton_iterations']} Newton iterations, {r['factorizations']} factorisations, "
               f"{r['symbolic_analyses']} symbolic analyses, {r['chord_steps']} chord steps on a kept "
-              f"factorisation); RF = {r['final_force_N']} N")
+              f"factorisation" + (f", {r['krylov_solves']} Krylov solves on kept factors in {r['krylov_iterations']} "
+                                  f"iterations, {r['krylov_failures']} failed" if r['krylov_solves'] or
+                                  r['krylov_failures'] else "") + f"); RF = {r['final_force_N']} N")
     for e, v in out.get("versus_reference", {}).items():
         print(f"  {e} / {engines[0]}: {v['speedup_wall']:.2f}x faster (wall), {v['speedup_cpu']:.2f}x (CPU); "
               f"final forces differ by {v['final_force_rel_diff']:.1e} (relative), at most "

@@ -40,7 +40,7 @@ import scipy.sparse.linalg as sla
 
 from .errors import FEError
 
-ENGINES = ("pardiso-mixed", "pardiso-reuse", "pardiso", "superlu")
+ENGINES = ("pardiso-mixed", "pardiso-krylov", "pardiso-reuse", "pardiso", "superlu")
 # "pardiso-mixed": "pardiso-reuse" with single-precision factors refined in double (`mixed`).
 # "pardiso-reuse": PARDISO as "pardiso", and the Newton loop may reuse the last factorisation for
 # chord steps (tools.fe.solver.CHORD_RATIO; docs/decisions/2026-12-01-fe-factorisation-reuse.md).
@@ -252,6 +252,207 @@ class PardisoFactor:
             pass
 
 
+# Engine "pardiso-krylov": Newton systems solved by FGMRES preconditioned by kept (stale) single-precision
+# factors of an earlier tangent, with an exact local solve on the nodes whose diagonal 3x3 block moved
+# (the contact set) and one ring of their neighbours (multiplicative Schwarz); refactorised only when
+# that does not reach KRYLOV_TOL within KRYLOV_MAX iterations, or when more than SCHWARZ_MAX_NODES nodes
+# changed. docs/decisions/2026-12-06-fe-krylov-stale-factors.md has the measurements.
+KRYLOV_TOL = 1e-6           # relative residual |b - A x| <= KRYLOV_TOL |b|, in double precision
+KRYLOV_MAX = 12             # FGMRES iterations before the kept factors are given up (refactorisation)
+SCHWARZ_REL = 0.05          # a node's diagonal block "moved" when |dB| > SCHWARZ_REL * max(|B_kept|, |B_now|)
+SCHWARZ_RING = 1            # rings of neighbours added to the moved nodes for the local solve
+SCHWARZ_MAX_NODES = 500     # more local nodes than this: refactorise instead
+
+
+def fgmres(matvec, precond, b: np.ndarray, tol: float, kmax: int):
+    """Flexible GMRES (right preconditioning, the preconditioned vectors kept), zero initial guess,
+    classical Gram-Schmidt applied twice, Givens rotations. Returns (x, iterations, converged) with
+    converged meaning the true residual |b - A x| <= tol |b| (checked in double precision at the end).
+    Deterministic: fixed operation order, no random start."""
+    n = b.shape[0]
+    bn = float(np.linalg.norm(b))
+    if bn == 0.0:
+        return np.zeros(n), 0, True
+    V = np.zeros((kmax + 1, n))
+    Z = np.zeros((kmax, n))
+    H = np.zeros((kmax + 1, kmax))
+    cs, sn = np.zeros(kmax), np.zeros(kmax)
+    g = np.zeros(kmax + 1)
+    V[0] = b / bn
+    g[0] = bn
+    k = 0
+    for j in range(kmax):
+        Z[j] = precond(V[j])
+        w = matvec(Z[j])
+        h = V[:j + 1] @ w
+        w -= h @ V[:j + 1]
+        h2 = V[:j + 1] @ w
+        w -= h2 @ V[:j + 1]
+        H[:j + 1, j] = h + h2
+        H[j + 1, j] = np.linalg.norm(w)
+        if H[j + 1, j] > 0.0:
+            V[j + 1] = w / H[j + 1, j]
+        for i in range(j):
+            t = cs[i] * H[i, j] + sn[i] * H[i + 1, j]
+            H[i + 1, j] = -sn[i] * H[i, j] + cs[i] * H[i + 1, j]
+            H[i, j] = t
+        rho = float(np.hypot(H[j, j], H[j + 1, j]))
+        cs[j], sn[j] = (H[j, j] / rho, H[j + 1, j] / rho) if rho > 0.0 else (1.0, 0.0)
+        H[j, j], H[j + 1, j] = rho, 0.0
+        g[j + 1] = -sn[j] * g[j]
+        g[j] = cs[j] * g[j]
+        k = j + 1
+        if abs(g[j + 1]) <= 0.5 * tol * bn or H[j, j] == 0.0:
+            break
+    y = np.zeros(k)
+    for i in range(k - 1, -1, -1):       # back substitution on the triangular H
+        if H[i, i] == 0.0:
+            return np.zeros(n), k, False
+        y[i] = (g[i] - H[i, i + 1:k] @ y[i + 1:]) / H[i, i]
+    x = y @ Z[:k]
+    ok = bool(np.all(np.isfinite(x)) and np.linalg.norm(b - matvec(x)) <= tol * bn)
+    return x, k, ok
+
+
+class KrylovFactor(PardisoFactor):
+    """Engine "pardiso-krylov": `factor(A)` only records the new tangent; `solve(b)` solves it by
+    FGMRES (`fgmres`) preconditioned by the kept single-precision PARDISO factors of an earlier
+    tangent, corrected by an exact sparse LU (scipy splu) of the current tangent restricted to the
+    nodes whose diagonal 3x3 block moved against the kept one, plus SCHWARZ_RING rings of neighbours
+    (the contact set; multiplicative Schwarz: local, global, local). Refactorises (the mixed engine's
+    factor + refined solve) where FGMRES does not reach KRYLOV_TOL within KRYLOV_MAX iterations, or
+    where more than SCHWARZ_MAX_NODES nodes are local. Counters beside the parent's:
+    `krylov_solves`, `krylov_iterations`, `krylov_failures` (refactorisations after a failed
+    FGMRES), `schwarz_nodes` (sum over Krylov solves). DOFs come in node triplets (3 per node)."""
+
+    def __init__(self, symmetric: bool, threads: int | None = None):
+        super().__init__(symmetric, allow_chord=True, threads=threads, mixed=True)
+        self.krylov_solves = self.krylov_iterations = self.krylov_failures = self.schwarz_nodes = 0
+        self._cur = None          # the latest tangent (double, full CSR)
+        self._cur_factored = False
+        self._local = None        # (dofs, splu, A[:, L], A[L, :]) of the current tangent
+        self._graph = None        # node graph of the pattern (CSR indptr, indices) and diagonal-block positions
+        self._kept_blocks = None
+        self.trace: list[tuple[str, int, int]] = []   # per solve: ("krylov"|"failed"|"factor", iterations, local nodes)
+
+    def _node_structure(self, A):
+        g = self._graph
+        if g is not None and ((g[0] is A.indptr and g[1] is A.indices) or
+                              (np.array_equal(g[0], A.indptr) and np.array_equal(g[1], A.indices))):
+            return g
+        n = A.shape[0]
+        if n % 3:
+            raise FEError("pardiso-krylov: the free DOFs must come in node triplets")
+        m = n // 3
+        rows = np.repeat(np.arange(n), np.diff(A.indptr))
+        nr, nc = rows // 3, A.indices // 3
+        key = np.unique(nr.astype(np.int64) * m + nc)
+        gptr = np.concatenate([[0], np.cumsum(np.bincount(key // m, minlength=m))])
+        gidx = (key % m).astype(np.int64)
+        diag = (rows // 3 == A.indices // 3)
+        pos = np.flatnonzero(diag)
+        if len(pos) != 9 * m:
+            raise FEError("pardiso-krylov: every node's diagonal 3x3 block must be in the pattern")
+        self._graph = (A.indptr, A.indices, gptr, gidx, pos.reshape(m, 9))
+        return self._graph
+
+    def factor(self, A: sp.csr_matrix) -> None:
+        A = A.tocsr()
+        if not A.has_sorted_indices:
+            A.sort_indices()
+        self._cur, self._local = A, None
+        g = self._node_structure(A)
+        if self._A is None or self._pattern is None or not (
+                self._pattern[0] is A.indptr or np.array_equal(self._pattern[0], A.indptr)):
+            self._refactor()
+            return
+        self._cur_factored = False
+        moved = self._moved_nodes(g)
+        if moved is None:
+            self._refactor()
+
+    def _refactor(self) -> None:
+        super().factor(self._cur)
+        self._kept_blocks = self._cur.data[self._graph[4]].reshape(-1, 3, 3)
+        self._cur_factored, self._local = True, None
+
+    def _moved_nodes(self, g):
+        """Local DOFs of the current tangent against the kept factors (None: too many, refactorise)."""
+        B = self._cur.data[g[4]].reshape(-1, 3, 3)
+        d = np.linalg.norm(B - self._kept_blocks, axis=(1, 2))
+        scale = np.maximum(np.linalg.norm(B, axis=(1, 2)), np.linalg.norm(self._kept_blocks, axis=(1, 2)))
+        sel = d > SCHWARZ_REL * scale
+        gptr, gidx = g[2], g[3]
+        for _ in range(SCHWARZ_RING):
+            nodes = np.flatnonzero(sel)
+            if not len(nodes):
+                break
+            starts, ends = gptr[nodes], gptr[nodes + 1]
+            nb_ = np.concatenate([gidx[s:e] for s, e in zip(starts, ends)])
+            sel[nb_] = True
+        nodes = np.flatnonzero(sel)
+        if len(nodes) > SCHWARZ_MAX_NODES:
+            return None
+        dofs = (3 * nodes[:, None] + np.arange(3)).ravel()
+        self._local = dofs
+        return dofs
+
+    def _precond(self):
+        A = self._cur
+        dofs = self._local if self._local is not None else np.zeros(0, np.int64)
+        if isinstance(dofs, tuple):
+            dofs, lu, acol, arow = dofs
+        elif len(dofs):
+            sub = A[dofs]
+            arow = sub.tocsr()
+            lu = sla.splu(sub[:, dofs].tocsc(), permc_spec="MMD_AT_PLUS_A")
+            acol = A[:, dofs].tocsr()
+            self._local = (dofs, lu, acol, arow)
+        kept = self._A
+
+        def glob(v):
+            return self._call(33, kept, v.astype(np.float32)).astype(float)
+
+        if not len(dofs):
+            return glob
+
+        def schwarz(v):
+            xl = lu.solve(v[dofs])
+            x = glob(v - acol @ xl)
+            x[dofs] += xl
+            x[dofs] += lu.solve(v[dofs] - arow @ x)
+            return x
+
+        return schwarz
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        b = np.ascontiguousarray(b, dtype=float)
+        if not self._cur_factored:
+            A = self._cur
+            try:
+                pre = self._precond()
+            except RuntimeError:       # a singular local block: the full factorisation decides
+                pre = None
+            if pre is not None:
+                x, its, ok = fgmres(A.dot, pre, b, KRYLOV_TOL, KRYLOV_MAX)
+                self.krylov_iterations += its
+                nloc = len(self._local[0]) // 3 if isinstance(self._local, tuple) else 0
+                self.trace.append(("krylov" if ok else "failed", its, nloc))
+                if ok:
+                    self.krylov_solves += 1
+                    self.schwarz_nodes += len(self._local[0]) // 3 if isinstance(self._local, tuple) else 0
+                    return x
+            self.krylov_failures += 1
+            self._refactor()
+        else:
+            self.trace.append(("factor", 0, 0))
+        return super().solve(b)
+
+    def free(self) -> None:
+        self._local = None
+        super().free()
+
+
 class SuperLUFactor:
     """scipy SuperLU, symmetric-mode ordering first and partial pivoting as the fallback (the solver's
     original path; every factorisation starts from scratch)."""
@@ -287,6 +488,8 @@ class SuperLUFactor:
 def make_factor(engine: str, symmetric: bool):
     if engine == "pardiso-mixed":
         return PardisoFactor(symmetric, allow_chord=True, mixed=True)
+    if engine == "pardiso-krylov":
+        return KrylovFactor(symmetric)
     if engine == "pardiso-reuse":
         return PardisoFactor(symmetric, allow_chord=True)
     if engine == "pardiso":

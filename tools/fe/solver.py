@@ -450,6 +450,8 @@ def _finish(out, model: GelModel, scenario: Scenario, stats, t_start, F) -> FERe
             "chord_steps": model.factor.chord_steps, "chord_ratio": CHORD_RATIO,
             "refinements": model.factor.refinements,
             "double_fallbacks": model.factor.double_fallbacks,
+            **{k: getattr(model.factor, k) for k in ("krylov_solves", "krylov_iterations", "krylov_failures",
+                                                     "schwarz_nodes") if hasattr(model.factor, k)},
             "seconds_total": time.time() - t_start, **stats}
     gm = model.gm
     return FEResult(nodes=gm.nodes, tets=gm.tets, surface_nodes=gm.surface_nodes,
