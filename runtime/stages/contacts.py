@@ -73,7 +73,21 @@ class Cluster:
 
 def pixel_forces(fields: np.ndarray, pixel_area: np.ndarray) -> np.ndarray:
     """(15, H, W) fields (tractions in MPa) → (3, H, W) contact force per pixel in N."""
-    return (fields[9:12] + fields[12:15]) * pixel_area[None]
+    f = fields[9:12] + fields[12:15]
+    if f.dtype == np.result_type(f, pixel_area):
+        return np.multiply(f, pixel_area[None], out=f)          # in place: one (3, H, W) temporary fewer
+    return f * pixel_area[None]
+
+
+def force_magnitude(force_px: np.ndarray) -> np.ndarray:
+    """|f| per pixel, (H, W): sqrt(fx² + fy² + fz²) in the forces' own precision, added in that order."""
+    fx, fy, fz = force_px[0], force_px[1], force_px[2]
+    mag = fx * fx
+    sq = fy * fy
+    mag += sq
+    np.multiply(fz, fz, out=sq)
+    mag += sq
+    return np.sqrt(mag, out=mag)
 
 
 def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.ndarray,
@@ -81,13 +95,19 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
                   cfg: ContactConfig = ContactConfig()) -> list[Cluster]:
     """Untracked clusters (id = -1) of one frame, in label order.
 
-    Every per-cluster sum runs over the cluster's pixels in raster order (np.bincount), so the numbers
-    do not depend on how the work is cut: a frame with no pixel above a threshold returns before any
-    labelling, and the support growth runs on the cores' neighbourhood only (docs/runtime.md "Speed")."""
-    fx, fy, fz = force_px[0], force_px[1], force_px[2]
-    mag = np.sqrt(fx * fx + fy * fy + fz * fz)
-    binary = ((mag > cfg.threshold_n) & mask).astype(np.uint8)
-    light = light_cores(force_px, mag, mask, binary, cfg)
+    Labelling runs on the work box: the bounding box of the pixels above the lowest threshold any rule
+    looks at, grown by one pixel, its corner on even coordinates (`_work_box`); the support growth on
+    the cores' neighbourhood only; per-cluster sums over the cluster's pixels in raster order
+    (np.bincount). So the numbers do not depend on how the work is cut (docs/runtime.md "Speed")."""
+    mag = force_magnitude(force_px)
+    box = _work_box(mag, mask, cfg)
+    if box is None:
+        return []
+    r0, r1, c0, c1 = box
+    m = np.ascontiguousarray(mag[r0:r1, c0:c1])
+    msk = mask[r0:r1, c0:c1]
+    binary = ((m > cfg.threshold_n) & msk).astype(np.uint8)
+    light = light_cores(force_px[:, r0:r1, c0:c1], m, msk, binary, cfg)
     if light is not None:
         binary = binary | light
     if not binary.any():
@@ -95,47 +115,48 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     n, labels = cv2.connectedComponents(binary, connectivity=8)
     joined = None
     if n > 2 and cfg.merge_n > 0:
-        n0, pre = n, labels
-        labels, n, _ = merge_bridged(labels, binary, mag, mask, cfg.merge_n)
-        ci = np.flatnonzero(pre.ravel())
-        pairs = np.unique(labels.ravel()[ci].astype(np.int64) * n0 + pre.ravel()[ci])
-        joined = np.bincount(pairs // n0, minlength=n) > 1        # labels made of several cores
+        labels, n, joined = merge_bridged(labels, n, binary, m, msk, cfg.merge_n)
+    cr, cc = np.nonzero(labels)                   # core pixels, raster order
     split = ()
     if 0.0 < cfg.split_dip < 1.0:
-        labels, n, split = split_peaks(labels, n, mag, cfg.split_dip, joined)
+        labels, n, split = split_peaks(labels, n, m, cfg.split_dip, joined, (cr, cc))
     k = n
-    flat = labels.ravel()
-    ci = np.flatnonzero(flat)                     # core pixels, raster order
-    core = flat[ci]
+    core = labels[cr, cc]
     pixels = np.bincount(core, minlength=k)
-    area = np.bincount(core, weights=pixel_area.ravel()[ci], minlength=k)
-    support = _support_labels(labels, mag, cfg)
-    idx = np.flatnonzero(support)                 # only pixels that belong to some cluster
-    lab = support.ravel()[idx]
-    w = mag.ravel()[idx]
-    wsum = np.bincount(lab, weights=w, minlength=k)
-    safe = np.where(wsum > 0, wsum, 1.0)
-    wd = mag.shape[1]
-    vv, uu = np.divmod(idx, wd)
-
-    def per_cluster(values, weights=None):  # (len(idx), m) values -> (k, m) per-cluster sums of weights * values
-        return np.stack([np.bincount(lab, weights=values[:, i] if weights is None else weights * values[:, i],
-                                     minlength=k) for i in range(values.shape[1])], 1)
-
-    uv = per_cluster(np.stack([uu + 0.5, vv + 0.5], 1), w) / safe[:, None]
-    pos = surface_xyz.reshape(-1, 3)[idx]
-    nrm = normals.reshape(-1, 3)[idx]
+    area = np.bincount(core, weights=pixel_area[cr + r0, cc + c0], minlength=k)
+    idx, rows, cols, lab = _support_pixels(labels, r0, c0, mag, cfg)
+    w = np.take(mag.ravel(), idx)
+    pos = np.take(surface_xyz.reshape(-1, 3), idx, axis=0).T      # (3, N) views of (N, 3) gathers
+    nrm = np.take(normals.reshape(-1, 3), idx, axis=0).T
+    order = None if k == 2 else np.argsort(lab.astype(np.uint16) if k <= 65535 else lab, kind="stable")
     indent = np.zeros(k)
     if disp is not None:
-        d = disp.reshape(3, -1)[:, idx].T
+        d = np.take(disp.reshape(3, -1), idx, axis=1)
         pos = pos + d
-        # the indenter's depth: the cluster's deepest point, not its force-weighted centroid
-        _max_per_label(indent, lab, -np.einsum("ij,ij->i", d, nrm))
-    centroid = per_cluster(pos, w) / safe[:, None]
-    nsum = per_cluster(nrm, w) / safe[:, None]
+        # the indenter's depth: the cluster's deepest point, not its force-weighted centroid; d · n
+        # added in component order in the inputs' precision
+        dn = d[0] * nrm[0]
+        dn += d[1] * nrm[1]
+        dn += d[2] * nrm[2]
+        _max_per_label(indent, lab, -dn, order)
+    # per pixel: weight, weighted (u, v), weighted position and normal (products in the inputs' own
+    # precision), force; summed per cluster in float64
+    p = np.empty((12, len(idx)))
+    p[0] = w
+    np.multiply(w, cols + 0.5, out=p[1])
+    np.multiply(w, rows + 0.5, out=p[2])
+    p[3:6] = pos * w
+    p[6:9] = nrm * w
+    p[9:12] = np.take(force_px.reshape(3, -1), idx, axis=1)
+    sums = _label_sums(p, lab, k, order)
+    wsum = sums[:, 0]
+    safe = np.where(wsum > 0, wsum, 1.0)
+    uv = sums[:, 1:3] / safe[:, None]
+    centroid = sums[:, 3:6] / safe[:, None]
+    nsum = sums[:, 6:9] / safe[:, None]
     nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
-    fvec = per_cluster(force_px.reshape(3, -1)[:, idx].T)
-    perim, circ = _shape_metrics(binary, labels, k, split)
+    fvec = sums[:, 9:12]
+    perim, circ = _shape_metrics(binary, labels, k, split, pixels >= cfg.min_pixels)
     out = []
     for j in range(1, k):
         if pixels[j] < cfg.min_pixels:
@@ -148,44 +169,89 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     return out
 
 
-def _max_per_label(out: np.ndarray, lab: np.ndarray, values: np.ndarray) -> None:
-    """out[j] = max(out[j], values where lab == j) for every label (np.maximum.at, without its slow path):
-    one masked pass per label when there are few, else one sort."""
+def _light_rule_on(cfg: ContactConfig) -> bool:
+    return not (cfg.weak_threshold_n <= 0 or cfg.min_total_n <= 0 or cfg.weak_threshold_n >= cfg.threshold_n)
+
+
+def _work_box(mag: np.ndarray, mask: np.ndarray, cfg: ContactConfig) -> tuple[int, int, int, int] | None:
+    """(r0, r1, c0, c1) holding every pixel above the lowest threshold a rule of `cfg` labels (core, light
+    touch, merging) with one pixel to spare (3×3 peaks and contours see the same neighbourhood as on the
+    whole image), or None when there is none. r0 and c0 are even: OpenCV labels 8-connected components
+    in 2×2 blocks and numbers them in block order, so a box on the image's block grid numbers them as
+    the whole image does."""
+    low = cfg.threshold_n
+    if _light_rule_on(cfg):
+        low = min(low, cfg.weak_threshold_n)
+    if cfg.merge_n > 0:
+        low = min(low, cfg.merge_n)
+    above = ((mag > low) & mask).view(np.uint8)
+    c0, r0, bw, bh = cv2.boundingRect(above)
+    if bw == 0:
+        return None
+    h, w = mag.shape
+    return max(r0 - 1, 0) & ~1, min(r0 + bh + 1, h), max(c0 - 1, 0) & ~1, min(c0 + bw + 1, w)
+
+
+def _label_sums(values: np.ndarray, lab: np.ndarray, k: int, order: np.ndarray | None) -> np.ndarray:
+    """(m, N) float64 values of N pixels → (k, m) sums per label (lab: label 1..k-1 per pixel), each
+    added pixel after pixel, in the pixels' order, from 0.0: np.bincount(lab, weights=row, minlength=k)
+    row by row, bit for bit. einsum "ij->j" on a C-ordered (N, m) array with m ≥ 2 adds its rows one
+    after another, all m columns at once (a bincount per row waits on every addition in turn); with one
+    column it would reduce in blocks, so that case stays a bincount. `order`: the pixels sorted by
+    label, stable (None when k == 2: one label)."""
+    m = values.shape[0]
+    if m < 2:
+        return np.bincount(lab, weights=values[0], minlength=k)[:, None]
+    out = np.zeros((k, m))
+    if k == 2:
+        out[1] = np.einsum("ij->j", np.ascontiguousarray(values.T))
+        return out
+    counts = np.bincount(lab, minlength=k)
+    rows = np.ascontiguousarray(np.take(values, order, axis=1).T)
+    ends = np.cumsum(counts)
+    for j in np.flatnonzero(counts):
+        out[j] = np.einsum("ij->j", rows[ends[j] - counts[j]:ends[j]])
+    return out
+
+
+def _max_per_label(out: np.ndarray, lab: np.ndarray, values: np.ndarray, order: np.ndarray | None = None) -> None:
+    """out[j] = max(out[j], values where lab == j) for every label (np.maximum.at, without its slow path).
+    `order`: the pixels sorted by label (None when there is one label, k == 2)."""
     if not len(lab):
         return
-    if len(out) <= 8:
-        for j in range(1, len(out)):
-            sel = values[lab == j]
-            if len(sel):
-                out[j] = np.maximum(out[j], sel.max())
+    if len(out) == 2:
+        out[1] = np.maximum(out[1], values.max())
         return
-    order = np.argsort(lab, kind="stable")
+    if order is None:
+        order = np.argsort(lab, kind="stable")
     sl = lab[order]
     starts = np.flatnonzero(np.concatenate([[True], sl[1:] != sl[:-1]]))
     j = sl[starts]
     out[j] = np.maximum(out[j], np.maximum.reduceat(values[order], starts))
 
 
-def merge_bridged(labels: np.ndarray, binary: np.ndarray, mag: np.ndarray, mask: np.ndarray,
+def merge_bridged(labels: np.ndarray, n: int, binary: np.ndarray, mag: np.ndarray, mask: np.ndarray,
                   merge_n: float) -> tuple[np.ndarray, int, np.ndarray]:
     """Cores joined by a path of pixels above merge_n (8-connected) become one cluster: one contact
     whose field dips between two peaks (a sliding contact's split shear) is not published twice.
-    Returns (labels, n incl. background, stats with CC_STAT_AREA filled)."""
-    _, wl = cv2.connectedComponents((((mag > merge_n) & mask) | (binary > 0)).astype(np.uint8), connectivity=8)
-    core = np.where(labels > 0, wl, 0)
-    present = np.zeros(int(wl.max()) + 1, bool)
-    present[core[labels > 0]] = True
-    present[0] = False
-    remap = np.cumsum(present) * present
-    new = remap[core].astype(np.int32)
-    n = int(remap.max()) + 1
-    stats = np.zeros((n, 5), np.int64)
-    stats[:, cv2.CC_STAT_AREA] = np.bincount(new.ravel(), minlength=n)
-    return new, n, stats
+    Clusters are numbered in the order of those paths' components. Returns (labels, n incl.
+    background, bool per label: made of several cores)."""
+    nb, bridged = cv2.connectedComponents((((mag > merge_n) & mask) | (binary > 0)).astype(np.uint8),
+                                          connectivity=8)
+    flat = labels.ravel()
+    ci = np.flatnonzero(flat)
+    of = np.zeros(n, np.int64)                    # each core's bridged component
+    of[flat[ci]] = bridged.ravel()[ci]
+    present = np.zeros(nb, bool)
+    present[of[1:]] = True
+    remap = np.cumsum(present) * present          # bridged components holding a core, numbered 1, 2, ...
+    new_of = remap[of]
+    n_new = int(present.sum()) + 1
+    return new_of[labels].astype(np.int32), n_new, np.bincount(new_of[1:], minlength=n_new) > 1
 
 
-def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, dip: float,
-                keep: np.ndarray | None = None) -> tuple[np.ndarray, int, tuple[int, ...]]:
+def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, dip: float, keep: np.ndarray | None = None,
+                core_px: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, int, tuple[int, ...]]:
     """Cores (labels 1..n-1) holding several significant peaks become one cluster per peak.
 
     A peak (a local maximum of |f| on a core, 8-neighbourhood) is significant when, at the level
@@ -193,32 +259,45 @@ def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, dip: float,
     field dips by at least `dip` of the peak on every path within the core to a higher one. The highest
     peak of a core always is. Each significant peak's part at its level seeds a cluster, and the rest of
     the core goes to the nearest seed pixel. Labels where `keep` (bool per label) is set stay whole: cores
-    merging joined on purpose (merge_bridged). Returns (labels, n incl. background, labels whose pixels
-    were split)."""
-    dil = cv2.dilate(mag, np.ones((3, 3), np.uint8))
-    peak = (mag >= dil) & (labels > 0)
-    per = np.bincount(labels[peak], minlength=n)
+    merging joined on purpose (merge_bridged). `core_px`: np.nonzero(labels) when the caller has it.
+    Returns (labels, n incl. background, labels whose pixels were split)."""
+    cr, cc = np.nonzero(labels) if core_px is None else core_px
+    clab = labels[cr, cc]
+    cval = mag[cr, cc]
+    is_peak = cval >= cv2.dilate(mag, np.ones((3, 3), np.uint8))[cr, cc]
+    plab = clab[is_peak]                                  # the peaks, raster order
+    per = np.bincount(plab, minlength=n)
     if keep is not None:
         per[np.flatnonzero(keep)] = 0
     multi = np.flatnonzero(per[1:] > 1) + 1
     if not len(multi):
         return labels, n, ()
+    pr, pc, pval = cr[is_peak], cc[is_peak], cval[is_peak]
+    # each peak's level as the comparisons with it round it (to the field's precision)
+    plevel = ((1.0 - dip) * pval.astype(np.float64)).astype(mag.dtype)
     out = labels.copy()
     touched = []
     for j in multi:
-        rows, cols = np.nonzero(labels == j)
+        inj = clab == j
+        low = cval[inj].min()
+        on = np.flatnonzero(plab == j)
+        order = on[np.argsort(-pval[on], kind="stable")]
+        # a peak whose level lies below every pixel of the core has the whole core as its part, which
+        # holds the highest peak (or a higher pixel): it cannot seed a cluster
+        order = order[np.concatenate([[True], ~(low > plevel[order[1:]])])]
+        if len(order) < 2:
+            continue
+        rows, cols = cr[inj], cc[inj]
         r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
         m, core = mag[r0:r1, c0:c1], labels[r0:r1, c0:c1] == j
-        pv, pu = np.nonzero(peak[r0:r1, c0:c1] & core)
-        seeds = []
-        for i in np.argsort(-m[pv, pu], kind="stable"):
-            v, u = pv[i], pu[i]
-            p = float(m[v, u])
-            if any(sd[v, u] for sd in seeds):             # a plateau's twin, or inside a seed already
+        pv, pu = pr[order] - r0, pc[order] - c0
+        seeds = [_part_above(m, core, pv[0], pu[0], dip)]     # the highest peak's
+        rest = np.flatnonzero(~seeds[0][pv, pu])              # peaks outside it
+        for v, u in zip(pv[rest], pu[rest]):
+            if any(sd[v, u] for sd in seeds[1:]):         # a plateau's twin, or inside a seed already
                 continue
-            _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & core).astype(np.uint8), connectivity=8)
-            comp = cl == cl[v, u]
-            if seeds and float(m[comp].max()) > p:          # a path to a higher pixel stays above the level
+            comp = _part_above(m, core, v, u, dip)
+            if float(m[comp].max()) > float(m[v, u]):       # a path to a higher pixel stays above the level
                 continue
             seeds.append(comp)
         if len(seeds) < 2:
@@ -238,6 +317,13 @@ def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, dip: float,
     return out, n, tuple(touched)
 
 
+def _part_above(m: np.ndarray, core: np.ndarray, v: int, u: int, dip: float) -> np.ndarray:
+    """The 8-connected part of `core` above (1 - dip) × m[v, u] that holds pixel (v, u)."""
+    p = float(m[v, u])
+    _, cl = cv2.connectedComponents(((m > (1.0 - dip) * p) & core).astype(np.uint8), connectivity=8)
+    return cl == cl[v, u]
+
+
 def weak_components(force_px: np.ndarray, mag: np.ndarray, mask: np.ndarray, strong: np.ndarray,
                     weak_n: float) -> tuple[np.ndarray, np.ndarray]:
     """Components of pixels above weak_n that hold no strong pixel: (labels (H, W), |total force| per
@@ -253,68 +339,99 @@ def weak_components(force_px: np.ndarray, mag: np.ndarray, mask: np.ndarray, str
 
 
 def light_cores(force_px, mag, mask, strong, cfg: ContactConfig) -> np.ndarray | None:
-    """Mask (uint8) of the weak components whose total force reaches cfg.min_total_n, or None (rule off)."""
-    if cfg.weak_threshold_n <= 0 or cfg.min_total_n <= 0 or cfg.weak_threshold_n >= cfg.threshold_n:
+    """Mask (uint8) of the weak components whose total force reaches cfg.min_total_n, or None (rule off).
+
+    The exact total (weak_components) is summed only for components that can reach it: |a component's
+    total force| <= the sum of its pixels' |force|, so one short of min_total_n by that bound (every
+    component of a rest frame) cannot (margin for rounding). Works on any box of the frame that holds
+    whole components (find_clusters' work box)."""
+    if not _light_rule_on(cfg):
         return None
-    # |a component's total force| <= the sum of its pixels' |force| <= that sum over all weak pixels: when
-    # even that is short of min_total_n (a rest frame), no component can qualify (margin for rounding)
-    if float(mag.sum(where=(mag > cfg.weak_threshold_n) & mask, dtype=np.float64)) < cfg.min_total_n * (1 - 1e-6):
+    weak = (mag > cfg.weak_threshold_n) & mask
+    bound_n = cfg.min_total_n * (1 - 1e-6)
+    if float(mag.sum(where=weak, dtype=np.float64)) < bound_n:    # not even all weak pixels together
         return None
-    labels, tot = weak_components(force_px, mag, mask, strong, cfg.weak_threshold_n)
+    n, labels = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+    flat = labels.ravel()
+    idx = np.flatnonzero(flat)
+    lab = flat[idx]
+    can = np.bincount(lab, weights=mag.ravel()[idx], minlength=n) >= bound_n
+    can[labels[strong > 0]] = False               # holds a strong pixel: a core already
+    can[0] = False
+    if not can.any():
+        return None
+    sel = idx[can[lab]]                           # the candidates' pixels, raster order
+    ls = flat[sel]
+    rr, cc = np.divmod(sel, labels.shape[1])
+    tot = np.linalg.norm(np.stack([np.bincount(ls, weights=force_px[i][rr, cc], minlength=n)
+                                   for i in range(3)], 1), axis=1)
     keep = tot >= cfg.min_total_n
     return keep[labels].astype(np.uint8) if keep.any() else None
 
 
-def _support_labels(labels: np.ndarray, mag: np.ndarray, cfg: ContactConfig) -> np.ndarray:
-    """Core labels grown onto weaker nearby pixels (nearest core pixel within the support radius),
-    so a cluster's force includes the tails the detection threshold cuts off.
+def _support_pixels(labels: np.ndarray, r0: int, c0: int, mag: np.ndarray,
+                    cfg: ContactConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels each cluster sums over, in raster order: (flat index in the image, row, column,
+    label). `labels` are the cores on the work box at (r0, c0). The cores are grown onto weaker nearby
+    pixels (nearest core pixel within the support radius, above the support floor), so a cluster's
+    force includes the tails the detection threshold cuts off.
 
     The distance transform runs on the cores' bounding box grown by more than the radius: OpenCV's 5×5
     chamfer distance is within 2 % of the Euclidean one and its shortest paths stay inside the box
     spanned by a pixel and its core pixel, so every pixel it can keep gets the same distance and label
     as on the whole image, and every pixel outside is farther than the radius."""
+    h, w = mag.shape
     if cfg.support_radius_px <= 0:
-        return labels
-    h, w = labels.shape
+        rr, cc = np.nonzero(labels)
+        lab = labels[rr, cc]
+        rr, cc = rr + r0, cc + c0
+        return rr * w + cc, rr, cc, lab
     rows = np.flatnonzero(labels.any(axis=1))
     cols = np.flatnonzero(labels.any(axis=0))
-    m = int(np.ceil(cfg.support_radius_px * 1.05)) + 3
-    r0, r1 = max(rows[0] - m, 0), min(rows[-1] + m + 1, h)
-    c0, c1 = max(cols[0] - m, 0), min(cols[-1] + m + 1, w)
-    sub = labels[r0:r1, c0:c1]
+    top, bottom, left, right = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    mm = int(np.ceil(cfg.support_radius_px * 1.05)) + 3
+    R0, R1 = max(top + r0 - mm, 0), min(bottom + r0 + mm, h)
+    C0, C1 = max(left + c0 - mm, 0), min(right + c0 + mm, w)
+    sub = np.zeros((R1 - R0, C1 - C0), np.int32)
+    sub[top + r0 - R0:bottom + r0 - R0, left + c0 - C0:right + c0 - C0] = labels[top:bottom, left:right]
     dist, nearest = cv2.distanceTransformWithLabels((sub == 0).astype(np.uint8), cv2.DIST_L2, 5,
                                                     labelType=cv2.DIST_LABEL_PIXEL)
     flat = sub.ravel()
     by_seed = np.concatenate([[0], flat[flat > 0]])  # DIST_LABEL_PIXEL numbers core pixels in raster order
-    grown = by_seed[nearest]
-    keep = (sub > 0) | ((mag[r0:r1, c0:c1] > cfg.support_floor_n) & (dist <= cfg.support_radius_px))
-    out = np.zeros(labels.shape, np.int32)
-    out[r0:r1, c0:c1] = np.where(keep, grown, 0)
-    return out
+    keep = (sub > 0) | ((mag[R0:R1, C0:C1] > cfg.support_floor_n) & (dist <= cfg.support_radius_px))
+    rr, cc = np.nonzero(keep)
+    lab = by_seed[nearest[rr, cc]]
+    rr, cc = rr + R0, cc + C0
+    return rr * w + cc, rr, cc, lab
 
 
-def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int, split: tuple = ()) -> tuple[np.ndarray, np.ndarray]:
+def _shape_metrics(binary: np.ndarray, labels: np.ndarray, k: int, split: tuple = (),
+                   wanted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Perimeter (contour length, px) and circularity 4πA/P² per label (1 for a disc); the labels in
-    `split` (parts of one core, split_peaks) from their own pixels."""
+    `split` (parts of one core, split_peaks) from their own pixels. Labels where `wanted` (bool per
+    label) is False are left at 0."""
     perim = np.zeros(k)
     circ = np.zeros(k)
+    if wanted is None:
+        wanted = np.ones(k, bool)
 
-    def take(contours, j_of):
-        for c in contours:
-            j = j_of(c)
-            p = cv2.arcLength(c, True)
+    def take(c, j):
+        p = cv2.arcLength(c, True)
+        if p > perim[j]:  # one external contour per 8-connected component; keep the longest
+            perim[j] = p
             a = cv2.contourArea(c)
-            if p > perim[j]:  # one external contour per 8-connected component; keep the longest
-                perim[j] = p
-                circ[j] = min(1.0, 4 * np.pi * a / (p * p)) if p > 0 else 0.0
+            circ[j] = min(1.0, 4 * np.pi * a / (p * p)) if p > 0 else 0.0
 
     split_set = set(split)
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    take([c for c in contours if labels[c[0, 0, 1], c[0, 0, 0]] not in split_set],
-         lambda c: labels[c[0, 0, 1], c[0, 0, 0]])
+    for c in contours:
+        j = labels[c[0, 0, 1], c[0, 0, 0]]
+        if wanted[j] and j not in split_set:
+            take(c, j)
     for j in split:
-        contours, _ = cv2.findContours((labels == j).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        take(contours, lambda c, j=j: j)
+        if wanted[j]:
+            for c in cv2.findContours((labels == j).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0]:
+                take(c, j)
     return perim, circ
 
 
