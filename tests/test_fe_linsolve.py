@@ -228,7 +228,7 @@ def test_the_thread_count_comes_from_the_environment_and_bad_values_name_it(monk
             linsolve.thread_count()
 
 
-# -- engine pardiso-krylov: FGMRES on kept (stale) single-precision factors, local Schwarz correction --------
+# -- engine pardiso-krylov: GCR on kept (stale) single-precision factors, local Schwarz correction --------
 
 def _node_matrix(side=12, seed=0, unsym=0.0):
     """A 3-DOF-per-node matrix on a side x side grid of nodes (every node's 3x3 diagonal block in the
@@ -261,8 +261,8 @@ def _with_block_jump(A, nodes, scale):
     return A
 
 
-def test_fgmres_reaches_the_tolerance_with_a_stale_preconditioner_and_repeats_bit_for_bit():
-    from tensortouch.tools.fe.linsolve import fgmres
+def test_gcr_reaches_the_tolerance_with_a_stale_preconditioner_and_repeats_bit_for_bit():
+    from tensortouch.tools.fe.linsolve import gcr
 
     A = _node_matrix(unsym=0.2)
     stale = PardisoFactor(False, mixed=True)
@@ -272,26 +272,26 @@ def test_fgmres_reaches_the_tolerance_with_a_stale_preconditioner_and_repeats_bi
         return stale._call(33, stale._A, v.astype(np.float32)).astype(float)
 
     b = np.random.default_rng(1).normal(size=A.shape[0])
-    x, its, ok = fgmres(A.dot, pre, b, 1e-10, 40)
+    x, its, ok = gcr(A.dot, pre, b, 1e-10, 40)
     assert ok and 1 < its < 40
     assert np.linalg.norm(b - A @ x) <= 1e-10 * np.linalg.norm(b)
-    x2, its2, _ = fgmres(A.dot, pre, b, 1e-10, 40)
+    x2, its2, _ = gcr(A.dot, pre, b, 1e-10, 40)
     assert its2 == its and x2.tobytes() == x.tobytes()
     # the exact preconditioner: one iteration to the single factors' accuracy
     fresh = PardisoFactor(False)
     fresh.factor(A)
-    _, its1, ok1 = fgmres(A.dot, fresh.solve, b, 1e-10, 5)
+    _, its1, ok1 = gcr(A.dot, fresh.solve, b, 1e-10, 5)
     assert ok1 and its1 == 1
     # too few iterations allowed: not converged, and says so (the caller refactorises)
-    _, its3, ok3 = fgmres(A.dot, pre, b, 1e-14, 2)
+    _, its3, ok3 = gcr(A.dot, pre, b, 1e-14, 2)
     assert not ok3 and its3 == 2
-    assert fgmres(A.dot, pre, np.zeros_like(b), 1e-10, 5)[1:] == (0, True)
+    assert gcr(A.dot, pre, np.zeros_like(b), 1e-10, 5)[1:] == (0, True)
 
 
 @pytest.mark.parametrize("symmetric", [True, False])
 def test_krylov_factor_keeps_its_factors_while_the_local_correction_absorbs_a_contact_change(symmetric):
     """A later tangent with a few nodes' diagonal blocks jumped 50x (contact) and the rest a little
-    changed: solved by FGMRES on the kept factors with no refactorisation; the moved nodes and their
+    changed: solved by GCR on the kept factors with no refactorisation; the moved nodes and their
     neighbours are the local (Schwarz) set; the answer within KRYLOV_TOL; the same bits again."""
     from tensortouch.tools.fe import linsolve
     from tensortouch.tools.fe.linsolve import KrylovFactor
@@ -319,7 +319,7 @@ def test_krylov_factor_keeps_its_factors_while_the_local_correction_absorbs_a_co
     assert out[0].tobytes() == out[1].tobytes()
 
 
-def test_krylov_factor_refactorises_when_fgmres_fails_or_too_many_nodes_moved(monkeypatch):
+def test_krylov_factor_refactorises_when_gcr_fails_or_too_many_nodes_moved(monkeypatch):
     from tensortouch.tools.fe import linsolve
     from tensortouch.tools.fe.linsolve import KrylovFactor
 
@@ -327,7 +327,7 @@ def test_krylov_factor_refactorises_when_fgmres_fails_or_too_many_nodes_moved(mo
     wobble = sp.diags(0.04 * A.diagonal() * np.random.default_rng(5).uniform(size=A.shape[0]))  # < SCHWARZ_REL
     A2 = _with_block_jump((A + wobble).tocsr(), [10, 60], 20.0)
     b = np.random.default_rng(3).normal(size=A.shape[0])
-    # FGMRES allowed one iteration only: it fails, the tangent is refactorised and solved (refined)
+    # GCR allowed one iteration only: it fails, the tangent is refactorised and solved (refined)
     monkeypatch.setattr(linsolve, "KRYLOV_MAX", 1)
     fac = KrylovFactor(False)
     fac.factor(A)

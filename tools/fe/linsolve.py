@@ -252,78 +252,61 @@ class PardisoFactor:
             pass
 
 
-# Engine "pardiso-krylov": Newton systems solved by FGMRES preconditioned by kept (stale) single-precision
+# Engine "pardiso-krylov": Newton systems solved by GCR preconditioned by kept (stale) single-precision
 # factors of an earlier tangent, with an exact local solve on the nodes whose diagonal 3x3 block moved
 # (the contact set) and one ring of their neighbours (multiplicative Schwarz); refactorised only when
 # that does not reach KRYLOV_TOL within KRYLOV_MAX iterations, or when more than SCHWARZ_MAX_NODES nodes
 # changed. docs/decisions/2026-12-06-fe-krylov-stale-factors.md has the measurements.
 KRYLOV_TOL = 1e-6           # relative residual |b - A x| <= KRYLOV_TOL |b|, in double precision
-KRYLOV_MAX = 12             # FGMRES iterations before the kept factors are given up (refactorisation)
+KRYLOV_MAX = 12             # GCR iterations before the kept factors are given up (refactorisation)
 SCHWARZ_REL = 0.05          # a node's diagonal block "moved" when |dB| > SCHWARZ_REL * max(|B_kept|, |B_now|)
 SCHWARZ_RING = 1            # rings of neighbours added to the moved nodes for the local solve
 SCHWARZ_MAX_NODES = 500     # more local nodes than this: refactorise instead
 
 
-def fgmres(matvec, precond, b: np.ndarray, tol: float, kmax: int):
-    """Flexible GMRES (right preconditioning, the preconditioned vectors kept), zero initial guess,
-    classical Gram-Schmidt applied twice, Givens rotations. Returns (x, iterations, converged) with
-    converged meaning the true residual |b - A x| <= tol |b| (checked in double precision at the end).
-    Deterministic: fixed operation order, no random start."""
+def gcr(matvec, precond, b: np.ndarray, tol: float, kmax: int):
+    """Preconditioned generalised conjugate residuals: flexible (the preconditioner may be any
+    operator), minimal residual, zero initial guess. Each iteration adds a direction z = precond(r)
+    with q = A z, both orthogonalised (classical Gram-Schmidt, twice) against the earlier q's, so the
+    q's stay orthonormal and A z = q. Returns (x, iterations, converged): iterations = preconditioner
+    applications, converged = the true residual |b - A x| <= tol |b| (one product in double precision
+    at the end). Deterministic: a fixed order of operations, no random start."""
     n = b.shape[0]
+    Zs, Qs = np.zeros((kmax, n)), np.zeros((kmax, n))
     bn = float(np.linalg.norm(b))
     if bn == 0.0:
         return np.zeros(n), 0, True
-    V = np.zeros((kmax + 1, n))
-    Z = np.zeros((kmax, n))
-    H = np.zeros((kmax + 1, kmax))
-    cs, sn = np.zeros(kmax), np.zeros(kmax)
-    g = np.zeros(kmax + 1)
-    V[0] = b / bn
-    g[0] = bn
+    x, r = np.zeros(n), b.copy()
     k = 0
-    for j in range(kmax):
-        Z[j] = precond(V[j])
-        w = matvec(Z[j])
-        h = V[:j + 1] @ w
-        w -= h @ V[:j + 1]
-        h2 = V[:j + 1] @ w
-        w -= h2 @ V[:j + 1]
-        H[:j + 1, j] = h + h2
-        H[j + 1, j] = np.linalg.norm(w)
-        if H[j + 1, j] > 0.0:
-            V[j + 1] = w / H[j + 1, j]
-        for i in range(j):
-            t = cs[i] * H[i, j] + sn[i] * H[i + 1, j]
-            H[i + 1, j] = -sn[i] * H[i, j] + cs[i] * H[i + 1, j]
-            H[i, j] = t
-        rho = float(np.hypot(H[j, j], H[j + 1, j]))
-        cs[j], sn[j] = (H[j, j] / rho, H[j + 1, j] / rho) if rho > 0.0 else (1.0, 0.0)
-        H[j, j], H[j + 1, j] = rho, 0.0
-        g[j + 1] = -sn[j] * g[j]
-        g[j] = cs[j] * g[j]
-        k = j + 1
-        if abs(g[j + 1]) <= 0.5 * tol * bn or H[j, j] == 0.0:
+    while k < kmax and np.linalg.norm(r) > 0.5 * tol * bn:
+        z = precond(r)
+        q = matvec(z)
+        for _ in range(2):
+            h = Qs[:k] @ q
+            q -= h @ Qs[:k]
+            z -= h @ Zs[:k]
+        nq = float(np.linalg.norm(q))
+        if not nq > 0.0:
             break
-    y = np.zeros(k)
-    for i in range(k - 1, -1, -1):       # back substitution on the triangular H
-        if H[i, i] == 0.0:
-            return np.zeros(n), k, False
-        y[i] = (g[i] - H[i, i + 1:k] @ y[i + 1:]) / H[i, i]
-    x = y @ Z[:k]
+        Qs[k], Zs[k] = q / nq, z / nq
+        a = Qs[k] @ r
+        x += a * Zs[k]
+        r -= a * Qs[k]
+        k += 1
     ok = bool(np.all(np.isfinite(x)) and np.linalg.norm(b - matvec(x)) <= tol * bn)
     return x, k, ok
 
 
 class KrylovFactor(PardisoFactor):
     """Engine "pardiso-krylov": `factor(A)` only records the new tangent; `solve(b)` solves it by
-    FGMRES (`fgmres`) preconditioned by the kept single-precision PARDISO factors of an earlier
+    GCR (`gcr`) preconditioned by the kept single-precision PARDISO factors of an earlier
     tangent, corrected by an exact sparse LU (scipy splu) of the current tangent restricted to the
     nodes whose diagonal 3x3 block moved against the kept one, plus SCHWARZ_RING rings of neighbours
     (the contact set; multiplicative Schwarz: local, global, local). Refactorises (the mixed engine's
-    factor + refined solve) where FGMRES does not reach KRYLOV_TOL within KRYLOV_MAX iterations, or
+    factor + refined solve) where GCR does not reach KRYLOV_TOL within KRYLOV_MAX iterations, or
     where more than SCHWARZ_MAX_NODES nodes are local. Counters beside the parent's:
     `krylov_solves`, `krylov_iterations`, `krylov_failures` (refactorisations after a failed
-    FGMRES), `schwarz_nodes` (sum over Krylov solves). DOFs come in node triplets (3 per node)."""
+    GCR), `schwarz_nodes` (sum over Krylov solves). DOFs come in node triplets (3 per node)."""
 
     def __init__(self, symmetric: bool, threads: int | None = None):
         super().__init__(symmetric, allow_chord=True, threads=threads, mixed=True)
@@ -362,8 +345,9 @@ class KrylovFactor(PardisoFactor):
             A.sort_indices()
         self._cur, self._local = A, None
         g = self._node_structure(A)
-        if self._A is None or self._pattern is None or not (
-                self._pattern[0] is A.indptr or np.array_equal(self._pattern[0], A.indptr)):
+        p = self._pattern
+        if self._A is None or p is None or not ((p[0] is A.indptr and p[1] is A.indices) or (
+                np.array_equal(p[0], A.indptr) and np.array_equal(p[1], A.indices))):
             self._refactor()
             return
         self._cur_factored = False
@@ -434,13 +418,13 @@ class KrylovFactor(PardisoFactor):
             except RuntimeError:       # a singular local block: the full factorisation decides
                 pre = None
             if pre is not None:
-                x, its, ok = fgmres(A.dot, pre, b, KRYLOV_TOL, KRYLOV_MAX)
+                x, its, ok = gcr(A.dot, pre, b, KRYLOV_TOL, KRYLOV_MAX)
                 self.krylov_iterations += its
                 nloc = len(self._local[0]) // 3 if isinstance(self._local, tuple) else 0
                 self.trace.append(("krylov" if ok else "failed", its, nloc))
                 if ok:
                     self.krylov_solves += 1
-                    self.schwarz_nodes += len(self._local[0]) // 3 if isinstance(self._local, tuple) else 0
+                    self.schwarz_nodes += nloc
                     return x
             self.krylov_failures += 1
             self._refactor()
