@@ -289,13 +289,14 @@ def test_gcr_reaches_the_tolerance_with_a_stale_preconditioner_and_repeats_bit_f
 
 
 @pytest.mark.parametrize("symmetric", [True, False])
-def test_krylov_factor_keeps_its_factors_while_the_local_correction_absorbs_a_contact_change(symmetric):
+def test_krylov_factor_keeps_its_factors_while_the_local_correction_absorbs_a_contact_change(symmetric, monkeypatch):
     """A later tangent with a few nodes' diagonal blocks jumped 50x (contact) and the rest a little
     changed: solved by GCR on the kept factors with no refactorisation; the moved nodes and their
     neighbours are the local (Schwarz) set; the answer within KRYLOV_TOL; the same bits again."""
     from tensortouch.tools.fe import linsolve
     from tensortouch.tools.fe.linsolve import KrylovFactor
 
+    monkeypatch.setattr(linsolve, "KRYLOV_MIN_DOFS", 0)
     A = _node_matrix(unsym=0.0 if symmetric else 0.2)
     A2 = _with_block_jump((A * 1.02).tocsr(), [40, 41, 77], 50.0)
     if symmetric:
@@ -323,6 +324,7 @@ def test_krylov_factor_refactorises_when_gcr_fails_or_too_many_nodes_moved(monke
     from tensortouch.tools.fe import linsolve
     from tensortouch.tools.fe.linsolve import KrylovFactor
 
+    monkeypatch.setattr(linsolve, "KRYLOV_MIN_DOFS", 0)
     A = _node_matrix(unsym=0.2)
     wobble = sp.diags(0.04 * A.diagonal() * np.random.default_rng(5).uniform(size=A.shape[0]))  # < SCHWARZ_REL
     A2 = _with_block_jump((A + wobble).tocsr(), [10, 60], 20.0)
@@ -359,6 +361,7 @@ def test_krylov_engine_takes_the_mixed_engines_newton_path_and_repeats_bit_for_b
     from tensortouch.tools.fe import linsolve, solve
 
     sc, gm = _pad_press_slide(mu)
+    monkeypatch.setattr(linsolve, "KRYLOV_MIN_DOFS", 0)     # the pad is small: Krylov solves anyway
     mixed = solve(sc, mesh=gm, engine="pardiso-mixed")
     kry = solve(sc, mesh=gm, engine="pardiso-krylov")
     again = solve(sc, mesh=gm, engine="pardiso-krylov")
@@ -373,3 +376,19 @@ def test_krylov_engine_takes_the_mixed_engines_newton_path_and_repeats_bit_for_b
     assert np.abs(kry.RF - mixed.RF).max() <= 1e-6 * scale
     assert np.array_equal(again.RF, kry.RF) and np.array_equal(again.U, kry.U)
     assert np.array_equal(two.RF, kry.RF) and np.array_equal(two.U, kry.U)
+
+
+def test_krylov_engine_refactorises_small_systems_like_the_mixed_engine():
+    """Below KRYLOV_MIN_DOFS a factorisation costs few solves: pardiso-krylov refactorises each tangent,
+    the same bits as pardiso-mixed."""
+    import json
+
+    from tensortouch.tools.fe import linsolve, solve
+
+    sc, gm = _pad_press_slide(0.4)
+    assert 3 * len(gm.nodes) < linsolve.KRYLOV_MIN_DOFS
+    mixed = solve(sc, mesh=gm, engine="pardiso-mixed")
+    kry = solve(sc, mesh=gm, engine="pardiso-krylov")
+    a, b = json.loads(mixed.solver_info), json.loads(kry.solver_info)
+    assert b["krylov_solves"] == 0 and b["factorizations"] == a["factorizations"]
+    assert np.array_equal(kry.RF, mixed.RF) and np.array_equal(kry.U, mixed.U)
