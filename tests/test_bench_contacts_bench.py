@@ -11,7 +11,12 @@ def test_bench_contacts_reports_both_configs_and_the_light_touch(capsys):
     assert run(p.parse_args(["--frames", "2", "--json"])) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     rows = {(r["field"], r["config"]): r for r in out["rows"]}
-    assert len(rows) == 20 and all(r["ms"] > 0 for r in rows.values())
+    assert len(rows) == 7 * 6 and all(r["ms"] > 0 for r in rows.values())
+    assert set(out["mean_ms"]) == {"strong only", "with rule", "rule+merge", "rule+merge+split", "package",
+                                   "package, low core"}
+    # a network's rest-frame rim: single pixels above the core threshold, no contact under any setting
+    assert all(rows[("rim noise", c)]["clusters_n"] == [] for c in out["mean_ms"])
+    assert [round(f) for f in rows[("press + rim noise", "package, low core")]["clusters_n"]] == [2]
     assert out["package"] == "hiera-qup-128"         # the fifth configuration: the shipped package's settings
     assert len(rows[("one touch + light touch", "strong only")]["clusters_n"]) == 1
     light = sorted(rows[("one touch + light touch", "with rule")]["clusters_n"])

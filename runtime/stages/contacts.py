@@ -12,6 +12,7 @@ stability. Ids stay stable across frames by matching 3D centroids (Hungarian ass
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import asdict, dataclass, field
 
 import cv2
@@ -113,22 +114,28 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     if not binary.any():
         return []
     n, labels = cv2.connectedComponents(binary, connectivity=8)
+    cr, cc = np.nonzero(labels)                   # core pixels, raster order
     joined = None
     if n > 2 and cfg.merge_n > 0:
-        labels, n, joined = merge_bridged(labels, n, binary, m, msk, cfg.merge_n)
-    cr, cc = np.nonzero(labels)                   # core pixels, raster order
+        labels, n, joined = merge_bridged(labels, n, binary, m, msk, cfg.merge_n, (cr, cc))
     split = ()
     if 0.0 < cfg.split_dip < 1.0:
         labels, n, split = split_peaks(labels, n, m, cfg.split_dip, joined, (cr, cc))
     k = n
     core = labels[cr, cc]
     pixels = np.bincount(core, minlength=k)
+    wanted = pixels >= cfg.min_pixels             # the clusters published; specks still compete for support
+    wanted[0] = False
+    if not wanted.any():
+        return []
     area = np.bincount(core, weights=pixel_area[cr + r0, cc + c0], minlength=k)
-    idx, rows, cols, lab = _support_pixels(labels, r0, c0, mag, cfg)
+    idx, rows, cols, lab = _support_pixels(_without_far_specks(labels, cr, cc, core, wanted, cfg), r0, c0, mag, cfg)
+    if k > 2:                                     # grouped by label, each label's pixels in raster order
+        order = np.argsort(lab.astype(np.uint16) if k <= 65536 else lab, kind="stable")
+        idx, rows, cols, lab = idx[order], rows[order], cols[order], lab[order]
     w = np.take(mag.ravel(), idx)
     pos = np.take(surface_xyz.reshape(-1, 3), idx, axis=0).T      # (3, N) views of (N, 3) gathers
     nrm = np.take(normals.reshape(-1, 3), idx, axis=0).T
-    order = None if k == 2 else np.argsort(lab.astype(np.uint16) if k <= 65535 else lab, kind="stable")
     indent = np.zeros(k)
     if disp is not None:
         d = np.take(disp.reshape(3, -1), idx, axis=1)
@@ -138,17 +145,17 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
         dn = d[0] * nrm[0]
         dn += d[1] * nrm[1]
         dn += d[2] * nrm[2]
-        _max_per_label(indent, lab, -dn, order)
+        _max_per_label(indent, lab, -dn)
     # per pixel: weight, weighted (u, v), weighted position and normal (products in the inputs' own
     # precision), force; summed per cluster in float64
-    p = np.empty((12, len(idx)))
+    p = _workspace(len(idx))[0]
     p[0] = w
     np.multiply(w, cols + 0.5, out=p[1])
     np.multiply(w, rows + 0.5, out=p[2])
     p[3:6] = pos * w
     p[6:9] = nrm * w
     p[9:12] = np.take(force_px.reshape(3, -1), idx, axis=1)
-    sums = _label_sums(p, lab, k, order)
+    sums = _label_sums(p, lab, k)
     wsum = sums[:, 0]
     safe = np.where(wsum > 0, wsum, 1.0)
     uv = sums[:, 1:3] / safe[:, None]
@@ -156,11 +163,9 @@ def find_clusters(force_px: np.ndarray, surface_xyz: np.ndarray, normals: np.nda
     nsum = sums[:, 6:9] / safe[:, None]
     nsum /= np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)
     fvec = sums[:, 9:12]
-    perim, circ = _shape_metrics(binary, labels, k, split, pixels >= cfg.min_pixels)
+    perim, circ = _shape_metrics(binary, labels, k, split, wanted)
     out = []
-    for j in range(1, k):
-        if pixels[j] < cfg.min_pixels:
-            continue
+    for j in np.flatnonzero(wanted):
         out.append(Cluster(
             id=-1, uv_px=(float(uv[j, 0]), float(uv[j, 1])), position_mm=tuple(map(float, centroid[j])),
             normal=tuple(map(float, nsum[j])), area_mm2=float(area[j]), force_n=tuple(map(float, fvec[j])),
@@ -192,62 +197,84 @@ def _work_box(mag: np.ndarray, mask: np.ndarray, cfg: ContactConfig) -> tuple[in
     return max(r0 - 1, 0) & ~1, min(r0 + bh + 1, h), max(c0 - 1, 0) & ~1, min(c0 + bw + 1, w)
 
 
-def _label_sums(values: np.ndarray, lab: np.ndarray, k: int, order: np.ndarray | None) -> np.ndarray:
+_local = threading.local()
+
+
+def _workspace(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """This thread's (12, n) and (n, 12) float64 scratch arrays for the per-pixel terms of the cluster
+    sums (kept between frames: a fresh array of this size is fresh memory to fault in, every frame)."""
+    buf = getattr(_local, "sums", None)
+    if buf is None or buf[1].shape[0] < n:
+        size = max(n, 4096)
+        buf = _local.sums = (np.empty((12, size)), np.empty((size, 12)))
+    return buf[0][:, :n], buf[1][:n]
+
+
+def _grouped(lab: np.ndarray) -> np.ndarray | None:
+    """None when `lab` is grouped by label (non-decreasing), else the stable order that groups it."""
+    return None if len(lab) < 2 or bool((lab[1:] >= lab[:-1]).all()) else np.argsort(lab, kind="stable")
+
+
+def _label_sums(values: np.ndarray, lab: np.ndarray, k: int) -> np.ndarray:
     """(m, N) float64 values of N pixels → (k, m) sums per label (lab: label 1..k-1 per pixel), each
     added pixel after pixel, in the pixels' order, from 0.0: np.bincount(lab, weights=row, minlength=k)
     row by row, bit for bit. einsum "ij->j" on a C-ordered (N, m) array with m ≥ 2 adds its rows one
     after another, all m columns at once (a bincount per row waits on every addition in turn); with one
-    column it would reduce in blocks, so that case stays a bincount. `order`: the pixels sorted by
-    label, stable (None when k == 2: one label)."""
-    m = values.shape[0]
-    if m < 2:
-        return np.bincount(lab, weights=values[0], minlength=k)[:, None]
+    column it would reduce in blocks, so that case stays a bincount."""
+    m, n = values.shape
+    if m < 2 or m > 12:
+        return np.stack([np.bincount(lab, weights=v, minlength=k) for v in values], 1)
+    order = None if k == 2 else _grouped(lab)
+    if order is not None:
+        values, lab = np.take(values, order, axis=1), lab[order]
+    rows = cv2.transpose(values, dst=_workspace(n)[1][:, :m] if m == 12 else None)   # (N, m), C-ordered
     out = np.zeros((k, m))
     if k == 2:
-        out[1] = np.einsum("ij->j", np.ascontiguousarray(values.T))
+        out[1] = np.einsum("ij->j", rows)
         return out
-    counts = np.bincount(lab, minlength=k)
-    rows = np.ascontiguousarray(np.take(values, order, axis=1).T)
-    ends = np.cumsum(counts)
-    for j in np.flatnonzero(counts):
-        out[j] = np.einsum("ij->j", rows[ends[j] - counts[j]:ends[j]])
+    ends = np.cumsum(np.bincount(lab, minlength=k))
+    for j in range(1, k):
+        if ends[j] > ends[j - 1]:
+            out[j] = np.einsum("ij->j", rows[ends[j - 1]:ends[j]])
     return out
 
 
-def _max_per_label(out: np.ndarray, lab: np.ndarray, values: np.ndarray, order: np.ndarray | None = None) -> None:
-    """out[j] = max(out[j], values where lab == j) for every label (np.maximum.at, without its slow path).
-    `order`: the pixels sorted by label (None when there is one label, k == 2)."""
+def _max_per_label(out: np.ndarray, lab: np.ndarray, values: np.ndarray) -> None:
+    """out[j] = max(out[j], values where lab == j) for every label (np.maximum.at, without its slow path)."""
     if not len(lab):
         return
     if len(out) == 2:
         out[1] = np.maximum(out[1], values.max())
         return
-    if order is None:
-        order = np.argsort(lab, kind="stable")
-    sl = lab[order]
-    starts = np.flatnonzero(np.concatenate([[True], sl[1:] != sl[:-1]]))
-    j = sl[starts]
-    out[j] = np.maximum(out[j], np.maximum.reduceat(values[order], starts))
+    order = _grouped(lab)
+    if order is not None:
+        lab, values = lab[order], values[order]
+    starts = np.flatnonzero(np.concatenate([[True], lab[1:] != lab[:-1]]))
+    j = lab[starts]
+    out[j] = np.maximum(out[j], np.maximum.reduceat(values, starts))
 
 
 def merge_bridged(labels: np.ndarray, n: int, binary: np.ndarray, mag: np.ndarray, mask: np.ndarray,
-                  merge_n: float) -> tuple[np.ndarray, int, np.ndarray]:
+                  merge_n: float, core_px: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> tuple[np.ndarray, int, np.ndarray]:
     """Cores joined by a path of pixels above merge_n (8-connected) become one cluster: one contact
     whose field dips between two peaks (a sliding contact's split shear) is not published twice.
-    Clusters are numbered in the order of those paths' components. Returns (labels, n incl.
-    background, bool per label: made of several cores)."""
+    Clusters are numbered in the order of those paths' components. `core_px`: np.nonzero(labels) when
+    the caller has it. Returns (labels, n incl. background, bool per label: made of several cores)."""
     nb, bridged = cv2.connectedComponents((((mag > merge_n) & mask) | (binary > 0)).astype(np.uint8),
                                           connectivity=8)
-    flat = labels.ravel()
-    ci = np.flatnonzero(flat)
+    cr, cc = np.nonzero(labels) if core_px is None else core_px
+    clab = labels[cr, cc]
     of = np.zeros(n, np.int64)                    # each core's bridged component
-    of[flat[ci]] = bridged.ravel()[ci]
+    of[clab] = bridged[cr, cc]
     present = np.zeros(nb, bool)
     present[of[1:]] = True
     remap = np.cumsum(present) * present          # bridged components holding a core, numbered 1, 2, ...
     new_of = remap[of]
     n_new = int(present.sum()) + 1
-    return new_of[labels].astype(np.int32), n_new, np.bincount(new_of[1:], minlength=n_new) > 1
+    out = np.zeros_like(labels)
+    out[cr, cc] = new_of[clab]
+    return out, n_new, np.bincount(new_of[1:], minlength=n_new) > 1
 
 
 def split_peaks(labels: np.ndarray, n: int, mag: np.ndarray, dip: float, keep: np.ndarray | None = None,
@@ -369,6 +396,31 @@ def light_cores(force_px, mag, mask, strong, cfg: ContactConfig) -> np.ndarray |
     return keep[labels].astype(np.uint8) if keep.any() else None
 
 
+def _without_far_specks(labels: np.ndarray, cr: np.ndarray, cc: np.ndarray, core: np.ndarray,
+                        wanted: np.ndarray, cfg: ContactConfig) -> np.ndarray:
+    """`labels` without the specks (labels not `wanted`) that cannot take a pixel from a published
+    cluster's support: a speck pixel farther than 2 × (1.05 × radius + 3) px (in rows or columns) from
+    the published clusters' cores is more than twice the radius from each of them (the chamfer distance
+    is within 2 % of the Euclidean one), so no pixel lies within the radius of both. With no support
+    growth no speck matters. `cr`, `cc`, `core`: the core pixels and their labels."""
+    if wanted[1:].all():
+        return labels
+    spk = ~wanted[core]
+    if cfg.support_radius_px > 0:
+        reach = 2 * (int(np.ceil(cfg.support_radius_px * 1.05)) + 3)
+        rk, ck = cr[~spk], cc[~spk]
+        near = spk & (cr >= rk.min() - reach) & (cr <= rk.max() + reach) & (cc >= ck.min() - reach) & \
+            (cc <= ck.max() + reach)
+        close = np.zeros(len(wanted), bool)
+        close[core[near]] = True
+        spk &= ~close[core]
+    if not spk.any():
+        return labels
+    out = labels.copy()
+    out[cr[spk], cc[spk]] = 0
+    return out
+
+
 def _support_pixels(labels: np.ndarray, r0: int, c0: int, mag: np.ndarray,
                     cfg: ContactConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The pixels each cluster sums over, in raster order: (flat index in the image, row, column,
@@ -392,16 +444,19 @@ def _support_pixels(labels: np.ndarray, r0: int, c0: int, mag: np.ndarray,
     mm = int(np.ceil(cfg.support_radius_px * 1.05)) + 3
     R0, R1 = max(top + r0 - mm, 0), min(bottom + r0 + mm, h)
     C0, C1 = max(left + c0 - mm, 0), min(right + c0 + mm, w)
-    sub = np.zeros((R1 - R0, C1 - C0), np.int32)
-    sub[top + r0 - R0:bottom + r0 - R0, left + c0 - C0:right + c0 - C0] = labels[top:bottom, left:right]
-    dist, nearest = cv2.distanceTransformWithLabels((sub == 0).astype(np.uint8), cv2.DIST_L2, 5,
-                                                    labelType=cv2.DIST_LABEL_PIXEL)
-    flat = sub.ravel()
-    by_seed = np.concatenate([[0], flat[flat > 0]])  # DIST_LABEL_PIXEL numbers core pixels in raster order
-    keep = (sub > 0) | ((mag[R0:R1, C0:C1] > cfg.support_floor_n) & (dist <= cfg.support_radius_px))
-    rr, cc = np.nonzero(keep)
-    lab = by_seed[nearest[rr, cc]]
-    rr, cc = rr + R0, cc + C0
+    part = labels[top:bottom, left:right]
+    free = np.ones((R1 - R0, C1 - C0), np.uint8)            # 0 on core pixels: the transform's seeds
+    free[top + r0 - R0:bottom + r0 - R0, left + c0 - C0:right + c0 - C0] = part == 0
+    dist, nearest = cv2.distanceTransformWithLabels(free, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    by_seed = np.concatenate([[0], part[part > 0]])  # DIST_LABEL_PIXEL numbers core pixels in raster order
+    keep = mag[R0:R1, C0:C1] > cfg.support_floor_n
+    keep &= dist <= cfg.support_radius_px
+    keep |= free == 0
+    fi = np.flatnonzero(keep)
+    lab = by_seed[np.take(nearest, fi)]
+    rr, cc = np.divmod(fi, C1 - C0)
+    rr += R0
+    cc += C0
     return rr * w + cc, rr, cc, lab
 
 
