@@ -120,3 +120,23 @@ def test_bench_engines_list_compares_each_with_the_first(capsys):
     assert "--engines" in capsys.readouterr().out
 
 
+
+
+def test_bench_counts_the_krylov_engines_solves(capsys, monkeypatch):
+    """`bench fe --engines pardiso-mixed,pardiso-krylov`: the Krylov engine's solves on kept factors and
+    their iterations are counted in the runs and printed; forces as the mixed engine's."""
+    from tensortouch.tools.fe import bench, linsolve
+
+    monkeypatch.setattr(linsolve, "KRYLOV_MIN_DOFS", 0)    # the quick mesh is small: Krylov solves anyway
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    assert bench.run(parser.parse_args(["--quick", "--json", "--keypoints", "2",
+                                        "--engines", "pardiso-mixed,pardiso-krylov"])) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    data = json.loads(out[-1])
+    mixed, kry = data["runs"]
+    assert kry["engine"] == "pardiso-krylov" and mixed["krylov_solves"] == 0
+    assert kry["krylov_solves"] > 0 and kry["krylov_iterations"] >= kry["krylov_solves"]
+    assert kry["factorizations"] < mixed["factorizations"] and kry["newton_iterations"] == mixed["newton_iterations"]
+    assert data["final_force_rel_diff"] < 1e-6
+    assert "Krylov solves on kept factors" in "".join(out)
