@@ -21,7 +21,10 @@ factors) until the relative residual is <= REFINE_TOL, which one or two correcti
 tangents (raw single solve 1e-6, after one correction 1e-11, after two the double solve's 1e-15).
 Where refinement does not reach it within MAX_REFINE corrections (a tangent too ill-conditioned for
 single factors), the matrix is refactorised in double precision and solved there (counted in
-`double_fallbacks`), so the step is never less accurate than REFINE_TOL. `SuperLUFactor`
+`double_fallbacks`), so the step is never less accurate than REFINE_TOL. `KrylovFactor`
+(engine "pardiso-krylov") keeps those single-precision factors across Newton iterations, increments and
+keypoints and solves each new tangent by GCR on them with a local exact solve on the nodes whose
+diagonal block moved (the contact set), refactorising only where that fails. `SuperLUFactor`
 (engine "superlu") is the reference: scipy's splu, refactorised from scratch each time.
 docs/decisions/2026-11-28-fe-linear-solver.md has the measurements behind the choice.
 """

@@ -5,6 +5,7 @@ tools.fe.assembly straight onto a fixed free-DOF pattern; quadratic tets (mixed 
 and Mooney-Rivlin go through felupe's assembly. tools.fe.contact adds the node-to-rigid-indenter
 forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine:
 "pardiso-mixed" (default: "pardiso-reuse" with single-precision factors refined in double),
+"pardiso-krylov" (pardiso-mixed's factors kept across tangents, each tangent solved by GCR on them),
 "pardiso-reuse" ("pardiso" plus chord steps on the kept factorisation, CHORD_RATIO),
 "pardiso" (MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
 symmetric, one factorisation per Newton iteration) or "superlu" (the original path: felupe assembly
