@@ -232,6 +232,9 @@ def _label_sums(values: np.ndarray, lab: np.ndarray, k: int) -> np.ndarray:
     if k == 2:
         out[1] = np.einsum("ij->j", rows)
         return out
+    if k > 9:      # many labels: one bincount over (label, column) bins, in the rows' order, no loop
+        bins = (lab[:, None] * m + np.arange(m)).ravel()
+        return np.bincount(bins, weights=rows.ravel(), minlength=k * m).reshape(k, m)
     ends = np.cumsum(np.bincount(lab, minlength=k))
     for j in range(1, k):
         if ends[j] > ends[j - 1]:
