@@ -370,28 +370,30 @@ def weak_components(force_px: np.ndarray, mag: np.ndarray, mask: np.ndarray, str
 
 def light_cores(force_px, mag, mask, strong, cfg: ContactConfig) -> np.ndarray | None:
     """Mask (uint8) of the weak components whose total force reaches cfg.min_total_n, or None (rule off).
+    `strong`: the pixels above cfg.threshold_n within the mask (the cores).
 
     The exact total (weak_components) is summed only for components that can reach it: |a component's
-    total force| <= the sum of its pixels' |force|, so one short of min_total_n by that bound (every
-    component of a rest frame) cannot (margin for rounding). Works on any box of the frame that holds
-    whole components (find_clusters' work box)."""
+    total force| <= the sum of its pixels' |force|, and a component holding no strong pixel has no
+    pixel above the core threshold, so one with fewer pixels than min_total_n / threshold_n cannot
+    (noise specks), nor can any when all weak pixels together fall short (a rest frame); margin for
+    rounding. Works on any box of the frame that holds whole components (find_clusters' work box)."""
     if not _light_rule_on(cfg):
         return None
     weak = (mag > cfg.weak_threshold_n) & mask
     bound_n = cfg.min_total_n * (1 - 1e-6)
     if float(mag.sum(where=weak, dtype=np.float64)) < bound_n:    # not even all weak pixels together
         return None
-    n, labels = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
-    flat = labels.ravel()
-    idx = np.flatnonzero(flat)
-    lab = flat[idx]
-    can = np.bincount(lab, weights=mag.ravel()[idx], minlength=n) >= bound_n
-    can[labels[strong > 0]] = False               # holds a strong pixel: a core already
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(weak.astype(np.uint8), connectivity=8)
+    top = float(np.asarray(cfg.threshold_n, mag.dtype))          # the most a pixel below the cores holds
+    can = stats[:, cv2.CC_STAT_AREA] * top >= bound_n
     can[0] = False
     if not can.any():
         return None
-    sel = idx[can[lab]]                           # the candidates' pixels, raster order
-    ls = flat[sel]
+    can[labels[strong > 0]] = False               # holds a strong pixel: a core already
+    if not can.any():
+        return None
+    sel = np.flatnonzero(can[labels])             # the candidates' pixels, raster order
+    ls = labels.ravel()[sel]
     rr, cc = np.divmod(sel, labels.shape[1])
     tot = np.linalg.norm(np.stack([np.bincount(ls, weights=force_px[i][rr, cc], minlength=n)
                                    for i in range(3)], 1), axis=1)
