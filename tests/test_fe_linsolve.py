@@ -147,7 +147,7 @@ def test_engines_give_the_same_solve_and_pardiso_repeats_bit_for_bit(mu):
 
 @pytest.mark.parametrize("mu", [0.0, 0.4])
 def test_chord_steps_reuse_the_factorisation_converge_alike_and_repeat_bit_for_bit(mu):
-    """Engine pardiso-reuse (the default): where a Newton step has cut the residual tenfold, the next
+    """Engine pardiso-reuse: where a Newton step has cut the residual tenfold, the next
     correction reuses the kept factorisation (a chord step). It refactorises less than once per
     iteration, reaches the exact-Newton engine's forces within the Newton tolerance, and two runs give
     the same bits."""
@@ -170,15 +170,13 @@ def test_chord_steps_reuse_the_factorisation_converge_alike_and_repeat_bit_for_b
 
 @pytest.mark.parametrize("mu", [0.0, 0.4])
 def test_mixed_precision_engine_takes_the_same_newton_path_and_repeats_bit_for_bit(mu, monkeypatch):
-    """Engine pardiso-mixed (the default): the same iterations, factorisations and chord steps as
+    """Engine pardiso-mixed: the same iterations, factorisations and chord steps as
     pardiso-reuse, forces to rounding of the refined solves (not the Newton tolerance), and the same
     bits on a rerun and with two threads (PARDISO's reproducible mode and the fixed assembly parts)."""
     import json
 
     from tensortouch.tools.fe import linsolve, solve
-    from tensortouch.tools.fe.solver import DEFAULT_ENGINE
 
-    assert DEFAULT_ENGINE == "pardiso-mixed" or "TENSORTOUCH_FE_ENGINE" in __import__("os").environ
     sc, gm = _pad_press_slide(mu)
     dbl = solve(sc, mesh=gm, engine="pardiso-reuse")
     mixed = solve(sc, mesh=gm, engine="pardiso-mixed")
@@ -352,14 +350,16 @@ def test_krylov_factor_refactorises_when_gcr_fails_or_too_many_nodes_moved(monke
 
 @pytest.mark.parametrize("mu", [0.0, 0.4])
 def test_krylov_engine_takes_the_mixed_engines_newton_path_and_repeats_bit_for_bit(mu, monkeypatch):
-    """Engine pardiso-krylov on the pad press-and-slide: the same increments, Newton iterations and
+    """Engine pardiso-krylov (the default) on the pad press-and-slide: the same increments, Newton iterations and
     chord steps as pardiso-mixed, fewer factorisations (Krylov solves on kept factors instead), forces
     within 1e-6 of pardiso-mixed's (the linear solves are converged to KRYLOV_TOL, not the Newton
     tolerance), and the same bits on a rerun and with two threads."""
     import json
 
     from tensortouch.tools.fe import linsolve, solve
+    from tensortouch.tools.fe.solver import DEFAULT_ENGINE
 
+    assert DEFAULT_ENGINE == "pardiso-krylov" or "TENSORTOUCH_FE_ENGINE" in __import__("os").environ
     sc, gm = _pad_press_slide(mu)
     monkeypatch.setattr(linsolve, "KRYLOV_MIN_DOFS", 0)     # the pad is small: Krylov solves anyway
     mixed = solve(sc, mesh=gm, engine="pardiso-mixed")

@@ -97,7 +97,7 @@ def test_bench_quick_json_last_line(capsys):
         assert data[key] > 0
     assert data["equilibrium_error_max"] < 0.01 and data["final_force_N"][2] < 0
     # the reference engine and the default one side by side: both timed, same forces
-    assert [r["engine"] for r in data["runs"]] == ["superlu", "pardiso-mixed"] and data["engine"] == "pardiso-mixed"
+    assert [r["engine"] for r in data["runs"]] == ["superlu", "pardiso-krylov"] and data["engine"] == "pardiso-krylov"
     assert data["speedup_cpu"] > 0 and data["final_force_rel_diff"] < 5e-3
     new = data["runs"][1]
     assert new["symbolic_analyses"] == 1

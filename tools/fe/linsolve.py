@@ -1,6 +1,6 @@
 """Sparse direct solves of the FE Newton iterations.
 
-`PardisoFactor` (engine "pardiso", the default): Intel MKL PARDISO, called through ctypes from the
+`PardisoFactor` (engine "pardiso"): Intel MKL PARDISO, called through ctypes from the
 `mkl` wheel's mkl_rt library (the train extra). The tangent's pattern is fixed for a whole solve (tools.fe.assembly), so the symbolic
 analysis (METIS ordering, supernode structure: phase 11) runs once and every later Newton iteration
 and keypoint only refactorises the numbers (phase 22) and solves (phase 33). Symmetric tangents
@@ -14,7 +14,7 @@ OpenMP layer (the libgomp that torch also uses; MKL's Intel layer crashes next t
 sequential layer where no libgomp is installed. Engine "pardiso-reuse"
 is the same factor with `allow_chord`: the Newton loop (tools.fe.solver.CHORD_RATIO) may solve with
 the kept factors instead of refactorising once it converges quadratically. Engine "pardiso-mixed"
-(the default) is "pardiso-reuse" with `mixed`: PARDISO factorises and solves in single precision
+is "pardiso-reuse" with `mixed`: PARDISO factorises and solves in single precision
 (iparm[27], about 1.7x faster per factorisation here) and `solve` refines the solution in double
 precision against the double matrix (residual b - A x in float64, a correction from the single
 factors) until the relative residual is <= REFINE_TOL, which one or two corrections reach on the FE
@@ -22,7 +22,7 @@ tangents (raw single solve 1e-6, after one correction 1e-11, after two the doubl
 Where refinement does not reach it within MAX_REFINE corrections (a tangent too ill-conditioned for
 single factors), the matrix is refactorised in double precision and solved there (counted in
 `double_fallbacks`), so the step is never less accurate than REFINE_TOL. `KrylovFactor`
-(engine "pardiso-krylov") keeps those single-precision factors across Newton iterations, increments and
+(engine "pardiso-krylov", the default: tools.fe.solver.DEFAULT_ENGINE) keeps those single-precision factors across Newton iterations, increments and
 keypoints and solves each new tangent by GCR on them with a local exact solve on the nodes whose
 diagonal block moved (the contact set), refactorising only where that fails. `SuperLUFactor`
 (engine "superlu") is the reference: scipy's splu, refactorised from scratch each time.

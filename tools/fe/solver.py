@@ -4,8 +4,9 @@ Linear tets with the Yeoh / neo-Hookean material (the shipped default) are assem
 tools.fe.assembly straight onto a fixed free-DOF pattern; quadratic tets (mixed u/p/J, mesh.order = 2)
 and Mooney-Rivlin go through felupe's assembly. tools.fe.contact adds the node-to-rigid-indenter
 forces and their exact 3x3 tangents. The linear solver (tools.fe.linsolve) is an engine:
-"pardiso-mixed" (default: "pardiso-reuse" with single-precision factors refined in double),
-"pardiso-krylov" (pardiso-mixed's factors kept across tangents, each tangent solved by GCR on them),
+"pardiso-krylov" (default: pardiso-mixed's factors kept across tangents, each tangent solved by GCR on
+them; below KRYLOV_MIN_DOFS free DOFs the same bits as pardiso-mixed),
+"pardiso-mixed" ("pardiso-reuse" with single-precision factors refined in double),
 "pardiso-reuse" ("pardiso" plus chord steps on the kept factorisation, CHORD_RATIO),
 "pardiso" (MKL PARDISO, symbolic analysis once per solve, symmetric type when the tangent is
 symmetric, one factorisation per Newton iteration) or "superlu" (the original path: felupe assembly
@@ -53,7 +54,9 @@ FIRST_TOUCH_ANCHOR = True
 # timings of a recipe stage). Not a scenario field: the engines solve the same equations (pardiso and
 # superlu agree to rounding, pardiso-reuse and pardiso-mixed to the Newton tolerance, `tensortouch
 # bench fe`), so the scenario hashes (the FE cache keys) stay as they are; solver_info records the engine.
-DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-mixed")
+# pardiso-krylov (GCR on kept single-precision factors; below linsolve.KRYLOV_MIN_DOFS free DOFs the same
+# bits as pardiso-mixed): docs/decisions/2026-12-06-fe-krylov-stale-factors.md.
+DEFAULT_ENGINE = os.environ.get("TENSORTOUCH_FE_ENGINE", "pardiso-krylov")
 # An increment's Newton matrix leaves out the normal penalty's curvature term (tools.fe.contact,
 # `normal_curvature`) until a step has moved no node more than this fraction of the top mesh size (the
 # convergence test's own step bound); the exact tangent then finishes the increment quadratically.
