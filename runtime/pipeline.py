@@ -222,7 +222,7 @@ class SensorPipeline:
         timings["preprocess"] = (t1 - t0) * 1e3
         flags = self._health(frame)
         band = force_band(self._last_force, self.cfg.baseline)
-        step = self.baseline.update(img, self._last_force, t)
+        step = self.baseline.update(img, self._last_force, t, owned=True)   # img is this frame's own array
         t2 = time.perf_counter()
         timings["baseline"] = (t2 - t1) * 1e3
         self.seq += 1

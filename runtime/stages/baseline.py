@@ -160,15 +160,18 @@ class BaselineTracker:
         return float(np.dot(d, d)) / d.size * self.config.pixel_scale ** 2
 
     # -- per frame -------------------------------------------------------------------------
-    def update(self, image: np.ndarray, force_n: float | None, t: float) -> BaselineUpdate:
+    def update(self, image: np.ndarray, force_n: float | None, t: float, *, owned: bool = False) -> BaselineUpdate:
         """Advance one frame. `image`: preprocessed (e.g. (3, S, S) float32 in [0, 1]); `force_n`:
-        the latest force magnitude estimate in N or None; `t`: frame time in s."""
+        the latest force magnitude estimate in N or None; `t`: frame time in s. The tracker keeps images
+        (previous frame, baseline, settling anchor), so it copies `image` unless `owned`: the caller hands
+        over a fresh array it never writes to again (the pipeline's preprocessed frame)."""
         if self._previous is not None and image.shape != self._previous.shape:
             raise TensorTouchError(f"BaselineTracker: image shape {image.shape} differs from earlier "
                                    f"frames {self._previous.shape}; call reset() after changing the model size")
         if force_n is not None and not math.isfinite(force_n):
             force_n = None
-        image = np.array(image, copy=True)  # the caller may reuse its buffer
+        if not owned:
+            image = np.array(image, copy=True)  # the caller may reuse its buffer
         m_prev = self.mse(image, self._previous) if self._previous is not None else math.nan
         before = self.state
         if before is BaselineState.STARTUP:
