@@ -118,6 +118,27 @@ def apply_correction(clusters: list[Cluster], correction: ForceCorrection, cal: 
             c.force_mag_n = float(np.linalg.norm(f))
 
 
+def wrench_sum(clusters: list[Cluster]) -> tuple[np.ndarray, np.ndarray]:
+    """Total force (3,) N and torque about the gel origin (3,) N*mm of clusters: Σ f and Σ p × f, in cluster
+    order, in float64. Plain float arithmetic in np.cross's order (a1·b2 − a2·b1, a2·b0 − a0·b2,
+    a0·b1 − a1·b0, each product rounded), so the same bits as `force += f; torque += np.cross(p, f)` from
+    zeros, without numpy's per-call overhead; a cluster holding other number types (e.g. float32) takes
+    that numpy way."""
+    fx = fy = fz = tx = ty = tz = 0.0
+    for c in clusters:
+        p, f = c.position_mm, c.force_n
+        if len(p) == len(f) == 3 and all(isinstance(v, float) for v in (*p, *f)):
+            (p0, p1, p2), (f0, f1, f2) = p, f
+            fx, fy, fz = fx + f0, fy + f1, fz + f2
+            tx, ty, tz = tx + (p1 * f2 - p2 * f1), ty + (p2 * f0 - p0 * f2), tz + (p0 * f1 - p1 * f0)
+        else:
+            force, torque = np.array([fx, fy, fz]), np.array([tx, ty, tz])
+            force += f
+            torque += np.cross(p, f)
+            (fx, fy, fz), (tx, ty, tz) = force.tolist(), torque.tolist()
+    return np.array([fx, fy, fz]), np.array([tx, ty, tz])
+
+
 def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, correction: ForceCorrection,
                     cal: Calibration, timings: dict | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
     """The pipeline's last steps on one frame's clusters (forces changed in place): the enabled
@@ -127,11 +148,7 @@ def finish_clusters(clusters: list[Cluster], t: float, effects: EffectStage, cor
     flags = effects.apply(clusters, t)
     t1 = time.perf_counter()
     apply_correction(clusters, correction, cal)
-    force = np.zeros(3)
-    torque = np.zeros(3)
-    for c in clusters:
-        force += c.force_n
-        torque += np.cross(c.position_mm, c.force_n)
+    force, torque = wrench_sum(clusters)
     if timings is not None:
         timings["effects"] = (t1 - t0) * 1e3
         timings["correction"] = (time.perf_counter() - t1) * 1e3

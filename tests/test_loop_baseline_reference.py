@@ -78,3 +78,46 @@ def test_baseline_copies_a_frame_it_does_not_own():
     mine = np.full((3, 4, 4), 0.7, np.float32)
     tr.update(mine, None, 0.2, owned=True)
     assert tr._previous is mine                                   # handed over: kept as it is
+
+
+def _plain_wrench(clusters):
+    force, torque = np.zeros(3), np.zeros(3)
+    for c in clusters:
+        force += c.force_n
+        torque += np.cross(c.position_mm, c.force_n)
+    return force, torque
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_wrench_sum_same_bits_as_numpy_cross(seed):
+    from types import SimpleNamespace
+
+    from tensortouch.runtime.pipeline import wrench_sum
+
+    rng = np.random.default_rng(seed)
+    kinds = [float, np.float64, np.float32, int] if seed % 2 else [float]
+
+    def vec():
+        kind = kinds[rng.integers(len(kinds))]
+        v = rng.standard_normal(3) * 10.0 ** rng.integers(-8, 8, 3)
+        v[rng.random(3) < 0.1] = -0.0
+        return tuple(kind(round(x)) if kind is int else kind(x) for x in v)
+
+    for n in (0, 1, 2, 7, 40):
+        cl = [SimpleNamespace(position_mm=vec(), force_n=vec()) for _ in range(n)]
+        got, ref = wrench_sum(cl), _plain_wrench(cl)
+        for g, r in zip(got, ref):
+            assert g.dtype == r.dtype == np.float64 and g.shape == (3,)
+            assert g.tobytes() == r.tobytes()
+
+
+def test_wrench_sum_hand_worked():
+    from types import SimpleNamespace
+
+    from tensortouch.runtime.pipeline import wrench_sum
+
+    cl = [SimpleNamespace(position_mm=(1.0, 0.0, 0.0), force_n=(0.0, 2.0, 0.0)),
+          SimpleNamespace(position_mm=(0.0, 0.0, 3.0), force_n=(1.0, 0.0, -1.0))]
+    f, t = wrench_sum(cl)
+    assert f.tolist() == [1.0, 2.0, -1.0]
+    assert t.tolist() == [0.0, 3.0, 2.0]          # (1,0,0)×(0,2,0) = (0,0,2); (0,0,3)×(1,0,-1) = (0,3,0)
