@@ -101,6 +101,22 @@ def test_shared_model_session_and_independent_baselines(rig):
         hand.stop()
 
 
+def test_starting_a_hand_sets_opencv_threads_for_the_process(rig):
+    import cv2
+
+    tmp, pkg, videos = rig
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        hand = Hand(hand_cfg(tmp, pkg, {SERIALS[0]: f"file:{videos[SERIALS[0]]}"}, opencv_threads=1)).start()
+        try:
+            assert cv2.getNumThreads() == 1
+        finally:
+            hand.stop()
+    finally:
+        cv2.setNumThreads(before)
+
+
 def test_finite_replays_end_and_cli_runs(rig, capsys):
     import argparse
 

@@ -50,6 +50,7 @@ can_slot = 3
     ({"finger": [{"name": "a", "serial": "bad/id"}]}, "sensor id"),
     ({"hand": {"precison": "int8"}, "finger": [{"name": "a", "serial": "S1"}]}, "unknown key 'precison'"),
     ({"can": {"id_base": 0x7FF}, "finger": [{"name": "a", "serial": "S1"}]}, "11-bit"),
+    ({"hand": {"opencv_threads": 0}, "finger": [{"name": "a", "serial": "S1"}]}, "opencv_threads"),
     ({"finger": [{"name": "a", "serial": "S1", "can_slot": 1}, {"name": "b", "serial": "S2"}]}, "collide"),
 ])
 def test_config_errors_name_the_problem(doc, match):

@@ -252,6 +252,9 @@ class Hand:
 
     # ------------------------------------------------------------------ lifetime
     def start(self) -> "Hand":
+        import cv2
+
+        cv2.setNumThreads(self.cfg.opencv_threads)     # process-wide, as `tensortouch run` sets it for one sensor
         if self.can is not None:
             self.can.start()
         for f in self.fingers.values():

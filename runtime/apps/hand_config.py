@@ -5,6 +5,7 @@
     model = "tt-hiera-128"            # package name in exported_models/ or a path (default: newest)
     precision = "int8"
     share_model = false               # true: one onnxruntime session for every finger
+    opencv_threads = 1                # OpenCV's threads for the whole process (the fingers are the parallelism)
     inference_workers = 2             # fingers running inference at the same time (0: no limit)
     calibration_store = "calibration_store"   # relative paths are relative to this file
 
@@ -84,6 +85,9 @@ class HandConfig:
     model: str | None = None
     precision: str = "int8"
     threads: int = 1                   # onnxruntime intra-op threads per session
+    opencv_threads: int = 1            # OpenCV's worker threads for the whole process (cv2.setNumThreads), set when the
+                                       # hand starts: the fingers' threads are the parallelism; OpenCV's pool beside
+                                       # them cost ~12 % more CPU in a 5-finger soak (docs/hand.md)
     share_model: bool = False          # measured: no consistent speed difference; shared saves ~7 MB/finger
     inference_workers: int = field(default_factory=lambda: os.cpu_count() or 2)
     calibration_store: str | None = None
@@ -111,7 +115,7 @@ class HandConfig:
 # field types come from the dataclasses themselves (FingerConfig, HandConfig, CanConfig, Ros2Config).
 LIMITS = {
     FingerConfig: {"can_slot": Range(-1, 255)},
-    HandConfig: {"threads": Range(1, 256), "inference_workers": Range(0, 256),
+    HandConfig: {"threads": Range(1, 256), "opencv_threads": Range(1, 256), "inference_workers": Range(0, 256),
                  "max_camera_failures": Range(1, 1_000_000), "reconnect_s": Range(0, 3600, lo_open=True),
                  "offline_after_s": Range(0, 86_400), "status_every_s": Range(0, 3600, lo_open=True),
                  "model_poll_s": Range(0, 3600, lo_open=True), "precision": ("int8", "fp32")},
