@@ -58,6 +58,19 @@ def test_cli_arguments():
     assert a.model is None and a.size is None and a.soak_mode == "separate" and a.sensors == 4
     a = _args(["--model", "hiera-qup-128", "--soak", "60", "--soak-fps", "30", "--soak-mode", "shared"])
     assert a.model == "hiera-qup-128" and a.soak == 60 and a.soak_fps == 30 and a.soak_mode == "shared"
+    assert a.source == "synthetic" and _args(["--source", "demo"]).source == "demo"
+
+
+def test_setup_demo_source_replays_the_demo_through_each_sensors_copy_of_its_calibration(tmp_path):
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.tools.bench import hand_bench
+    from tensortouch.tools.bench.runtime_bench import demo_size
+
+    size = demo_size()
+    pkg, synthetic, videos, serials = hand_bench._setup(tmp_path, 3, "synthetic", size, source="demo")
+    assert synthetic and serials == ["bench-0", "bench-1", "bench-2"] and len(set(videos)) == 1
+    assert videos[0].is_file()
+    assert all(CalibrationStore(tmp_path / "store").load(s).model_size == (size, size) for s in serials)
 
 
 @pytest.mark.slow

@@ -161,3 +161,45 @@ def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
     for name in ("contacts", "fields_encoding"):
         assert st[name]["previous_ms"] > 0 and st[name]["current_ms"] > 0 and st[name]["ratio"] > 0
     assert "changed stages, previous → current core" in out
+
+
+def test_bench_runtime_on_the_demo_recording_uses_its_unit_calibration(tmp_path, capsys):
+    """`bench runtime --source demo`: the shipped demo recording through a copy of its unit's calibration
+    (a tiny package at the demo's size; real capture, Zenoh loopback); the demo at another size is refused."""
+    import argparse
+
+    from tensortouch.contracts.errors import CalibrationError
+    from tensortouch.tools.bench.runtime_bench import add_arguments, demo_inputs, demo_size, run
+
+    size = demo_size()
+    pkg = write_package(tmp_path / "tiny", size=size, width=4, depth=2)
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args(["--source", "demo", "--package", str(pkg), "--frames", "8", "--chunk", "4", "--json"])
+    assert args.sizes is None
+    assert run(args) == 0
+    out = capsys.readouterr().out
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["source"] == "demo" and summary["config"] == f"{size}/int8"
+    assert set(summary["results"]) == {f"{size}/fp32", f"{size}/int8"}
+    assert all(r["frames"] == 8 for r in summary["results"].values())
+    assert "the shipped demo recording" in out
+    with pytest.raises(CalibrationError, match="expected the package.s 32x32"):
+        demo_inputs(tmp_path / "store", ["bench-0"], 32)
+
+
+def test_demo_inputs_copy_the_demo_tables_under_each_sensor_id(tmp_path):
+    from tensortouch.contracts import paths
+    from tensortouch.contracts.session import load_session
+    from tensortouch.contracts.store import TABLES, CalibrationStore
+    from tensortouch.tools.bench.runtime_bench import demo_inputs, demo_size
+
+    video = demo_inputs(tmp_path, ["f0", "f1"], demo_size())
+    session = load_session(paths.demo_dir())
+    assert video == session.image_source()[1] and video.is_file()
+    demo = CalibrationStore().load(session.sensor_id)
+    for serial in ("f0", "f1"):
+        cal = CalibrationStore(tmp_path).load(serial)
+        assert cal.model_size == demo.model_size and cal.gel_center_px == demo.gel_center_px
+        for k in TABLES:
+            np.testing.assert_array_equal(getattr(cal, k), getattr(demo, k))

@@ -72,17 +72,23 @@ def resolve_model(model: str | None, size: int | None, work: Path):
     return load_package(folder), True
 
 
-def _setup(work: Path, n: int, model: str | None, size: int | None, width: int = 320, height: int = 240):
-    from .runtime_bench import _calibration, synthetic_frames, write_video
+def _setup(work: Path, n: int, model: str | None, size: int | None, width: int = 320, height: int = 240,
+           source: str = "synthetic"):
+    """(package, synthetic?, one video per sensor, sensor ids) with each sensor's calibration in
+    `work`/store: synthetic frames (a different seed per sensor) through a nominal calibration, or every
+    sensor replaying the shipped demo recording through a copy of the demo unit's calibration."""
+    from .runtime_bench import _calibration, demo_inputs, synthetic_frames, write_video
 
     pkg, synthetic = resolve_model(model, size, work)
     size = pkg.size[0]
-    videos, serials = [], []
-    for i in range(n):
-        serial = f"bench-{i}"
+    serials = [f"bench-{i}" for i in range(n)]
+    if source == "demo":
+        video = demo_inputs(work / "store", serials, size)
+        return pkg, synthetic, [video] * n, serials
+    videos = []
+    for i, serial in enumerate(serials):
         videos.append(write_video(synthetic_frames(120, width, height, seed=i), work / f"{serial}.avi"))
         _calibration(work / "store", serial, size, width, height)
-        serials.append(serial)
     return pkg, synthetic, videos, serials
 
 
@@ -321,12 +327,13 @@ def run(args) -> int:
     workers = args.workers or os.cpu_count() or 2
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        pkg, synthetic, videos, serials = _setup(work, args.sensors, args.model, args.size)
+        pkg, synthetic, videos, serials = _setup(work, args.sensors, args.model, args.size, source=args.source)
         params = pkg.manifest.get("metrics", {}).get("params")
         tag = " (synthetic weights, timing only)" if synthetic else ""
         print(f"hand benchmark — {args.sensors} replayed sensors in one process, model {pkg.name}{tag}, "
               f"params {params}, {args.precision}, {pkg.size[0]}², cpu count {os.cpu_count()}, inference gate "
-              f"{workers}; capture = MJPG 320x240 decode, publish = Zenoh loopback with a counting subscriber")
+              f"{workers}; frames: {'the shipped demo recording' if args.source == 'demo' else 'synthetic'}, "
+              "capture = MJPG 320x240 decode, publish = Zenoh loopback with a counting subscriber")
         results = {}
         if not args.soak_only:
             modes = [m.strip() for m in args.modes.split(",")]
@@ -344,7 +351,7 @@ def run(args) -> int:
                       f"{r['cpu_ms_per_frame']:.1f} CPU-ms per frame)")
         summary = {"sensors": args.sensors, "model": pkg.name, "model_folder": str(pkg.folder),
                    "size": pkg.size[0], "precision": args.precision, "synthetic_weights": synthetic,
-                   "params": params, "modes": results}
+                   "params": params, "source": args.source, "modes": results}
         if args.soak:
             camera = {"realtime": True, "loop": True, "fps": args.soak_fps}
             share, gate = MODES[args.soak_mode]
@@ -373,6 +380,9 @@ def add_arguments(p) -> None:
                    help=f"input size of the synthetic net (default {DEFAULT_SYNTHETIC_SIZE}); with a package: "
                         "must match it")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision")
+    p.add_argument("--source", choices=("synthetic", "demo"), default="synthetic",
+                   help="frames: synthetic (a blob pressing in every frame, one seed per sensor) or demo (every "
+                        "sensor replays the shipped demo recording through its unit's calibration)")
     p.add_argument("--seconds", type=float, default=20.0, help="timed seconds per mode")
     p.add_argument("--warmup", type=float, default=5.0, help="seconds before timing (baseline startup)")
     p.add_argument("--workers", type=int, default=0, help="inference gate (default: cpu count)")

@@ -3,7 +3,11 @@
 Per configuration (model size × precision): frames are decoded from an MJPG video (real OpenCV
 capture), run through `SensorPipeline` (the exact deploy code) and published over a real Zenoh
 session on loopback; per-stage and end-to-end p50/p99 latency, frames/s and CPU time per frame
-(the main thread's; with one onnxruntime thread inference runs on it) are printed. Configurations
+(the main thread's; with one onnxruntime thread inference runs on it) are printed. `--source`
+chooses the frames: `synthetic` (default; a drawn gel with a blob pressing and sliding in every
+frame, the same at every size, but no trained network has seen such frames) or `demo` (the shipped
+demo recording, twin frames of one unit with rest and contact, through that unit's calibration;
+packages at its model size only). Configurations
 run in alternating chunks so that load from other processes hits them alike. The network is the
 shipped model when one is installed at that size, else a synthetic ~2.2 M-parameter conv U-Net
 with a 4×4 patch stem (random weights: timing only — said in the output). Shipped packages are
@@ -74,6 +78,43 @@ def _calibration(root: Path, sensor: str, size: int, width: int, height: int):
     store = CalibrationStore(root)
     store.write(sensor, tables, meta)
     return store.load(sensor)
+
+
+SOURCES = ("synthetic", "demo")
+
+
+def demo_size() -> int:
+    """The model size of the demo unit's active calibration (what `--source demo` runs at)."""
+    from ...contracts import paths
+    from ...contracts.session import load_session
+    from ...contracts.store import CalibrationStore
+
+    return CalibrationStore().load(load_session(paths.demo_dir()).sensor_id).model_size[0]
+
+
+def demo_inputs(work: Path, serials: list[str], size: int) -> Path:
+    """The shipped demo recording's video, and its unit's active calibration written under each of
+    `serials` in the store at `work` (one sensor id per loop, as the hand needs). Raises CalibrationError
+    when that calibration's model size is not `size`."""
+    from ...contracts import paths
+    from ...contracts.errors import CalibrationError
+    from ...contracts.session import load_session
+    from ...contracts.store import TABLES, CalibrationStore
+
+    session = load_session(paths.demo_dir())
+    kind, video = session.image_source()
+    if kind != "video":
+        raise CalibrationError(f"{paths.demo_dir() / 'session.json'}: streams.frames is {kind}, expected a video")
+    cal = CalibrationStore().load(session.sensor_id)
+    if cal.model_size != (size, size):
+        raise CalibrationError(f"--source demo: the demo unit {session.sensor_id}'s calibration {cal.folder} is at "
+                               f"{cal.model_size[0]}x{cal.model_size[1]}, expected the package's {size}x{size}")
+    meta = {k: v for k, v in cal.meta.items() if k in ("camera", "gel_center_px", "gel_radius_px", "model_size")}
+    meta["provenance"] = {"method": f"copy of {session.sensor_id}/{cal.version} (benchmark)"}
+    store = CalibrationStore(work)
+    for serial in serials:
+        store.write(serial, {k: getattr(cal, k) for k in TABLES}, meta)
+    return Path(video)
 
 
 def _package_for(size: int, work: Path):
@@ -259,19 +300,34 @@ def run(args) -> int:
 
     cv2.setNumThreads(1)           # as `tensortouch run` does: one core for the whole sensor loop
 
-    sizes = [int(s) for s in args.sizes.split(",")]
+    if args.sizes is None:
+        sizes = [demo_size()] if args.source == "demo" else [96, 128]
+    else:
+        sizes = [int(s) for s in args.sizes.split(",")]
     results, notes, stages, tags = {}, [], {}, {}
     named = _named_packages(args.package or [], sizes)
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        frames = synthetic_frames(120)
-        video = write_video(frames, work / "bench.avi")
-        h, w = frames[0].shape[:2]
+        if args.source == "demo":
+            from ...contracts.errors import CommandError
+            from ...contracts.store import CalibrationStore
+
+            if len(sizes) != 1:
+                raise CommandError(f"--source demo: one model size (the demo unit's), got --sizes {args.sizes}")
+            video = demo_inputs(work / "demo", ["bench-0"], sizes[0])
+            cap = cv2.VideoCapture(str(video))
+            w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+            cap.release()
+        else:
+            frames = synthetic_frames(120)
+            video = write_video(frames, work / "bench.avi")
+            h, w = frames[0].shape[:2]
         with Publisher("bench-0", listen=["tcp/127.0.0.1:0"]) as pub:
             for size in sizes:
                 chosen = [(p, False) for p in named if p.size == (size, size)] if named else [_package_for(size, work)]
-                cal = _calibration(work / f"cal{size}", "bench-0", size, w, h)
+                cal = (CalibrationStore(work / "demo").load("bench-0") if args.source == "demo"
+                       else _calibration(work / f"cal{size}", "bench-0", size, w, h))
                 configs, meta = {}, {}
                 for i, (pkg, synthetic) in enumerate(chosen):
                     tag = f"{size}" if i == 0 else f"{size}/{pkg.name}"
@@ -300,7 +356,9 @@ def run(args) -> int:
                     results[key] = {**c.result(), "model": pkg.name, "synthetic": synthetic,
                                     "params": pkg.manifest.get("metrics", {}).get("params")}
     load_after = os.getloadavg()
-    print(f"runtime benchmark — {args.frames} frames per config (interleaved in chunks of {args.chunk}), "
+    frames_are = ("the shipped demo recording (twin frames, rest and contact) through its unit's calibration"
+                  if args.source == "demo" else "synthetic gel frames, a blob pressing and sliding in every frame")
+    print(f"runtime benchmark — {args.frames} frames per config (interleaved in chunks of {args.chunk}) of {frames_are}, "
           f"{args.threads} onnxruntime thread(s), OpenCV 1 thread, capture = MJPG {w}x{h} decode, publish = Zenoh loopback; "
           f"cpu count {os.cpu_count()}, load average {load_before[0]:.2f} → {load_after[0]:.2f}")
     for note in notes:
@@ -356,7 +414,7 @@ def run(args) -> int:
     summary = {"config": shipped, "end_to_end_hz": round(results[shipped]["hz"], 2),
                "p99_ms": results[shipped]["stages"]["end_to_end"]["p99_ms"],
                "cpu_ms_per_frame": round(results[shipped]["cpu_ms_per_frame"], 3),
-               "synthetic_weights": results[shipped]["synthetic"], "load_average": [load_before[0], load_after[0]],
+               "synthetic_weights": results[shipped]["synthetic"], "source": args.source, "load_average": [load_before[0], load_after[0]],
                "fp32_source": notes, "results": results, "stages_previous_vs_current": stages}
     if args.json:
         print(json.dumps(summary))
@@ -376,7 +434,8 @@ def _named_packages(names: list[str], sizes: list[int]) -> list:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--sizes", default="96,128", help="model input sizes, comma separated")
+    p.add_argument("--sizes", default=None,
+                   help="model input sizes, comma separated (default 96,128; with --source demo the demo unit's)")
     p.add_argument("--package", action="append", metavar="NAME|DIR",
                    help="run this model package (repeat: side by side in one run, ratios against the first); "
                         "default: the installed package at each size, else a synthetic net")
@@ -385,4 +444,7 @@ def add_arguments(p) -> None:
     p.add_argument("--chunk", type=int, default=25, help="frames per turn when alternating configurations")
     p.add_argument("--fields-every", type=int, default=1,
                    help="also run int8 publishing fields every N-th frame only (LoopConfig.fields_every)")
+    p.add_argument("--source", choices=SOURCES, default="synthetic",
+                   help="frames: synthetic (a blob pressing in every frame, any size) or demo (the shipped demo "
+                        "recording through its unit's calibration, looped; its model size only)")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
