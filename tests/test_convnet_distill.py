@@ -107,3 +107,72 @@ def test_teacher_targets_feed_the_teacher_inputs_in_0_1_one_frame_at_a_time():
         teacher_targets(teacher, inp.astype(np.float32))
     with pytest.raises(ValueError, match="teacher gave"):
         teacher_targets(lambda x: np.zeros((1, 14, 4, 4), np.float32), inp)
+
+
+def test_measured_total_sums_the_indenters_at_the_picked_frames():
+    from tensortouch.tools.train.distill import measured_total
+
+    meas = {0: {"force": np.array([[0.0, 0, -1], [0, 0, -2], [0.5, 0, -3]])},
+            3: {"force": np.array([[0.0, 0, 0], [0, 1, -1], [0, 0, 0]])}}
+    got = measured_total(meas, [2, 1, 1])
+    assert got.dtype == np.float32 and got.shape == (3, 3)
+    assert got.tolist() == [[0.5, 0, -3], [0, 1, -3], [0, 1, -3]]
+    assert measured_total(meas, []).shape == (0, 3)
+    with pytest.raises(ValueError, match="outside 0..2"):
+        measured_total(meas, [3])
+    with pytest.raises(ValueError, match="no indenter"):
+        measured_total({}, [0])
+
+
+def test_measured_force_error_is_the_total_force_against_the_rig():
+    import torch
+    from tensortouch.tools.train.model.train import measured_force_error
+
+    scale = torch.full((6, 8, 8), 0.25)               # span 1 MPa per normalized unit × 0.25 mm² per pixel
+    zero = torch.full((1, 15, 1, 1), 0.5)
+    p = torch.full((2, 15, 8, 8), 0.5)
+    p[0, 11, :2, :2] -= 0.4                           # fn_z: 4 px × −0.4 MPa × 0.25 mm² = −0.4 N
+    p[0, 12, 0, 0] += 0.8                             # fs_x: 0.2 N
+    p[1, 9] += 0.01                                   # fn_x 0.16 N over the frame, cancelled by fs_x
+    p[1, 12] -= 0.01
+    measured = torch.tensor([[0.2, 0.0, -0.1], [0.0, 0.3, -0.4]])
+    err = measured_force_error(p, zero, scale, measured)
+    assert err[0].item() == pytest.approx(0.3, rel=1e-5)          # (0.2, 0, −0.4) vs (0.2, 0, −0.1)
+    assert err[1].item() == pytest.approx(0.5, rel=1e-5)          # (0, 0, 0) vs (0, 0.3, −0.4)
+    with pytest.raises(ValueError, match="measured"):
+        measured_force_error(p, zero, scale, measured[:1])
+    with pytest.raises(ValueError, match="scale"):
+        measured_force_error(p, zero, scale[:, :4], measured)
+
+
+def test_fit_holds_the_total_force_to_the_measured_one(tmp_path):
+    """A distilled dataset keeps each sample's measured force (index `force_n`); the fit reads it with the
+    term on, and says which file lacks it when a dataset has none."""
+    import torch
+    from tensortouch.tools.train.dataset import write_dataset
+    from tensortouch.tools.train.model.data import DatasetError, load_measured, load_split
+    from tensortouch.tools.train.model.train import FitConfig, fit
+
+    rng = np.random.default_rng(0)
+    n, S = 12, 32
+    bounds = {c: [-1.0, 1.0] for c in __import__("tensortouch.contracts.fields", fromlist=["CHANNELS"]).CHANNELS}
+    part = {"input": rng.integers(0, 255, (n, 6, S, S), dtype=np.uint8),
+            "target": np.full((n, 15, S, S), 0.5, np.float32), "val": np.arange(n) >= 9,
+            "force_n": np.stack([np.zeros(n), np.zeros(n), -np.linspace(0, 2, n)], 1)}
+    data = tmp_path / "ds"
+    write_dataset(data, [part], S, "test", pixel_area=np.full((S, S), 0.05, np.float32), bounds=bounds,
+                  compress=False)
+    got = load_measured(data, "train")
+    assert got.shape == (9, 3) and got[:, 2].tolist() == pytest.approx((-np.linspace(0, 2, n)[:9]).tolist())
+    assert len(load_split(data, "train")[0]) == len(got)
+    cfg = FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, fg_weight=5.0, measured_force_weight=0.5)
+    fit(data, tmp_path / "run", cfg)
+    fit(data, tmp_path / "off", FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, fg_weight=5.0))
+    a = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["model"]
+    b = torch.load(tmp_path / "off" / "checkpoint.pt", weights_only=False)["model"]
+    assert any(not torch.equal(a[k], b[k]) for k in a)       # the term moved the weights (same seed and batches)
+    del part["force_n"]
+    write_dataset(tmp_path / "plain", [part], S, "test", pixel_area=np.full((S, S), 0.05, np.float32),
+                  bounds=bounds, compress=False)
+    with pytest.raises(DatasetError, match="000000.npz has no measured force"):
+        fit(tmp_path / "plain", tmp_path / "run2", cfg)

@@ -8,7 +8,11 @@ the runtime's Preprocessor at the unit's calibrated rim and, `copies` more times
 lens). The teacher labels every crop it is shown, so the jittered samples stay consistent; its outputs
 are already min/max-normalized with its manifest's bounds, which become the dataset's bounds.
 
-Pure cores: `jittered_circles`, `teacher_targets`. Shell: `distill_session`, `write_distilled`.
+Each sample also keeps what the rig measured at its frame: the indenters' total force on the gel (F/T,
+`measured_total`), which a fit can hold the student's total force to (FitConfig.measured_force_weight),
+so it need not inherit the teacher's force errors.
+
+Pure cores: `jittered_circles`, `teacher_targets`, `measured_total`. Shell: `distill_session`, `write_distilled`.
 """
 from __future__ import annotations
 
@@ -59,13 +63,30 @@ def teacher_targets(run, inputs: np.ndarray) -> np.ndarray:
     return y
 
 
+def measured_total(measured: dict[int, dict], frames: np.ndarray) -> np.ndarray:
+    """(n, 3) N: the total force the indenters apply to the gel at `frames` (indices into the times
+    `measured` was taken at), from `tools.scoring.measured_at`'s {id: {"force" (T, 3)}}: what the rig's
+    F/T sensors read, summed, in the sensor frame and the runtime's sign."""
+    frames = np.asarray(frames, int)
+    if not measured:
+        raise ValueError("measured_total: no indenter was measured")
+    total = sum(np.asarray(v["force"], float) for v in measured.values())
+    if total.ndim != 2 or total.shape[1] != 3:
+        raise ValueError(f"measured_total: expected (T, 3) forces, got {total.shape}")
+    if len(frames) and (frames.min() < 0 or frames.max() >= len(total)):
+        raise ValueError(f"measured_total: frame indices {frames.min()}..{frames.max()} outside 0..{len(total) - 1}")
+    return total[frames].astype(np.float32)
+
+
 def distill_session(session_dir: Path, calibration, run, cfg: DistillConfig, select_cfg, progress=None) -> dict:
     """One session's samples: {'input' (n,6,S,S) u8, 'target' (n,15,S,S) normalized, 'frame', 'baseline',
-    'poke', 'copy' (n,)}; frames picked by `dataset.select_frames(select_cfg)` from truth/frames.csv."""
+    'poke', 'copy' (n,), 'force_n' (n, 3): the rig's measured total force at the frame (`measured_total`)};
+    frames picked by `dataset.select_frames(select_cfg)` from truth/frames.csv."""
     import cv2
 
     from ...contracts.session import load_session, read_table
     from ...runtime.stages.preprocess import Preprocessor
+    from ..scoring import measured_at
     from ..sessions.writer import read_frames
     from .dataset import select_frames
 
@@ -87,8 +108,9 @@ def distill_session(session_dir: Path, calibration, run, cfg: DistillConfig, sel
             progress(n + 1, len(picks))
     x = np.stack(inputs).astype(np.uint8) if inputs else np.zeros((0, 6) + tuple(S), np.uint8)
     arr = np.array(rows, int).reshape(-1, 4)
+    force = measured_total(measured_at(ses, ses.table("frames")[:, 0]), arr[:, 0])
     return {"input": x, "target": teacher_targets(run, x), "frame": arr[:, 0], "baseline": arr[:, 1],
-            "poke": arr[:, 2], "copy": arr[:, 3]}
+            "poke": arr[:, 2], "copy": arr[:, 3], "force_n": force}
 
 
 def teacher_bounds(package: Path) -> dict:

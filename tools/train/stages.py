@@ -304,7 +304,8 @@ def stage_fit(b) -> dict:
     res = fit(b.dataset, fit_dir(b),
               FitConfig(arch=b.cfg.arch, epochs=b.cfg.epochs, batch_size=b.cfg.batch, lr=b.cfg.lr,
                         threads=b.cfg.threads, fg_weight=b.cfg.fg_weight, force_weight=b.cfg.force_weight,
-                        light_weight=b.cfg.light_weight, pixel_force_weight=b.cfg.pixel_force_weight, seed=b.cfg.fit_seed,
+                        light_weight=b.cfg.light_weight, pixel_force_weight=b.cfg.pixel_force_weight,
+                        measured_force_weight=b.cfg.measured_force_weight, seed=b.cfg.fit_seed,
                         photometric=b.cfg.photometric, crop_scale_jitter=scale_jitter, crop_shift=shift,
                         init_from=b.cfg.init_from, init_bounds=b.cfg.init_bounds, device=b.cfg.device),
               encoder_init=enc if (b.cfg.pretrain_epochs > 0 and enc.is_file() and b.cfg.arch == "hiera_qup") else None)

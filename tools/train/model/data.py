@@ -118,6 +118,21 @@ def load_split(root: str | Path, split: str | None = None, limit: int | None = N
     return x, y
 
 
+def load_measured(root: str | Path, split: str | None = None, limit: int | None = None) -> np.ndarray:
+    """(N, 3) float32: the rig's measured total force (N) of a split's samples, in `load_split`'s order
+    (index entries' `force_n`, written by a distilled dataset); DatasetError when a sample has none."""
+    doc = read_index(root)
+    entries = [e for e in doc["samples"] if split is None or e.get("split") == split][:limit]
+    out = np.empty((len(entries), 3), np.float32)
+    for i, e in enumerate(entries):
+        f = e.get("force_n")
+        if not (isinstance(f, list) and len(f) == 3 and all(isinstance(v, (int, float)) and np.isfinite(v) for v in f)):
+            raise DatasetError(f"{Path(root) / 'index.json'}: sample {e.get('file')} has no measured force "
+                               "(force_n: 3 finite numbers); rebuild the dataset (a distilled build records it)")
+        out[i] = f
+    return out
+
+
 # ---------------------------------------------------------------- synthetic fields (not physics)
 
 def _baseline(size: int, rng: np.random.Generator) -> np.ndarray:

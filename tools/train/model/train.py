@@ -26,7 +26,7 @@ import torch
 
 from ....contracts.files import atomic_write, atomic_write_json
 from . import build_model
-from .data import DatasetError, load_split, read_index
+from .data import DatasetError, load_measured, load_split, read_index
 from .device import Precision, cpu_state, resolve_device
 from .metrics import evaluate
 
@@ -76,6 +76,11 @@ class FitConfig(LoopConfig):
     # cluster core on every rest frame. 0 = off. Needs pixel_area.npy, as force_weight.
     pixel_force_weight: float = 0.0
     pixel_force_tol_n: float = 0.0005
+    # Measured-force term: weight (per N) of |Σ_pixels pred·pixel_area − F_measured|, the predicted total contact
+    # force (fn + fs, as the runtime integrates it) against what the rig's F/T sensors read at the sample's frame
+    # (the dataset's `force_n`, tools/train/distill.py). A distilled student otherwise learns the teacher's force
+    # errors along with its fields. 0 = off. Needs pixel_area.npy and `force_n` on every sample.
+    measured_force_weight: float = 0.0
     light_ref_n: float = 1.0
     light_max: float = 3.0
     light_min_n: float = 0.05
@@ -186,8 +191,9 @@ def train_config(cfg: LoopConfig, what: str, previous: dict | None, place: dict,
 
 
 def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, what: str, on_epoch=None,
-          state_extra=None, config_extra: dict | None = None) -> dict:
-    """Shared epoch/step loop with checkpoint + resume. loss_fn(model, xb, yb) -> scalar tensor."""
+          state_extra=None, config_extra: dict | None = None, aux_all: np.ndarray | None = None) -> dict:
+    """Shared epoch/step loop with checkpoint + resume. loss_fn(model, xb, yb) -> scalar tensor, or
+    loss_fn(model, xb, yb, aux) with `aux_all` (N, ...) per-sample values batched alongside."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     device = resolve_device(cfg.device)
@@ -204,7 +210,7 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, 
     config = {"what": what, **asdict(cfg), "n_train": n}
     for k in RUN_PLACE_KEYS:
         config.pop(k, None)
-    for k in ("init_bounds", "photometric", "crop_scale_jitter", "crop_shift"):   # runs made before these options existed resume unchanged
+    for k in ("init_bounds", "photometric", "crop_scale_jitter", "crop_shift", "measured_force_weight"):   # runs made before these options existed resume unchanged
         if k in config and not config[k]:
             config.pop(k)
     ckpt = _prepare_run(out, config)
@@ -246,7 +252,10 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, 
             yb = None if y_all is None else torch.from_numpy(np.asarray(y_all[idx], dtype=np.float32)).to(device)
             opt.zero_grad(set_to_none=True)
             with precision.autocast():
-                loss = loss_fn(model, xb, yb)
+                if aux_all is None:
+                    loss = loss_fn(model, xb, yb)
+                else:
+                    loss = loss_fn(model, xb, yb, torch.from_numpy(np.asarray(aux_all[idx], np.float32)).to(device))
             precision.step(loss.float(), opt)
             step += 1
             losses.append(loss.item())
@@ -372,10 +381,14 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     zero = y_zero if cfg.fg_weight > 0 else None
 
     force_scale = None
-    if cfg.force_weight > 0 or cfg.light_weight > 0 or cfg.pixel_force_weight > 0:
+    if cfg.force_weight > 0 or cfg.light_weight > 0 or cfg.pixel_force_weight > 0 or cfg.measured_force_weight > 0:
         force_scale = _force_scale(data, bounds).to(device)
+    measured = load_measured(data, "train") if cfg.measured_force_weight > 0 else None
+    if cfg.measured_force_weight > 0 and (cfg.crop_scale_jitter > 0 or cfg.crop_shift > 0):
+        raise DatasetError("measured_force_weight with crop jitter: the jittered crop cuts off force the rig measured; "
+                           "use one of them")
 
-    def loss_fn(m, xb, yb):
+    def loss_fn(m, xb, yb, measured_b=None):
         if cfg.photometric > 0:
             xb = photometric_jitter(xb, cfg.photometric)
         if cfg.crop_scale_jitter > 0 or cfg.crop_shift > 0:
@@ -393,6 +406,8 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
             loss = loss + cfg.force_weight * total_force_error(pred, yb, force_scale).mean()
         if cfg.pixel_force_weight > 0:
             loss = loss + cfg.pixel_force_weight * pixel_force_excess(pred, yb, force_scale, cfg.pixel_force_tol_n).mean()
+        if measured_b is not None:
+            loss = loss + cfg.measured_force_weight * measured_force_error(pred, y_zero, force_scale, measured_b).mean()
         return loss
 
     def on_epoch(epoch, extra):
@@ -409,7 +424,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         init["init_from"] = {"path": str(cfg.init_from), "run": _run_train_config(Path(cfg.init_from).parent)}
     elif encoder_init is not None:
         init["encoder_init"] = {"path": str(encoder_init), "run": _run_train_config(Path(encoder_init).parent)}
-    extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch, config_extra=init)
+    extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch, config_extra=init, aux_all=measured)
     del x_tr, y_tr     # the training split is most of the memory (18k samples: ~18 GB); free it before the final evaluation
     model.load_state_dict(torch.load(out / "best.pt", weights_only=True, map_location="cpu"))
     metrics = evaluate(predict(model, x_va, cfg.eval_batch), y_va, bounds)
@@ -535,6 +550,20 @@ def total_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Ten
     """(B,) |ΔF| in N: the error of the total contact force (normal + shear) the runtime integrates,
     from normalized predictions/targets (B, 15, H, W) and `_force_scale`."""
     return torch.linalg.vector_norm(_pixel_force_error(pred, target, scale).sum(dim=(2, 3)), dim=1)
+
+
+def measured_force_error(pred: torch.Tensor, zero: torch.Tensor, scale: torch.Tensor, measured: torch.Tensor
+                         ) -> torch.Tensor:
+    """(B,) N: |Σ_pixels F_pixel − measured|, the predicted total contact force (normal + shear, as the
+    runtime integrates it) against the rig's measured total force (B, 3) N, from normalized predictions
+    (B, 15, H, W), the normalized physical zero (1, 15, 1, 1) and `_force_scale` (6, H, W)."""
+    if pred.ndim != 4 or pred.shape[1] != 15 or measured.shape != (pred.shape[0], 3):
+        raise ValueError(f"measured_force_error: expected (B, 15, H, W) pred and (B, 3) measured, got {tuple(pred.shape)} "
+                         f"and {tuple(measured.shape)}")
+    if scale.shape != (6, *pred.shape[2:]):
+        raise ValueError(f"measured_force_error: expected a (6, {pred.shape[2]}, {pred.shape[3]}) scale, got {tuple(scale.shape)}")
+    d = ((pred[:, 9:15] - zero[:, 9:15]) * scale).sum(dim=(2, 3))          # (B, 6) N per channel
+    return torch.linalg.vector_norm(d[:, :3] + d[:, 3:] - measured, dim=1)
 
 
 def _pixel_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
