@@ -117,6 +117,19 @@ def test_starting_a_hand_sets_opencv_threads_for_the_process(rig):
         cv2.setNumThreads(before)
 
 
+def test_hand_fields_every_reaches_each_fingers_loop(rig):
+    """hand.fields_every = 3 is each finger's LoopConfig.fields_every (the loop's thinning itself:
+    tests/test_runtime_speed.py)."""
+    tmp, pkg, videos = rig
+    hand = Hand(hand_cfg(tmp, pkg, {SERIALS[0]: f"file:{videos[SERIALS[0]]}"}, fields_every=3)).start()
+    try:
+        finger = next(iter(hand.fingers.values()))
+        assert wait_until(lambda: finger.loop is not None and finger.loop.frames >= 3, 60)
+        assert finger.loop.cfg.fields_every == 3
+    finally:
+        hand.stop()
+
+
 def test_finite_replays_end_and_cli_runs(rig, capsys):
     import argparse
 

@@ -59,6 +59,15 @@ def test_cli_arguments():
     a = _args(["--model", "hiera-qup-128", "--soak", "60", "--soak-fps", "30", "--soak-mode", "shared"])
     assert a.model == "hiera-qup-128" and a.soak == 60 and a.soak_fps == 30 and a.soak_mode == "shared"
     assert a.source == "synthetic" and _args(["--source", "demo"]).source == "demo"
+    assert a.fields_every == 1 and _args(["--fields-every", "3"]).fields_every == 3
+
+
+def test_fields_every_below_1_is_refused():
+    from tensortouch.contracts.errors import CommandError
+    from tensortouch.tools.bench import hand_bench
+
+    with pytest.raises(CommandError, match="--fields-every 0"):
+        hand_bench.run(_args(["--fields-every", "0"]))
 
 
 def test_setup_demo_source_replays_the_demo_through_each_sensors_copy_of_its_calibration(tmp_path):

@@ -51,6 +51,7 @@ can_slot = 3
     ({"hand": {"precison": "int8"}, "finger": [{"name": "a", "serial": "S1"}]}, "unknown key 'precison'"),
     ({"can": {"id_base": 0x7FF}, "finger": [{"name": "a", "serial": "S1"}]}, "11-bit"),
     ({"hand": {"opencv_threads": 0}, "finger": [{"name": "a", "serial": "S1"}]}, "opencv_threads"),
+    ({"hand": {"fields_every": 0}, "finger": [{"name": "a", "serial": "S1"}]}, "fields_every"),
     ({"finger": [{"name": "a", "serial": "S1", "can_slot": 1}, {"name": "b", "serial": "S2"}]}, "collide"),
 ])
 def test_config_errors_name_the_problem(doc, match):
@@ -68,3 +69,9 @@ def test_documented_example_config_parses():
     cfg = parse_hand_config(tomllib.loads(block), "docs/hand.md")
     assert cfg.fingers[0].serial == "TT-0001" and cfg.can.id_base == 0x300 and cfg.can.rate_hz == 100
     assert cfg.camera_options == {"realtime": True, "loop": False}
+
+
+def test_fields_every_parses_with_default_1():
+    cfg = parse_hand_config({"hand": {"fields_every": 3}, "finger": [{"name": "a", "serial": "S1"}]}, "hand.toml")
+    assert cfg.fields_every == 3
+    assert parse_hand_config({"finger": [{"name": "a", "serial": "S1"}]}, "hand.toml").fields_every == 1

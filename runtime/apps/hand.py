@@ -93,7 +93,8 @@ class Finger:
                 continue
             self._online()
             loop = SensorLoop(camera, self.pipeline, self.publisher,
-                              LoopConfig(publish_fields=hcfg.publish_fields, status_every_s=hcfg.status_every_s,
+                              LoopConfig(publish_fields=hcfg.publish_fields, fields_every=hcfg.fields_every,
+                                         status_every_s=hcfg.status_every_s,
                                          max_camera_failures=hcfg.max_camera_failures),
                               store=self.hand.store, on_result=self._on_result, ros2=self.ros2)
             loop.frames = self.frames

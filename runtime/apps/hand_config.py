@@ -6,6 +6,7 @@
     precision = "int8"
     share_model = false               # true: one onnxruntime session for every finger
     opencv_threads = 1                # OpenCV's threads for the whole process (the fingers are the parallelism)
+    fields_every = 1                  # dense fields on every N-th frame per finger (contacts and wrench: every frame)
     inference_workers = 2             # fingers running inference at the same time (0: no limit)
     calibration_store = "calibration_store"   # relative paths are relative to this file
 
@@ -92,6 +93,8 @@ class HandConfig:
     inference_workers: int = field(default_factory=lambda: os.cpu_count() or 2)
     calibration_store: str | None = None
     publish_fields: bool = True
+    fields_every: int = 1              # dense fields on every N-th frame of each finger; contacts, wrench and status
+                                       # every frame (LoopConfig.fields_every, `run --fields-every`)
     listen: tuple[str, ...] = ()       # listen and connect both empty: listen on the meeting point
     connect: tuple[str, ...] = ()
     zenoh_config: str | None = None    # Zenoh's JSON5 config file; listen/connect replace its endpoints
@@ -116,6 +119,7 @@ class HandConfig:
 LIMITS = {
     FingerConfig: {"can_slot": Range(-1, 255)},
     HandConfig: {"threads": Range(1, 256), "opencv_threads": Range(1, 256), "inference_workers": Range(0, 256),
+                 "fields_every": Range(1, 1_000_000),
                  "max_camera_failures": Range(1, 1_000_000), "reconnect_s": Range(0, 3600, lo_open=True),
                  "offline_after_s": Range(0, 86_400), "status_every_s": Range(0, 3600, lo_open=True),
                  "model_poll_s": Range(0, 3600, lo_open=True), "precision": ("int8", "fp32")},

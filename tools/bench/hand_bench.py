@@ -92,14 +92,14 @@ def _setup(work: Path, n: int, model: str | None, size: int | None, width: int =
     return pkg, synthetic, videos, serials
 
 
-def _config(pkg, work, videos, serials, share, workers, precision, camera, endpoint):
+def _config(pkg, work, videos, serials, share, workers, precision, camera, endpoint, fields_every: int = 1):
     from ...runtime.apps.hand_config import FingerConfig, HandConfig
 
     fingers = tuple(FingerConfig(name=f"f{i}", serial=s, source=f"file:{v}")
                     for i, (s, v) in enumerate(zip(serials, videos)))
     return HandConfig(fingers=fingers, name="bench", model=str(pkg.folder), precision=precision,
                       share_model=share, inference_workers=workers, calibration_store=str(work / "store"),
-                      listen=(endpoint,), camera_options=camera, status_every_s=1.0)
+                      listen=(endpoint,), camera_options=camera, status_every_s=1.0, fields_every=fields_every)
 
 
 class _Counter:
@@ -324,6 +324,10 @@ def run(args) -> int:
 
     if args.from_log:
         return from_log(args)
+    if args.fields_every < 1:
+        from ...contracts.errors import CommandError
+
+        raise CommandError(f"--fields-every {args.fields_every}: expected 1 or more")
     workers = args.workers or os.cpu_count() or 2
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -340,7 +344,7 @@ def run(args) -> int:
             for mode in modes:
                 share, gate = MODES[mode]
                 cfg = _config(pkg, work, videos, serials, share, workers if gate is None else gate,
-                              args.precision, {"realtime": False, "loop": True}, _free_endpoint())
+                              args.precision, {"realtime": False, "loop": True}, _free_endpoint(), args.fields_every)
                 r = run_mode(cfg, args.seconds, args.warmup)
                 results[mode] = r
                 print(f"\n{mode}: per sensor " + ", ".join(f"{v['hz']:.1f}" for v in r["fingers"].values())
@@ -351,12 +355,12 @@ def run(args) -> int:
                       f"{r['cpu_ms_per_frame']:.1f} CPU-ms per frame)")
         summary = {"sensors": args.sensors, "model": pkg.name, "model_folder": str(pkg.folder),
                    "size": pkg.size[0], "precision": args.precision, "synthetic_weights": synthetic,
-                   "params": params, "source": args.source, "modes": results}
+                   "params": params, "source": args.source, "fields_every": args.fields_every, "modes": results}
         if args.soak:
             camera = {"realtime": True, "loop": True, "fps": args.soak_fps}
             share, gate = MODES[args.soak_mode]
             cfg = _config(pkg, work, videos, serials, share, workers if gate is None else gate, args.precision,
-                          camera, _free_endpoint())
+                          camera, _free_endpoint(), args.fields_every)
             log_path = paths.cache_dir() / "hand" / f"soak-{time.strftime('%Y%m%d-%H%M%S')}.jsonl"
             log_path.parent.mkdir(parents=True, exist_ok=True)
             print(f"\nsoak: {args.soak:.0f} s at {args.soak_fps} frames/s per sensor, mode {args.soak_mode}, "
@@ -380,6 +384,8 @@ def add_arguments(p) -> None:
                    help=f"input size of the synthetic net (default {DEFAULT_SYNTHETIC_SIZE}); with a package: "
                         "must match it")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision")
+    p.add_argument("--fields-every", type=int, default=1, metavar="N",
+                   help="each finger publishes fields on every N-th frame (hand.fields_every; contacts every frame)")
     p.add_argument("--source", choices=("synthetic", "demo"), default="synthetic",
                    help="frames: synthetic (a blob pressing in every frame, one seed per sensor) or demo (every "
                         "sensor replays the shipped demo recording through its unit's calibration)")
