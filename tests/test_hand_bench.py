@@ -40,6 +40,24 @@ def test_model_default_is_newest_installed_package(tmp_path, monkeypatch):
         resolve_model("no-such-model", None, tmp_path / "work")
 
 
+def test_newest_package_is_the_latest_built_not_the_latest_checked_out(tmp_path):
+    """A fresh clone gives every manifest the same file time: the manifest's `created` decides."""
+    import json
+
+    from tensortouch.runtime.stages.model import find_package
+
+    models = tmp_path / "models"
+    built = {"b-built-first-32": "2026-12-01T10:00:00Z", "a-built-last-32": "2026-12-06T23:00:00Z"}
+    for name, created in built.items():
+        make_package(models / name)
+        man = models / name / "manifest.json"
+        man.write_text(json.dumps({**json.loads(man.read_text()), "created": created}))
+        os.utime(man, (1000, 1000))                                   # same file time, as after a clone
+    assert find_package(None, root=models).folder.name == "a-built-last-32"
+    os.utime(models / "b-built-first-32" / "manifest.json", (2000, 2000))     # a later touch does not matter
+    assert find_package(None, root=models).folder.name == "a-built-last-32"
+
+
 def test_model_synthetic_explicit_and_when_nothing_installed(tmp_path, monkeypatch):
     from tensortouch.contracts import paths
     from tensortouch.tools.bench.hand_bench import resolve_model

@@ -182,7 +182,8 @@ def load_package(folder: str | Path, verify_hashes: bool = True) -> ModelPackage
 
 
 def find_package(name: str | None = None, root: Path | None = None) -> ModelPackage:
-    """The named package, or the only/newest installed one; a clear message when none exists."""
+    """The named package, or the only/newest installed one (manifest `created`, then file time); a clear
+    message when none exists."""
     roots = _model_roots(root)
     if name:
         candidate = Path(name)
@@ -197,7 +198,18 @@ def find_package(name: str | None = None, root: Path | None = None) -> ModelPack
         raise ModelPackageError(
             f"no trained model is installed in {root}. Build one with `tensortouch train all` "
             f"(needs the train extra: {install_command('train')}), or pass --model PATH to a model package.")
-    return load_package(max(found, key=lambda p: (p / "manifest.json").stat().st_mtime))
+    return load_package(max(found, key=_newest_key))
+
+
+def _newest_key(folder: Path) -> tuple[str, float]:
+    """Sort key of an installed package: its manifest's `created` time (ISO 8601 UTC, written by the
+    export; a fresh clone gives every file the same modification time), then the manifest's mtime."""
+    path = folder / "manifest.json"
+    try:
+        created = json.loads(path.read_text()).get("created")
+    except (OSError, ValueError, AttributeError):
+        created = None
+    return (created if isinstance(created, str) else "", path.stat().st_mtime)
 
 
 class FieldModel:
