@@ -1,4 +1,5 @@
-"""The shipped pair: `exported_models/hiera-qup-128` on the shipped demo `runtime/demo` (issue 5 acceptance:
+"""The shipped pair: the package `tensortouch run` picks by default from `exported_models/` (the newest
+built) on the shipped demo `runtime/demo` (issue 5 acceptance:
 "`tensortouch run` works on the shipped demo recording with the shipped model, and a subscriber receives
 physically plausible fields — forces in N consistent with the recording").
 
@@ -17,8 +18,21 @@ import numpy as np
 import pytest
 from tensortouch.contracts.paths import ROOT
 
-MODEL = ROOT / "exported_models" / "hiera-qup-128"
 DEMO = ROOT / "runtime" / "demo"
+
+
+def _default_package():
+    """The folder of the package `run` uses with no --model, or a path that does not exist."""
+    from tensortouch.contracts.errors import ModelPackageError
+    from tensortouch.runtime.stages.model import find_package
+
+    try:
+        return find_package(None, root=ROOT / "exported_models").folder
+    except ModelPackageError:
+        return ROOT / "exported_models" / "none"
+
+
+MODEL = _default_package()
 STORE = ROOT / "calibration_store"
 
 pytestmark = pytest.mark.skipif(not (MODEL / "manifest.json").is_file() or not (DEMO / "session.json").is_file(),
