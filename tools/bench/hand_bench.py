@@ -386,7 +386,9 @@ def add_arguments(p) -> None:
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8", help="network precision")
     p.add_argument("--fields-every", type=int, default=1, metavar="N",
                    help="each finger publishes fields on every N-th frame (hand.fields_every; contacts every frame)")
-    p.add_argument("--source", choices=("synthetic", "demo"), default="synthetic",
+    from .runtime_bench import SOURCES
+
+    p.add_argument("--source", choices=SOURCES, default="synthetic",
                    help="frames: synthetic (a blob pressing in every frame, one seed per sensor) or demo (every "
                         "sensor replays the shipped demo recording through its unit's calibration)")
     p.add_argument("--seconds", type=float, default=20.0, help="timed seconds per mode")
