@@ -76,7 +76,7 @@ def test_cli_arguments():
     assert a.model is None and a.size is None and a.soak_mode == "separate" and a.sensors == 4
     a = _args(["--model", "hiera-qup-128", "--soak", "60", "--soak-fps", "30", "--soak-mode", "shared"])
     assert a.model == "hiera-qup-128" and a.soak == 60 and a.soak_fps == 30 and a.soak_mode == "shared"
-    assert a.source == "synthetic" and _args(["--source", "demo"]).source == "demo"
+    assert a.source == "demo" and _args(["--source", "synthetic"]).source == "synthetic"
     assert a.fields_every == 1 and _args(["--fields-every", "3"]).fields_every == 3
 
 
@@ -104,7 +104,7 @@ def test_setup_demo_source_replays_the_demo_through_each_sensors_copy_of_its_cal
 def test_hand_bench_small(capsys):
     from tensortouch.tools.bench import hand_bench
 
-    args = _args(["--model", "synthetic", "--sensors", "2", "--size", "32", "--seconds", "1.5", "--warmup", "2",
+    args = _args(["--model", "synthetic", "--source", "synthetic", "--sensors", "2", "--size", "32", "--seconds", "1.5", "--warmup", "2",
                   "--soak", "3", "--log-every", "1", "--soak-fps", "10", "--json"])
     assert hand_bench.run(args) == 0
     out = capsys.readouterr().out

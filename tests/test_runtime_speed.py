@@ -146,7 +146,8 @@ def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
 
     p = argparse.ArgumentParser()
     add_arguments(p)
-    args = p.parse_args(["--sizes", "32", "--frames", "12", "--chunk", "4", "--fields-every", "3", "--json"])
+    args = p.parse_args(["--source", "synthetic", "--sizes", "32", "--frames", "12", "--chunk", "4", "--fields-every", "3",
+                         "--json"])
     assert run(args) == 0
     out = capsys.readouterr().out
     summary = json.loads(out.strip().splitlines()[-1])
@@ -154,6 +155,7 @@ def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
     assert set(res) == {"32/fp32", "32/int8", "32/int8/fields÷3"}
     for r in res.values():
         assert r["frames"] == 12 and r["hz"] > 0 and 0 < r["cpu_ms_per_frame"] <= r["process_cpu_ms_per_frame"] + 0.01
+        assert r["clusters_per_frame"] >= 0
         assert {"capture", "preprocess", "inference", "contacts", "publish", "end_to_end"} <= set(r["stages"])
     assert "int8 vs fp32 (same run, interleaved)" in out and "fp32 model: shipped in the package" in out
     st = summary["stages_previous_vs_current"]["32"]
@@ -164,8 +166,9 @@ def test_bench_runtime_runs_configs_interleaved_and_reports_ratios(capsys):
 
 
 def test_bench_runtime_on_the_demo_recording_uses_its_unit_calibration(tmp_path, capsys):
-    """`bench runtime --source demo`: the shipped demo recording through a copy of its unit's calibration
-    (a tiny package at the demo's size; real capture, Zenoh loopback); the demo at another size is refused."""
+    """`bench runtime` (default `--source demo`): the shipped demo recording through a copy of its unit's
+    calibration (a tiny package at the demo's size; real capture, Zenoh loopback); the demo at another size is
+    refused, naming the source that times any size."""
     import argparse
 
     from tensortouch.contracts.errors import CalibrationError
@@ -175,8 +178,8 @@ def test_bench_runtime_on_the_demo_recording_uses_its_unit_calibration(tmp_path,
     pkg = write_package(tmp_path / "tiny", size=size, width=4, depth=2)
     p = argparse.ArgumentParser()
     add_arguments(p)
-    args = p.parse_args(["--source", "demo", "--package", str(pkg), "--frames", "8", "--chunk", "4", "--json"])
-    assert args.sizes is None
+    args = p.parse_args(["--package", str(pkg), "--frames", "8", "--chunk", "4", "--json"])
+    assert args.sizes is None and args.source == "demo"
     assert run(args) == 0
     out = capsys.readouterr().out
     summary = json.loads(out.strip().splitlines()[-1])
@@ -184,8 +187,12 @@ def test_bench_runtime_on_the_demo_recording_uses_its_unit_calibration(tmp_path,
     assert set(summary["results"]) == {f"{size}/fp32", f"{size}/int8"}
     assert all(r["frames"] == 8 for r in summary["results"].values())
     assert "the shipped demo recording" in out
-    with pytest.raises(CalibrationError, match="expected the package.s 32x32"):
+    with pytest.raises(CalibrationError, match="expected the package.s 32x32.*--source synthetic"):
         demo_inputs(tmp_path / "store", ["bench-0"], 32)
+    from tensortouch.contracts.errors import CommandError
+
+    with pytest.raises(CommandError, match="--source synthetic times any sizes"):
+        run(p.parse_args(["--sizes", f"32,{size}", "--frames", "4"]))
 
 
 def test_demo_inputs_copy_the_demo_tables_under_each_sensor_id(tmp_path):

@@ -16,6 +16,10 @@ Network (`--model`): a package name in exported_models/ or a path to a package f
 the newest shipped package (its own input size), or, when none is installed, the synthetic
 ~2.1 M-parameter conv U-Net. `--model synthetic` asks for the synthetic net explicitly (random
 weights: timing only — said in the output; `--size` sets its input size, for tests).
+
+Frames (`--source`): `demo` (default; every finger replays the shipped demo recording through a copy
+of its unit's calibration, so the model runs at that unit's size) or `synthetic` (drawn frames, one
+seed per finger, at any size; no trained network has seen them).
 """
 from __future__ import annotations
 
@@ -73,12 +77,14 @@ def resolve_model(model: str | None, size: int | None, work: Path):
 
 
 def _setup(work: Path, n: int, model: str | None, size: int | None, width: int = 320, height: int = 240,
-           source: str = "synthetic"):
+           source: str = "demo"):
     """(package, synthetic?, one video per sensor, sensor ids) with each sensor's calibration in
     `work`/store: synthetic frames (a different seed per sensor) through a nominal calibration, or every
     sensor replaying the shipped demo recording through a copy of the demo unit's calibration."""
-    from .runtime_bench import _calibration, demo_inputs, synthetic_frames, write_video
+    from .runtime_bench import _calibration, demo_inputs, demo_size, synthetic_frames, write_video
 
+    if source == "demo" and size is None and model == "synthetic":
+        size = demo_size()                       # the synthetic net at the demo unit's model size
     pkg, synthetic = resolve_model(model, size, work)
     size = pkg.size[0]
     serials = [f"bench-{i}" for i in range(n)]
@@ -388,9 +394,10 @@ def add_arguments(p) -> None:
                    help="each finger publishes fields on every N-th frame (hand.fields_every; contacts every frame)")
     from .runtime_bench import SOURCES
 
-    p.add_argument("--source", choices=SOURCES, default="synthetic",
-                   help="frames: synthetic (a blob pressing in every frame, one seed per sensor) or demo (every "
-                        "sensor replays the shipped demo recording through its unit's calibration)")
+    p.add_argument("--source", choices=SOURCES, default="demo",
+                   help="frames: demo (default: every sensor replays the shipped demo recording through a copy of its "
+                        "unit's calibration; its model size only) or synthetic (drawn frames with a blob pressing in "
+                        "every frame, one seed per sensor, any size)")
     p.add_argument("--seconds", type=float, default=20.0, help="timed seconds per mode")
     p.add_argument("--warmup", type=float, default=5.0, help="seconds before timing (baseline startup)")
     p.add_argument("--workers", type=int, default=0, help="inference gate (default: cpu count)")

@@ -4,10 +4,11 @@ Per configuration (model size × precision): frames are decoded from an MJPG vid
 capture), run through `SensorPipeline` (the exact deploy code) and published over a real Zenoh
 session on loopback; per-stage and end-to-end p50/p99 latency, frames/s and CPU time per frame
 (the main thread's; with one onnxruntime thread inference runs on it) are printed. `--source`
-chooses the frames: `synthetic` (default; a drawn gel with a blob pressing and sliding in every
-frame, the same at every size, but no trained network has seen such frames) or `demo` (the shipped
-demo recording, twin frames of one unit with rest and contact, through that unit's calibration;
-packages at its model size only). Configurations
+chooses the frames: `demo` (default; the shipped demo recording, twin frames of one unit with rest
+and contact, through that unit's calibration; packages at its model size only) or `synthetic` (a
+drawn gel with a blob pressing and sliding in every frame, at any size; no trained network has seen
+such frames, and the contacts stage then times whatever clusters the network makes of them — the
+output prints clusters per frame). Configurations
 run in alternating chunks so that load from other processes hits them alike. The network is the
 shipped model when one is installed at that size, else a synthetic ~2.2 M-parameter conv U-Net
 with a 4×4 patch stem (random weights: timing only — said in the output). Shipped packages are
@@ -108,7 +109,8 @@ def demo_inputs(work: Path, serials: list[str], size: int) -> Path:
     cal = CalibrationStore().load(session.sensor_id)
     if cal.model_size != (size, size):
         raise CalibrationError(f"--source demo: the demo unit {session.sensor_id}'s calibration {cal.folder} is at "
-                               f"{cal.model_size[0]}x{cal.model_size[1]}, expected the package's {size}x{size}")
+                               f"{cal.model_size[0]}x{cal.model_size[1]}, expected the package's {size}x{size} "
+                               "(--source synthetic times any size)")
     meta = {k: v for k, v in cal.meta.items() if k in ("camera", "gel_center_px", "gel_radius_px", "model_size")}
     meta["provenance"] = {"method": f"copy of {session.sensor_id}/{cal.version} (benchmark)"}
     store = CalibrationStore(work)
@@ -269,9 +271,11 @@ class _Config:
         self.loop.frames = 0
         self.wall = self.cpu = self.cpu_all = 0.0
         self.fields: list[np.ndarray] = []          # the first timed frames' fields (stage_ratios)
+        self.clusters = 0                           # clusters published over the timed frames
         self.loop.on_result = self._keep
 
     def _keep(self, result) -> None:
+        self.clusters += len(result.clusters)
         if result.fields is not None and len(self.fields) < KEEP_FIELDS:
             self.fields.append(result.fields.copy())
 
@@ -288,7 +292,7 @@ class _Config:
     def result(self) -> dict:
         n = self.loop.frames
         s = self.loop.latency.summary()
-        return {"frames": n, "hz": n / self.wall, "cpu_ms_per_frame": 1e3 * self.cpu / n,
+        return {"frames": n, "hz": n / self.wall, "clusters_per_frame": self.clusters / max(n, 1), "cpu_ms_per_frame": 1e3 * self.cpu / n,
                 "process_cpu_ms_per_frame": 1e3 * self.cpu_all / n,
                 "stages": {k: {"p50_ms": round(v["p50"], 3), "p99_ms": round(v["p99"], 3)} for k, v in s.items()}}
 
@@ -314,7 +318,8 @@ def run(args) -> int:
             from ...contracts.store import CalibrationStore
 
             if len(sizes) != 1:
-                raise CommandError(f"--source demo: one model size (the demo unit's), got --sizes {args.sizes}")
+                raise CommandError(f"--source demo (the default): one model size, the demo unit's ({demo_size()}), got "
+                                   f"--sizes {args.sizes}; --source synthetic times any sizes")
             video = demo_inputs(work / "demo", ["bench-0"], sizes[0])
             cap = cv2.VideoCapture(str(video))
             w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
@@ -369,7 +374,7 @@ def run(args) -> int:
         print(f"\n{key}: {r['model']}{tag}, params {r['params']}: {r['hz']:.1f} frames/s, "
               f"end-to-end p50 {tot['p50_ms']:.2f} ms p99 {tot['p99_ms']:.2f} ms; "
               f"CPU {r['cpu_ms_per_frame']:.2f} ms/frame (= {1e3 / r['cpu_ms_per_frame']:.0f} frames/s on a free core; "
-              f"all threads {r['process_cpu_ms_per_frame']:.2f} ms)")
+              f"all threads {r['process_cpu_ms_per_frame']:.2f} ms); {r['clusters_per_frame']:.2f} clusters per frame")
         for stage, v in r["stages"].items():
             if stage not in ("total", "end_to_end"):
                 print(f"    {stage:<11} p50 {v['p50_ms']:7.3f} ms   p99 {v['p99_ms']:7.3f} ms")
@@ -435,7 +440,7 @@ def _named_packages(names: list[str], sizes: list[int]) -> list:
 
 def add_arguments(p) -> None:
     p.add_argument("--sizes", default=None,
-                   help="model input sizes, comma separated (default 96,128; with --source demo the demo unit's)")
+                   help="model input sizes, comma separated (default: the demo unit's; with --source synthetic 96,128)")
     p.add_argument("--package", action="append", metavar="NAME|DIR",
                    help="run this model package (repeat: side by side in one run, ratios against the first); "
                         "default: the installed package at each size, else a synthetic net")
@@ -444,7 +449,8 @@ def add_arguments(p) -> None:
     p.add_argument("--chunk", type=int, default=25, help="frames per turn when alternating configurations")
     p.add_argument("--fields-every", type=int, default=1,
                    help="also run int8 publishing fields every N-th frame only (LoopConfig.fields_every)")
-    p.add_argument("--source", choices=SOURCES, default="synthetic",
-                   help="frames: synthetic (a blob pressing in every frame, any size) or demo (the shipped demo "
-                        "recording through its unit's calibration, looped; its model size only)")
+    p.add_argument("--source", choices=SOURCES, default="demo",
+                   help="frames: demo (default: the shipped demo recording through its unit's calibration, looped; "
+                        "its model size only) or synthetic (drawn frames with a blob pressing in every frame, any "
+                        "size; no trained network has seen them)")
     p.add_argument("--json", action="store_true", help="print one JSON object on the last line")
