@@ -32,15 +32,28 @@ class PipelineConfig:
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
     black_level: float = 4.0          # mean 0–255 below this: frame flagged "frame_black"
     frozen_frames: int = 30           # identical consecutive frames before "camera_frozen"
+    # tare: subtract the network's fields for the baseline against itself from every frame's fields, so an
+    # untouched gel reads zero (what the network reads there is its own offset: on frames unlike any it was trained
+    # on, the shipped student reads 3-4-pixel cores at the same places in every frame). Recomputed, one extra
+    # inference, whenever the baseline changes. A package carries its own choice (manifest `runtime.tare`, written
+    # with the contact settings chosen on tared fields by tools/train/threshold.py)
+    tare: bool = False
 
     @staticmethod
     def for_package(package) -> "PipelineConfig":
         """Defaults, with the package's own measured contact settings when its manifest has them
         (`runtime.contacts`: ContactConfig fields such as `threshold_n`, the light-touch rule
         `weak_threshold_n` / `min_total_n`, the cluster support `support_radius_px` / `support_floor_n`
-        and merging `merge_n`, written at export by tools/train/threshold.py; null or absent = default)."""
+        and merging `merge_n`, written at export by tools/train/threshold.py; null or absent = default) and
+        its tare (`runtime.tare`, absent = off)."""
         rt = (getattr(package, "manifest", None) or {}).get("runtime") or {}
-        return PipelineConfig(contacts=contact_config(rt))
+        return PipelineConfig(contacts=contact_config(rt), tare=bool(rt.get("tare") or False))
+
+
+def _finite(fields: np.ndarray) -> np.ndarray:
+    """The fields with NaN/inf read as zero (the same array when all are finite)."""
+    finite = np.isfinite(fields)
+    return fields if finite.all() else np.where(finite, fields, 0.0).astype(fields.dtype)
 
 
 def contact_config(runtime: dict) -> ContactConfig:
@@ -223,6 +236,7 @@ class SensorPipeline:
         self._last_force = None
         self._prev_frame_sig = None
         self._frozen = 0
+        self._zero, self._zero_of = None, None         # the tare and the baseline it was computed for
 
     def process(self, frame: np.ndarray, t: float) -> FrameResult:
         """frame: (H, W, 3) uint8 RGB camera image at time t (s)."""
@@ -246,12 +260,20 @@ class SensorPipeline:
         if step.baseline is None:                        # still collecting startup frames
             timings.update(inference=0.0, contacts=0.0)
             return NetworkPass(self.seq, t, None, [], step.state.name, flags, timings, band)
+        if self.cfg.tare and self._zero_of is not step.baseline:
+            self._zero = _finite(self.model(np.concatenate([step.baseline, step.baseline], axis=0))).copy()
+            self._zero_of = step.baseline
         x = np.concatenate([step.baseline, img], axis=0)
         fields = self.model(x)
         finite = np.isfinite(fields)
         if not finite.all():                             # NaN/inf from the model: flagged, read as zero
             flags.append("model_output_invalid")
-            fields = np.where(finite, fields, 0.0).astype(fields.dtype)
+            fields = _finite(fields)
+        if self.cfg.tare:
+            if fields.flags.writeable and fields.dtype == self._zero.dtype:
+                np.subtract(fields, self._zero, out=fields)
+            else:
+                fields = fields - self._zero
         t3 = time.perf_counter()
         timings["inference"] = (t3 - t2) * 1e3
         clusters = self.tracker.update(contact_stage(fields, self.cal, self.cfg.contacts))

@@ -217,6 +217,9 @@ def test_model_manifest_bad_inputs(tmp_path):
     for value in (1.0, 1.5, -0.1, "half"):             # a share of the peak: [0, 1)
         raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"contacts": {"split_dip": value}}})),
                         match="split_dip is")
+    for value in ("yes", 1, 0, [True]):                 # the tare: a boolean or null, nothing truthy
+        raises_one_line(load_package, with_manifest(json.dumps({**good, "runtime": {"tare": value}})),
+                        match="runtime.tare is")
     raises_one_line(load_package, with_manifest(json.dumps({**good, "files": {}})), match="files is empty")
     raises_one_line(load_package, with_manifest(json.dumps({**good, "files": {"model.int8.onnx": "abc"}})),
                     match="files.model.int8.onnx must be an object")

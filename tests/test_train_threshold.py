@@ -225,3 +225,37 @@ def test_split_only_writes_split_dip_and_leaves_the_other_settings(tmp_path):
     def rest(measured):
         return {k: v for k, v in measured.items() if not k.startswith("split")}
     assert rest(m) == rest(before["runtime"]["measured"])
+
+
+def test_record_writes_the_tare_the_settings_were_measured_with(tmp_path):
+    (tmp_path / "manifest.json").write_text(json.dumps({"name": "m", "files": {}}))
+    record(tmp_path, {"threshold_n": 0.001, "measured": {"rule": "test"}})
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert "tare" not in man["runtime"] and PipelineConfig.for_package(SimpleNamespace(manifest=man)).tare is False
+    record(tmp_path, {"threshold_n": 0.001, "measured": {"rule": "test"}}, tare=True)
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["runtime"]["tare"] is True and PipelineConfig.for_package(SimpleNamespace(manifest=man)).tare is True
+
+
+def test_split_only_with_the_tare_measures_on_tared_fields_and_records_it(tmp_path):
+    """`--split-only --tare on` on the shipped demo with a copy of the shipped package: runtime.tare is written
+    with split_dip; the package on disk is untouched until then (the sweep sets it in memory)."""
+    import shutil
+
+    from tensortouch.contracts.paths import ROOT as REPO
+    from tensortouch.contracts.store import CalibrationStore
+    from tensortouch.tools.train.threshold import _load, measure_split
+
+    model, demo = REPO / "exported_models" / "convnet-distill-128-ft", REPO / "runtime" / "demo"
+    if not (model / "manifest.json").is_file() or not (demo / "session.json").is_file():
+        pytest.skip("no shipped student or demo in this checkout")
+    pkg = tmp_path / "pkg"
+    shutil.copytree(model, pkg)
+    before = (json.loads((pkg / "manifest.json").read_text()).get("runtime") or {}).get("tare")
+    assert PipelineConfig.for_package(_load(pkg, True)).tare is True
+    assert PipelineConfig.for_package(_load(pkg, False)).tare is False
+    assert (json.loads((pkg / "manifest.json").read_text()).get("runtime") or {}).get("tare") == before
+    cal = CalibrationStore(REPO / "calibration_store").load(json.loads((demo / "session.json").read_text())["sensor_id"])
+    out = measure_split(pkg, [(demo, cal)], tare=True)
+    after = json.loads((pkg / "manifest.json").read_text())
+    assert after["runtime"]["tare"] is True and after["runtime"]["contacts"]["split_dip"] == out["split_dip"]

@@ -107,9 +107,9 @@ def _number(v) -> bool:
 
 
 def _check_runtime(rt, mpath) -> None:
-    """The manifest's optional `runtime` section: `runtime.contacts` holds ContactConfig fields by their
-    own names, each null or a finite number in [0, CONTACT_LIMIT] (> 0 for POSITIVE; integers for the
-    int fields)."""
+    """The manifest's optional `runtime` section: `runtime.tare` is a boolean or null; `runtime.contacts` holds
+    ContactConfig fields by their own names, each null or a finite number in [0, CONTACT_LIMIT] (> 0 for
+    POSITIVE; integers for the int fields)."""
     from dataclasses import fields
 
     from .contacts import ContactConfig
@@ -118,6 +118,8 @@ def _check_runtime(rt, mpath) -> None:
         return
     if not isinstance(rt, dict):
         _fail(mpath, f"runtime must be an object, got {type(rt).__name__}")
+    if rt.get("tare") is not None and not isinstance(rt["tare"], bool):
+        _fail(mpath, f"runtime.tare is {rt['tare']!r}, expected true, false or null")
     contacts = rt.get("contacts")
     if contacts is None:
         return

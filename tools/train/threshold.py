@@ -20,6 +20,10 @@ the threshold and the rule are known.
     tensortouch train threshold --package DIR --session SESSION_DIR:STORE_DIR [...] [--write]
     tensortouch train threshold --package DIR --session ... --check    # held-out detection report
     tensortouch train threshold --package DIR --units validation --rest-budget 0.005 --write   # chosen on validation units
+
+`--tare on|off` measures with the runtime's tare on or off (PipelineConfig.tare: the network's fields for the
+baseline against itself subtracted from every frame's) and, with --write, records it as `runtime.tare` beside the
+settings it chose: the settings belong to the fields they were measured on. Without it the package's own is used.
 """
 from __future__ import annotations
 
@@ -339,9 +343,20 @@ def choose_budget(sweeps: list[dict], cfg: ThresholdConfig) -> dict:
             "min_total_n": best["min_total_n"], "measured": measured}
 
 
-def record(package_dir: Path, result: dict) -> None:
+def _load(package_dir, tare: bool | None):
+    """The package, its tare set in memory when `tare` is given (what the sweep's pipeline then runs)."""
+    from ...runtime.stages.model import load_package
+
+    package = load_package(package_dir)
+    if tare is not None:
+        package.manifest.setdefault("runtime", {})["tare"] = bool(tare)
+    return package
+
+
+def record(package_dir: Path, result: dict, tare: bool | None = None) -> None:
     """Write the result into the manifest (atomic): the contact settings, by ContactConfig's own field
-    names, under runtime.contacts; how they were measured under runtime.measured."""
+    names, under runtime.contacts; how they were measured under runtime.measured; the tare they were
+    measured with under runtime.tare when given."""
     from .package import update_manifest
 
     contacts = {k: v for k, v in result.items() if k != "measured"}
@@ -350,15 +365,16 @@ def record(package_dir: Path, result: dict) -> None:
         rt = man.setdefault("runtime", {})
         rt.setdefault("contacts", {}).update(contacts)
         rt["measured"] = result.get("measured", {})
+        if tare is not None:
+            rt["tare"] = bool(tare)
     update_manifest(package_dir, change)
 
 
 def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True,
-            command: str | None = None) -> dict:
-    """sessions: [(session_dir, Calibration)]; `command` is recorded with the measurement."""
-    from ...runtime.stages.model import load_package
-
-    package = load_package(package_dir)
+            command: str | None = None, tare: bool | None = None) -> dict:
+    """sessions: [(session_dir, Calibration)]; `command` is recorded with the measurement; `tare`: measure
+    with the runtime's tare on/off (None: the package's own) and record it."""
+    package = _load(package_dir, tare)
     sweeps = []
     for path, cal in sessions:
         sweeps.append(sweep_session(path, package, cal, cfg))
@@ -371,20 +387,20 @@ def measure(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Threshold
         log.info("contact threshold of %s: %.5f N (contact frames with a core: %.1f %%)", Path(package_dir).name,
                  out["threshold_n"], 100 * (out["measured"]["contact_detected_fraction"] or 0))
     if write:
-        record(package_dir, out)
+        record(package_dir, out, tare)
     return out
 
 
 def measure_split(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), write: bool = True,
-                  command: str | None = None) -> dict:
+                  command: str | None = None, tare: bool | None = None) -> dict:
     """Only the splitting (support.choose_split), with every other contact setting as the package has it:
     on these sessions' single- and two-contact frames. Written into the manifest's runtime.contacts
-    (split_dip) and runtime.measured (the split_* keys, beside the rest of the measurement)."""
-    from ...runtime.stages.model import load_package
+    (split_dip) and runtime.measured (the split_* keys, beside the rest of the measurement); `tare` as in
+    `measure`."""
     from ..scoring import contact_config
     from .package import update_manifest
 
-    package = load_package(package_dir)
+    package = _load(package_dir, tare)
     sweeps = [sweep_session(path, package, cal, cfg) for path, cal in sessions]
     samples, cals, two, two_cals = _contact_frames(sweeps)
     out = choose_split(samples, cals, two, two_cals, contact_config(package), cfg.support)
@@ -395,6 +411,8 @@ def measure_split(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Thr
             rt = man.setdefault("runtime", {})
             rt.setdefault("contacts", {})["split_dip"] = out["split_dip"]
             rt.setdefault("measured", {}).update(out["measured"])
+            if tare is not None:
+                rt["tare"] = bool(tare)
         update_manifest(package_dir, change)
     return out
 
@@ -402,17 +420,16 @@ def measure_split(package_dir, sessions: list[tuple], cfg: ThresholdConfig = Thr
 CHECK_BANDS = ((0.1, 0.3), (0.3, 0.5), (0.5, 1.0), (1.0, float("inf")))
 
 
-def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig()) -> dict:
+def check(package_dir, sessions: list[tuple], cfg: ThresholdConfig = ThresholdConfig(), tare: bool | None = None) -> dict:
     """The package's detection (its manifest's values) on other sessions, e.g. held-out ones: per
     measured |F| band the frames with a core by the strong threshold alone and with the light-touch
     rule, and the rest frames (`rest_frames`) with a core. Same frames and fields for both."""
     from ...contracts.session import load_session
     from ...runtime.offline import replay_session
     from ...runtime.stages.contacts import light_cores, pixel_forces
-    from ...runtime.stages.model import load_package
     from ..scoring import contact_config, measured_at
 
-    package = load_package(package_dir)
+    package = _load(package_dir, tare)
     cc = contact_config(package)
     fm, strong, rule, at_rest = [], [], [], []
     for path, cal in sessions:
@@ -469,6 +486,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                          "the most frames >= 0.2 N detected with at most SHARE of the rest frames holding a core "
                          "(e.g. 0.005); 0 = the training-session rule (no core on any rest frame, x 4/3)")
     ap.add_argument("--write", action="store_true", help="record the result in the package's manifest")
+    ap.add_argument("--tare", choices=("on", "off"),
+                    help="measure with the runtime's tare on or off and record it with the result (default: the "
+                         "package's own)")
     ap.add_argument("--support", action="store_true",
                     help="also measure a farther cluster support (off by default: docs/model_package.md 'Support')")
     ap.add_argument("--support-px", type=float, help="a fixed cluster support radius (px, floor 0 N) instead")
@@ -501,17 +521,19 @@ def run(args: argparse.Namespace) -> int:
         if not store:
             raise TensorTouchError(f"--session {item!r}: expected SESSION_DIR:STORE_DIR")
         pairs.append((sdir, CalibrationStore(store).load(load_session(sdir).sensor_id)))
+    tare = None if args.tare is None else args.tare == "on"
     if args.check:
-        print(json.dumps(check(args.package, pairs), indent=1))
+        print(json.dumps(check(args.package, pairs, tare=tare), indent=1))
         return 0
     cmd = args.command_line
     if args.split_only:
-        print(json.dumps(measure_split(args.package, pairs, ThresholdConfig(), write=args.write, command=cmd), indent=1))
+        print(json.dumps(measure_split(args.package, pairs, ThresholdConfig(), write=args.write, command=cmd, tare=tare),
+                         indent=1))
         return 0
     support_px = args.support_px
     if support_px is None and not args.support:    # keep a reach the build fixed (BuildConfig.support_px)
         support_px = fixed_support(args.package)
     cfg = ThresholdConfig(measure_support=args.support, support_px=support_px, rest_budget=args.rest_budget)
-    print(json.dumps(measure(args.package, pairs, cfg, write=args.write, command=cmd), indent=1))
+    print(json.dumps(measure(args.package, pairs, cfg, write=args.write, command=cmd, tare=tare), indent=1))
     return 0
 
