@@ -23,7 +23,9 @@ def test_simulated_fingertip_contacts_arrive_over_zenoh_loopback():
     from tensortouch.tools.twin.unit import TwinUnit
 
     unit = TwinUnit("TWIN-DEMO")
-    pipe = SensorPipeline("TWIN-DEMO", FieldModel(find_package(None), "int8", threads=1),
+    from tensortouch.tools.grasp.trial import TrialConfig
+
+    pipe = SensorPipeline("TWIN-DEMO", FieldModel(find_package(TrialConfig().model), "int8", threads=1),
                           CalibrationStore().load("TWIN-DEMO"))
     ep = free_endpoint()
     pub_s, sub_s = open_session(listen=[ep]), open_session(connect=[ep])

@@ -50,7 +50,8 @@ def register(sub) -> None:
                    help=f"folder of `tensortouch mount`'s outputs: hand_mounted.urdf, contact_graph.npz "
                         f"(default {DEFAULT_OUT}; made by `tensortouch mount` when missing)")
     g.add_argument("--out", default=str(DEFAULT_OUT), help="where the table, trials JSON and pictures go")
-    g.add_argument("--model", help="model package folder or name (default: the shipped one)")
+    g.add_argument("--model", help="model package folder or name (default: TrialConfig.model, hiera-qup-128, the package "
+                                   "the controller was tuned with)")
     g.add_argument("--seed", type=int, default=0, help="first trial seed")
     g.add_argument("--picture", action="store_true", help="draw the first trial as a picture sequence")
     g.add_argument("--randomize", action="store_true",

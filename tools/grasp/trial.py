@@ -60,6 +60,9 @@ class TrialConfig:
     jitter_mm: float = 1.0
     startup_frames: int = 32
     sensor_unit: str = "TWIN-DEMO"     # twin unit rendered, and its calibration in the store
+    # the network the fingertips run (a package name or folder): the one the controller's decision weights and
+    # re-pinch were chosen with (docs/grasp.md), not the runtime's newest default; `--model` runs another
+    model: str = "hiera-qup-128"
     release_after_decision: bool = False
     pull_only: bool = False            # pull for the whole decide window, no path (records the detection's inputs)
     frame_timeout_s: float = 120.0     # wall time a frame's contacts may take over Zenoh (slow machine)
@@ -126,7 +129,7 @@ class Bench:
         self.urdf = str(urdf)
         self.mount = SensorMount()
         self.start = graph_mod.start_node(self.graph, self.mount)
-        self.package = find_package(model)
+        self.package = find_package(model or self.cfg.model)
         self.cal = (store or CalibrationStore()).load(self.cfg.sensor_unit)
         self.unit = TwinUnit(self.cfg.sensor_unit)
         self.unit.renderer  # noqa: B018 - build the rest view once
