@@ -50,10 +50,12 @@ class PipelineConfig:
         return PipelineConfig(contacts=contact_config(rt), tare=bool(rt.get("tare") or False))
 
 
-def _finite(fields: np.ndarray) -> np.ndarray:
-    """The fields with NaN/inf read as zero (the same array when all are finite)."""
+def _finite(fields: np.ndarray) -> tuple[np.ndarray, bool]:
+    """(the fields with NaN/inf read as zero — the same array when all are finite, whether all were)."""
     finite = np.isfinite(fields)
-    return fields if finite.all() else np.where(finite, fields, 0.0).astype(fields.dtype)
+    if finite.all():
+        return fields, True
+    return np.where(finite, fields, 0.0).astype(fields.dtype), False
 
 
 def contact_config(runtime: dict) -> ContactConfig:
@@ -261,14 +263,11 @@ class SensorPipeline:
             timings.update(inference=0.0, contacts=0.0)
             return NetworkPass(self.seq, t, None, [], step.state.name, flags, timings, band)
         if self.cfg.tare and self._zero_of is not step.baseline:
-            self._zero = _finite(self.model(np.concatenate([step.baseline, step.baseline], axis=0))).copy()
+            self._zero = _finite(self.model(np.concatenate([step.baseline, step.baseline], axis=0)))[0].copy()
             self._zero_of = step.baseline
-        x = np.concatenate([step.baseline, img], axis=0)
-        fields = self.model(x)
-        finite = np.isfinite(fields)
-        if not finite.all():                             # NaN/inf from the model: flagged, read as zero
+        fields, valid = _finite(self.model(np.concatenate([step.baseline, img], axis=0)))
+        if not valid:                                    # NaN/inf from the model: flagged, read as zero
             flags.append("model_output_invalid")
-            fields = _finite(fields)
         if self.cfg.tare:
             if fields.flags.writeable and fields.dtype == self._zero.dtype:
                 np.subtract(fields, self._zero, out=fields)

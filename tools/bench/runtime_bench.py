@@ -292,8 +292,8 @@ class _Config:
     def result(self) -> dict:
         n = self.loop.frames
         s = self.loop.latency.summary()
-        return {"frames": n, "hz": n / self.wall, "clusters_per_frame": self.clusters / max(n, 1), "cpu_ms_per_frame": 1e3 * self.cpu / n,
-                "process_cpu_ms_per_frame": 1e3 * self.cpu_all / n,
+        return {"frames": n, "hz": n / self.wall, "clusters_per_frame": self.clusters / max(n, 1),
+                "cpu_ms_per_frame": 1e3 * self.cpu / n, "process_cpu_ms_per_frame": 1e3 * self.cpu_all / n,
                 "stages": {k: {"p50_ms": round(v["p50"], 3), "p99_ms": round(v["p99"], 3)} for k, v in s.items()}}
 
 
