@@ -229,3 +229,29 @@ def test_harness_markdown_counts_hand_made_rows():
     assert out[2].startswith("- analytic, output, cubic_stiffening 1× (0.200 N, MDE 0.150 N, U, gain 1.00–1.50): "
                              "strain_stiffening p = 0.01, removed 80 % (90 %")
     assert out[3].endswith("none (best x, p = 0.4) — wrong/missed")
+
+
+def test_harness_lengthens_a_session_as_its_diagnosis_asks():
+    """accept workbench-paths --mde-target: the statistical bar falls as 1/sqrt(presses), so an MDE of
+    2x the floor on 30 pokes needs 30 * 2^2 = 120 pokes for 1x; nothing when the MDE is already low
+    enough, when the practical bar (not lowered by more presses) is above the target, or off."""
+    from tensortouch.tools.accept.workbench_paths import longer
+
+    m = {"mde": 0.2, "statistical": 0.2, "practical": 0.03, "floor": 0.1}
+    assert longer(m, 30, 1.0) == 120
+    assert longer(m, 30, 1.0, max_pokes=90) == 90
+    assert longer(m, 30, 0.5) == 240                        # 30 * 4^2 = 480, capped at MAX_POKES
+    assert longer({**m, "mde": 0.09, "statistical": 0.09}, 30, 1.0) is None
+    assert longer({**m, "practical": 0.12, "mde": 0.2}, 30, 1.0) is None
+    assert longer(m, 30, None) is None and longer(None, 30, 1.0) is None
+    assert longer(m, 240, 1.0) is None                      # already at the longest
+    row = {"path": "output", "form": "cubic_stiffening", "set": "scored", "unit": "U", "size_floor": 1.0,
+           "floor": 0.1, "size_n": 0.1, "mde": 0.09, "verdict": "strain_stiffening", "p": 0.01, "right": True,
+           "pokes": 120, "mde_target": 1.0, "model": "m",
+           "first": {"pokes": 30, "verdict": None, "p": None, "mde": 0.2, "diag_floor": 0.1}}
+    from tensortouch.tools.accept.workbench_paths import markdown, summarize
+
+    out = markdown([row]).splitlines()
+    assert "output (m), lengthened to MDE ≤ 1× floor" in out[0]
+    assert out[2].endswith("; 120 pokes (the first 30: MDE 0.200 N, no verdict)")
+    assert list(summarize([row])) == ["output [sessions lengthened to an MDE of 1× the floor] [m]"]

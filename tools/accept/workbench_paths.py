@@ -5,7 +5,7 @@ calibration sessions, and FE solved at each session's measured keypoints (issue 
     tensortouch accept workbench-paths [--paths contact-law output fe] [--draws 1] [--sizes 1 3]
                                        [--nulls 10] [--forms NAME ...] [--tuning] [--fe-physics fe]
                                        [--world analytic|fe] [--fe-pokes 6]
-                                       [--model exported_models/hiera-qup-128] [--work DIR] [--progress FILE]
+                                       [--model PACKAGE] [--work DIR] [--progress FILE]
 
 Units TWIN-K01..K03, frames at 2 fps rendered at the shipped model's 128 px, recorded with the twin's
 analytic contact physics or (`--world fe`) with the twin's FE, the physics the shipped network was
@@ -60,6 +60,7 @@ UNITS = ("TWIN-K01", "TWIN-K02", "TWIN-K03")
 FE_UNITS = ("TWIN-K01",)       # FE solves are slow: one unit, shorter sessions
 POKES = 30
 FE_POKES = 6                   # 6 press blocks: the sign-flip test can still reach p = 1/64
+MAX_POKES = 240                # --mde-target: no session longer than this (8 x POKES)
 CALIB_SEEDS = (7100, 7150)     # + unit index
 TEST_SEED = 7200               # + 10 * form index + draw
 SECOND_SEED = 7300
@@ -85,7 +86,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--world", choices=sorted(WORLDS), default="analytic",
                    help="the twin physics the sessions are recorded with: analytic contact (default) or the twin's FE")
     p.add_argument("--fe-pokes", type=int, default=FE_POKES, help="pokes per session on the FE path")
-    p.add_argument("--model", default="exported_models/hiera-qup-128", help="the shipped model package (output path)")
+    p.add_argument("--model", default=None,
+                   help="the model package of the output path (default: the runtime's, the newest installed)")
+    p.add_argument("--mde-target", type=float, default=None,
+                   help="record each test session (cases and nulls) longer while its diagnosis' minimum "
+                        "detectable effect is above this many times its floor, as the diagnosis advises "
+                        "(default: off, every session has its path's fixed length)")
+    p.add_argument("--max-pokes", type=int, default=MAX_POKES, help="with --mde-target: the longest session")
     p.add_argument("--no-own-error", action="store_true", help="diagnose against the model alone")
     p.add_argument("--raw-nulls", nargs="*", choices=PATHS, default=["output"],
                    help="on these paths also diagnose each null against the model alone (the own error's effect)")
@@ -120,14 +127,32 @@ def record(sc):
 WORLDS = {"analytic": "hertz-fallback", "fe": "fe"}   # --world: the twin physics the sessions are recorded with
 
 
-def _scenario(seed: int, unit: str, path: str = "output", world: str = "analytic", fe_pokes: int = FE_POKES):
+def _scenario(seed: int, unit: str, path: str = "output", world: str = "analytic", fe_pokes: int = FE_POKES,
+              pokes: int | None = None):
     """The recording of `seed` on `unit` for `path` (the FE path's are shorter, `fe_pokes` pokes, with
-    seeds of their own) in `world` (WORLDS)."""
+    seeds of their own) in `world` (WORLDS); `pokes` overrides the path's length (a lengthened session)."""
     from ..workbench.scenarios import Scenario
 
     if path == "fe":
-        return Scenario(seed + FE_SEED_OFFSET, pokes=fe_pokes, unit=unit, model_size=128, physics=WORLDS[world])
-    return Scenario(seed, pokes=POKES, unit=unit, model_size=128, physics=WORLDS[world])
+        return Scenario(seed + FE_SEED_OFFSET, pokes=pokes or fe_pokes, unit=unit, model_size=128,
+                        physics=WORLDS[world])
+    return Scenario(seed, pokes=pokes or POKES, unit=unit, model_size=128, physics=WORLDS[world])
+
+
+def longer(mde: dict | None, pokes: int, target: float | None, max_pokes: int = MAX_POKES) -> int | None:
+    """How many pokes a session of `pokes` needs for its minimum detectable effect (`mde`: the
+    diagnosis' `tools.workbench.mde` result) to come down to `target` × its floor, as the diagnosis'
+    "record N more presses" line computes it: the statistical bar falls as 1/sqrt(presses). None when
+    it already does, when the practical bar (which more presses do not lower) is above the target, or
+    when no longer session is allowed."""
+    if target is None or not mde or not mde.get("floor"):
+        return None
+    goal = target * mde["floor"]
+    if mde["mde"] <= goal or mde["practical"] > goal:
+        return None
+    want = int(np.ceil(pokes * (mde["statistical"] / goal) ** 2))
+    new = min(max_pokes, want)
+    return new if new > pokes else None
 
 
 def units_of(path: str) -> tuple:
@@ -163,7 +188,9 @@ class PathLab:
             from ...runtime.stages.model import find_package
             from ..workbench.network import NetworkConfig, NetworkModel
 
-            self.net = NetworkModel(find_package(model_dir), NetworkConfig())
+            package = find_package(model_dir)
+            self.model_name = package.name
+            self.net = NetworkModel(package, NetworkConfig())
         self.own = self._own() if own else None
 
     def _law(self):
@@ -194,8 +221,11 @@ class PathLab:
         atomic_write_json(f, own.to_json())
         return own
 
-    def scenario(self, seed: int):
-        return _scenario(seed, self.unit, self.path, self.world, self.fe_pokes)
+    def scenario(self, seed: int, pokes: int | None = None):
+        return _scenario(seed, self.unit, self.path, self.world, self.fe_pokes, pokes)
+
+    def pokes(self) -> int:
+        return self.fe_pokes if self.path == "fe" else POKES
 
     def tag(self) -> str:
         """File-name tag of the world and the FE path's session length (none for the defaults, whose
@@ -275,21 +305,43 @@ def _diag(d) -> dict:
     return {**_diag_row(d), "diag_floor": d.mde["floor"] if d.mde else None}
 
 
-def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
-    from ...runtime.stages.effects import EffectChain, EnabledEffect
-
-    i = list(EXPECTED).index(form)
-    base = record(lab.scenario(TEST_SEED + 10 * i + draw))
+def _sized(lab: PathLab, base: Path, form: str, size: float):
+    """(floor, amplitude, altered table, its clean force, the effect's rms contribution) of `form` put
+    into session `base` at `size` × the path's floor there."""
     t0, _ = lab.table(base)
     floor = _rms(t0.meas - lab.base(t0))
     t1, clean = lab.table(base, form, 1.0)
-    got1 = _rms(t1.meas - clean)
-    amp = size * floor / max(got1, 1e-12)
+    amp = size * floor / max(_rms(t1.meas - clean), 1e-12)
     t, clean = lab.table(base, form, amp)
-    got = _rms(t.meas - clean)
+    return floor, amp, t, clean, _rms(t.meas - clean)
+
+
+def run_case(lab: PathLab, form: str, size: float, draw: int, mde_target: float | None = None,
+             max_pokes: int = MAX_POKES) -> dict:
+    """One hidden form at `size` × the floor. With `mde_target`, a session whose diagnosis could not
+    see effects of `mde_target` × its floor is recorded again, as long as the diagnosis asks (at most
+    twice, `max_pokes` pokes), and the effect is scaled to the floor of the session diagnosed."""
+    from ...runtime.stages.effects import EffectChain, EnabledEffect
+
+    i = list(EXPECTED).index(form)
+    seed, pokes = TEST_SEED + 10 * i + draw, lab.pokes()
+    base = record(lab.scenario(seed))
+    floor, amp, t, clean, got = _sized(lab, base, form, size)
     d = lab.diagnose(t)
+    first = None
+    for _ in range(2):
+        more = longer(d.mde, pokes, mde_target, max_pokes)
+        if more is None:
+            break
+        first = first or {"pokes": pokes, **_diag(d)}
+        pokes = more
+        base = record(lab.scenario(seed, pokes))
+        floor, amp, t, clean, got = _sized(lab, base, form, size)
+        d = lab.diagnose(t)
     row = {"path": lab.path, "form": form, "unit": lab.unit, "draw": draw, "size_floor": size, "floor": floor,
-           "size_n": got, "amp": amp, "rows": len(t), **_diag(d)}
+           "size_n": got, "amp": amp, "rows": len(t), "pokes": pokes, **_diag(d)}
+    if first is not None:
+        row["first"] = {k: first[k] for k in ("pokes", "verdict", "p", "mde", "diag_floor")}
     if form in MULTIPLICATIVE:
         loaded = np.linalg.norm(clean, axis=1) >= 0.2
         g = gain_of(t.meas, clean)[loaded]
@@ -301,7 +353,7 @@ def run_case(lab: PathLab, form: str, size: float, draw: int) -> dict:
         row["right"] = bool(row["family"] == fam and not row["pair"])
     v = d.verdict
     if v is not None and v.pair is None and v.channel == "force":
-        second = record(lab.scenario(SECOND_SEED + 10 * i + draw))
+        second = record(lab.scenario(SECOND_SEED + 10 * i + draw, pokes))
         a2, clean2 = lab.table(second, form, amp)
         chain = EffectChain([EnabledEffect(v.effect, dict(v.params))])
         base2 = lab.base(a2)
@@ -346,10 +398,25 @@ def null_sessions(path: str, forms: list, draws: int, n: int) -> list[tuple[str,
     return out[:n]
 
 
-def run_null(lab: PathLab, name: str, seed: int, raw: bool = True) -> dict:
+def run_null(lab: PathLab, name: str, seed: int, raw: bool = True, mde_target: float | None = None,
+             max_pokes: int = MAX_POKES) -> dict:
+    """One session without a hidden effect, lengthened as `run_case` lengthens a case's."""
+    pokes = lab.pokes()
     t, _ = lab.table(record(lab.scenario(seed)))
+    d = lab.diagnose(t)
+    first = None
+    for _ in range(2):
+        more = longer(d.mde, pokes, mde_target, max_pokes)
+        if more is None:
+            break
+        first = first or {"pokes": pokes, **_diag(d)}
+        pokes = more
+        t, _ = lab.table(record(lab.scenario(seed, pokes)))
+        d = lab.diagnose(t)
     row = {"path": lab.path, "null": name, "seed": seed, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)),
-           "rows": len(t), **_diag(lab.diagnose(t))}
+           "rows": len(t), "pokes": pokes, **_diag(d)}
+    if first is not None:
+        row["first"] = {k: first[k] for k in ("pokes", "verdict", "p", "mde", "diag_floor")}
     if lab.own is not None and raw:
         raw = _diag(lab.diagnose(t, own=False))
         row["without_own_error"] = {k2: raw[k2] for k2 in ("verdict", "p", "best", "best_p", "top_covariate",
@@ -362,16 +429,19 @@ def summarize(rows: list, forms_set: str = "scored") -> dict:
     ("scored" or "tuning") and every null."""
     out = {}
     def key(r):
-        return r.get("world", "analytic"), r["path"], r.get("fe_physics") or "", r.get("fe_pokes", FE_POKES)
+        return (r.get("world", "analytic"), r["path"], r.get("fe_physics") or "", r.get("fe_pokes", FE_POKES),
+                r.get("mde_target") or 0.0, r.get("model") or "")
 
-    for world, path, fe, fe_pokes in sorted({key(r) for r in rows}):
-        mine = [r for r in rows if key(r) == (world, path, fe, fe_pokes)]
+    for world, path, fe, fe_pokes, target, model in sorted({key(r) for r in rows}):
+        mine = [r for r in rows if key(r) == (world, path, fe, fe_pokes, target, model)]
         cases = [r for r in mine if "form" in r and r.get("set") == forms_set]
         nulls = [r for r in mine if "null" in r]
         if not cases and not nulls:
             continue
         path = ((f"{path} ({fe}{'' if fe_pokes == FE_POKES else f', {fe_pokes}-poke sessions'})" if fe else path)
-                + ("" if world == "analytic" else f" [{world} world]"))
+                + ("" if world == "analytic" else f" [{world} world]")
+                + (f" [sessions lengthened to an MDE of {target:g}× the floor]" if target else "")
+                + (f" [{model}]" if model else ""))
         big = [r for r in cases if r["size_floor"] >= 1.0]
         removed = [r["removed"] for r in big if r["right"] and "removed" in r]
         lib = [r for r in big if EXPECTED[r["form"]] != "phi"]
@@ -411,6 +481,10 @@ def _variant(r: dict) -> tuple[str, str]:
     path = r["path"]
     if path == "fe":
         path = f"fe ({r.get('fe_physics')}, {r.get('fe_pokes', FE_POKES)}-poke)"
+    if r.get("model"):
+        path += f" ({r['model']})"
+    if r.get("mde_target"):
+        path += f", lengthened to MDE ≤ {r['mde_target']:g}× floor"
     return r.get("world", "analytic"), path
 
 
@@ -452,7 +526,9 @@ def markdown(rows: list, forms_set: str = "scored") -> str:
                        "form's)" if "removed" in r else "")
             lines.append(f"- {world}, {path}, {r['form']} {r['size_floor']:g}× ({r['size_n']:.3f} N, MDE "
                          f"{r['mde'] or 0:.3f} N, {r['unit']}{f', gain {g[0]:.2f}–{g[1]:.2f}' if g else ''}): "
-                         f"{verdict}{removed}{'' if r['right'] else ' — wrong/missed'}")
+                         f"{verdict}{removed}{'' if r['right'] else ' — wrong/missed'}"
+                         + (f"; {r['pokes']} pokes (the first {r['first']['pokes']}: MDE {r['first']['mde'] or 0:.3f} N, "
+                            f"{r['first']['verdict'] or 'no verdict'})" if r.get("first") else ""))
     return "\n".join(table + [""] + lines) + "\n"
 
 
@@ -484,7 +560,8 @@ def run(a: argparse.Namespace) -> int:
                 if k < len(nulls[path]):
                     tasks.append((path, "null", nulls[path][k]))
         for path, kind, arg in (tasks[::-1] if a.reverse else tasks):
-            tag = (f"-{a.fe_physics}" if path == "fe" else "") + variant_tag(path, a.world, a.fe_pokes)
+            tag = ((f"-{a.fe_physics}" if path == "fe" else "") + variant_tag(path, a.world, a.fe_pokes)
+                   + (f"-mde{a.mde_target:g}" if a.mde_target is not None else ""))
             name = (f"{path}{tag}-null-{arg[0]}" if kind == "null" else f"{path}{tag}-case-{arg[2]}-{arg[0]:g}-{arg[1]}")
             f = work / "rows" / f"{name}.json"
             if f.is_file():
@@ -496,12 +573,16 @@ def run(a: argparse.Namespace) -> int:
                     labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error,
                                                fe_physics=a.fe_physics, world=a.world, fe_pokes=a.fe_pokes)
                 lab = labs[path, unit]
-                row = (run_null(lab, arg[0], arg[1], path in (a.raw_nulls or [])) if kind == "null"
-                       else run_case(lab, arg[2], arg[0], arg[1]))
+                row = (run_null(lab, arg[0], arg[1], path in (a.raw_nulls or []), a.mde_target, a.max_pokes)
+                       if kind == "null" else run_case(lab, arg[2], arg[0], arg[1], a.mde_target, a.max_pokes))
                 row["set"] = "null" if kind == "null" else ("tuning" if arg[2] in TUNING else "scored")
                 if path == "fe":
                     row["fe_physics"], row["fe_pokes"] = a.fe_physics, a.fe_pokes
                 row["world"] = a.world
+                if a.mde_target is not None:
+                    row["mde_target"] = a.mde_target
+                if path == "output":
+                    row["model"] = lab.model_name
             except Exception as exc:    # a row that fails is reported, the run goes on
                 log.exception("%s failed", name)
                 note(f"{name}: FAILED {type(exc).__name__}: {exc}")

@@ -9,12 +9,11 @@ DEFAULT_OUT = Path("cache/hand")
 
 
 def _floats(text: str, name: str) -> tuple[float, ...]:
+    """Comma-separated numbers of option --`name`; ValueError naming the option otherwise."""
     try:
         vals = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise SystemExit(f"--{name}: expected comma-separated numbers, got {text!r}") from None
-    if not vals:
-        raise SystemExit(f"--{name}: expected at least one number")
+        raise ValueError(f"--{name}: expected comma-separated numbers, got {text!r}") from None
     return vals
 
 
@@ -61,6 +60,11 @@ def register(sub) -> None:
     g.add_argument("--merge", nargs="+", action="extend", metavar="DIR",
                    help="run no trials: merge the grasp_trials.json of these earlier --out folders (e.g. one run "
                         "per seed range) into one table and trials file in --out")
+    g.add_argument("--perception", action="store_true",
+                   help="run no trials: the table of what the fingertip sensor publishes for two parallel objects "
+                        "of each diameter pressed side by side to each depth (grasp_perception.md in --out)")
+    g.add_argument("--diameters-mm", default="1,1.5,2,3,6,8", help="with --perception: object diameters")
+    g.add_argument("--depths-mm", default="0.25,0.5,1", help="with --perception: depths into the gel")
     g.set_defaults(func=cmd_grasp, extra="hand")
 
 
@@ -94,8 +98,12 @@ def cmd_mount(args) -> int:
     if not args.refine_radius_mm > 0:
         print(f"--refine-radius-mm: expected a positive number, got {args.refine_radius_mm}", file=sys.stderr)
         return 2
-    cfg = mount.MountConfig(z_cm=_floats(args.z_cm, "z-cm"), pitch_deg=_floats(args.pitch_deg, "pitch-deg"),
-                            workspace=WorkspaceConfig(samples=args.samples, seed=args.seed))
+    try:
+        cfg = mount.MountConfig(z_cm=_floats(args.z_cm, "z-cm"), pitch_deg=_floats(args.pitch_deg, "pitch-deg"),
+                                workspace=WorkspaceConfig(samples=args.samples, seed=args.seed))
+    except ValueError as exc:
+        print(f"tensortouch mount: {exc}", file=sys.stderr)
+        return 2
     out = Path(args.out)
 
     def progress(i, n, v):
@@ -149,6 +157,8 @@ def cmd_grasp(args) -> int:
 
     if args.merge:
         return _merge([Path(d) for d in args.merge], Path(args.out))
+    if args.perception:
+        return _perception(args)
     if args.trials < 1:
         print(f"--trials: expected at least 1, got {args.trials}", file=sys.stderr)
         return 2
@@ -223,4 +233,35 @@ def _merge(dirs: list[Path], out: Path) -> int:
     print(trial.table(results) + ("\n" + trial.factor_table(results) if randomized else ""), end="")
     print(f"merged {sum(len(r) for r in results.values())} trials from {len(dirs)} runs; wrote {out}/grasp_table.md "
           f"and grasp_trials.json", file=sys.stderr)
+    return 0
+
+
+def _perception(args) -> int:
+    """`tensortouch grasp --perception`: what the fingertip sensor publishes for two parallel objects."""
+    from ...contracts.errors import TensorTouchError
+    from ...contracts.files import atomic_write
+    from ...contracts.store import CalibrationStore
+    from ...runtime.stages.model import find_package
+    from ..twin.unit import TwinUnit
+    from . import perception, trial
+
+    try:
+        cfg = perception.PerceptionConfig(diameters_mm=_floats(args.diameters_mm, "diameters-mm"),
+                                          depths_mm=_floats(args.depths_mm, "depths-mm"))
+    except ValueError as exc:
+        print(f"tensortouch grasp --perception: {exc}", file=sys.stderr)
+        return 2
+    tc = trial.TrialConfig()
+    try:
+        package = find_package(args.model or tc.model)
+        cal = CalibrationStore().load(tc.sensor_unit)
+        rows = perception.run(package, cal, TwinUnit(tc.sensor_unit), cfg, tc.sensor_unit)
+    except TensorTouchError as exc:
+        print(f"tensortouch grasp --perception: {exc}", file=sys.stderr)
+        return 2
+    text = perception.table(rows, package.name)
+    out = Path(args.out)
+    atomic_write(out / "grasp_perception.md", text.encode())
+    print(text, end="")
+    print(f"wrote {out}/grasp_perception.md", file=sys.stderr)
     return 0

@@ -21,8 +21,6 @@ class SimFingertip:
         self.sensor_id = sensor_id
         self.unit = unit
         self.renderer = unit.renderer
-        v = self.renderer.view
-        self._pts, self._nrm, self._mask = v.points[v.mask], v.normals[v.mask], v.mask
         self.contact_cfg = contact_cfg or DomeContactConfig()
         self.rng = np.random.default_rng(seed)
         self.camera = SimCamera()
@@ -38,12 +36,7 @@ class SimFingertip:
 
     def frame(self, objects: list[ObjectContact]) -> np.ndarray:
         """RGB frame of the gel touched by `objects` (sensor frame)."""
-        u = None
-        if objects:
-            u = np.zeros(self.renderer.view.points.shape)
-            u[self._mask] = displacement(self.unit.gel, self._pts, self._nrm, objects, self.contact_cfg)
-        img = self.renderer.render(u, 1.0, self.rng)
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        return gel_frame(self.unit, objects, self.rng, self.contact_cfg)
 
     def show(self, objects: list[ObjectContact], t: float) -> None:
         self.last_frame = self.frame(objects)
@@ -54,3 +47,17 @@ class SimFingertip:
         self.camera.end()
         self._thread.join(timeout=10)
         self.publisher.close()
+
+
+def gel_frame(unit, objects: list[ObjectContact], rng: np.random.Generator,
+              contact_cfg: DomeContactConfig | None = None) -> np.ndarray:
+    """RGB frame of twin `unit`'s gel touched by `objects` (sensor frame; none: the untouched gel),
+    rendered by the unit's camera with its noise drawn from `rng`."""
+    r = unit.renderer
+    u = None
+    if objects:
+        v = r.view
+        u = np.zeros(v.points.shape)
+        u[v.mask] = displacement(unit.gel, v.points[v.mask], v.normals[v.mask], objects,
+                                 contact_cfg or DomeContactConfig())
+    return cv2.cvtColor(r.render(u, 1.0, rng), cv2.COLOR_BGR2RGB)
