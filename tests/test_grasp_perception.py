@@ -1,7 +1,6 @@
 """tools.grasp.perception: two parallel objects on the gel (pure) and the table."""
 import numpy as np
 import pytest
-
 from tensortouch.tools.grasp.perception import PerceptionConfig, Response, pair_contacts, table
 from tensortouch.tools.grasp.sensor_mount import SensorMount
 

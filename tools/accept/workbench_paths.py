@@ -305,6 +305,23 @@ def _diag(d) -> dict:
     return {**_diag_row(d), "diag_floor": d.mde["floor"] if d.mde else None}
 
 
+def lengthened(diagnosed, pokes: int, target: float | None, max_pokes: int = MAX_POKES):
+    """`diagnosed(None)`: the diagnosis of the session at its path's length, `pokes`. While it asks for a
+    longer session (`longer`), at most twice: `diagnosed(n)` of the session recorded with n pokes.
+    Returns (the last diagnosis, its pokes, {"first": the first diagnosis} or {} when not lengthened)."""
+    d, first = diagnosed(None), {}
+    for _ in range(2):
+        more = longer(d.mde, pokes, target, max_pokes)
+        if more is None:
+            break
+        if not first:
+            f = _diag(d)
+            first = {"first": {"pokes": pokes, **{k: f[k] for k in ("verdict", "p", "mde", "diag_floor")}}}
+        pokes = more
+        d = diagnosed(pokes)
+    return d, pokes, first
+
+
 def _sized(lab: PathLab, base: Path, form: str, size: float):
     """(floor, amplitude, altered table, its clean force, the effect's rms contribution) of `form` put
     into session `base` at `size` × the path's floor there."""
@@ -324,24 +341,18 @@ def run_case(lab: PathLab, form: str, size: float, draw: int, mde_target: float 
     from ...runtime.stages.effects import EffectChain, EnabledEffect
 
     i = list(EXPECTED).index(form)
-    seed, pokes = TEST_SEED + 10 * i + draw, lab.pokes()
-    base = record(lab.scenario(seed))
-    floor, amp, t, clean, got = _sized(lab, base, form, size)
-    d = lab.diagnose(t)
-    first = None
-    for _ in range(2):
-        more = longer(d.mde, pokes, mde_target, max_pokes)
-        if more is None:
-            break
-        first = first or {"pokes": pokes, **_diag(d)}
-        pokes = more
-        base = record(lab.scenario(seed, pokes))
-        floor, amp, t, clean, got = _sized(lab, base, form, size)
-        d = lab.diagnose(t)
+    seed = TEST_SEED + 10 * i + draw
+    got: dict = {}
+
+    def diagnosed(pokes: int | None):
+        got["floor"], got["amp"], got["t"], clean, got["size"] = _sized(lab, record(lab.scenario(seed, pokes)), form, size)
+        got["clean"] = clean
+        return lab.diagnose(got["t"])
+
+    d, pokes, first = lengthened(diagnosed, lab.pokes(), mde_target, max_pokes)
+    floor, amp, t, clean = got["floor"], got["amp"], got["t"], got["clean"]
     row = {"path": lab.path, "form": form, "unit": lab.unit, "draw": draw, "size_floor": size, "floor": floor,
-           "size_n": got, "amp": amp, "rows": len(t), "pokes": pokes, **_diag(d)}
-    if first is not None:
-        row["first"] = {k: first[k] for k in ("pokes", "verdict", "p", "mde", "diag_floor")}
+           "size_n": got["size"], "amp": amp, "rows": len(t), "pokes": pokes, **_diag(d), **first}
     if form in MULTIPLICATIVE:
         loaded = np.linalg.norm(clean, axis=1) >= 0.2
         g = gain_of(t.meas, clean)[loaded]
@@ -401,22 +412,16 @@ def null_sessions(path: str, forms: list, draws: int, n: int) -> list[tuple[str,
 def run_null(lab: PathLab, name: str, seed: int, raw: bool = True, mde_target: float | None = None,
              max_pokes: int = MAX_POKES) -> dict:
     """One session without a hidden effect, lengthened as `run_case` lengthens a case's."""
-    pokes = lab.pokes()
-    t, _ = lab.table(record(lab.scenario(seed)))
-    d = lab.diagnose(t)
-    first = None
-    for _ in range(2):
-        more = longer(d.mde, pokes, mde_target, max_pokes)
-        if more is None:
-            break
-        first = first or {"pokes": pokes, **_diag(d)}
-        pokes = more
-        t, _ = lab.table(record(lab.scenario(seed, pokes)))
-        d = lab.diagnose(t)
+    got: dict = {}
+
+    def diagnosed(pokes: int | None):
+        got["t"] = lab.table(record(lab.scenario(seed, pokes)))[0]
+        return lab.diagnose(got["t"])
+
+    d, pokes, first = lengthened(diagnosed, lab.pokes(), mde_target, max_pokes)
+    t = got["t"]
     row = {"path": lab.path, "null": name, "seed": seed, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)),
-           "rows": len(t), "pokes": pokes, **_diag(d)}
-    if first is not None:
-        row["first"] = {k: first[k] for k in ("pokes", "verdict", "p", "mde", "diag_floor")}
+           "rows": len(t), "pokes": pokes, **_diag(d), **first}
     if lab.own is not None and raw:
         raw = _diag(lab.diagnose(t, own=False))
         row["without_own_error"] = {k2: raw[k2] for k2 in ("verdict", "p", "best", "best_p", "top_covariate",

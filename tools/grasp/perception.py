@@ -95,8 +95,8 @@ def run(package, calibration, unit, cfg: PerceptionConfig, sensor_id: str,
 
 def table(rows: list[Response], model: str) -> str:
     """Markdown: per diameter and depth the clusters published (two objects pressed) and their force."""
-    lines = [f"What `{model}` publishes for two parallel objects pressed side by side (`tensortouch grasp "
-             "--perception`):", "",
+    lines = [(f"What `{model}` publishes for two parallel objects pressed side by side (`tensortouch grasp "
+              "--perception`):"), "",
              "| diameter (mm) | depth (mm) | clusters | total \\|F\\| (N) | each cluster \\|F\\| (N) |",
              "|---|---|---|---|---|"]
     for r in rows:
