@@ -231,27 +231,49 @@ def test_harness_markdown_counts_hand_made_rows():
     assert out[3].endswith("none (best x, p = 0.4) — wrong/missed")
 
 
-def test_harness_lengthens_a_session_as_its_diagnosis_asks():
+def test_harness_pools_sessions_as_the_diagnosis_asks():
     """accept workbench-paths --mde-target: the statistical bar falls as 1/sqrt(presses), so an MDE of
-    2x the floor on 30 pokes needs 30 * 2^2 = 120 pokes for 1x; nothing when the MDE is already low
-    enough, when the practical bar (not lowered by more presses) is above the target, or off."""
-    from tensortouch.tools.accept.workbench_paths import longer
+    2x the floor on one session needs 1 * 2^2 = 4 sessions for 1x; nothing when the MDE is already low
+    enough, when the practical bar (not lowered by more presses) is above the target, or off. Only a
+    diagnosis that found nothing asks for more."""
+    from types import SimpleNamespace
+
+    from tensortouch.tools.accept.workbench_paths import markdown, pooled, sessions_needed, summarize
 
     m = {"mde": 0.2, "statistical": 0.2, "practical": 0.03, "floor": 0.1}
-    assert longer(m, 30, 1.0) == 120
-    assert longer(m, 30, 1.0, max_pokes=90) == 90
-    assert longer(m, 30, 0.5) == 240                        # 30 * 4^2 = 480, capped at MAX_POKES
-    assert longer({**m, "mde": 0.09, "statistical": 0.09}, 30, 1.0) is None
-    assert longer({**m, "practical": 0.12, "mde": 0.2}, 30, 1.0) is None
-    assert longer(m, 30, None) is None and longer(None, 30, 1.0) is None
-    assert longer(m, 240, 1.0) is None                      # already at the longest
+    assert sessions_needed(m, 1, 1.0) == 4
+    assert sessions_needed(m, 1, 1.0, max_n=3) == 3
+    assert sessions_needed(m, 1, 0.5) == 8                      # 16, capped at MAX_SESSIONS
+    assert sessions_needed({**m, "mde": 0.09, "statistical": 0.09}, 1, 1.0) is None
+    assert sessions_needed({**m, "practical": 0.12, "mde": 0.2}, 1, 1.0) is None
+    assert sessions_needed(m, 1, None) is None and sessions_needed(None, 1, 1.0) is None
+    assert sessions_needed(m, 8, 1.0) is None                   # already at the most
+
+    asked = []
+
+    def diagnosed(n, found_at=4):
+        asked.append(n)
+        mde = 0.2 / np.sqrt(n) if n < 4 else 0.09
+        return SimpleNamespace(verdict="x" if n >= found_at else None, p=0.01, mde={
+            "mde": mde, "statistical": mde, "practical": 0.03, "floor": 0.1})
+
+    import tensortouch.tools.accept.workbench_paths as wp
+
+    real = wp._diag
+    wp._diag = lambda d: {"verdict": d.verdict, "p": d.p, "mde": d.mde["mde"], "diag_floor": 0.1}
+    try:
+        d, n, first = pooled(diagnosed, 1.0)
+        assert (asked, n, d.verdict, first["first"]["sessions"]) == ([1, 4], 4, "x", 1)
+        asked.clear()
+        d, n, first = pooled(lambda k: diagnosed(k, found_at=1), 1.0)     # found alone: no more sessions
+        assert (asked, n, first) == ([1], 1, {})
+    finally:
+        wp._diag = real
     row = {"path": "output", "form": "cubic_stiffening", "set": "scored", "unit": "U", "size_floor": 1.0,
            "floor": 0.1, "size_n": 0.1, "mde": 0.09, "verdict": "strain_stiffening", "p": 0.01, "right": True,
-           "pokes": 120, "mde_target": 1.0, "model": "m",
-           "first": {"pokes": 30, "verdict": None, "p": None, "mde": 0.2, "diag_floor": 0.1}}
-    from tensortouch.tools.accept.workbench_paths import markdown, summarize
-
+           "sessions": 4, "mde_target": 1.0, "model": "m",
+           "first": {"sessions": 1, "verdict": None, "p": None, "mde": 0.2, "diag_floor": 0.1}}
     out = markdown([row]).splitlines()
-    assert "output (m), lengthened to MDE ≤ 1× floor" in out[0]
-    assert out[2].endswith("; 120 pokes (the first 30: MDE 0.200 N, no verdict)")
-    assert list(summarize([row])) == ["output [sessions lengthened to an MDE of 1× the floor] [m]"]
+    assert "output (m), sessions pooled to MDE ≤ 1× floor" in out[0]
+    assert out[2].endswith("; 4 sessions together (one alone: MDE 0.200 N, no verdict)")
+    assert list(summarize([row])) == ["output [sessions pooled to an MDE of 1× the floor] [m]"]

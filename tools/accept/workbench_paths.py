@@ -60,7 +60,8 @@ UNITS = ("TWIN-K01", "TWIN-K02", "TWIN-K03")
 FE_UNITS = ("TWIN-K01",)       # FE solves are slow: one unit, shorter sessions
 POKES = 30
 FE_POKES = 6                   # 6 press blocks: the sign-flip test can still reach p = 1/64
-MAX_POKES = 240                # --mde-target: no session longer than this (8 x POKES)
+MAX_SESSIONS = 8               # --mde-target: at most this many sessions diagnosed together
+MORE_SEED = 1000               # the k-th added session of a seed: seed + MORE_SEED * k
 CALIB_SEEDS = (7100, 7150)     # + unit index
 TEST_SEED = 7200               # + 10 * form index + draw
 SECOND_SEED = 7300
@@ -89,10 +90,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", default=None,
                    help="the model package of the output path (default: the runtime's, the newest installed)")
     p.add_argument("--mde-target", type=float, default=None,
-                   help="record each test session (cases and nulls) longer while its diagnosis' minimum "
-                        "detectable effect is above this many times its floor, as the diagnosis advises "
-                        "(default: off, every session has its path's fixed length)")
-    p.add_argument("--max-pokes", type=int, default=MAX_POKES, help="with --mde-target: the longest session")
+                   help="when a test session (case or null) shows nothing significant and its minimum detectable "
+                        "effect is above this many times its floor, record more sessions of the unit and diagnose "
+                        "them together, as many as the diagnosis asks for (default: off, one session)")
+    p.add_argument("--max-sessions", type=int, default=MAX_SESSIONS,
+                   help="with --mde-target: at most this many sessions diagnosed together")
     p.add_argument("--no-own-error", action="store_true", help="diagnose against the model alone")
     p.add_argument("--raw-nulls", nargs="*", choices=PATHS, default=["output"],
                    help="on these paths also diagnose each null against the model alone (the own error's effect)")
@@ -127,32 +129,29 @@ def record(sc):
 WORLDS = {"analytic": "hertz-fallback", "fe": "fe"}   # --world: the twin physics the sessions are recorded with
 
 
-def _scenario(seed: int, unit: str, path: str = "output", world: str = "analytic", fe_pokes: int = FE_POKES,
-              pokes: int | None = None):
+def _scenario(seed: int, unit: str, path: str = "output", world: str = "analytic", fe_pokes: int = FE_POKES):
     """The recording of `seed` on `unit` for `path` (the FE path's are shorter, `fe_pokes` pokes, with
-    seeds of their own) in `world` (WORLDS); `pokes` overrides the path's length (a lengthened session)."""
+    seeds of their own) in `world` (WORLDS)."""
     from ..workbench.scenarios import Scenario
 
     if path == "fe":
-        return Scenario(seed + FE_SEED_OFFSET, pokes=pokes or fe_pokes, unit=unit, model_size=128,
-                        physics=WORLDS[world])
-    return Scenario(seed, pokes=pokes or POKES, unit=unit, model_size=128, physics=WORLDS[world])
+        return Scenario(seed + FE_SEED_OFFSET, pokes=fe_pokes, unit=unit, model_size=128, physics=WORLDS[world])
+    return Scenario(seed, pokes=POKES, unit=unit, model_size=128, physics=WORLDS[world])
 
 
-def longer(mde: dict | None, pokes: int, target: float | None, max_pokes: int = MAX_POKES) -> int | None:
-    """How many pokes a session of `pokes` needs for its minimum detectable effect (`mde`: the
-    diagnosis' `tools.workbench.mde` result) to come down to `target` × its floor, as the diagnosis'
-    "record N more presses" line computes it: the statistical bar falls as 1/sqrt(presses). None when
-    it already does, when the practical bar (which more presses do not lower) is above the target, or
-    when no longer session is allowed."""
+def sessions_needed(mde: dict | None, n: int, target: float | None, max_n: int = MAX_SESSIONS) -> int | None:
+    """How many sessions like the `n` diagnosed together the diagnosis needs for its minimum
+    detectable effect (`mde`: its `tools.workbench.mde` result) to come down to `target` × its floor,
+    as its "record N more presses" line computes it: the statistical bar falls as 1/sqrt(presses).
+    None when it already does, when the practical bar (which more presses do not lower) is above the
+    target, or when no more sessions are allowed."""
     if target is None or not mde or not mde.get("floor"):
         return None
     goal = target * mde["floor"]
     if mde["mde"] <= goal or mde["practical"] > goal:
         return None
-    want = int(np.ceil(pokes * (mde["statistical"] / goal) ** 2))
-    new = min(max_pokes, want)
-    return new if new > pokes else None
+    new = min(max_n, int(np.ceil(n * (mde["statistical"] / goal) ** 2)))
+    return new if new > n else None
 
 
 def units_of(path: str) -> tuple:
@@ -221,11 +220,8 @@ class PathLab:
         atomic_write_json(f, own.to_json())
         return own
 
-    def scenario(self, seed: int, pokes: int | None = None):
-        return _scenario(seed, self.unit, self.path, self.world, self.fe_pokes, pokes)
-
-    def pokes(self) -> int:
-        return self.fe_pokes if self.path == "fe" else POKES
+    def scenario(self, seed: int):
+        return _scenario(seed, self.unit, self.path, self.world, self.fe_pokes)
 
     def tag(self) -> str:
         """File-name tag of the world and the FE path's session length (none for the defaults, whose
@@ -305,21 +301,22 @@ def _diag(d) -> dict:
     return {**_diag_row(d), "diag_floor": d.mde["floor"] if d.mde else None}
 
 
-def lengthened(diagnosed, pokes: int, target: float | None, max_pokes: int = MAX_POKES):
-    """`diagnosed(None)`: the diagnosis of the session at its path's length, `pokes`. While it asks for a
-    longer session (`longer`), at most twice: `diagnosed(n)` of the session recorded with n pokes.
-    Returns (the last diagnosis, its pokes, {"first": the first diagnosis} or {} when not lengthened)."""
-    d, first = diagnosed(None), {}
+def pooled(diagnosed, target: float | None, max_n: int = MAX_SESSIONS):
+    """`diagnosed(n)`: the diagnosis of the first n sessions of a unit pooled (`pool_tables`). Starts
+    with one; while it finds nothing significant and asks for more sessions (`sessions_needed`), at
+    most twice, diagnoses that many together. Returns (the last diagnosis, its sessions, {"first": the
+    first diagnosis} or {} with one session)."""
+    n, d, first = 1, diagnosed(1), {}
     for _ in range(2):
-        more = longer(d.mde, pokes, target, max_pokes)
+        more = sessions_needed(d.mde, n, target, max_n) if d.verdict is None else None
         if more is None:
             break
         if not first:
             f = _diag(d)
-            first = {"first": {"pokes": pokes, **{k: f[k] for k in ("verdict", "p", "mde", "diag_floor")}}}
-        pokes = more
-        d = diagnosed(pokes)
-    return d, pokes, first
+            first = {"first": {"sessions": 1, **{k: f[k] for k in ("verdict", "p", "mde", "diag_floor")}}}
+        n = more
+        d = diagnosed(n)
+    return d, n, first
 
 
 def _sized(lab: PathLab, base: Path, form: str, size: float):
@@ -334,25 +331,30 @@ def _sized(lab: PathLab, base: Path, form: str, size: float):
 
 
 def run_case(lab: PathLab, form: str, size: float, draw: int, mde_target: float | None = None,
-             max_pokes: int = MAX_POKES) -> dict:
-    """One hidden form at `size` × the floor. With `mde_target`, a session whose diagnosis could not
-    see effects of `mde_target` × its floor is recorded again, as long as the diagnosis asks (at most
-    twice, `max_pokes` pokes), and the effect is scaled to the floor of the session diagnosed."""
+             max_sessions: int = MAX_SESSIONS) -> dict:
+    """One hidden form at `size` × the floor of its test session. With `mde_target`, when that
+    session's diagnosis finds nothing and could not have seen effects of `mde_target` × its floor,
+    more sessions of the unit with the same effect (seeds + MORE_SEED·k) are diagnosed together, as
+    many as the diagnosis asks (`pooled`)."""
     from ...runtime.stages.effects import EffectChain, EnabledEffect
+    from ..workbench.models import pool_tables
 
     i = list(EXPECTED).index(form)
     seed = TEST_SEED + 10 * i + draw
-    got: dict = {}
+    floor, amp, t, clean, size_n = _sized(lab, record(lab.scenario(seed)), form, size)
+    tables = [(t, clean)]
 
-    def diagnosed(pokes: int | None):
-        got["floor"], got["amp"], got["t"], clean, got["size"] = _sized(lab, record(lab.scenario(seed, pokes)), form, size)
-        got["clean"] = clean
-        return lab.diagnose(got["t"])
+    def diagnosed(n: int):
+        while len(tables) < n:
+            tables.append(lab.table(record(lab.scenario(seed + MORE_SEED * len(tables))), form, amp))
+        return lab.diagnose(pool_tables([x for x, _ in tables[:n]]) if n > 1 else t)
 
-    d, pokes, first = lengthened(diagnosed, lab.pokes(), mde_target, max_pokes)
-    floor, amp, t, clean = got["floor"], got["amp"], got["t"], got["clean"]
+    d, n, first = pooled(diagnosed, mde_target, max_sessions)
     row = {"path": lab.path, "form": form, "unit": lab.unit, "draw": draw, "size_floor": size, "floor": floor,
-           "size_n": got["size"], "amp": amp, "rows": len(t), "pokes": pokes, **_diag(d), **first}
+           "size_n": size_n, "amp": amp, "rows": len(t), "sessions": n, **_diag(d), **first}
+    if n > 1:
+        row["rows_pooled"] = int(sum(len(x) for x, _ in tables[:n]))
+        row["size_n_pooled"] = _rms(np.concatenate([x.meas - c for x, c in tables[:n]]))
     if form in MULTIPLICATIVE:
         loaded = np.linalg.norm(clean, axis=1) >= 0.2
         g = gain_of(t.meas, clean)[loaded]
@@ -364,7 +366,7 @@ def run_case(lab: PathLab, form: str, size: float, draw: int, mde_target: float 
         row["right"] = bool(row["family"] == fam and not row["pair"])
     v = d.verdict
     if v is not None and v.pair is None and v.channel == "force":
-        second = record(lab.scenario(SECOND_SEED + 10 * i + draw, pokes))
+        second = record(lab.scenario(SECOND_SEED + 10 * i + draw))
         a2, clean2 = lab.table(second, form, amp)
         chain = EffectChain([EnabledEffect(v.effect, dict(v.params))])
         base2 = lab.base(a2)
@@ -410,18 +412,22 @@ def null_sessions(path: str, forms: list, draws: int, n: int) -> list[tuple[str,
 
 
 def run_null(lab: PathLab, name: str, seed: int, raw: bool = True, mde_target: float | None = None,
-             max_pokes: int = MAX_POKES) -> dict:
-    """One session without a hidden effect, lengthened as `run_case` lengthens a case's."""
-    got: dict = {}
+             max_sessions: int = MAX_SESSIONS) -> dict:
+    """One session without a hidden effect, with more sessions of its unit pooled as `run_case` pools
+    a case's (`pooled`)."""
+    from ..workbench.models import pool_tables
 
-    def diagnosed(pokes: int | None):
-        got["t"] = lab.table(record(lab.scenario(seed, pokes)))[0]
-        return lab.diagnose(got["t"])
+    tables = [lab.table(record(lab.scenario(seed)))[0]]
 
-    d, pokes, first = lengthened(diagnosed, lab.pokes(), mde_target, max_pokes)
-    t = got["t"]
+    def diagnosed(n: int):
+        while len(tables) < n:
+            tables.append(lab.table(record(lab.scenario(seed + MORE_SEED * len(tables))))[0])
+        return lab.diagnose(pool_tables(tables[:n]) if n > 1 else tables[0])
+
+    d, n, first = pooled(diagnosed, mde_target, max_sessions)
+    t = pool_tables(tables[:n]) if n > 1 else tables[0]
     row = {"path": lab.path, "null": name, "seed": seed, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)),
-           "rows": len(t), "pokes": pokes, **_diag(d), **first}
+           "rows": len(t), "sessions": n, **_diag(d), **first}
     if lab.own is not None and raw:
         raw = _diag(lab.diagnose(t, own=False))
         row["without_own_error"] = {k2: raw[k2] for k2 in ("verdict", "p", "best", "best_p", "top_covariate",
@@ -445,7 +451,7 @@ def summarize(rows: list, forms_set: str = "scored") -> dict:
             continue
         path = ((f"{path} ({fe}{'' if fe_pokes == FE_POKES else f', {fe_pokes}-poke sessions'})" if fe else path)
                 + ("" if world == "analytic" else f" [{world} world]")
-                + (f" [sessions lengthened to an MDE of {target:g}× the floor]" if target else "")
+                + (f" [sessions pooled to an MDE of {target:g}× the floor]" if target else "")
                 + (f" [{model}]" if model else ""))
         big = [r for r in cases if r["size_floor"] >= 1.0]
         removed = [r["removed"] for r in big if r["right"] and "removed" in r]
@@ -489,7 +495,7 @@ def _variant(r: dict) -> tuple[str, str]:
     if r.get("model"):
         path += f" ({r['model']})"
     if r.get("mde_target"):
-        path += f", lengthened to MDE ≤ {r['mde_target']:g}× floor"
+        path += f", sessions pooled to MDE ≤ {r['mde_target']:g}× floor"
     return r.get("world", "analytic"), path
 
 
@@ -532,7 +538,7 @@ def markdown(rows: list, forms_set: str = "scored") -> str:
             lines.append(f"- {world}, {path}, {r['form']} {r['size_floor']:g}× ({r['size_n']:.3f} N, MDE "
                          f"{r['mde'] or 0:.3f} N, {r['unit']}{f', gain {g[0]:.2f}–{g[1]:.2f}' if g else ''}): "
                          f"{verdict}{removed}{'' if r['right'] else ' — wrong/missed'}"
-                         + (f"; {r['pokes']} pokes (the first {r['first']['pokes']}: MDE {r['first']['mde'] or 0:.3f} N, "
+                         + (f"; {r['sessions']} sessions together (one alone: MDE {r['first']['mde'] or 0:.3f} N, "
                             f"{r['first']['verdict'] or 'no verdict'})" if r.get("first") else ""))
     return "\n".join(table + [""] + lines) + "\n"
 
@@ -578,8 +584,8 @@ def run(a: argparse.Namespace) -> int:
                     labs[path, unit] = PathLab(path, unit, work, a.model, own=not a.no_own_error,
                                                fe_physics=a.fe_physics, world=a.world, fe_pokes=a.fe_pokes)
                 lab = labs[path, unit]
-                row = (run_null(lab, arg[0], arg[1], path in (a.raw_nulls or []), a.mde_target, a.max_pokes)
-                       if kind == "null" else run_case(lab, arg[2], arg[0], arg[1], a.mde_target, a.max_pokes))
+                row = (run_null(lab, arg[0], arg[1], path in (a.raw_nulls or []), a.mde_target, a.max_sessions)
+                       if kind == "null" else run_case(lab, arg[2], arg[0], arg[1], a.mde_target, a.max_sessions))
                 row["set"] = "null" if kind == "null" else ("tuning" if arg[2] in TUNING else "scored")
                 if path == "fe":
                     row["fe_physics"], row["fe_pokes"] = a.fe_physics, a.fe_pokes
