@@ -144,3 +144,22 @@ def test_effect_parameters_given_with_a_unit(env, capsys):
                        ("spin=1", "has no parameter 'spin'"), ("tau=3N", "'N' does not convert")):
         with pytest.raises(TensorTouchError, match=words):
             run(["effects", "add", "viscoelastic_relaxation", "--param", bad, *common], capsys)
+
+
+def test_diagnose_with_more_sessions_pools_their_rows(env, capsys):
+    """`diagnose SESSION --with SESSION2`: one diagnosis of both sessions' rows (the second recorded
+    with the same hidden stiffening); with --paths it is refused on one line."""
+    (calib, hidden), store, tmp = env
+    second = record(Scenario(41, pokes=14, effects=(("strain_stiffening", {"k": 15.0}),)))
+    common = ["--sensor", SENSOR, "--store", str(store)]
+    run(["compare", str(calib), *common, "--out", str(tmp / "c"), "--model-from", str(calib), "--no-pictures"], capsys)
+    alone = json.loads(run(["diagnose", str(hidden), *common, "--json"], capsys)[1].strip().splitlines()[-1])
+    code, text = run(["diagnose", str(hidden), *common, "--with", str(second), "--json"], capsys)
+    both = json.loads(text.strip().splitlines()[-1])
+    assert code == 0 and "diagnosing 2 sessions together" in text
+    assert both["with"] == [str(second.resolve())] and both["verdict"] == "strain_stiffening"
+    assert both["n_samples"] > 1.5 * alone["n_samples"]
+    from tensortouch.contracts.errors import TensorTouchError
+
+    with pytest.raises(TensorTouchError, match="--with pools sessions on one model path"):
+        run(["diagnose", str(hidden), *common, "--with", str(second), "--paths", "output"], capsys)

@@ -277,3 +277,35 @@ def test_harness_pools_sessions_as_the_diagnosis_asks():
     assert "output (m), sessions pooled to MDE ≤ 1× floor" in out[0]
     assert out[2].endswith("; 4 sessions together (one alone: MDE 0.200 N, no verdict)")
     assert list(summarize([row])) == ["output [sessions pooled to an MDE of 1× the floor] [m]"]
+
+
+def _softened(seed: int, a: float) -> SampleTable:
+    """A synthetic 12-poke session whose measured force softens by a per °C above 22 °C (hidden)."""
+    s = session(seed, n_pokes=12)
+    c = dict(s["cols"])
+    c["series"] = np.zeros(len(c["time"]))
+    meas = s["meas"] * (1.0 - a * (c["temperature"] - 22.0))[:, None]
+    return SampleTable(c, meas, s["model"], {"normal": s["normal"]}, {})
+
+
+def test_sessions_diagnosed_together_see_what_one_cannot():
+    """`diagnose SESSION --with ...` pools sessions (pool_tables): a softening of 0.6 %/°C is missed on
+    one 12-poke session and found on four together, whose MDE is about half; four clean sessions
+    together give no verdict."""
+    reg = Registry.default(entry_points=False)
+    one = diagnose(_softened(41, 0.006), reg, cfg=QUICK, candidates=FAMILIES)
+    four = diagnose(pool_tables([_softened(41 + k, 0.006) for k in range(4)]), reg, cfg=QUICK, candidates=FAMILIES)
+    assert one.verdict is None
+    assert four.verdict is not None and four.verdict.effect.name == "temperature_softening"
+    assert four.mde["mde"] < 0.6 * one.mde["mde"]
+    clean = diagnose(pool_tables([_softened(41 + k, 0.0) for k in range(4)]), reg, cfg=QUICK, candidates=FAMILIES)
+    assert clean.verdict is None
+
+
+def test_pooled_correction_runs_each_sessions_own_on_its_rows():
+    from tensortouch.tools.workbench.models import pool_posts
+
+    post = pool_posts([lambda x: 2 * x, None, lambda x: x + 1], [2, 1, 2])
+    x = np.arange(15, dtype=float).reshape(5, 3)
+    assert np.array_equal(post(x), np.concatenate([2 * x[:2], x[2:3], x[3:] + 1]))
+    assert pool_posts([None, None], [3, 4]) is None

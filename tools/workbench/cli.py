@@ -66,6 +66,10 @@ def register(sub) -> None:
     d = sub.add_parser("diagnose", help="which physical effect is missing? (blocked CV, significance test)")
     session_args(d)
     _model_args(d)
+    d.add_argument("--with", dest="with_sessions", metavar="SESSION", nargs="+", action="extend",
+                   help="more sessions of the same sensor, diagnosed together with SESSION: their presses are "
+                        "pooled, so the minimum detectable effect falls as 1/sqrt(presses) (what the diagnosis' "
+                        "'record N more presses' asks for)")
     d.add_argument("--json", action="store_true", help="print one JSON object on the last line")
     d.add_argument("--blocks", type=int, help="use this many equal time blocks (default: blocks of whole presses, at most 40)")
     d.add_argument("--alpha", type=float, help="family-wise significance level (default 0.05)")
@@ -159,8 +163,15 @@ def cmd_diagnose(args) -> int:
     from .diagnose import DiagnoseConfig, diagnose
 
     if args.paths:
+        if args.with_sessions:
+            from ...contracts.errors import TensorTouchError
+
+            raise TensorTouchError("--with pools sessions on one model path; drop --paths (or run one path with "
+                                   "--model)")
         return cmd_paths(args, diagnosis=True)
     comp = compare_session(args)
+    if args.with_sessions:
+        comp = pooled_comparison(args, comp)
     cfg = DiagnoseConfig()
     if args.blocks:
         cfg = replace(cfg, n_blocks=args.blocks, blocks="time")
@@ -180,6 +191,7 @@ def cmd_diagnose(args) -> int:
     if own is not None:
         result["own_error"] = own.to_json()
     result.update({"session": str(Path(args.session).resolve()), "sensor_id": comp.summary["sensor_id"],
+                   "with": [str(Path(s).resolve()) for s in args.with_sessions or []],
                    "enabled": diag.enabled, "n_samples": diag.n_samples, "n_blocks": diag.n_blocks,
                    "seconds": round(diag.seconds, 2)})
     text = json.dumps(result, default=float)
@@ -204,6 +216,33 @@ def cmd_diagnose(args) -> int:
     if args.json:
         print(text)
     return 0
+
+
+def pooled_comparison(args, comp):
+    """`comp` with the rows of every --with session of the same sensor appended (`pool_tables`; each
+    session's correction on its own rows), as one comparison to diagnose."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from ...contracts.errors import TensorTouchError
+    from .models import pool_posts, pool_tables
+
+    more = []
+    for s in args.with_sessions:
+        sub = SimpleNamespace(**vars(args))
+        sub.session, sub.model_from, sub.correction_from = s, None, None
+        c = compare_session(sub)
+        if c.summary["sensor_id"] != comp.summary["sensor_id"]:
+            raise TensorTouchError(f"{s}: sensor {c.summary['sensor_id']!r}, but {args.session} is of "
+                                   f"{comp.summary['sensor_id']!r}; --with pools sessions of one sensor")
+        more.append(c)
+    comps = [comp] + more
+    comp.table = pool_tables([c.table for c in comps])
+    comp.pred = np.concatenate([c.pred for c in comps])
+    comp.post = pool_posts([c.post for c in comps], [len(c.table) for c in comps])
+    print(f"diagnosing {len(comps)} sessions together ({len(comp.table)} rows)")
+    return comp
 
 
 def own_error_of(args, comp):

@@ -112,8 +112,8 @@ def words(m: dict) -> str:
     head = (f"effects smaller than {m['mde']:.3g} N ({m['mde'] / m['floor']:.2f}× the floor {m['floor']:.3g} N) "
             f"would not have been seen (α = {m['alpha']:.2g}, power {100 * m['power']:.0f} %{span})")
     if "more_presses" in m:
-        return (head + f"; record {m['more_presses']} more presses (~{m['more_minutes']:.1f} more minutes) "
-                f"to see effects down to {m['target']:.3g} N")
+        return (head + f"; record {m['more_presses']} more presses (~{m['more_minutes']:.1f} more minutes) and "
+                f"diagnose them with this session (--with) to see effects down to {m['target']:.3g} N")
     if m["limited_by"] == "practical":
         return head + ("; the bar is the practical minimum reduction, not the session's length: more "
                        "presses would not lower it, a model with a lower floor would")

@@ -163,6 +163,19 @@ class ContactLaw:
         return cls(data["laws"], float(data["mu"]), data.get("source", str(path)))
 
 
+def pool_posts(posts: list, sizes: list[int]):
+    """One correction for the rows of pooled tables (`pool_tables`): each table's `post` (None = none)
+    on its own rows, in order. None when no table has one."""
+    if all(p is None for p in posts):
+        return None
+    edges = np.cumsum(sizes)[:-1]
+
+    def post(x):
+        parts = np.split(np.asarray(x), edges)
+        return np.concatenate([p(part) if p is not None else part for p, part in zip(posts, parts)])
+    return post
+
+
 def pool_tables(tables: list) -> SampleTable:
     """The rows of several sessions' tables as one table for the contact-law fit: the columns and
     vectors all of them have, series renumbered so each keeps its indenter name."""
