@@ -5,7 +5,8 @@ calibration sessions, and FE solved at each session's measured keypoints (issue 
     tensortouch accept workbench-paths [--paths contact-law output fe] [--draws 1] [--sizes 1 3]
                                        [--nulls 10] [--forms NAME ...] [--tuning] [--fe-physics fe]
                                        [--world analytic|fe] [--fe-pokes 6]
-                                       [--model PACKAGE] [--work DIR] [--progress FILE]
+                                       [--model PACKAGE] [--mde-target X] [--max-sessions 8]
+                                       [--work DIR] [--progress FILE]
 
 Units TWIN-K01..K03, frames at 2 fps rendered at the shipped model's 128 px, recorded with the twin's
 analytic contact physics or (`--world fe`) with the twin's FE, the physics the shipped network was
@@ -36,6 +37,11 @@ path's rows is `size` × the path's floor (rms |r| of the unaltered session agai
 own error). Per row: the verdict, "right", and on a second session of the unit altered the same way,
 with the verdict added, the share of the effect's own contribution removed:
 (before - after) / (before - unaltered).
+
+Pooled sessions (`--mde-target X`): when a case's or a null's session gives no verdict and an MDE above
+X times its floor, as many more sessions of the unit as the MDE asks for (seeds + MORE_SEED·k, the same
+effect at the same amplitude; at most `--max-sessions`, at most twice) are diagnosed together with it
+(`pool_tables`, as `diagnose SESSION --with ...` does).
 
 Nulls: unaltered sessions the own error was not fitted on: first the cases' test and second sessions
 before their effect is put in, then sessions of new plans, `--nulls` in all per path; on the paths of
