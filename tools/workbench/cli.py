@@ -238,9 +238,9 @@ def pooled_comparison(args, comp):
                                    f"{comp.summary['sensor_id']!r}; --with pools sessions of one sensor")
         more.append(c)
     comps = [comp] + more
-    comp.table = pool_tables([c.table for c in comps])
-    comp.pred = np.concatenate([c.pred for c in comps])
-    comp.post = pool_posts([c.post for c in comps], [len(c.table) for c in comps])
+    tables, preds, posts = [c.table for c in comps], [c.pred for c in comps], [c.post for c in comps]
+    comp.table, comp.pred = pool_tables(tables), np.concatenate(preds)
+    comp.post = pool_posts(posts, [len(t) for t in tables])
     print(f"diagnosing {len(comps)} sessions together ({len(comp.table)} rows)")
     return comp
 
