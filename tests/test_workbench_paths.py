@@ -309,3 +309,29 @@ def test_pooled_correction_runs_each_sessions_own_on_its_rows():
     x = np.arange(15, dtype=float).reshape(5, 3)
     assert np.array_equal(post(x), np.concatenate([2 * x[:2], x[2:3], x[3:] + 1]))
     assert pool_posts([None, None], [3, 4]) is None
+
+
+def test_diagnose_with_pools_each_sessions_correction_on_its_own_rows(monkeypatch):
+    """`diagnose --with` (cli.pooled_comparison): the pooled table's correction runs the first session's
+    on its rows and the second's on its own, whatever the tables' sizes (comparisons stubbed: the test
+    is about the bookkeeping)."""
+    from types import SimpleNamespace
+
+    from tensortouch.tools.workbench import cli
+
+    def comp_of(seed, k):
+        t = _softened(seed, 0.0)
+        return SimpleNamespace(table=t, pred=np.zeros((len(t), 3)), post=lambda x, k=k: k * x,
+                               summary={"sensor_id": "S"})
+
+    first, second = comp_of(41, 2.0), comp_of(42, 3.0)
+    n1, n2 = len(first.table), len(second.table)
+    monkeypatch.setattr(cli, "compare_session", lambda sub: second)
+    args = SimpleNamespace(session="A", with_sessions=["B"], model_from=None, correction_from=None)
+    pooled = cli.pooled_comparison(args, first)
+    assert len(pooled.table) == n1 + n2 and pooled.pred.shape == (n1 + n2, 3)
+    out = pooled.post(np.ones((n1 + n2, 3)))
+    assert np.all(out[:n1] == 2.0) and np.all(out[n1:] == 3.0)
+    second.summary = {"sensor_id": "other"}
+    with pytest.raises(TensorTouchError, match="pools sessions of one sensor"):
+        cli.pooled_comparison(args, comp_of(43, 1.0))
