@@ -424,14 +424,16 @@ def run_null(lab: PathLab, name: str, seed: int, raw: bool = True, mde_target: f
     from ..workbench.models import pool_tables
 
     tables = [lab.table(record(lab.scenario(seed)))[0]]
+    last: dict = {}
 
     def diagnosed(n: int):
         while len(tables) < n:
             tables.append(lab.table(record(lab.scenario(seed + MORE_SEED * len(tables))))[0])
-        return lab.diagnose(pool_tables(tables[:n]) if n > 1 else tables[0])
+        last["t"] = pool_tables(tables[:n]) if n > 1 else tables[0]
+        return lab.diagnose(last["t"])
 
     d, n, first = pooled(diagnosed, mde_target, max_sessions)
-    t = pool_tables(tables[:n]) if n > 1 else tables[0]
+    t = last["t"]
     row = {"path": lab.path, "null": name, "seed": seed, "unit": lab.unit, "floor": _rms(t.meas - lab.base(t)),
            "rows": len(t), "sessions": n, **_diag(d), **first}
     if lab.own is not None and raw:

@@ -20,7 +20,6 @@ class SimFingertip:
                  contact_cfg: DomeContactConfig | None = None):
         self.sensor_id = sensor_id
         self.unit = unit
-        self.renderer = unit.renderer
         self.contact_cfg = contact_cfg or DomeContactConfig()
         self.rng = np.random.default_rng(seed)
         self.camera = SimCamera()
