@@ -12,10 +12,10 @@ from tensortouch.tools.grasp.controller import ControllerConfig, SelectiveGraspC
 from tensortouch.tools.grasp.sensor_mount import SensorMount
 
 
-def _line_graph():
-    """Five pinches along world x (mm apart), fingertips above/below, sensor pads facing the pinch."""
+def _line_graph(half_m: float = 0.008):
+    """Nine pinches along world x (±`half_m`), fingertips above/below, sensor pads facing the pinch."""
     n = 9
-    xs = np.linspace(-0.008, 0.008, n)
+    xs = np.linspace(-half_m, half_m, n)
     q = np.stack([xs * 10, np.zeros(n)], 1)
     point = np.stack([xs, np.zeros(n), np.zeros(n)], 1)
     normal = np.tile([0, 0, 1.0], (n, 1))
@@ -461,3 +461,59 @@ def test_repinch_moves_on_while_a_gel_still_feels_the_other_object():
     assert d is not None and g.point[d.goal][0] == pytest.approx(0.006)
     assert d.path[0] == first and d.terms["repinch"] == 1 and d.terms["clear_mm"] == pytest.approx(14.5)
     assert ctrl.repinch() is None                          # at most `repinches`
+
+
+def test_an_arm_carries_the_goal_beyond_the_graphs_reach():
+    """A graph reaching only ±2 mm across, objects at ±3.5 mm, the +3.5 mm one pulled (held lightly:
+    not aimed). Without the arm the best pinch crosses 1.5 mm short of it. With the arm, and the
+    other object already clear (clear_mm 12 mm: it lies 7 mm across and 12 mm up from the nearer
+    fingertip centre, 13.9 mm), every node is slid across until its line of centres crosses the
+    object (e = 0); the goal is the node needing the least travel plus path, x = +2 mm with the arm
+    at +1.5 mm. Wanting 17 mm of clearance, the arm goes the full `arm_beyond_mm` (1.5 mm) beyond,
+    away from the other: ρ = √(8.5² + 12²). Within a 1 mm reach it stops at 1 mm, e = 0.5 mm. The arm's steps
+    end at the goal's translation."""
+    from tensortouch.tools.grasp.controller import goal_terms
+
+    g, m = _line_graph(0.002), SensorMount()
+    moving, other = np.array([0.0035, 0, 0]), np.array([-0.0035, 0, 0])
+    tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
+    base = ControllerConfig(clear_mm=12.0)
+    plain = goal_terms(g.point, g.normal, tips, g.normal[4], moving, other, base)
+    assert "arm" not in plain and plain["e"].min() == pytest.approx(1.5)
+    carried = goal_terms(g.point, g.normal, tips, g.normal[4], moving, other, replace(base, arm_mm=25.0))
+    np.testing.assert_allclose(carried["e"], 0.0, atol=1e-9)
+    np.testing.assert_allclose(carried["arm"][:, 0], 0.0035 - g.point[:, 0], atol=1e-12)
+    np.testing.assert_allclose(carried["arm_travel"], (0.0035 - g.point[:, 0]) * 1000.0, atol=1e-9)
+    np.testing.assert_allclose(carried["rho_other"], np.hypot(7.0, 12.0), atol=1e-6)
+    room = goal_terms(g.point, g.normal, tips, g.normal[4], moving, other, replace(base, arm_mm=25.0, clear_mm=17.0))
+    np.testing.assert_allclose(room["e"], 1.5, atol=1e-9)
+    np.testing.assert_allclose(room["rho_other"], np.hypot(8.5, 12.0), atol=1e-6)
+    short = goal_terms(g.point, g.normal, tips, g.normal[4], moving, other, replace(base, arm_mm=1.0),
+                       arm=np.array([0.0005, 0, 0]))
+    assert short["arm"][8, 0] == pytest.approx(0.001) and short["e"][8] == pytest.approx(0.5)
+    assert short["arm_travel"][8] == pytest.approx(0.5)
+
+    ctrl = SelectiveGraspController(g, 4, m, replace(base, arm_mm=25.0, arm_step_mm=0.2))
+    d = ctrl.decision = ctrl._plan(moving, other, [1.0, 0.0], held_n=1.0)
+    assert d.goal == 8 and d.path[0] == 4 and d.path[-1] == 8 and len(d.path) < 8
+    np.testing.assert_allclose(d.arm, [0.0015, 0, 0], atol=1e-12)
+    assert d.terms["arm_mm"][0] == pytest.approx(1.5) and d.terms["e"] == pytest.approx(0.0)
+    arms = ctrl.arm_trajectory()
+    times, qs = ctrl.trajectory()
+    assert len(arms) == len(qs) == 8                    # 1.5 mm at 0.2 mm per step: 8 steps, more than the path's
+    np.testing.assert_allclose(arms[-1], d.arm)
+    k = len(d.path)
+    np.testing.assert_allclose(qs[k:], np.repeat(g.q[8:9], 8 - k, axis=0))   # the fingers wait at the goal
+    assert np.all(np.diff(arms[:, 0]) > 0) and np.all(np.diff(times) > 0)
+    ctrl.moved_to_goal()
+    np.testing.assert_allclose(ctrl.arm, d.arm)
+
+
+def test_an_arm_shifts_where_the_controller_places_the_gel_contacts():
+    """The same gel contact stands for a world point carried by the arm's translation, and back."""
+    g, m = _line_graph(), SensorMount()
+    home = SelectiveGraspController(g, 4, m)
+    moved = SelectiveGraspController(g, 4, m, arm=np.array([0.004, -0.001, 0.0]))
+    p = _on_gel(m, g.tip_thumb[4], np.array([0.0035, 0, 0]))
+    np.testing.assert_allclose(moved._world("thumb", p) - home._world("thumb", p), [0.004, -0.001, 0.0], atol=1e-12)
+    np.testing.assert_allclose(moved._gel("thumb", moved._world("thumb", p)), p, atol=1e-9)

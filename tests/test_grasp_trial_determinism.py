@@ -68,3 +68,24 @@ def test_a_randomized_trial_runs_its_draw(small_hand):
     assert r.pulled == d.pulled and r.task["start"] >= 0
     assert r.outcome == "success" or failure_class(r) in FAILURES
     assert any(f["felt"]["thumb"] or f["felt"]["index"] for f in log)     # the drawn layout is pinched
+
+
+@pytest.mark.slow
+def test_a_randomized_trial_with_the_arm_starts_at_the_hands_own_pinch(small_hand):
+    """`TrialConfig.arm`: the arm, not another graph node, brings the start pinch to where the objects
+    are seen (the layout's shift across, to ± layout_error_mm), and the draw records where."""
+    from tensortouch.tools.grasp.task import TaskDistribution, draw
+    from tensortouch.tools.grasp.trial import FAILURES, Bench, TrialConfig, failure_class
+
+    cfg = TrialConfig(startup_frames=24, close_s=0.2, settle_s=0.12, decide_timeout_s=0.32, hold_s=0.08,
+                      frame_timeout_s=20.0, randomize=True, arm=True)
+    bench = Bench(small_hand / "contact_graph.npz", small_hand / "hand_mounted.urdf", cfg)
+    seed = next(s for s in range(100) if abs(draw(TaskDistribution(), ("pen", "pen"), s).shift_mm[0]) > 3)
+    try:
+        r = bench.trial("rigid+rigid", seed)
+    finally:
+        bench.close()
+    shift = draw(TaskDistribution(), ("pen", "pen"), seed).shift_mm[0]
+    assert r.task["start"] == bench.start
+    assert abs(np.linalg.norm(r.task["arm_start_mm"]) - abs(shift)) <= cfg.layout_error_mm + 1e-6
+    assert r.outcome == "success" or failure_class(r) in FAILURES

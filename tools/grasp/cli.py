@@ -57,6 +57,9 @@ def register(sub) -> None:
                    help="draw each trial's task from the task distribution (tools/grasp/task.py: placement ±5 mm, "
                         "yaw ±15°, diameters, pull force and direction, friction, soft or stiff contact) instead of "
                         "the fixed scene")
+    g.add_argument("--arm", action="store_true",
+                   help="the hand's palm on an arm that translates it (TrialConfig.arm): with --randomize the arm "
+                        "brings the start pinch to where the objects are seen, and the controller's goals may move it")
     g.add_argument("--merge", nargs="+", action="extend", metavar="DIR",
                    help="run no trials: merge the grasp_trials.json of these earlier --out folders (e.g. one run "
                         "per seed range) into one table and trials file in --out")
@@ -179,7 +182,7 @@ def cmd_grasp(args) -> int:
                                        refine_radius_mm=14.0, seed=0)
             if cmd_mount(margs) != 0:
                 return 2
-        bench = trial.Bench(graph_path, urdf, cfg=trial.TrialConfig(randomize=args.randomize), model=args.model)
+        bench = trial.Bench(graph_path, urdf, cfg=trial.TrialConfig(randomize=args.randomize, arm=args.arm), model=args.model)
     except TensorTouchError as exc:
         print(f"tensortouch grasp: {exc}", file=sys.stderr)
         return 2

@@ -31,6 +31,12 @@ simulator; `ControllerNode` wires it to Zenoh like any other subscriber.
    fingertips where the graph allows, as near as it can otherwise, then prefers a short joint
    path. An object held firmly on both gels (≥ `aim_min_load_n`: a thick, stiff one) is aimed
    `aim_mm` beyond, away from the other. Dijkstra gives the path.
+   With an arm (`arm_mm` > 0) each node's goal also carries the arm's translation of the palm
+   across the objects that puts its line of fingertip centres at the aimed place (the moving
+   object, or `aim_mm` beyond it) or up to `arm_beyond_mm` farther from the other object,
+   whichever scores best (more room from the other object against an off-centre pinch), within
+   ±`arm_mm` of the arm's home; the arm's travel costs `arm_weight` per mm.
+   Where the arm is comes from its own commands (`arm`), never from the simulator.
 4. Re-pinch (`repinch`): after the hold, while a gel still reports at least `touch_n` on the other
    object's side (`other_felt`, seen from the goal's fingertip poses), a new goal from there with
    `repinch_clear_mm` more clearance, at most `repinches` times.
@@ -92,6 +98,11 @@ class ControllerConfig:
     max_normal_deg: float = 15.0
     cost_weight_mm_per_rad: float = 2.0     # path length penalty when choosing the goal
     step_s: float = 0.04                    # time per path node when executing
+    arm_mm: float = 0.0                     # > 0: the palm rides an arm that can move it this far across from home (m·1e-3)
+    arm_weight: float = 0.5                 # goal score per mm the arm travels
+    arm_step_mm: float = 1.0                # the arm moves at most this far per step_s
+    arm_grid_mm: float = 0.25               # the arm's places tried per node: the aim, and beyond it (away from the
+    arm_beyond_mm: float = 1.5              # other object) up to this far, on this grid
 
     def __post_init__(self):
         for name, allowed in (("attribute", ("lever", "cluster")), ("witness", tuple(WITNESS))):
@@ -107,14 +118,19 @@ class Decision:
     path: list[int]
     scores: list[float] = field(default_factory=list)
     terms: dict = field(default_factory=dict)   # the goal's e, lean, h, rho_other (mm), clearance wanted, aim
+    arm: np.ndarray | None = None           # the arm's translation at the goal (m), None without an arm
+    arm_from: np.ndarray | None = None      # and where it starts the path from
 
 
 class SelectiveGraspController:
     SENSORS = ("thumb", "index")
 
     def __init__(self, graph: ContactGraph, start: int, mount: SensorMount | None = None,
-                 cfg: ControllerConfig | None = None):
+                 cfg: ControllerConfig | None = None, arm: np.ndarray | None = None):
+        """`arm`: the arm's translation of the palm from its home (world, m) at the start; the graph's
+        poses are the hand's with the arm at home."""
         self.graph, self.node, self.start = graph, int(start), int(start)
+        self.arm = np.zeros(3) if arm is None else np.asarray(arm, float).copy()
         self.mount = mount or SensorMount()
         self.cfg = cfg or ControllerConfig()
         self._lock = threading.Condition()
@@ -210,7 +226,7 @@ class SelectiveGraspController:
     def _world(self, sensor: str, p_mm: np.ndarray) -> np.ndarray:
         T = self.graph.tip_thumb[self.node] if sensor == "thumb" else self.graph.tip_index[self.node]
         u = self.mount.gel_to_direction(p_mm)
-        return T[:3, 3] + T[:3, :3] @ u * (self.mount.tip_radius_mm / 1000.0)
+        return T[:3, 3] + self.arm + T[:3, :3] @ u * (self.mount.tip_radius_mm / 1000.0)
 
     def _along(self, s: str, p_ref: np.ndarray, nrm: np.ndarray) -> np.ndarray | None:
         """Unit direction along the object pinched at reference cluster p_ref on sensor s: the
@@ -289,7 +305,7 @@ class SelectiveGraspController:
         """World point x (m) → the gel point (mm, sensor frame) in its direction from the fingertip
         centre (the inverse of `_world`)."""
         T = self.graph.tip_thumb[self.node] if sensor == "thumb" else self.graph.tip_index[self.node]
-        u = T[:3, :3].T @ (np.asarray(x, float) - T[:3, 3])
+        u = T[:3, :3].T @ (np.asarray(x, float) - self.arm - T[:3, 3])
         return self.mount.direction_to_gel(u / np.linalg.norm(u))
 
     def _reference_pair(self) -> dict | None:
@@ -351,13 +367,20 @@ class SelectiveGraspController:
         aimed = held_n >= self.cfg.aim_min_load_n or other_held_n >= self.cfg.aim_beside_load_n
         aim = self.cfg.aim_mm if aimed else 0.0
         cfg = self.cfg
-        terms = goal_terms(g.point, g.normal, tips, g.normal[self.node], moving, other, cfg, aim)
+        terms = goal_terms(g.point, g.normal, tips, g.normal[self.node], moving, other, cfg, aim, self.arm)
         score = goal_scores(g.point, g.normal, tips, g.reachable_costs(self.node), g.normal[self.node], moving,
                             other, cfg, aim, terms)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else self.node
+        return self._decision(moving, other, goal, g.path(self.node, goal), scores, terms, cfg, aim, self.arm)
+
+    def _decision(self, moving, other, goal, path, scores, terms, cfg, aim, arm_from, **extra) -> Decision:
+        arm = terms.pop("arm", None)
         chosen = {k: round(float(v[goal]), 3) for k, v in terms.items()}
-        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim)
-        return Decision(moving, other, goal, g.path(self.node, goal), scores, chosen)
+        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim, **extra)
+        if arm is not None:
+            chosen["arm_mm"] = [round(float(x) * 1000.0, 3) for x in arm[goal]]
+        return Decision(moving, other, goal, path, scores, chosen, None if arm is None else arm[goal].copy(),
+                        None if arm is None else np.asarray(arm_from, float).copy())
 
     def other_felt(self) -> dict[str, float]:
         """After a path: per gel the force (N) of the clusters lying nearer the other object's place
@@ -369,6 +392,9 @@ class SelectiveGraspController:
         with self._lock:
             latest = {s: list(v) for s, v in self.latest.items()}
         node, self.node = self.node, d.goal
+        arm = self.arm
+        if d.arm is not None:
+            self.arm = d.arm
         try:
             for s in self.SENSORS:
                 a, b = self._gel(s, d.moving_point), self._gel(s, d.other_point)
@@ -376,7 +402,7 @@ class SelectiveGraspController:
                     if np.linalg.norm(p - b) < np.linalg.norm(p - a):
                         out[s] += float(np.linalg.norm(f))
         finally:
-            self.node = node
+            self.node, self.arm = node, arm
         return out
 
     def repinch(self) -> Decision | None:
@@ -395,24 +421,47 @@ class SelectiveGraspController:
         tips = np.stack([g.tip_thumb[:, :3, 3], g.tip_index[:, :3, 3]], axis=1)
         cfg = replace(self.cfg, clear_mm=d.terms["clear_mm"] + self.cfg.repinch_clear_mm)
         aim = d.terms.get("aim_mm", 0.0)
-        terms = goal_terms(g.point, g.normal, tips, g.normal[self.start], d.moving_point, d.other_point, cfg, aim)
+        arm_now = self.arm if d.arm is None else d.arm
+        terms = goal_terms(g.point, g.normal, tips, g.normal[self.start], d.moving_point, d.other_point, cfg, aim, arm_now)
         score = goal_scores(g.point, g.normal, tips, g.reachable_costs(d.goal), g.normal[self.start], d.moving_point,
                             d.other_point, cfg, aim, terms)
         goal = int(np.argmin(score)) if np.isfinite(score).any() else d.goal
-        if goal == d.goal:
+        moved = "arm" in terms and np.linalg.norm(terms["arm"][goal] - arm_now) > 1e-4
+        if goal == d.goal and not moved:
             return None
-        chosen = {k2: round(float(v[goal]), 3) for k2, v in terms.items()}
-        chosen.update(clear_mm=round(cfg.clear_mm, 3), aim_mm=aim, repinch=k, felt_n=[round(felt[s], 3) for s in self.SENSORS],
-                      before={k2: d.terms[k2] for k2 in ("e", "lean", "h", "rho_other", "clear_mm") if k2 in d.terms})
-        self.decision = Decision(d.moving_point, d.other_point, goal, g.path(d.goal, goal), d.scores, chosen)
+        before = {k2: d.terms[k2] for k2 in ("e", "lean", "h", "rho_other", "clear_mm") if k2 in d.terms}
+        self.decision = self._decision(d.moving_point, d.other_point, goal, g.path(d.goal, goal), d.scores, terms, cfg,
+                                       aim, arm_now, repinch=k, felt_n=[round(felt[s], 3) for s in self.SENSORS],
+                                       before=before)
         return self.decision
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """(times from now, joint targets) along the decided path."""
-        if self.decision is None or not self.decision.path:
+        """(times from now, joint targets) along the decided path; with an arm, the path is held at
+        its goal for as many more steps as the arm needs (`arm_trajectory`)."""
+        d = self.decision
+        if d is None or not d.path:
             return np.zeros(0), np.zeros((0, self.graph.q.shape[1]))
-        qs = self.graph.q[self.decision.path]
+        qs = self.graph.q[d.path]
+        n = len(self.arm_trajectory())
+        if n > len(qs):
+            qs = np.concatenate([qs, np.repeat(qs[-1:], n - len(qs), axis=0)])
         return np.arange(1, len(qs) + 1) * self.cfg.step_s, qs
+
+    def arm_trajectory(self) -> np.ndarray:
+        """(steps, 3) the arm's translation at each step of `trajectory` (m): from where it was to the
+        goal's, evenly over the path's steps or over enough steps to stay within `arm_step_mm` per
+        step. Empty without an arm."""
+        d = self.decision
+        if d is None or d.arm is None or not d.path:
+            return np.zeros((0, 3))
+        move = d.arm - d.arm_from
+        n = max(len(d.path), int(np.ceil(np.linalg.norm(move) * 1000.0 / self.cfg.arm_step_mm - 1e-9)))
+        return d.arm_from + np.arange(1, n + 1)[:, None] / n * move
+
+    def moved_to_goal(self) -> None:
+        """The hand has executed the decision's trajectory: the arm is at its goal."""
+        if self.decision is not None and self.decision.arm is not None:
+            self.arm = self.decision.arm.copy()
 
 
 def along_direction(a: np.ndarray, b: np.ndarray, normal: np.ndarray) -> np.ndarray:
@@ -480,17 +529,43 @@ def between(p: np.ndarray, others: list[np.ndarray], gap_mm: float) -> bool:
 
 def goal_terms(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, normal_now: np.ndarray,
                moving: np.ndarray, other: np.ndarray | None, cfg: ControllerConfig,
-               aim_mm: float = 0.0) -> dict[str, np.ndarray]:
-    """Per graph node e, lean, h and rho_other (mm), as `goal_scores` describes them."""
+               aim_mm: float = 0.0, arm: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Per graph node e, lean, h and rho_other (mm), as `goal_scores` describes them. `points` and
+    `tips` are the graph's (the arm at home); `arm` is the arm's translation now (m). With
+    `cfg.arm_mm` > 0 and another object, each node also gets the arm's translation across (within
+    ±`arm_mm` of home: "arm", (N, 3) m) that puts its line of fingertip centres at the aimed place
+    or up to `arm_beyond_mm` beyond it, away from the other object (on a grid of `arm_grid_mm`), where its
+    clearance, centring and travel terms of `goal_scores` are least, and that travel ("arm_travel",
+    mm); the terms are those of the node so carried."""
     n0 = np.asarray(normal_now, float) / np.linalg.norm(normal_now)
     moving = np.asarray(moving, float)
+    arm = np.zeros(3) if arm is None else np.asarray(arm, float)
+    points, tips = points + arm, tips + arm
     cross = centre_line(points, normals, moving, n0)
     across = None if other is None else (moving - other) - ((moving - other) @ n0) * n0
+    out = {}
     if across is not None and np.linalg.norm(across) > 1e-6:
         u = across / np.linalg.norm(across)
+        along = np.cross(n0, u)
+        if cfg.arm_mm > 0:   # slide each node across, along u, to the best place up to arm_beyond_mm beyond the aim
+            a_now = float(arm @ u)
+            c = (cross - moving) @ u
+            best, best_a = np.full(len(points), np.inf), np.full(len(points), a_now)
+            for beyond in np.arange(0.0, cfg.arm_beyond_mm + 1e-9, cfg.arm_grid_mm):
+                a = np.clip(a_now + (aim_mm + beyond) / 1000.0 - c, -cfg.arm_mm / 1000.0, cfg.arm_mm / 1000.0)
+                e_k = np.abs((c + a - a_now) * 1000.0 - aim_mm)
+                t_k = tips + ((a - a_now)[:, None] * u)[:, None, :]
+                rho_k = lateral_mm(t_k.reshape(-1, 3), along, np.asarray(other, float)).reshape(-1, 2).min(axis=1)
+                local = (cfg.clear_weight * np.clip(cfg.clear_mm - rho_k, 0.0, None) + e_k
+                         + cfg.keep_weight * np.clip(e_k - cfg.keep_mm, 0.0, None)
+                         + cfg.arm_weight * np.abs(a - a_now) * 1000.0)
+                better = local < best - 1e-12
+                best, best_a = np.where(better, local, best), np.where(better, a, best_a)
+            shift = (best_a - a_now)[:, None] * u
+            points, tips, cross = points + shift, tips + shift[:, None, :], cross + shift
+            out = {"arm": arm + shift, "arm_travel": np.abs(best_a - a_now) * 1000.0}
         e = np.abs((cross - moving) @ u * 1000.0 - aim_mm)
         lean = np.max(np.abs((tips - cross[:, None, :]) @ u), axis=1) * 1000.0
-        along = np.cross(n0, u)
         rho_o = lateral_mm(tips.reshape(-1, 3), along, np.asarray(other, float)).reshape(-1, 2).min(axis=1)
     else:
         e = lateral_mm(cross, n0, moving)
@@ -498,7 +573,7 @@ def goal_terms(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, normal
         lean = np.max(np.linalg.norm(d - (d @ n0)[..., None] * n0, axis=2), axis=1) * 1000.0
         rho_o = np.full(len(points), cfg.clear_mm)
     h = np.abs((moving[None, :] - points) @ n0) * 1000.0
-    return {"e": e, "lean": lean, "h": h, "rho_other": rho_o}
+    return {"e": e, "lean": lean, "h": h, "rho_other": rho_o, **out}
 
 
 def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs: np.ndarray,
@@ -531,6 +606,8 @@ def goal_scores(points: np.ndarray, normals: np.ndarray, tips: np.ndarray, costs
             + cfg.keep_weight * (np.clip(e - cfg.keep_mm, 0.0, None) + np.clip(lean - cfg.lean_mm, 0.0, None)
                                  + np.clip(h - cfg.depth_mm, 0.0, None)))
     score = miss + e + lean + h + cfg.cost_weight_mm_per_rad * np.nan_to_num(costs, posinf=0.0)
+    if "arm_travel" in t:
+        score = score + cfg.arm_weight * t["arm_travel"]
     ok = np.isfinite(costs) & (normals @ n0 >= np.cos(np.radians(cfg.max_normal_deg)))
     return np.where(ok, score, np.inf)
 

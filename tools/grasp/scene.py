@@ -9,7 +9,9 @@ and index, an external pull on one of them.
   away). 1D `flexcomp` rods with <elasticity> (MuJoCo 4 has no cable plugin or <composite>) were
   tried: stable only with heavy vertices, and the rods slipped out between the convex fingertips.
 - Rigid objects (8 mm pens): capsules on three slide joints with stiffer springs (held in a hand).
-- Gravity is off: the hand is fixed, the cables are pinned, and only the pinch and the pull act.
+- Gravity is off: the cables are pinned, and only the pinch and the pull act. The hand's palm is
+  fixed, or with `SceneConfig.arm` carried by an arm: a kinematic (mocap) palm that follows the
+  commanded translation exactly, as a position-controlled arm much stiffer than the fingers would.
 This module is the *world*: the trial runner and the simulated fingertip sensors read it; the
 controller never does (it sees only the sensors' published contacts and the contact graph).
 """
@@ -44,6 +46,7 @@ class SceneConfig:
     friction: float = 1.0
     contact: str = "soft"               # "soft": MuJoCo's default solref (20 ms); "stiff": 2 ms (tools.grasp.task)
     gap_mm: float = 5.0                 # free space between the two objects' surfaces
+    arm: bool = False                   # the palm on an arm that translates it (`Scene.set_arm`, `command_arm`)
 
 
 @dataclass
@@ -125,6 +128,11 @@ class Scene:
                         g.solref = [CONTACT_SOLREF_S[cfg.contact], 1.0]
                     g.name = "tip_" + ("thumb" if body.name == self.TIP_BODIES[0] else "index")
                     g.rgba = [0.95, 0.75, 0.2, 1.0]
+        if cfg.arm:
+            palm = spec.worldbody.first_body()
+            if len(palm.joints):
+                raise ValueError(f"the hand's root body {palm.name!r} has joints; an arm needs a fixed palm")
+            palm.mocap = True
         for j in spec.joints:
             j.damping = [cfg.joint_damping, 0.0, 0.0]
             j.armature = 0.001
@@ -164,6 +172,8 @@ class Scene:
         for o in self.objects:
             o.geom_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, o.name)
             o.body_ids = [int(m.geom_bodyid[o.geom_id])]
+        self._palm_home = self.data.mocap_pos[0].copy() if cfg.arm else None
+        self._arm_to = np.zeros(3)
 
     # ------------------------------------------------------------------ building
     def _object_xml(self, o: SceneObject) -> str:
@@ -226,8 +236,30 @@ class Scene:
     def command(self, q: np.ndarray) -> None:
         self.data.ctrl[self.act] = q
 
+    def arm(self) -> np.ndarray:
+        """The arm's translation of the palm from its home (world, m); zeros without an arm."""
+        return np.zeros(3) if self._palm_home is None else self.data.mocap_pos[0] - self._palm_home
+
+    def set_arm(self, t: np.ndarray) -> None:
+        """Place the palm at translation t (m) from its home at once (before the trial starts)."""
+        if self._palm_home is None:
+            raise ValueError("this scene has no arm (SceneConfig.arm)")
+        self._arm_to = np.asarray(t, float).copy()
+        self.data.mocap_pos[0] = self._palm_home + self._arm_to
+        self.mj.mj_forward(self.model, self.data)
+
+    def command_arm(self, t: np.ndarray) -> None:
+        """Move the palm to translation t (m), evenly over the next `step`."""
+        if self._palm_home is None:
+            raise ValueError("this scene has no arm (SceneConfig.arm)")
+        self._arm_to = np.asarray(t, float).copy()
+
     def step(self, seconds: float) -> None:
-        for _ in range(max(1, round(seconds / self.cfg.timestep))):
+        n = max(1, round(seconds / self.cfg.timestep))
+        a0 = self.arm() if self._palm_home is not None else None
+        for k in range(n):
+            if a0 is not None:
+                self.data.mocap_pos[0] = self._palm_home + a0 + (k + 1) / n * (self._arm_to - a0)
             self.mj.mj_step(self.model, self.data)
 
     def pull(self, k: int, force_n: float, direction: np.ndarray | None = None) -> None:

@@ -72,6 +72,10 @@ class TrialConfig:
     start_from_layout: bool = True     # randomized: each trial's start pinch from the graph where the objects lie
                                        # (`graph.start_near`), as a camera would see them: to ± layout_error_mm across
     layout_error_mm: float = 1.0
+    arm: bool = False                  # the palm on an arm (SceneConfig.arm): randomized, the arm brings the hand's
+                                       # own start pinch to where the objects are seen (to ± layout_error_mm across)
+                                       # instead of `start_from_layout`; the controller moves it too (`arm_mm`)
+    arm_mm: float = 25.0               # the arm's reach across from home, for the controller's goals
 
 
 @dataclass
@@ -180,17 +184,24 @@ class Bench:
             jitter -= (jitter @ g.normal[s]) * g.normal[s]
         pulled = task.pulled if pulled is None else int(pulled)
         s0 = s
-        if cfg.randomize and cfg.start_from_layout:
+        arm0 = np.zeros(3)
+        if cfg.randomize and (cfg.start_from_layout or cfg.arm):
             seen = task.shift_mm[0] + np.random.default_rng((seed, 1)).uniform(-1, 1) * cfg.layout_error_mm
-            s = graph_mod.start_near(g, self.mount, s0, seen)
+            if cfg.arm:
+                arm0 = seen / 1000.0 * across0
+            else:
+                s = graph_mod.start_near(g, self.mount, s0, seen)
         scene_cfg = replace(self.scene_cfg, friction=task.friction, contact=task.contact) if cfg.randomize else self.scene_cfg
         scene = Scene(self.urdf, self.joints, PAIRS[pair], g.point[s0], g.normal[s0], g.tip_index[s0][:3, 2],
-                      scene_cfg, jitter, diameters_mm=task.diameters_mm, yaw_deg=task.yaw_deg)
+                      replace(scene_cfg, arm=cfg.arm), jitter, diameters_mm=task.diameters_mm, yaw_deg=task.yaw_deg)
         pull_dir = (task.pull_direction(scene.objects[pulled].axis, scene.across, scene.normal)
                     if task.pull_tilt_deg else None)
+        if cfg.arm:
+            scene.set_arm(arm0)
         q_open = scene.opened(g.q[s], g.normal[s], cfg.open_mm)
         scene.set_hand(q_open)
-        ctrl = SelectiveGraspController(g, s, self.mount, self.ctrl_cfg)
+        ctrl_cfg = replace(self.ctrl_cfg, arm_mm=cfg.arm_mm) if cfg.arm else self.ctrl_cfg
+        ctrl = SelectiveGraspController(g, s, self.mount, ctrl_cfg, arm=arm0 if cfg.arm else None)
         self.node.controller = ctrl
         sensors = {name: SimFingertip(sid, self.unit, open_pipeline(self.package, self.cal, sensor_id=self.cfg.sensor_unit),
                                       self.pub_session, seed=seed * 2 + i)
@@ -227,13 +238,15 @@ class Bench:
                                    "frames": {n: sen.last_frame for n, sen in sensors.items()},
                                    "contacts": {n: list(ctrl.latest[n]) for n in sensors}})
 
-        def advance(seconds: float, q_from=None, q_to=None, label: str = ""):
+        def advance(seconds: float, q_from=None, q_to=None, label: str = "", arm_from=None, arm_to=None):
             nonlocal sim_t
             n = max(1, round(seconds / cfg.frame_dt))
             for k in range(n):
+                a = (k + 1) / n
                 if q_from is not None:
-                    a = (k + 1) / n
                     scene.command((1 - a) * q_from + a * q_to)
+                if arm_from is not None:
+                    scene.command_arm((1 - a) * arm_from + a * arm_to)
                 scene.step(cfg.frame_dt)
                 sim_t += cfg.frame_dt
                 frame(label if k == n - 1 else "")
@@ -287,22 +300,28 @@ class Bench:
             if decision is not None and not cfg.pull_only:
                 if cfg.release_after_decision:
                     scene.release()
-                _, qs = ctrl.trajectory()
-                path_len = len(qs)
+                def follow(q_prev):
+                    _, qs = ctrl.trajectory()
+                    arms = ctrl.arm_trajectory()
+                    a_prev = ctrl.arm
+                    for k, q in enumerate(qs):
+                        if len(arms):
+                            advance(ctrl.cfg.step_s, q_prev, q, arm_from=a_prev, arm_to=arms[k])
+                            a_prev = arms[k]
+                        else:
+                            advance(ctrl.cfg.step_s, q_prev, q)
+                        q_prev = q
+                    ctrl.moved_to_goal()
+                    return q_prev, len(qs)
+
                 phase = "path"
-                q_prev = g.q[s]
-                for q in qs:
-                    advance(ctrl.cfg.step_s, q_prev, q)
-                    q_prev = q
+                q_prev, path_len = follow(g.q[s])
                 phase = "hold"
                 advance(cfg.hold_s, label="" if ctrl.cfg.repinches else "final")
                 while ctrl.repinch() is not None:   # a gel still feels the other object: move on from it
-                    _, qs = ctrl.trajectory()
-                    path_len += len(qs)
                     phase = "path"
-                    for q in qs:
-                        advance(ctrl.cfg.step_s, q_prev, q)
-                        q_prev = q
+                    q_prev, n_path = follow(q_prev)
+                    path_len += n_path
                     phase = "hold"
                     advance(cfg.hold_s)
                 if frames_out is not None:
@@ -320,7 +339,9 @@ class Bench:
         return TrialResult(pair, seed, pulled, judged, outcome, touching.astype(int).tolist(), path_len,
                            round(time.perf_counter() - t0, 2), decision.scores if decision else [], cause,
                            len(ctrl.log), [e["scores"] for e in ctrl.log], np.round(gel_mm, 3).tolist(),
-                           {**task.as_dict(), "pulled": pulled, "start": int(s)}, cfg.randomize, diag)
+                           {**task.as_dict(), "pulled": pulled, "start": int(s),
+                            **({"arm_start_mm": np.round(arm0 * 1000.0, 3).tolist()} if cfg.arm else {})},
+                           cfg.randomize, diag)
 
 
 def _diagnosis(scene: Scene, ctrl: SelectiveGraspController, gel_touch: GelTouch, pulled: int) -> dict:
