@@ -47,3 +47,31 @@ def test_an_arm_translates_the_whole_hand_and_only_with_an_arm(tmp_path):
         fixed.set_arm(t)
     with pytest.raises(ValueError, match="no arm"):
         fixed.command_arm(t)
+
+
+def test_opened_moves_the_fingertips_along_the_normal_without_touching_the_simulation(tmp_path):
+    """`Scene.opened(q, n, mm)`: the thumb tip moves ≈ mm along +n and the index tip along −n (a
+    negative mm closes past q: `TrialConfig.squeeze_mm`); the running simulation's joints stay."""
+    pytest.importorskip("mujoco")
+    pytest.importorskip("pinocchio")
+    from tensortouch.tools.grasp import hand_model
+    from tensortouch.tools.grasp.scene import Scene
+
+    spec = hand_model.HandSpec()
+    urdf = hand_model.write_urdf(hand_model.default_urdf(), tmp_path / "hand.urdf", spec, 0.055, 0.0)
+    joints = list(spec.thumb.joints + spec.index.joints)
+    sc = Scene(str(urdf), joints, ("A", "A"), np.array([0.0, 0.0, 0.3]), np.array([0, 0, 1.0]), np.array([1.0, 0, 0]))
+    q = np.full(len(joints), 0.3)
+    sc.set_hand(q)
+    tips = [sc.tip_pose(i)[:3, 3].copy() for i in range(2)]
+    n = (tips[0] - tips[1]) / np.linalg.norm(tips[0] - tips[1])
+    qpos = sc.data.qpos.copy()
+    for mm in (1.0, -1.0):
+        q2 = sc.opened(q, n, mm)
+        np.testing.assert_array_equal(sc.data.qpos, qpos)
+        sc.set_hand(q2)
+        moved = [sc.tip_pose(i)[:3, 3] - tips[i] for i in range(2)]
+        assert moved[0] @ n == pytest.approx(mm / 1000.0, abs=2e-4)
+        assert moved[1] @ n == pytest.approx(-mm / 1000.0, abs=2e-4)
+        sc.set_hand(q)
+        qpos = sc.data.qpos.copy()

@@ -60,6 +60,9 @@ def register(sub) -> None:
     g.add_argument("--arm", action="store_true",
                    help="the hand's palm on an arm that translates it (TrialConfig.arm): with --randomize the arm "
                         "brings the start pinch to where the objects are seen, and the controller's goals may move it")
+    g.add_argument("--squeeze-mm", default="0",
+                   help="close the pinch this far past the graph's touching poses, each fingertip (TrialConfig.squeeze_mm; "
+                        "default 0)")
     g.add_argument("--merge", nargs="+", action="extend", metavar="DIR",
                    help="run no trials: merge the grasp_trials.json of these earlier --out folders (e.g. one run "
                         "per seed range) into one table and trials file in --out")
@@ -165,6 +168,14 @@ def cmd_grasp(args) -> int:
     if args.trials < 1:
         print(f"--trials: expected at least 1, got {args.trials}", file=sys.stderr)
         return 2
+    try:
+        squeeze = float(args.squeeze_mm)
+    except ValueError:
+        squeeze = float("nan")
+    if not 0 <= squeeze <= 5:
+        print(f"tensortouch grasp: --squeeze-mm: expected one number from 0 to 5 (mm), got {args.squeeze_mm!r}",
+              file=sys.stderr)
+        return 2
     why = _extra_missing()
     if why:
         print(f"tensortouch grasp: {why}", file=sys.stderr)
@@ -182,7 +193,7 @@ def cmd_grasp(args) -> int:
                                        refine_radius_mm=14.0, seed=0)
             if cmd_mount(margs) != 0:
                 return 2
-        bench = trial.Bench(graph_path, urdf, cfg=trial.TrialConfig(randomize=args.randomize, arm=args.arm), model=args.model)
+        bench = trial.Bench(graph_path, urdf, cfg=trial.TrialConfig(randomize=args.randomize, arm=args.arm, squeeze_mm=squeeze), model=args.model)
     except TensorTouchError as exc:
         print(f"tensortouch grasp: {exc}", file=sys.stderr)
         return 2

@@ -210,8 +210,13 @@ class Scene:
 
     def opened(self, q: np.ndarray, normal: np.ndarray, mm: float) -> np.ndarray:
         """Joint angles near q with the thumb tip moved `mm` along +normal and the index tip along
-        −normal (least squares on the positional Jacobians), for approaching the objects."""
-        m, d = self.model, self.data
+        −normal (least squares on the positional Jacobians), for approaching the objects; a negative
+        `mm` closes past q. Computed on a scratch copy: the simulation's state is not touched."""
+        m = self.model
+        if getattr(self, "_scratch", None) is None:
+            self._scratch = self.mj.MjData(m)
+        d = self._scratch
+        d.mocap_pos[:] = self.data.mocap_pos
         q = np.asarray(q, float).copy()
         n = np.asarray(normal, float) / np.linalg.norm(normal)
         dofs = np.array([m.jnt_dofadr[m.dof_jntid[0]] * 0 + k for k in range(m.nv)])

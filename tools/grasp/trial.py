@@ -76,6 +76,8 @@ class TrialConfig:
                                        # own start pinch to where the objects are seen (to ± layout_error_mm across)
                                        # instead of `start_from_layout`; the controller moves it too (`arm_mm`)
     arm_mm: float = 25.0               # the arm's reach across from home, for the controller's goals
+    squeeze_mm: float = 0.0            # the pinch's joint targets close this far past the graph's touching poses (each
+                                       # fingertip along its node's pinch normal), at the start and along every path
 
 
 @dataclass
@@ -256,7 +258,8 @@ class Bench:
             for _ in range(cfg.startup_frames):
                 frame()
             phase = "close"
-            advance(cfg.close_s, q_open, g.q[s], label="pinch")
+            q_close = scene.opened(g.q[s], g.normal[s], -cfg.squeeze_mm) if cfg.squeeze_mm else g.q[s]
+            advance(cfg.close_s, q_open, q_close, label="pinch")
             gel_touch.relax()
             phase = "settle"
             advance(cfg.settle_s)
@@ -303,6 +306,10 @@ class Bench:
                 def follow(q_prev):
                     _, qs = ctrl.trajectory()
                     arms = ctrl.arm_trajectory()
+                    if cfg.squeeze_mm and len(qs):
+                        path = ctrl.decision.path
+                        ids = path + [path[-1]] * (len(qs) - len(path))
+                        qs = [scene.opened(g.q[i], g.normal[i], -cfg.squeeze_mm) for i in ids]
                     a_prev = ctrl.arm
                     for k, q in enumerate(qs):
                         if len(arms):
@@ -315,7 +322,7 @@ class Bench:
                     return q_prev, len(qs)
 
                 phase = "path"
-                q_prev, path_len = follow(g.q[s])
+                q_prev, path_len = follow(q_close)
                 phase = "hold"
                 advance(cfg.hold_s, label="" if ctrl.cfg.repinches else "final")
                 while ctrl.repinch() is not None:   # a gel still feels the other object: move on from it
