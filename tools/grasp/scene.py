@@ -172,6 +172,7 @@ class Scene:
         for o in self.objects:
             o.geom_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, o.name)
             o.body_ids = [int(m.geom_bodyid[o.geom_id])]
+        self._scratch = mujoco.MjData(m)    # for `opened`: kinematics without touching the simulation
         self._palm_home = self.data.mocap_pos[0].copy() if cfg.arm else None
         self._arm_to = np.zeros(3)
 
@@ -212,14 +213,10 @@ class Scene:
         """Joint angles near q with the thumb tip moved `mm` along +normal and the index tip along
         −normal (least squares on the positional Jacobians), for approaching the objects; a negative
         `mm` closes past q. Computed on a scratch copy: the simulation's state is not touched."""
-        m = self.model
-        if getattr(self, "_scratch", None) is None:
-            self._scratch = self.mj.MjData(m)
-        d = self._scratch
+        m, d = self.model, self._scratch
         d.mocap_pos[:] = self.data.mocap_pos
         q = np.asarray(q, float).copy()
         n = np.asarray(normal, float) / np.linalg.norm(normal)
-        dofs = np.array([m.jnt_dofadr[m.dof_jntid[0]] * 0 + k for k in range(m.nv)])
         cols = [int(np.flatnonzero(m.jnt_qposadr == a)[0]) for a in self.qadr]
         cols = [int(m.jnt_dofadr[j]) for j in cols]
         for _ in range(5):
@@ -235,7 +232,6 @@ class Scene:
             dx = np.concatenate([n, -n]) * (mm / 1000.0 / 5)
             q = q + np.linalg.lstsq(J, dx, rcond=None)[0]
         lo, hi = m.jnt_range[[int(np.flatnonzero(m.jnt_qposadr == a)[0]) for a in self.qadr]].T
-        del dofs
         return np.clip(q, lo, hi)
 
     def command(self, q: np.ndarray) -> None:
