@@ -21,7 +21,10 @@ tapered to zero towards the fixed rim and along the object beyond the gel. Two o
 dome (tools.fe: cylinders of radius 4 and 1.09 mm pressed 0.6 and 1.2 mm across its apex; RMS error
 of w 0.008–0.035 mm over the 8 mm beside the object, against 0.10–0.51 mm for the power law used
 before; docs/decisions/2026-11-26-grasp-gel-profile-fitted-to-fe.md, checked by a slow test in
-tests/test_grasp_dome_contact.py). The shear tail uses the same λ, not fitted. This is an approximation for
+tests/test_grasp_dome_contact.py). On the flank (25°, 40° from the apex) and to 2 mm deep the same λ stays
+within 0.08 mm RMS of FE; the shear tail uses the same λ, within 0.065 mm RMS of a 0.5 mm slide, though FE's
+shear tail widens with depth (docs/decisions/2026-12-07-grasp-gel-profile-flank-depth-shear.md, slow tests
+beside the first). This is an approximation for
 control studies, not FE.
 """
 from __future__ import annotations
