@@ -75,11 +75,10 @@ def _fe_across(radius: float, theta_deg: float, keypoints):
 
     gel = GelSurface()
     R, zc = gel.profile.radius_mm, gel.profile.center_z_mm
-    th = np.radians(theta_deg)
-    n = np.array([0.0, np.sin(th), np.cos(th)])
+    n = _normal(theta_deg)
     p = np.array([0.0, 0.0, zc]) + R * n
     ind = Indenter(name="object", shape="cylinder", params={"radius": radius, "length": 40.0}, position=p.tolist(),
-                   rotation=[-th, 0.0, 0.0], keypoints=[Keypoint(list(map(float, k))) for k in keypoints])
+                   rotation=[-np.radians(theta_deg), 0.0, 0.0], keypoints=[Keypoint(list(map(float, k))) for k in keypoints])
     res = solve(Scenario(gel=GelGeometry(), mesh=MeshSettings(size_top=0.6), indenters=[ind], name="across").validate())
     P = res.nodes[res.surface_nodes]
     nrm = P - [0.0, 0.0, zc]
@@ -88,6 +87,12 @@ def _fe_across(radius: float, theta_deg: float, keypoints):
     arc = R * np.arcsin(np.clip((P - [0.0, 0.0, zc]) @ np.cross(n, [1.0, 0, 0]) / R, -1, 1))
     sel = (np.abs(rad - R) < 0.05) & (np.abs(P[:, 0]) < 1.0) & (np.abs(arc) < 8.0)
     return res, sel, P[sel], nrm[sel], p, n
+
+
+def _normal(theta_deg: float) -> np.ndarray:
+    """The dome's outward normal at polar angle `theta_deg` towards +y."""
+    th = np.radians(theta_deg)
+    return np.array([0.0, np.sin(th), np.cos(th)])
 
 
 @pytest.mark.slow
@@ -99,7 +104,8 @@ def test_line_contact_profile_holds_on_the_flank_and_to_2_mm(radius, theta_deg):
     displacement with the apex-fitted λ = 1.6 mm stays within 0.1 mm RMS of FE over the 8 mm beside the
     object (measured 0.012-0.080 mm; docs/decisions/2026-12-07-grasp-gel-profile-flank-depth-shear.md)."""
     depths = (0.6, 1.2, 2.0)
-    res, sel, P, nrm, p, n = _fe_across(radius, theta_deg, [-d * _normal(theta_deg) for d in depths])
+    n = _normal(theta_deg)
+    res, sel, P, nrm, p, _ = _fe_across(radius, theta_deg, [-d * n for d in depths])
     gel = GelSurface()
     for j, d in enumerate(depths):
         w_fe = -np.einsum("ij,ij->i", res.U[j][res.surface_nodes][sel], nrm)
@@ -115,8 +121,8 @@ def test_line_contact_shear_tail_against_fe(radius):
     the skin under it follows to 0.49 mm). The shear field across it, FE against the code's tail with the
     normal profile's λ = 1.6 mm: within 0.08 mm RMS (measured 0.042-0.047 mm at this depth; FE's tail is
     wider at depth, best λ 1.75-2.75 mm from 0.6 to 2 mm, see the decision note)."""
-    nrm0 = _normal(25.0)
-    res, sel, P, nrm, p, n = _fe_across(radius, 25.0, [-1.2 * nrm0, -1.2 * nrm0 + np.array([0.5, 0.0, 0.0])])
+    n = _normal(25.0)
+    res, sel, P, nrm, p, _ = _fe_across(radius, 25.0, [-1.2 * n, -1.2 * n + np.array([0.5, 0.0, 0.0])])
     gel = GelSurface()
     ux_fe = (res.U[1] - res.U[0])[res.surface_nodes][sel][:, 0]
     pressed = ObjectContact(p, np.array([1.0, 0.0, 0.0]), radius, 1.2, np.zeros(3))
@@ -125,7 +131,3 @@ def test_line_contact_shear_tail_against_fe(radius):
     assert ux_fe.max() > 0.45
     assert np.sqrt(np.mean((ux - ux_fe) ** 2)) < 0.08, np.sqrt(np.mean((ux - ux_fe) ** 2))
 
-
-def _normal(theta_deg: float) -> np.ndarray:
-    th = np.radians(theta_deg)
-    return np.array([0.0, np.sin(th), np.cos(th)])

@@ -24,8 +24,7 @@ before; docs/decisions/2026-11-26-grasp-gel-profile-fitted-to-fe.md, checked by 
 tests/test_grasp_dome_contact.py). On the flank (25°, 40° from the apex) and to 2 mm deep the same λ stays
 within 0.08 mm RMS of FE; the shear tail uses the same λ, within 0.065 mm RMS of a 0.5 mm slide, though FE's
 shear tail widens with depth (docs/decisions/2026-12-07-grasp-gel-profile-flank-depth-shear.md, slow tests
-beside the first). This is an approximation for
-control studies, not FE.
+beside the first). This is an approximation for control studies, not FE.
 """
 from __future__ import annotations
 
