@@ -176,3 +176,104 @@ def test_fit_holds_the_total_force_to_the_measured_one(tmp_path):
                   bounds=bounds, compress=False)
     with pytest.raises(DatasetError, match="000000.npz has no measured force"):
         fit(tmp_path / "plain", tmp_path / "run2", cfg)
+
+
+def test_contact_pixels_keeps_two_pressing_indenters_at_their_nearest_surface_pixel():
+    from tensortouch.tools.train.distill import contact_pixels
+
+    # a flat 4×4 "gel" at z = 0, 1 mm per pixel (u = x, v = y); the corner pixel (3, 3) is masked off
+    v, u = np.mgrid[0:4, 0:4].astype(float)
+    xyz = np.stack([u, v, np.zeros_like(u)], axis=-1)
+    mask = np.ones((4, 4), bool)
+    mask[3, 3] = False
+    tips = np.array([[[0.2, 0.9, 0.5], [3.1, 2.9, 0.3]],      # both press: pixels (0, 1) and the masked (3, 3) → (3, 2)
+                     [[0.2, 0.9, 0.5], [3.1, 2.9, 4.0]]])     # the second is clear (0.01 N)
+    forces = np.array([[[0.0, 0.1, -1.0], [0.0, 0.0, -0.5]],
+                       [[0.0, 0.1, -1.0], [0.0, 0.0, -0.01]]])
+    got = contact_pixels(tips, forces, xyz, mask)
+    assert got.shape == (2, 2, 5) and got.dtype == np.float32
+    assert got[0].ravel().tolist() == pytest.approx([0.0, 0.1, -1.0, 0, 1, 0.0, 0.0, -0.5, 3, 2])
+    assert np.isnan(got[1]).all()                              # one contact: the total holds
+    with pytest.raises(ValueError, match="tips and forces"):
+        contact_pixels(tips[:, :1], forces, xyz, mask)
+    with pytest.raises(ValueError, match="surface_xyz"):
+        contact_pixels(tips, forces, xyz[:3], mask)
+
+
+def test_pixels_in_crop_follows_the_raw_image_between_two_crops():
+    from tensortouch.runtime.stages.preprocess import Preprocessor
+    from tensortouch.tools.train.distill import pixels_in_crop
+
+    a, b = Preprocessor(160.0, 120.0, 100.0, 128), Preprocessor(162.0, 119.0, 104.0, 128)
+    uv = np.array([[64.0, 64.0], [10.0, 100.0], [np.nan, np.nan]])
+    got = pixels_in_crop(uv, a, b)
+    assert np.isnan(got[2]).all()
+    back = pixels_in_crop(got[:2], b, a)
+    assert back == pytest.approx(uv[:2])
+    raw = np.stack(a.to_raw(uv[:2, 0], uv[:2, 1]), axis=-1)
+    assert np.stack(b.to_raw(got[:2, 0], got[:2, 1]), axis=-1) == pytest.approx(raw)
+    with pytest.raises(ValueError, match=r"\(\.\.\., 2\)"):
+        pixels_in_crop(uv[:, :1], a, b)
+
+
+def test_measured_force_split_error_holds_each_contact_on_its_side():
+    import torch
+    from tensortouch.tools.train.model.train import measured_force_error, measured_force_split_error
+
+    scale = torch.full((6, 8, 8), 0.25)
+    zero = torch.full((1, 15, 1, 1), 0.5)
+    p = torch.full((3, 15, 8, 8), 0.5)
+    for i in range(3):
+        p[i, 11, 1, 1] -= 4.0          # fn_z −1 N at (u 1, v 1)
+        p[i, 11, 6, 6] -= 2.0          # fn_z −0.5 N at (u 6, v 6)
+    nan = [float("nan")] * 10
+    measured = torch.tensor([
+        [0, 0, -1.5, 0, 0, -1.0, 1, 1, 0, 0, -0.5, 6, 6],       # right on both sides: 0
+        [0, 0, -1.5, 0, 0, -0.5, 1, 1, 0, 0, -1.0, 6, 6],       # the same total, the split swapped: 0.5 + 0.5
+        [0, 0, -1.2] + nan])                                     # one contact: the total's error, 0.3
+    err = measured_force_split_error(p, zero, scale, measured)
+    assert err.tolist() == pytest.approx([0.0, 1.0, 0.3], abs=1e-5)
+    assert measured_force_error(p, zero, scale, measured[:, :3]).tolist() == pytest.approx([0.0, 0.0, 0.3], abs=1e-5)
+    assert measured_force_split_error(p[2:], zero, scale, measured[2:]).tolist() == pytest.approx([0.3], abs=1e-5)
+    with pytest.raises(ValueError, match=r"\(B, 13\)"):
+        measured_force_split_error(p, zero, scale, measured[:, :3])
+    with pytest.raises(ValueError, match="scale"):
+        measured_force_split_error(p, zero, scale[:, :4], measured)
+
+
+def test_fit_splits_the_measured_force_at_two_contacts(tmp_path):
+    """`contacts_n` goes through the dataset's index into the fit's split term; a split without the
+    measured-force weight is refused, and a malformed entry names its sample."""
+    import json
+
+    import torch
+    from tensortouch.tools.train.dataset import write_dataset
+    from tensortouch.tools.train.model.data import DatasetError, load_measured
+    from tensortouch.tools.train.model.train import FitConfig, fit
+
+    rng = np.random.default_rng(1)
+    n, S = 12, 32
+    bounds = {c: [-1.0, 1.0] for c in __import__("tensortouch.contracts.fields", fromlist=["CHANNELS"]).CHANNELS}
+    two = np.full((n, 2, 5), np.nan, np.float32)
+    two[::2] = [[0, 0, -0.4, 8, 8], [0, 0, -0.6, 24, 20]]
+    part = {"input": rng.integers(0, 255, (n, 6, S, S), dtype=np.uint8),
+            "target": np.full((n, 15, S, S), 0.5, np.float32), "val": np.arange(n) >= 9,
+            "force_n": np.tile([0.0, 0.0, -1.0], (n, 1)), "contacts_n": two}
+    data = tmp_path / "ds"
+    write_dataset(data, [part], S, "test", pixel_area=np.full((S, S), 0.05, np.float32), bounds=bounds, compress=False)
+    got = load_measured(data, "train", contacts=True)
+    assert got.shape == (9, 13) and got[0, 3:].tolist() == pytest.approx([0, 0, -0.4, 8, 8, 0, 0, -0.6, 24, 20])
+    assert np.isnan(got[1, 3:]).all() and load_measured(data, "train").shape == (9, 3)
+    on = FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, fg_weight=5.0, measured_force_weight=0.5)
+    fit(data, tmp_path / "split", FitConfig(**{**on.__dict__, "measured_force_split": True}))
+    fit(data, tmp_path / "total", on)
+    a = torch.load(tmp_path / "split" / "checkpoint.pt", weights_only=False)["model"]
+    b = torch.load(tmp_path / "total" / "checkpoint.pt", weights_only=False)["model"]
+    assert any(not torch.equal(a[k], b[k]) for k in a)       # the split moved the weights (same seed and batches)
+    with pytest.raises(DatasetError, match="needs measured_force_weight"):
+        fit(data, tmp_path / "x", FitConfig(arch="unet", epochs=1, batch_size=4, threads=1, measured_force_split=True))
+    idx = json.loads((data / "index.json").read_text())
+    idx["samples"][0]["contacts_n"] = [[0, 0, -0.4, 8]]
+    (data / "index.json").write_text(json.dumps(idx))
+    with pytest.raises(DatasetError, match="000000.npz: contacts_n must be two"):
+        load_measured(data, "train", contacts=True)

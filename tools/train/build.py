@@ -108,6 +108,8 @@ class BuildConfig:
     pixel_force_weight: float = 0.0               # per-pixel force term per N (FitConfig.pixel_force_weight)
     measured_force_weight: float = 0.0            # total force vs the rig's F/T per N (FitConfig.measured_force_weight;
                                                   # a distilled build: its dataset keeps the measured force per sample)
+    measured_force_split: bool = False            # ... and, where two indenters press at once, each one's force on its
+                                                  # side of the two (FitConfig.measured_force_split; distilled builds)
     fit_seed: int = 0                             # the fit's weight init and sample order (FitConfig.seed)
     photometric: float = 0.0                      # input jitter of LED brightness ± this (FitConfig.photometric)
     augment_crop: bool = False                    # the fit warps input and target to jittered crops: radius
@@ -165,17 +167,18 @@ def stage_keys(cfg: BuildConfig) -> dict[str, str]:
     deps = {"sessions": ["train", "heldout", "physics", "size"],
             "keypoints": ["contact_force_n", "detach_force_n"], "fe": ["fe", "max_bulk_ratio"], "correspondence": ["tables", "crop"], "simreal": [],
             "dataset": ["tables", "contact_stride", "label_frames", "label_sigma", "rest_fraction", "val_fraction",
-                        "teacher", "distill_copies", "crop_scale_jitter", "crop_center_jitter_px", "measured_force_weight"],
+                        "teacher", "distill_copies", "crop_scale_jitter", "crop_center_jitter_px", "measured_force_weight",
+                        "measured_force_split"],
             "pretrain": ["arch", "pretrain_epochs", "batch", "lr"],
             "fit": ["arch", "epochs", "batch", "lr", "fg_weight", "force_weight", "light_weight", "pixel_force_weight",
-                    "measured_force_weight", "init_from",
+                    "measured_force_weight", "measured_force_split", "init_from",
                     "init_bounds", "fit_seed", "photometric", "augment_crop"],
             "export": ["name", "quantization_samples", "quantization_pick", "threshold_sessions", "support_px",
                        "quantization_scheme"],
             "evaluate": ["eval_demo", "eval_contact_n"]}
     # in the key only when not these values (older stamps stay valid; builds before the thresholds were
     # configurable ran stage 1 with the seed's 1.5 / 1.1 N)
-    optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "augment_crop": False, "force_weight": 0.0, "light_weight": 0.0, "pixel_force_weight": 0.0, "measured_force_weight": 0.0, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
+    optional = {"label_frames": "interpolated", "label_sigma": "pose", "fit_seed": 0, "photometric": 0.0, "augment_crop": False, "force_weight": 0.0, "light_weight": 0.0, "pixel_force_weight": 0.0, "measured_force_weight": 0.0, "measured_force_split": False, "init_from": "", "init_bounds": "", "contact_force_n": 1.5,
                 "detach_force_n": 1.1, "max_bulk_ratio": 5.0, "threshold_sessions": 6, "quantization_pick": "first", "support_px": 0.0,
                 "crop": "nominal", "quantization_scheme": "hybrid", "teacher": "", "distill_copies": 0, "crop_scale_jitter": 0.04,
                 "crop_center_jitter_px": 1.0}

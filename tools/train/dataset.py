@@ -209,7 +209,8 @@ def split_pokes(n_pokes: int, session_index: int, every: int = 2) -> set[int]:
 def write_dataset(root: Path, parts: list[dict], size: int, source: str, pixel_area: np.ndarray | None = None,
                   bounds: dict | None = None, compress: bool = True) -> str:
     """parts: per session {'input', 'target' (physical), 'val' (bool per sample)[, 'force_n' (n, 3): the
-    rig's measured total force per sample, kept in the index]} → dataset directory
+    rig's measured total force per sample, kept in the index][, 'contacts_n' (n, 2, 5): two indenters'
+    measured forces and pixels (distill.contact_pixels), kept where finite]} → dataset directory
     (index.json, bounds.json, samples/, and pixel_area.npy = the units' mean pixel area in mm² when
     given, for the fit's total-force term); returns the data hash (SHA-256 of index.json). With `bounds`
     the targets are already normalized by them (a distilled set) and are written as they are."""
@@ -225,12 +226,14 @@ def write_dataset(root: Path, parts: list[dict], size: int, source: str, pixel_a
         atomic_write(root / "pixel_area.npy", lambda fh: np.save(fh, np.asarray(pixel_area, np.float32)))
     entries, i = [], 0
     for p in parts:
-        force = p.get("force_n")
+        force, two = p.get("force_n"), p.get("contacts_n")
         for j, (inp, tgt, val) in enumerate(zip(p["input"], p["target"], p["val"])):
             e = write_sample(root, i, inp, tgt if given else normalize_global(tgt, bounds), compress=compress)
             e["split"] = "val" if val else "train"
             if force is not None:
                 e["force_n"] = [float(v) for v in force[j]]
+            if two is not None and np.isfinite(two[j]).all():
+                e["contacts_n"] = [[float(v) for v in c] for c in two[j]]
             entries.append(e)
             i += 1
     h = write_index(root, entries, (size, size), source)

@@ -10,9 +10,13 @@ are already min/max-normalized with its manifest's bounds, which become the data
 
 Each sample also keeps what the rig measured at its frame: the indenters' total force on the gel (F/T,
 `measured_total`), which a fit can hold the student's total force to (FitConfig.measured_force_weight),
-so it need not inherit the teacher's force errors.
+so it need not inherit the teacher's force errors. Where two indenters press at once the rig measures each
+one's force apart (one F/T module per indenter), and a frame also keeps both, each at the model pixel nearest
+its tip (`contact_pixels`), so a fit can hold the force on each side of the two contacts to each
+(FitConfig.measured_force_split): the teacher splits two contacts' force wrongly, and a total holds only their sum.
 
-Pure cores: `jittered_circles`, `teacher_targets`, `measured_total`. Shell: `distill_session`, `write_distilled`.
+Pure cores: `jittered_circles`, `teacher_targets`, `measured_total`, `contact_pixels`, `pixels_in_crop`. Shell:
+`distill_session`, `write_distilled`.
 """
 from __future__ import annotations
 
@@ -78,10 +82,49 @@ def measured_total(measured: dict[int, dict], frames: np.ndarray) -> np.ndarray:
     return total[frames].astype(np.float32)
 
 
-def distill_session(session_dir: Path, calibration, run, cfg: DistillConfig, select_cfg, progress=None) -> dict:
+def contact_pixels(tips: np.ndarray, forces: np.ndarray, surface_xyz: np.ndarray, mask: np.ndarray,
+                   active_n: float = 0.05) -> np.ndarray:
+    """(n, 2, 5) float32 [fx, fy, fz, u, v] per frame: the measured force (N) of each of the two indenters
+    pressing at once, and the model pixel (u column, v row) of the masked gel surface point nearest its tip.
+    tips, forces (n, K, 3) mm and N in the sensor frame; surface_xyz (S, S, 3) mm and mask (S, S) of the crop.
+    A frame where fewer or more than two indenters carry ≥ `active_n` N is all NaN (its total force holds)."""
+    tips, forces = np.asarray(tips, float), np.asarray(forces, float)
+    xyz, m = np.asarray(surface_xyz, float), np.asarray(mask, bool)
+    if tips.ndim != 3 or tips.shape[2] != 3 or forces.shape != tips.shape:
+        raise ValueError(f"contact_pixels: expected tips and forces (n, K, 3), got {tips.shape} and {forces.shape}")
+    if xyz.ndim != 3 or xyz.shape[2] != 3 or m.shape != xyz.shape[:2]:
+        raise ValueError(f"contact_pixels: expected surface_xyz (S, S, 3) and mask (S, S), got {xyz.shape} and {m.shape}")
+    out = np.full((len(tips), 2, 5), np.nan, np.float32)
+    if not m.any():
+        return out
+    rows, cols = np.nonzero(m)
+    pts = xyz[rows, cols]
+    for n in range(len(tips)):
+        on = np.flatnonzero(np.linalg.norm(forces[n], axis=1) >= active_n)
+        if len(on) != 2:
+            continue
+        for j, k in enumerate(on):
+            i = int(np.argmin(np.linalg.norm(pts - tips[n, k], axis=1)))
+            out[n, j] = (*forces[n, k], cols[i], rows[i])
+    return out
+
+
+def pixels_in_crop(uv: np.ndarray, crop, other) -> np.ndarray:
+    """(..., 2) model pixels (u, v) of the crop `crop` → the same raw image points in the crop `other` (two
+    runtime.stages.preprocess.Preprocessor); NaN stays NaN."""
+    uv = np.asarray(uv, float)
+    if uv.shape[-1] != 2:
+        raise ValueError(f"pixels_in_crop: expected (..., 2) pixels, got {uv.shape}")
+    u, v = other.to_model(*crop.to_raw(uv[..., 0], uv[..., 1]))
+    return np.stack([u, v], axis=-1)
+
+
+def distill_session(session_dir: Path, calibration, run, cfg: DistillConfig, select_cfg, progress=None,
+                    contacts: bool = False) -> dict:
     """One session's samples: {'input' (n,6,S,S) u8, 'target' (n,15,S,S) normalized, 'frame', 'baseline',
-    'poke', 'copy' (n,), 'force_n' (n, 3): the rig's measured total force at the frame (`measured_total`)};
-    frames picked by `dataset.select_frames(select_cfg)` from truth/frames.csv."""
+    'poke', 'copy' (n,), 'force_n' (n, 3): the rig's measured total force at the frame (`measured_total`)
+    [, with `contacts`: 'contacts_n' (n, 2, 5), `contact_pixels` in each sample's own crop]}; frames picked by
+    `dataset.select_frames(select_cfg)` from truth/frames.csv."""
     import cv2
 
     from ...contracts.session import load_session, read_table
@@ -98,19 +141,34 @@ def distill_session(session_dir: Path, calibration, run, cfg: DistillConfig, sel
     cx, cy = calibration.gel_center_px
     S = calibration.model_size
     rng = np.random.default_rng([cfg.seed, int(fr.shape[0]), len(picks)])
-    rows, inputs = [], []
+    measured = measured_at(ses, ses.table("frames")[:, 0])
+    two = None
+    if contacts:
+        ids = sorted(measured)
+        at = np.array([i for i, _, _ in picks], int)
+        two = contact_pixels(np.stack([np.asarray(measured[k]["tip"], float)[at] for k in ids], axis=1),
+                             np.stack([np.asarray(measured[k]["force"], float)[at] for k in ids], axis=1),
+                             calibration.surface_xyz, calibration.mask)
+    pre0 = Preprocessor(cx, cy, calibration.gel_radius_px, S)
+    rows, inputs, per_sample = [], [], []
     for n, (i, b, p) in enumerate(picks):
         for k, (x, y, r) in enumerate(jittered_circles(cx, cy, calibration.gel_radius_px, cfg.copies, cfg, rng)):
             pre = Preprocessor(x, y, r, S)
             inputs.append(np.concatenate([pre.crop(frames[b]).transpose(2, 0, 1), pre.crop(frames[i]).transpose(2, 0, 1)]))
             rows.append((i, b, p, k))
+            if two is not None:
+                c = two[n].copy()
+                c[:, 3:] = pixels_in_crop(c[:, 3:], pre0, pre)
+                per_sample.append(c)
         if progress:
             progress(n + 1, len(picks))
     x = np.stack(inputs).astype(np.uint8) if inputs else np.zeros((0, 6) + tuple(S), np.uint8)
     arr = np.array(rows, int).reshape(-1, 4)
-    force = measured_total(measured_at(ses, ses.table("frames")[:, 0]), arr[:, 0])
-    return {"input": x, "target": teacher_targets(run, x), "frame": arr[:, 0], "baseline": arr[:, 1],
-            "poke": arr[:, 2], "copy": arr[:, 3], "force_n": force}
+    out = {"input": x, "target": teacher_targets(run, x), "frame": arr[:, 0], "baseline": arr[:, 1],
+           "poke": arr[:, 2], "copy": arr[:, 3], "force_n": measured_total(measured, arr[:, 0])}
+    if two is not None:
+        out["contacts_n"] = (np.stack(per_sample) if per_sample else np.zeros((0, 2, 5))).astype(np.float32)
+    return out
 
 
 def teacher_bounds(package: Path) -> dict:

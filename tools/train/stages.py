@@ -240,7 +240,8 @@ def stage_dataset_distilled(b) -> dict:
                     log.info("distill %s: %d/%d frames", name, i, n)
             kcfg = DistillConfig(copies=b.cfg.distill_copies, scale_jitter=b.cfg.crop_scale_jitter,
                                  center_jitter_px=b.cfg.crop_center_jitter_px, seed=si)
-            d = distill_session(b.session(spec), unit_calibration(b, spec.serial), run, kcfg, dcfg, prog)
+            d = distill_session(b.session(spec), unit_calibration(b, spec.serial), run, kcfg, dcfg, prog,
+                                contacts=b.cfg.measured_force_split)
             atomic_write(part, lambda fh, d=d: np.savez(fh, **d))
             log.info("distill %s: %d samples in %.0f s", spec.name, len(d["frame"]), time.monotonic() - t0)
         with np.load(part) as z:
@@ -305,7 +306,8 @@ def stage_fit(b) -> dict:
               FitConfig(arch=b.cfg.arch, epochs=b.cfg.epochs, batch_size=b.cfg.batch, lr=b.cfg.lr,
                         threads=b.cfg.threads, fg_weight=b.cfg.fg_weight, force_weight=b.cfg.force_weight,
                         light_weight=b.cfg.light_weight, pixel_force_weight=b.cfg.pixel_force_weight,
-                        measured_force_weight=b.cfg.measured_force_weight, seed=b.cfg.fit_seed,
+                        measured_force_weight=b.cfg.measured_force_weight,
+                        measured_force_split=b.cfg.measured_force_split, seed=b.cfg.fit_seed,
                         photometric=b.cfg.photometric, crop_scale_jitter=scale_jitter, crop_shift=shift,
                         init_from=b.cfg.init_from, init_bounds=b.cfg.init_bounds, device=b.cfg.device),
               encoder_init=enc if (b.cfg.pretrain_epochs > 0 and enc.is_file() and b.cfg.arch == "hiera_qup") else None)

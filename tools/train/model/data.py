@@ -118,18 +118,28 @@ def load_split(root: str | Path, split: str | None = None, limit: int | None = N
     return x, y
 
 
-def load_measured(root: str | Path, split: str | None = None, limit: int | None = None) -> np.ndarray:
+def load_measured(root: str | Path, split: str | None = None, limit: int | None = None,
+                  contacts: bool = False) -> np.ndarray:
     """(N, 3) float32: the rig's measured total force (N) of a split's samples, in `load_split`'s order
-    (index entries' `force_n`, written by a distilled dataset); DatasetError when a sample has none."""
+    (index entries' `force_n`, written by a distilled dataset); DatasetError when a sample has none. With
+    `contacts`, (N, 13): the total, then the two indenters' [fx, fy, fz, u, v] of a sample where two press
+    at once (`contacts_n`, distill.contact_pixels), NaN elsewhere."""
     doc = read_index(root)
     entries = [e for e in doc["samples"] if split is None or e.get("split") == split][:limit]
-    out = np.empty((len(entries), 3), np.float32)
+    out = np.full((len(entries), 13 if contacts else 3), np.nan, np.float32)
     for i, e in enumerate(entries):
         f = e.get("force_n")
         if not (isinstance(f, list) and len(f) == 3 and all(isinstance(v, (int, float)) and np.isfinite(v) for v in f)):
             raise DatasetError(f"{Path(root) / 'index.json'}: sample {e.get('file')} has no measured force "
                                "(force_n: 3 finite numbers); rebuild the dataset (a distilled build records it)")
-        out[i] = f
+        out[i, :3] = f
+        two = e.get("contacts_n") if contacts else None
+        if two is not None:
+            a = np.asarray(two, float) if isinstance(two, list) else np.zeros(0)
+            if a.shape != (2, 5) or not np.isfinite(a).all():
+                raise DatasetError(f"{Path(root) / 'index.json'}: sample {e.get('file')}: contacts_n must be two "
+                                   f"[fx, fy, fz, u, v] of finite numbers, got {two!r}"[:300])
+            out[i, 3:] = a.ravel()
     return out
 
 

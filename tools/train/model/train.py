@@ -81,6 +81,10 @@ class FitConfig(LoopConfig):
     # (the dataset's `force_n`, tools/train/distill.py). A distilled student otherwise learns the teacher's force
     # errors along with its fields. 0 = off. Needs pixel_area.npy and `force_n` on every sample.
     measured_force_weight: float = 0.0
+    # ... split at two contacts: where a sample holds two indenters' measured forces and pixels (`contacts_n`),
+    # the term is Σ_k |Σ_pixels nearer contact k's pixel than the other's − F_k| instead of the total's error
+    # (measured_force_split_error). Needs measured_force_weight > 0.
+    measured_force_split: bool = False
     light_ref_n: float = 1.0
     light_max: float = 3.0
     light_min_n: float = 0.05
@@ -210,7 +214,7 @@ def _loop(out: Path, model, loss_fn, x_all: np.ndarray, y_all, cfg: LoopConfig, 
     config = {"what": what, **asdict(cfg), "n_train": n}
     for k in RUN_PLACE_KEYS:
         config.pop(k, None)
-    for k in ("init_bounds", "photometric", "crop_scale_jitter", "crop_shift", "measured_force_weight"):   # runs made before these options existed resume unchanged
+    for k in ("init_bounds", "photometric", "crop_scale_jitter", "crop_shift", "measured_force_weight", "measured_force_split"):   # runs made before these options existed resume unchanged
         if k in config and not config[k]:
             config.pop(k)
     ckpt = _prepare_run(out, config)
@@ -383,7 +387,9 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     force_scale = None
     if cfg.force_weight > 0 or cfg.light_weight > 0 or cfg.pixel_force_weight > 0 or cfg.measured_force_weight > 0:
         force_scale = _force_scale(data, bounds).to(device)
-    measured = load_measured(data, "train") if cfg.measured_force_weight > 0 else None
+    if cfg.measured_force_split and cfg.measured_force_weight <= 0:
+        raise DatasetError("measured_force_split needs measured_force_weight > 0 (the weight of the measured-force term)")
+    measured = load_measured(data, "train", contacts=cfg.measured_force_split) if cfg.measured_force_weight > 0 else None
     if cfg.measured_force_weight > 0 and (cfg.crop_scale_jitter > 0 or cfg.crop_shift > 0):
         raise DatasetError("measured_force_weight with crop jitter: the jittered crop cuts off force the rig measured; "
                            "use one of them")
@@ -407,7 +413,8 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
         if cfg.pixel_force_weight > 0:
             loss = loss + cfg.pixel_force_weight * pixel_force_excess(pred, yb, force_scale, cfg.pixel_force_tol_n).mean()
         if measured_b is not None:
-            loss = loss + cfg.measured_force_weight * measured_force_error(pred, y_zero, force_scale, measured_b).mean()
+            term = measured_force_split_error if cfg.measured_force_split else measured_force_error
+            loss = loss + cfg.measured_force_weight * term(pred, y_zero, force_scale, measured_b).mean()
         return loss
 
     def on_epoch(epoch, extra):
@@ -564,6 +571,36 @@ def measured_force_error(pred: torch.Tensor, zero: torch.Tensor, scale: torch.Te
         raise ValueError(f"measured_force_error: expected a (6, {pred.shape[2]}, {pred.shape[3]}) scale, got {tuple(scale.shape)}")
     d = ((pred[:, 9:15] - zero[:, 9:15]) * scale).sum(dim=(2, 3))          # (B, 6) N per channel
     return torch.linalg.vector_norm(d[:, :3] + d[:, 3:] - measured, dim=1)
+
+
+def measured_force_split_error(pred: torch.Tensor, zero: torch.Tensor, scale: torch.Tensor, measured: torch.Tensor
+                               ) -> torch.Tensor:
+    """(B,) N: `measured_force_error` where a sample has one contact; where two indenters press at once,
+    Σ_k |Σ_{pixels nearer k} F_pixel − F_k|, each pixel going to the nearer of the two contacts' pixels (ties
+    to the first). measured (B, 13): the total (3), then the two contacts' [fx, fy, fz, u, v] (u column, v row,
+    model pixels), NaN in a sample without two."""
+    if pred.ndim != 4 or pred.shape[1] != 15 or measured.shape != (pred.shape[0], 13):
+        raise ValueError(f"measured_force_split_error: expected (B, 15, H, W) pred and (B, 13) measured, got "
+                         f"{tuple(pred.shape)} and {tuple(measured.shape)}")
+    if scale.shape != (6, *pred.shape[2:]):
+        raise ValueError(f"measured_force_split_error: expected a (6, {pred.shape[2]}, {pred.shape[3]}) scale, got "
+                         f"{tuple(scale.shape)}")
+    d = (pred[:, 9:15] - zero[:, 9:15]) * scale
+    f = d[:, :3] + d[:, 3:]                                                  # (B, 3, H, W) N per pixel
+    total = f.sum(dim=(2, 3))
+    err = torch.linalg.vector_norm(total - measured[:, :3], dim=1)
+    two = torch.isfinite(measured[:, 3:]).all(dim=1)
+    if not bool(two.any()):
+        return err
+    c = torch.nan_to_num(measured[:, 3:]).view(-1, 2, 5)
+    v, u = torch.meshgrid(torch.arange(pred.shape[2], dtype=f.dtype, device=f.device),
+                          torch.arange(pred.shape[3], dtype=f.dtype, device=f.device), indexing="ij")
+    d0 = (u - c[:, 0, 3, None, None]) ** 2 + (v - c[:, 0, 4, None, None]) ** 2
+    d1 = (u - c[:, 1, 3, None, None]) ** 2 + (v - c[:, 1, 4, None, None]) ** 2
+    f0 = (f * (d0 <= d1).to(f.dtype)[:, None]).sum(dim=(2, 3))
+    split = (torch.linalg.vector_norm(f0 - c[:, 0, :3], dim=1)
+             + torch.linalg.vector_norm(total - f0 - c[:, 1, :3], dim=1))
+    return torch.where(two, split, err)
 
 
 def _pixel_force_error(pred: torch.Tensor, target: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
