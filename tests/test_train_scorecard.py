@@ -74,6 +74,13 @@ def test_scorecard_means_and_breakdown_counts():
     assert card["by contacts"]["single"]["contacts"] == 2 and card["by contacts"]["multi"]["contacts"] == 2
     assert card["by contacts"]["multi"]["pokes"] == 1 and card["by contacts"]["single"]["units"] == 2
     assert {k: v["contacts"] for k, v in card["by force"].items()} == {"0.2-0.5 N": 1, "0.5-1.5 N": 2, "1.5-3 N": 1}
+    assert o["force_bias_n"]["mean"] == pytest.approx((-0.2 + 0.5 + 0.0) / 3)
+    assert {k: v["contacts"] for k, v in card["by indenter and contacts"].items()} == {
+        "flat4, single": 1, "flat4, multi": 1, "sphere3, single": 1, "sphere3, multi": 1}
+    # ceilings: unit A's best gain is 0.8 (the p-weighted median of 1.25 at 0.8 and 0.8 at 2.5): |0.64 − 1| left
+    ceil = card["scale ceilings"]
+    assert ceil["as scored"] == pytest.approx(0.7 / 3) and ceil["per unit"] == pytest.approx(0.36 / 3)
+    assert ceil["per poke"] == pytest.approx(0.0) and ceil["per indenter and contacts"] == pytest.approx(0.0)
     # the field split at the tips is scored on every contact (misses too); n 0 where no split was given
     assert o["split_force_mae_n"]["n"] == 0
     c, r = _table()
@@ -84,6 +91,18 @@ def test_scorecard_means_and_breakdown_counts():
     # below the contact threshold a row is not scored
     card = S.scorecard(*_table(), S.ScoreConfig(n_boot=50, contact_n=0.5))
     assert card["overall"]["contacts"] == 3
+
+
+def test_best_gain_is_the_weighted_median_ratio():
+    assert S.best_gain(np.array([1.0, 1, 1]), np.array([1.0, 2, 3])) == 2.0
+    assert S.best_gain(np.array([0.8, 2.5]), np.array([1.0, 2.0])) == pytest.approx(0.8)
+    assert S.best_gain(np.array([0.0]), np.array([1.0])) == 1.0          # nothing read: no gain to fit
+    p, m = np.array([0.5, 1.0, 2.0, 4.0]), np.array([0.7, 0.9, 2.6, 3.0])
+    g = S.best_gain(p, m)
+    grid = np.linspace(0.5, 2.0, 1501)
+    assert np.abs(g * p - m).sum() <= np.abs(grid[:, None] * p - m).sum(1).min() + 1e-9
+    with pytest.raises(ValueError, match="two"):
+        S.best_gain(p, m[:3])
 
 
 def test_session_table_from_evaluation_rows():

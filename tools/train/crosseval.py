@@ -70,17 +70,22 @@ def format_card(card: dict) -> str:
             b = {**b, **{k: {**v, "ci": [v.get("mean", 0.0)] * 2} for k, v in b.items() if isinstance(v, dict) and v.get("n")}}
         note = "  (one poke: no CI)" if b["pokes"] < 2 else "  (one unit: CI over pokes only)" if b["units"] < 2 else ""
         return (f"  {label:18s} n={b['contacts']:<5d} units={b['units']:<3d} pokes={b['pokes']:<4d} "
-                f"miss {cell(b['miss_rate'], 100, '%')}  |F| MAE {cell(b['force_mae_n'], 1, ' N')}  "
+                f"miss {cell(b['miss_rate'], 100, '%')}  |F| MAE {cell(b['force_mae_n'], 1, ' N')} "
+                f"(bias {cell(b.get('force_bias_n'), 1, ' N')})  "
                 f"dir {cell(b['direction_error_deg'], 1, '°')}  (misses as 0: {cell(b['force_mae_with_misses_n'], 1, ' N')}; "
                 f"field split at the tips: {cell(b.get('split_force_mae_n'), 1, ' N')}){note}")
 
     o = card["overall"]
     out = [(f"  {card['units']} units, {card['pokes']} pokes; phantoms {cell(o['phantom_rate'], 100, '%')} "
            f"of {o['phantom_rate'].get('n', 0)} rest frames"), line("all", o)]
-    for group in ("by indenter", "by contacts", "by force"):
-        for k, b in card[group].items():
+    for group in ("by indenter", "by contacts", "by force", "by indenter and contacts"):
+        for k, b in card.get(group, {}).items():
             if b["contacts"]:
                 out.append(line(k, b))
+    ceil = card.get("scale ceilings") or {}
+    if ceil:
+        out.append("  |F| MAE with the best force gain (fitted on these contacts: a ceiling) "
+                   + "; ".join(f"{k} {v:.3f} N" for k, v in ceil.items()))
     return "\n".join(out)
 
 

@@ -9,7 +9,10 @@ turned into rows by `session_table`), each row tagged with its unit and poke. Th
   (degrees between the predicted and the measured force vector) beside it;
 - the seed's number too: |F| MAE with misses counted as 0 N (comparable with BENCHMARKS and s16).
 - the field split at the measured tips (tools.scoring.split_at_tips) scored like the clusters: the network's
-  field with the contact stage's clustering left out (where it is close to the clusters' MAE, the field holds it back).
+  field with the contact stage's clustering left out (where it is close to the clusters' MAE, the field holds it back);
+- the signed |F| error (bias) beside the MAE, and a breakdown by indenter × single/two contacts;
+- scale ceilings (`scale_ceilings`): the |F| MAE left if every unit, every poke, or every indenter × contact
+  count had its own best force gain. What a per-unit calibration could remove against what varies poke to poke.
 
 Confidence intervals: hierarchical bootstrap, units drawn with replacement, then within each drawn unit
 its pokes with replacement (a poke = one contact period, its rest frames before it included); the 2.5 and
@@ -17,7 +20,7 @@ its pokes with replacement (a poke = one contact period, its rest frames before 
 force bin) uses the same replicates. Several packages of one recipe differing in fit seed: mean ± spread.
 
 Pure core: `direction_error_deg`, `poke_segments`, `resample_counts`, `ratio_stats`, `scorecard`,
-`fit_seed_spread`; `session_table` is the thin adapter from an evaluation's rows.
+`best_gain`, `scale_ceilings`, `fit_seed_spread`; `session_table` is the thin adapter from an evaluation's rows.
 """
 from __future__ import annotations
 
@@ -157,6 +160,7 @@ def scorecard(contacts: dict, rest: dict, cfg: ScoreConfig = ScoreConfig()) -> d
                 "pokes": len(set(zip(cu[sel].tolist(), cp[sel].tolist()))),
                 "miss_rate": stat(miss.astype(float), sel),
                 "force_mae_n": stat(err, det),
+                "force_bias_n": stat(pm - mm, det),
                 "direction_error_deg": stat(np.nan_to_num(ang), det & np.isfinite(ang)),
                 "force_mae_with_misses_n": stat(np.abs(np.where(miss, 0.0, pm) - mm), sel),
                 "split_force_mae_n": stat(np.nan_to_num(split_err), sel & np.isfinite(split_err))}
@@ -172,8 +176,53 @@ def scorecard(contacts: dict, rest: dict, cfg: ScoreConfig = ScoreConfig()) -> d
             "overall": overall,
             "by indenter": {n: block(names == n) for n in sorted(set(names[scored].tolist()))},
             "by contacts": {"single": block(ncon <= 1), "multi": block(ncon >= 2)},
+            "by indenter and contacts": {f"{n}, {k}": block((names == n) & (ncon <= 1 if k == "single" else ncon >= 2))
+                                         for n in sorted(set(names[scored].tolist())) for k in ("single", "multi")
+                                         if (scored & (names == n) & ((ncon <= 1) if k == "single" else (ncon >= 2))).any()},
+            "scale ceilings": scale_ceilings(contacts, cfg),
             "by force": {b: block(bins == b) for b in [force_bin(lo) for lo in FORCE_BINS[:-1]]
                          if (bins[scored] == b).any()}}
+
+
+def best_gain(pred_mag: np.ndarray, meas_mag: np.ndarray) -> float:
+    """The gain g minimising Σ |g·p − m| over contacts (p > 0): the p-weighted median of m / p (1.0 without
+    any contact)."""
+    p, m = np.asarray(pred_mag, float), np.asarray(meas_mag, float)
+    if p.shape != m.shape or p.ndim != 1:
+        raise ValueError(f"best_gain: expected two (N,) arrays, got {p.shape} and {m.shape}")
+    ok = p > 0
+    if not ok.any():
+        return 1.0
+    r, w = m[ok] / p[ok], p[ok]
+    o = np.argsort(r)
+    c = np.cumsum(w[o])
+    return float(r[o][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def scale_ceilings(contacts: dict, cfg: ScoreConfig = ScoreConfig()) -> dict:
+    """|F| MAE of the detected contacts as scored, and after the best gain (`best_gain`) per unit, per
+    (indenter, single/two contacts) and per poke: {"as scored", "per unit", "per indenter and contacts",
+    "per poke"} in N (pooled means, no CI). The gains are fitted on the same contacts: ceilings, not results."""
+    meas = np.asarray(contacts["meas"], float).reshape(-1, 3)
+    pred = np.asarray(contacts["pred"], float).reshape(-1, 3)
+    m, p = np.linalg.norm(meas, axis=1), np.linalg.norm(pred, axis=1)
+    det = (m >= cfg.contact_n) & ~np.asarray(contacts["miss"], bool)
+    if not det.any():
+        return {}
+    unit = np.asarray(contacts["unit"], object)
+    poke = np.asarray(contacts["poke"], int)
+    group = {"per unit": [str(u) for u in unit],
+             "per indenter and contacts": [f"{n}|{min(int(k), 2)}" for n, k in zip(contacts["indenter"], contacts["n_contact"])],
+             "per poke": [f"{u}|{k}" for u, k in zip(unit, poke)]}
+    out = {"as scored": float(np.abs(p - m)[det].mean())}
+    for name, g in group.items():
+        g = np.asarray(g, object)
+        q = p.copy()
+        for key in set(g[det].tolist()):
+            sel = det & (g == key)
+            q[sel] = p[sel] * best_gain(p[sel], m[sel])
+        out[name] = float(np.abs(q - m)[det].mean())
+    return out
 
 
 def session_table(unit: str, result: dict, names: dict[int, str], cfg: ScoreConfig = ScoreConfig()) -> tuple[dict, dict]:
