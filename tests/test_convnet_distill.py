@@ -187,13 +187,16 @@ def test_contact_pixels_keeps_two_pressing_indenters_at_their_nearest_surface_pi
     mask = np.ones((4, 4), bool)
     mask[3, 3] = False
     tips = np.array([[[0.2, 0.9, 0.5], [3.1, 2.9, 0.3]],      # both press: pixels (0, 1) and the masked (3, 3) → (3, 2)
-                     [[0.2, 0.9, 0.5], [3.1, 2.9, 4.0]]])     # the second is clear (0.01 N)
+                     [[0.2, 0.9, 0.5], [3.1, 2.9, 0.3]],      # the second carries 0.1 N (below 0.2 N: not pressing)
+                     [[0.2, 0.9, 0.5], [3.1, 2.9, 3.5]]])     # the second's tip is 3.5 mm off the gel: F/T offset
     forces = np.array([[[0.0, 0.1, -1.0], [0.0, 0.0, -0.5]],
-                       [[0.0, 0.1, -1.0], [0.0, 0.0, -0.01]]])
+                       [[0.0, 0.1, -1.0], [0.0, 0.0, -0.1]],
+                       [[0.0, 0.1, -1.0], [0.0, 0.0, -0.5]]])
     got = contact_pixels(tips, forces, xyz, mask)
-    assert got.shape == (2, 2, 5) and got.dtype == np.float32
+    assert got.shape == (3, 2, 5) and got.dtype == np.float32
     assert got[0].ravel().tolist() == pytest.approx([0.0, 0.1, -1.0, 0, 1, 0.0, 0.0, -0.5, 3, 2])
-    assert np.isnan(got[1]).all()                              # one contact: the total holds
+    assert np.isnan(got[1:]).all()                             # one contact: the total holds
+    assert np.isfinite(contact_pixels(tips, forces, xyz, mask, active_n=0.05, reach_mm=4.0)).all()
     with pytest.raises(ValueError, match="tips and forces"):
         contact_pixels(tips[:, :1], forces, xyz, mask)
     with pytest.raises(ValueError, match="surface_xyz"):

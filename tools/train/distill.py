@@ -83,11 +83,13 @@ def measured_total(measured: dict[int, dict], frames: np.ndarray) -> np.ndarray:
 
 
 def contact_pixels(tips: np.ndarray, forces: np.ndarray, surface_xyz: np.ndarray, mask: np.ndarray,
-                   active_n: float = 0.05) -> np.ndarray:
+                   active_n: float = 0.2, reach_mm: float = 3.0) -> np.ndarray:
     """(n, 2, 5) float32 [fx, fy, fz, u, v] per frame: the measured force (N) of each of the two indenters
     pressing at once, and the model pixel (u column, v row) of the masked gel surface point nearest its tip.
     tips, forces (n, K, 3) mm and N in the sensor frame; surface_xyz (S, S, 3) mm and mask (S, S) of the crop.
-    A frame where fewer or more than two indenters carry ≥ `active_n` N is all NaN (its total force holds)."""
+    An indenter presses when it carries ≥ `active_n` N (the scorer's contact level, 10× the F/T noise) with
+    its tip within `reach_mm` of the surface; a frame where fewer or more than two press is all NaN (its
+    total force holds)."""
     tips, forces = np.asarray(tips, float), np.asarray(forces, float)
     xyz, m = np.asarray(surface_xyz, float), np.asarray(mask, bool)
     if tips.ndim != 3 or tips.shape[2] != 3 or forces.shape != tips.shape:
@@ -103,8 +105,11 @@ def contact_pixels(tips: np.ndarray, forces: np.ndarray, surface_xyz: np.ndarray
         on = np.flatnonzero(np.linalg.norm(forces[n], axis=1) >= active_n)
         if len(on) != 2:
             continue
-        for j, k in enumerate(on):
-            i = int(np.argmin(np.linalg.norm(pts - tips[n, k], axis=1)))
+        dist = np.linalg.norm(pts[:, None, :] - tips[n, on][None], axis=2)      # (pixels, 2)
+        near = dist.argmin(0)
+        if (dist[near, [0, 1]] > reach_mm).any():
+            continue
+        for j, (k, i) in enumerate(zip(on, near)):
             out[n, j] = (*forces[n, k], cols[i], rows[i])
     return out
 
