@@ -171,14 +171,15 @@ def scorecard(contacts: dict, rest: dict, cfg: ScoreConfig = ScoreConfig()) -> d
     names = np.asarray(contacts["indenter"], object)
     ncon = np.asarray(contacts["n_contact"], int)
     bins = np.array([force_bin(m) for m in mm], object)
+    kinds = {"single": ncon <= 1, "multi": ncon >= 2}
     return {"units": len(order), "pokes": nc, "config": {k: (v if np.isfinite(v) else None) if isinstance(v, float)
                                                         else v for k, v in cfg.__dict__.items()},
             "overall": overall,
             "by indenter": {n: block(names == n) for n in sorted(set(names[scored].tolist()))},
-            "by contacts": {"single": block(ncon <= 1), "multi": block(ncon >= 2)},
-            "by indenter and contacts": {f"{n}, {k}": block((names == n) & (ncon <= 1 if k == "single" else ncon >= 2))
-                                         for n in sorted(set(names[scored].tolist())) for k in ("single", "multi")
-                                         if (scored & (names == n) & ((ncon <= 1) if k == "single" else (ncon >= 2))).any()},
+            "by contacts": {k: block(sel) for k, sel in kinds.items()},
+            "by indenter and contacts": {f"{n}, {k}": block((names == n) & sel)
+                                         for n in sorted(set(names[scored].tolist())) for k, sel in kinds.items()
+                                         if (scored & (names == n) & sel).any()},
             "scale ceilings": scale_ceilings(contacts, cfg),
             "by force": {b: block(bins == b) for b in [force_bin(lo) for lo in FORCE_BINS[:-1]]
                          if (bins[scored] == b).any()}}
@@ -212,7 +213,8 @@ def scale_ceilings(contacts: dict, cfg: ScoreConfig = ScoreConfig()) -> dict:
     unit = np.asarray(contacts["unit"], object)
     poke = np.asarray(contacts["poke"], int)
     group = {"per unit": [str(u) for u in unit],
-             "per indenter and contacts": [f"{n}|{min(int(k), 2)}" for n, k in zip(contacts["indenter"], contacts["n_contact"])],
+             "per indenter and contacts": [f"{n}|{'single' if int(k) <= 1 else 'multi'}"
+                                           for n, k in zip(contacts["indenter"], contacts["n_contact"])],
              "per poke": [f"{u}|{k}" for u, k in zip(unit, poke)]}
     out = {"as scored": float(np.abs(p - m)[det].mean())}
     for name, g in group.items():
