@@ -158,6 +158,7 @@ def test_tiny_build_dataset_and_resume(tiny_build):
     assert idx["size"] == [64, 64] and len(idx["samples"]) == b.read_stamp("dataset")["samples"] > 10
     x, y = load_split(b.dataset)
     assert x.dtype == np.uint8 and x.shape[1:] == (6, 64, 64) and y.shape[1:] == (15, 64, 64)
+    assert not (b.dataset / ".work").exists()                             # the resume parts go once it is written
     rest = b.read_stamp("dataset")["rest"]
     assert rest > 0                                                      # no-contact samples are in the data
     assert y.reshape(len(y), 15, -1).std(axis=2).max() > 0               # contact samples carry fields

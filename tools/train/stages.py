@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import logging
 import shlex
+import shutil
 import time
 from pathlib import Path
 
@@ -190,9 +191,16 @@ def stage_dataset(b) -> dict:
               f"tools.train.build {b.cfg.build}")
     area = np.mean([unit_calibration(b, spec.serial).pixel_area for spec in b.cfg.train], axis=0)
     h = write_dataset(b.dataset, parts, b.cfg.size, source, pixel_area=area)
+    drop_parts(b)
     n = sum(len(p["frame"]) for p in parts)
     return {"data_hash": h, "samples": n, "val": int(sum(p["val"].sum() for p in parts)),
             "rest": int(sum((p["poke"] < 0).sum() for p in parts))}
+
+
+def drop_parts(b) -> None:
+    """Remove dataset/.work/ once the dataset is written: its per-session parts only let an interrupted stage 5
+    resume, and they are a second copy of every sample (11 GB for a 24-unit distilled set)."""
+    shutil.rmtree(b.dataset / ".work", ignore_errors=True)
 
 
 def teacher_package(b) -> Path:
@@ -253,6 +261,7 @@ def stage_dataset_distilled(b) -> dict:
               f"(physics={b.cfg.physics}, {b.cfg.distill_copies} jittered crop(s) per frame); tools.train.build {b.cfg.build}")
     area = np.mean([unit_calibration(b, spec.serial).pixel_area for spec in b.cfg.train], axis=0)
     h = write_distilled(b.dataset, parts, teacher_bounds(teacher), b.cfg.size, source, pixel_area=area)
+    drop_parts(b)
     n = sum(len(p["frame"]) for p in parts)
     return {"data_hash": h, "samples": n, "val": int(sum(p["val"].sum() for p in parts)),
             "rest": int(sum((p["poke"] < 0).sum() for p in parts)), "teacher": repo_relative_path(teacher),
