@@ -244,9 +244,8 @@ def test_split_only_with_the_tare_measures_on_tared_fields_and_records_it(tmp_pa
 
     from tensortouch.contracts.paths import ROOT as REPO
     from tensortouch.contracts.store import CalibrationStore
-    from tensortouch.tools.train.threshold import _load, measure_split
-
     from tensortouch.runtime.stages.model import ModelPackageError, find_package
+    from tensortouch.tools.train.threshold import _load, measure_split
 
     try:
         model = find_package(root=REPO / "exported_models").folder
