@@ -151,8 +151,7 @@ def stage_dataset(b) -> dict:
     if not b.cfg.train:   # a labels-only build (the label budget's recipes): held-out labels, nothing to train on
         log.info("dataset: no training sessions; the held-out sessions' labels are built, no dataset is written")
         return {"data_hash": "", "samples": 0, "val": 0, "rest": 0}
-    work = b.dataset / ".work" / b.keys["dataset"]   # per configuration: a changed label source starts anew
-    work.mkdir(parents=True, exist_ok=True)
+    work = parts_dir(b)
     dcfg = DatasetConfig(size=b.cfg.size, contact_stride=b.cfg.contact_stride, rest_fraction=b.cfg.rest_fraction)
     parts = []
     for si, spec in enumerate(b.cfg.train):
@@ -197,9 +196,17 @@ def stage_dataset(b) -> dict:
             "rest": int(sum((p["poke"] < 0).sum() for p in parts))}
 
 
+def parts_dir(b) -> Path:
+    """Stage 5's per-session parts, per configuration (a changed label source starts anew): they let an
+    interrupted stage resume."""
+    work = b.dataset / ".work" / b.keys["dataset"]
+    work.mkdir(parents=True, exist_ok=True)
+    return work
+
+
 def drop_parts(b) -> None:
-    """Remove dataset/.work/ once the dataset is written: its per-session parts only let an interrupted stage 5
-    resume, and they are a second copy of every sample (11 GB for a 24-unit distilled set)."""
+    """Remove every configuration's parts once the dataset is written: they are a second copy of every sample
+    (11 GB for a 24-unit distilled set)."""
     shutil.rmtree(b.dataset / ".work", ignore_errors=True)
 
 
@@ -232,8 +239,7 @@ def stage_dataset_distilled(b) -> dict:
 
     def run(x):
         return sess.run(None, {name: x})[0]
-    work = b.dataset / ".work" / b.keys["dataset"]
-    work.mkdir(parents=True, exist_ok=True)
+    work = parts_dir(b)
     dcfg = DatasetConfig(size=b.cfg.size, contact_stride=b.cfg.contact_stride, rest_fraction=b.cfg.rest_fraction)
     parts = []
     for si, spec in enumerate(b.cfg.train):
