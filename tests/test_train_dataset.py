@@ -92,6 +92,35 @@ def test_given_bounds_write_normalized_targets_as_they_are(tmp_path):
         write_distilled(tmp_path / "e", empty, bounds, 16, "test")
 
 
+def test_stacked_split_is_load_split_memory_mapped_and_follows_the_dataset(tmp_path):
+    """A fit reads its training split from memory maps written once per dataset version: the same values in
+    the same order as load_split, read-only, reused while the index stands, rewritten when it changes."""
+    import pytest
+    from tensortouch.tools.train.model.data import DatasetError, stacked_split
+
+    rng = np.random.default_rng(5)
+    parts = [{"input": rng.integers(0, 255, (4, 6, 16, 16), dtype=np.uint8),
+              "target": rng.normal(size=(4, 15, 16, 16)).astype(np.float32), "val": np.array([0, 1, 0, 0], bool)}]
+    write_dataset(tmp_path / "d", parts, 16, "test")
+    x, y = stacked_split(tmp_path / "d", "train")
+    xr, yr = load_split(tmp_path / "d", "train")
+    assert isinstance(x, np.memmap) and not x.flags.writeable
+    np.testing.assert_array_equal(x, xr)
+    np.testing.assert_array_equal(y, yr)
+    files = sorted(p.name for p in (tmp_path / "d" / "stack").glob("*.npy"))
+    assert len(files) == 2 and not list((tmp_path / "d" / "stack").glob("*.partial"))
+    mtimes = [p.stat().st_mtime_ns for p in sorted((tmp_path / "d" / "stack").glob("*.npy"))]
+    stacked_split(tmp_path / "d", "train")                                    # reused, not rewritten
+    assert [p.stat().st_mtime_ns for p in sorted((tmp_path / "d" / "stack").glob("*.npy"))] == mtimes
+    parts[0]["val"][:] = [1, 1, 0, 0]                                         # a new version of the dataset
+    write_dataset(tmp_path / "d", parts, 16, "test")
+    x2, _ = stacked_split(tmp_path / "d", "train")
+    assert x2.shape[0] == 2 and len(list((tmp_path / "d" / "stack").glob("train-*.npy"))) == 2
+    np.testing.assert_array_equal(x2, load_split(tmp_path / "d", "train")[0])
+    with pytest.raises(DatasetError, match="no samples in split 'test'"):
+        stacked_split(tmp_path / "d", "test")
+
+
 # ---------------------------------------------------------------- stage 3: correspondence cores
 
 def test_image_change_centroid_finds_a_blob():

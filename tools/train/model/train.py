@@ -26,7 +26,7 @@ import torch
 
 from ....contracts.files import atomic_write, atomic_write_json
 from . import build_model
-from .data import DatasetError, load_measured, load_split, read_index
+from .data import DatasetError, load_measured, load_split, read_index, stacked_split
 from .device import Precision, cpu_state, resolve_device
 from .metrics import evaluate
 
@@ -354,7 +354,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     data, out = Path(data), Path(out)
     index = read_index(data)
     size = int(index["size"][0])
-    x_tr, y_tr = load_split(data, "train")
+    x_tr, y_tr = stacked_split(data, "train")
     try:
         x_va, y_va = load_split(data, "val")
     except DatasetError:
@@ -364,7 +364,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     write_bounds(out / "bounds.json", bounds)       # what a later fine-tune from this run's best.pt needs
     torch.manual_seed(cfg.seed)
     model = build_model(cfg.arch, size)
-    model.heads.set_output_bias(torch.from_numpy(y_tr.mean(axis=(0, 2, 3))).float())
+    model.heads.set_output_bias(torch.from_numpy(np.asarray(y_tr.mean(axis=(0, 2, 3)))).float())
     if cfg.init_from and not (out / "checkpoint.pt").exists():
         model.load_state_dict(torch.load(cfg.init_from, weights_only=True, map_location="cpu"), strict=True)
         log.info("model initialised from %s (fine-tuning)", cfg.init_from)
@@ -432,7 +432,7 @@ def fit(data: str | Path, out: str | Path, cfg: FitConfig = FitConfig(), encoder
     elif encoder_init is not None:
         init["encoder_init"] = {"path": str(encoder_init), "run": _run_train_config(Path(encoder_init).parent)}
     extra = _loop(out, model, loss_fn, x_tr, y_tr, cfg, "fit", on_epoch, config_extra=init, aux_all=measured)
-    del x_tr, y_tr     # the training split is most of the memory (18k samples: ~18 GB); free it before the final evaluation
+    del x_tr, y_tr     # the training split's memory maps; the final evaluation reads the validation split
     model.load_state_dict(torch.load(out / "best.pt", weights_only=True, map_location="cpu"))
     metrics = evaluate(predict(model, x_va, cfg.eval_batch), y_va, bounds)
     result = {"arch": cfg.arch, "image_size": size, "params": sum(p.numel() for p in model.parameters()),
@@ -627,7 +627,7 @@ def pretrain(data: str | Path, out: str | Path, cfg: PretrainConfig = PretrainCo
 
     data, out = Path(data), Path(out)
     size = int(read_index(data)["size"][0])
-    x_tr, _ = load_split(data, "train")           # self-supervised, but validation inputs stay unseen
+    x_tr, _ = stacked_split(data, "train")        # self-supervised, but validation inputs stay unseen
     torch.manual_seed(cfg.seed)
     mae = HieraMAE(Hiera(HieraConfig(image_size=size)), cfg.decoder_dim, cfg.decoder_depth,
                    mask_ratio=cfg.mask_ratio)
