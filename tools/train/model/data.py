@@ -103,16 +103,20 @@ def load_split(root: str | Path, split: str | None = None, limit: int | None = N
     entries = [entries[i] for i in spread_indices(len(entries), limit)] if spread else entries[:limit]
     if not entries:
         raise DatasetError(f"{Path(root) / 'index.json'}: no samples in split {split!r}")
-    x0, y0 = load_sample(Path(root), entries[0])
     # filled in place: a list of samples + np.stack would hold every sample twice at the peak (a 15k-sample
     # 128² set is 15 GB of float32 targets once)
-    x = np.empty((len(entries), *x0.shape), x0.dtype)
-    y = np.empty((len(entries), *y0.shape), y0.dtype)
+    return _fill(Path(root), entries, lambda shape, dtype: np.empty(shape, dtype))
+
+
+def _fill(root: Path, entries: list[dict], alloc) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of `entries` written into two arrays `alloc(shape, dtype)` gives (inputs, targets)."""
+    x0, y0 = load_sample(root, entries[0])
+    x, y = alloc((len(entries), *x0.shape), x0.dtype), alloc((len(entries), *y0.shape), y0.dtype)
     x[0], y[0] = x0, y0
     for i, e in enumerate(entries[1:], 1):
-        xi, yi = load_sample(Path(root), e)
+        xi, yi = load_sample(root, e)
         if xi.shape != x0.shape or yi.shape != y0.shape:
-            raise DatasetError(f"{Path(root) / e['file']}: sample shapes {xi.shape}, {yi.shape}; the first sample "
+            raise DatasetError(f"{root / e['file']}: sample shapes {xi.shape}, {yi.shape}; the first sample "
                                f"of the split has {x0.shape}, {y0.shape}")
         x[i], y[i] = xi, yi
     return x, y
@@ -138,15 +142,9 @@ def stacked_split(root: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]
                 raise DatasetError(f"{root / 'index.json'}: no samples in split {split!r}")
             for old in folder.glob(f"{split}-*.npy"):           # an earlier version of the dataset
                 old.unlink()
-            x0, y0 = load_sample(root, entries[0])
-            arrays = [np.lib.format.open_memmap(partial_path(p), "w+", a.dtype, (len(entries), *a.shape))
-                      for p, a in zip(paths, (x0, y0))]
-            for i, e in enumerate(entries):
-                xi, yi = (x0, y0) if i == 0 else load_sample(root, e)
-                if xi.shape != x0.shape or yi.shape != y0.shape:
-                    raise DatasetError(f"{root / e['file']}: sample shapes {xi.shape}, {yi.shape}; the first sample "
-                                       f"of the split has {x0.shape}, {y0.shape}")
-                arrays[0][i], arrays[1][i] = xi, yi
+            targets = iter(partial_path(p) for p in paths)      # input first, then target: _fill's order
+            arrays = list(_fill(root, entries, lambda shape, dtype: np.lib.format.open_memmap(
+                next(targets), "w+", dtype, shape)))
             for a in arrays:
                 a.flush()
             arrays.clear()
